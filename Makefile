@@ -1,0 +1,35 @@
+# Two commands a user needs: `make demo` (the main job) and `make test` (the whole test suite).
+# Both create .venv and install everything on first use.
+PYTHON ?= python3
+VENV ?= .venv
+# Choose your own torch build, e.g. `make test TORCH=torch` or a CUDA wheel; the default is the CPU
+# build pinned so that nothing pulls CUDA packages on a CPU machine.
+TORCH ?= torch==2.13.0
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test docs bench lint clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --upgrade pip
+	$(BIN)/pip install "$(TORCH)"
+	$(BIN)/pip install -e ".[test,docs]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/defocus demo --out runs/demo
+
+test: $(STAMP)
+	$(BIN)/ruff check optics models datasets tests benchmarks examples
+	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/mkdocs build --strict --site-dir build/site
+
+docs: $(STAMP)
+	$(BIN)/mkdocs serve
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/render.py
+
+clean:
+	rm -rf $(VENV) build runs .pytest_cache

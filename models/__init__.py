@@ -1,0 +1,1 @@
+"""models: depth networks, losses, metrics and self-supervised training through the renderer."""

@@ -1,0 +1,249 @@
+"""Aperture shapes: the point spread function (PSF) of a defocused point, as a function of its CoC.
+
+Every aperture is a small ``nn.Module`` with one primitive, :meth:`Aperture.profile`: the
+unnormalised PSF value at an integer pixel offset ``(dy, dx)`` for a CoC *diameter* in pixels. It
+broadcasts, so the renderer evaluates it for a whole CoC map at one offset at a time and
+:meth:`Aperture.kernel` evaluates it on a grid of offsets for one CoC per batch item. Profiles are
+differentiable in the CoC (the disk and polygon have an anti-aliased edge one pixel wide for this).
+
+=============  ===========================================  =================================
+aperture       profile at distance ``r`` (pixels)          window half-width (pixels)
+=============  ===========================================  =================================
+``Gaussian``   ``exp(-r^2 / (2 sigma^2))``,                 ``ceil(3 sigma)``
+               ``sigma = scale * coc``
+``Disk``       ``clamp(coc/2 - r + 1/2, 0, 1)``             ``ceil(coc/2 - 1/2)``
+``Polygon``    as the disk, with a polygonal norm           ``ceil(coc/2 - 1/2)``
+``Mask``       the mask image stretched to ``coc`` across   ``ceil(coc/2)``
+=============  ===========================================  =================================
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from ._checks import check_positive
+
+#: Smallest Gaussian sigma in pixels: below it the PSF is a delta to working precision.
+MIN_SIGMA_PX = 1e-2
+#: Smallest disk radius in pixels used as a divisor.
+MIN_RADIUS_PX = 1e-6
+
+
+def _as_coc_tensor(coc_px: float | Tensor, like: Tensor | None = None) -> Tensor:
+    if isinstance(coc_px, Tensor):
+        coc = coc_px
+    else:
+        coc = torch.tensor(float(coc_px))
+        if like is not None:
+            coc = coc.to(like)
+    if not coc.is_floating_point():
+        coc = coc.to(torch.get_default_dtype())
+    if bool(torch.any(torch.isnan(coc) | (coc < 0))):
+        raise ValueError(f"coc_px must be >= 0 pixels and not NaN, got {coc.detach().tolist()}")
+    return coc
+
+
+class Aperture(nn.Module):
+    """Base class of PSF shapes. Subclasses implement :meth:`profile` and :meth:`half_width`."""
+
+    def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
+        """Unnormalised PSF value at offset ``(dy, dx)`` pixels for CoC diameter ``coc_px`` pixels.
+
+        All three arguments broadcast against each other.
+        """
+        raise NotImplementedError
+
+    def half_width(self, coc_px: float) -> int:
+        """Largest offset (pixels, along an axis) where :meth:`profile` is non-negligible."""
+        raise NotImplementedError
+
+    def kernel_size(self, max_coc_px: float | Tensor) -> int:
+        """Odd window width (pixels) that holds the PSF of the largest CoC ``max_coc_px``."""
+        coc = float(_as_coc_tensor(max_coc_px).detach().max())
+        return 2 * max(self.half_width(coc), 0) + 1
+
+    def kernel(self, coc_px: float | Tensor, kernel_size: int | None = None) -> Tensor:
+        """Normalised PSF kernels on a pixel grid.
+
+        Args:
+            coc_px: CoC diameter(s) in pixels: a float, a 0-d or a ``(B,)`` tensor, >= 0.
+            kernel_size: odd window width in pixels; by default :meth:`kernel_size` of the
+                largest CoC.
+
+        Returns:
+            ``(B, K, K)`` kernels (``B = 1`` for a scalar) that each sum to 1, centred on the
+            middle pixel. A kernel whose profile is zero everywhere in the window becomes a delta.
+
+        Example:
+            >>> k = Disk().kernel(4.0)
+            >>> k.shape, round(k.sum().item(), 6)
+            (torch.Size([1, 5, 5]), 1.0)
+        """
+        coc = _as_coc_tensor(coc_px).reshape(-1)
+        size = self.kernel_size(coc.detach()) if kernel_size is None else int(kernel_size)
+        if size < 1 or size % 2 == 0:
+            raise ValueError(f"kernel_size must be a positive odd integer, got {kernel_size!r}")
+        half = size // 2
+        offsets = torch.arange(-half, half + 1, device=coc.device, dtype=coc.dtype)
+        dy, dx = offsets.view(1, -1, 1), offsets.view(1, 1, -1)
+        weights = self.profile(dy, dx, coc.view(-1, 1, 1))
+        weights = weights.expand(coc.shape[0], size, size)
+        total = weights.sum(dim=(-2, -1), keepdim=True)
+        delta = torch.zeros_like(weights)
+        delta[:, half, half] = 1.0
+        return torch.where(total > 0, weights / total.clamp_min(torch.finfo(total.dtype).tiny), delta)
+
+
+class Gaussian(Aperture):
+    """Gaussian PSF with ``sigma_px = scale * coc_px`` (``coc_px`` is the CoC diameter).
+
+    The paper's choice is ``scale = 0.5``: sigma equals the CoC radius.
+
+    Args:
+        scale: sigma per CoC diameter, > 0. A float or an ``nn.Parameter`` (for calibration).
+
+    Example:
+        >>> Gaussian().kernel(2.0, kernel_size=3)
+        tensor([[[0.0751, 0.1238, 0.0751],
+                 [0.1238, 0.2042, 0.1238],
+                 [0.0751, 0.1238, 0.0751]]])
+    """
+
+    scale: Tensor
+
+    def __init__(self, scale: float | Tensor = 0.5):
+        super().__init__()
+        value = scale if isinstance(scale, Tensor) else torch.tensor(float(scale))
+        check_positive("scale", value.detach())
+        if isinstance(scale, nn.Parameter):
+            self.register_parameter("scale", scale)
+        else:
+            self.register_buffer("scale", value)
+
+    def extra_repr(self) -> str:
+        return f"scale={self.scale.tolist()}"
+
+    def sigma_px(self, coc_px: Tensor) -> Tensor:
+        """Standard deviation in pixels for CoC diameter ``coc_px``, at least ``MIN_SIGMA_PX``."""
+        return (self.scale.to(coc_px) * coc_px).clamp_min(MIN_SIGMA_PX)
+
+    def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
+        sigma = self.sigma_px(coc_px)
+        return torch.exp(-(dy * dy + dx * dx) / (2 * sigma * sigma))
+
+    def half_width(self, coc_px: float) -> int:
+        sigma = max(float(self.scale) * coc_px, MIN_SIGMA_PX)
+        return math.ceil(3 * sigma - 1e-9) if sigma > MIN_SIGMA_PX else 0
+
+
+class Disk(Aperture):
+    """Uniform disk (pillbox) of diameter ``coc_px`` with an anti-aliased edge one pixel wide.
+
+    The edge makes the PSF, and the rendered image, differentiable in the radius.
+
+    Example:
+        >>> Disk().kernel(3.0)[0]
+        tensor([[0.0798, 0.1362, 0.0798],
+                [0.1362, 0.1362, 0.1362],
+                [0.0798, 0.1362, 0.0798]])
+    """
+
+    def distance(self, dy: Tensor, dx: Tensor) -> Tensor:
+        """The norm whose unit ball is the aperture shape (Euclidean for the disk)."""
+        return torch.sqrt(dy * dy + dx * dx)
+
+    def edge_radius(self, coc_px: Tensor) -> Tensor:
+        """Distance of the edge from the centre along the norm of :meth:`distance`, in pixels."""
+        return coc_px / 2
+
+    def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
+        return (self.edge_radius(coc_px) - self.distance(dy, dx) + 0.5).clamp(0.0, 1.0)
+
+    def half_width(self, coc_px: float) -> int:
+        # The profile is non-zero strictly inside distance coc/2 + 1/2.
+        return math.ceil(coc_px / 2 - 0.5 - 1e-9)
+
+
+class Polygon(Disk):
+    """Regular polygon inscribed in the CoC circle: the bokeh of an ``n_blades`` iris.
+
+    Args:
+        n_blades: number of sides, >= 3.
+        rotation: rotation of the first vertex from the +x axis, in radians.
+
+    Example:
+        >>> k = Polygon(6).kernel(6.0)
+        >>> k.shape, round(k.sum().item(), 6)
+        (torch.Size([1, 7, 7]), 1.0)
+    """
+
+    def __init__(self, n_blades: int = 6, rotation: float = 0.0):
+        super().__init__()
+        if isinstance(n_blades, bool) or not isinstance(n_blades, int) or n_blades < 3:
+            raise ValueError(f"n_blades must be an integer >= 3, got {n_blades!r}")
+        if not math.isfinite(float(rotation)):
+            raise ValueError(f"rotation must be a finite angle in radians, got {rotation!r}")
+        self.n_blades = n_blades
+        self.rotation = float(rotation)
+        normals = self.rotation + math.pi / n_blades + 2 * math.pi * torch.arange(n_blades) / n_blades
+        self.register_buffer("_normals", torch.stack([normals.sin(), normals.cos()], -1))
+
+    def extra_repr(self) -> str:
+        return f"n_blades={self.n_blades}, rotation={self.rotation}"
+
+    def distance(self, dy: Tensor, dx: Tensor) -> Tensor:
+        normals = self._normals.to(dx if dx.is_floating_point() else dy)
+        dy, dx = torch.broadcast_tensors(dy, dx)
+        projections = dy.unsqueeze(-1) * normals[:, 0] + dx.unsqueeze(-1) * normals[:, 1]
+        return projections.amax(dim=-1)
+
+    def edge_radius(self, coc_px: Tensor) -> Tensor:
+        return coc_px / 2 * math.cos(math.pi / self.n_blades)
+
+
+class Mask(Aperture):
+    """A user-supplied PSF image (e.g. a measured one), stretched so its width is the CoC diameter.
+
+    The mask is sampled bilinearly; its centre must be non-zero for a zero CoC to be the identity.
+
+    Args:
+        image: ``(h, w)`` non-negative tensor, the PSF at any resolution; it is normalised per use.
+
+    Example:
+        >>> yy, xx = torch.meshgrid(torch.linspace(-1, 1, 33), torch.linspace(-1, 1, 33), indexing="ij")
+        >>> ring = Mask(((xx**2 + yy**2) < 1).float())
+        >>> round(ring.kernel(8.0).sum().item(), 6)
+        1.0
+    """
+
+    image: Tensor
+
+    def __init__(self, image: Tensor):
+        super().__init__()
+        if not isinstance(image, Tensor):
+            raise TypeError(f"image must be a torch.Tensor of shape (h, w), got {type(image)}")
+        if image.ndim != 2 or min(image.shape) < 1:
+            raise ValueError(f"image must have shape (h, w), got {tuple(image.shape)}")
+        if not image.is_floating_point():
+            image = image.to(torch.get_default_dtype())
+        if bool(torch.any(~torch.isfinite(image) | (image < 0))) or not bool(image.sum() > 0):
+            raise ValueError("image must be finite, >= 0 everywhere and not all zero")
+        self.register_buffer("image", image)
+
+    def extra_repr(self) -> str:
+        return f"image shape={tuple(self.image.shape)}"
+
+    def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
+        radius = (coc_px / 2).clamp_min(MIN_RADIUS_PX)
+        u, v = torch.broadcast_tensors(dx / radius, dy / radius)
+        grid = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
+        mask = self.image.to(grid)[None, None]
+        samples = F.grid_sample(mask, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
+        return samples.reshape(u.shape)
+
+    def half_width(self, coc_px: float) -> int:
+        return math.ceil(coc_px / 2 - 1e-9)

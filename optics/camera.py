@@ -1,0 +1,59 @@
+"""A camera: a lens, a sensor and an aperture shape, composed."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from torch import Tensor, nn
+
+from .aperture import Aperture, Gaussian
+from .lens import ThinLens
+from .sensor import Sensor
+
+
+class Camera(nn.Module):
+    """Thin lens + sensor + aperture: maps depth (metres) to CoC (pixels) and renders defocus.
+
+    Args:
+        lens: the :class:`~optics.ThinLens` (focal length, f-number, focus distance in metres).
+        sensor: the :class:`~optics.Sensor` (pixel pitch in metres, downsampling).
+        aperture: PSF shape; :class:`~optics.Gaussian` (``sigma = 0.5 * CoC``) by default.
+
+    Example:
+        >>> camera = Camera(ThinLens(0.035, 2.8, 2.0), Sensor(5.6e-6, downsample=4))
+        >>> camera.coc_px(torch.tensor([1.0, 2.0, 8.0]))
+        tensor([9.9396, 0.0000, 7.4547])
+    """
+
+    def __init__(self, lens: ThinLens, sensor: Sensor, aperture: Aperture | None = None):
+        super().__init__()
+        for name, value, cls in (("lens", lens, ThinLens), ("sensor", sensor, Sensor)):
+            if not isinstance(value, cls):
+                raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
+        if aperture is None:
+            aperture = Gaussian()
+        elif not isinstance(aperture, Aperture):
+            raise TypeError(f"aperture must be an Aperture, got {type(aperture).__name__}")
+        self.lens = lens
+        self.sensor = sensor
+        self.aperture = aperture
+
+    def coc_px(self, depth: Tensor) -> Tensor:
+        """CoC diameter in (effective) pixels for depths in metres (same shape as ``depth``)."""
+        return self.sensor.to_pixels(self.lens.coc_diameter(depth))
+
+    def signed_coc_px(self, depth: Tensor) -> Tensor:
+        """Signed CoC diameter in pixels: negative in front of the focus plane."""
+        return self.sensor.to_pixels(self.lens.signed_coc_diameter(depth))
+
+    def forward(self, depth: Tensor) -> Tensor:
+        return self.coc_px(depth)
+
+    def render(self, image: Tensor, depth: Tensor, **kwargs: Any) -> Tensor:
+        """Render ``image`` ``(B,C,H,W)`` as this camera sees a scene of ``depth`` ``(B,1,H,W)``.
+
+        Keyword arguments go to :func:`optics.render_defocus` (``mode``, ``max_kernel_size``, ...).
+        """
+        from .render import render_defocus
+
+        return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)

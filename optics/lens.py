@@ -1,0 +1,171 @@
+"""Thin-lens geometry: circle of confusion, hyperfocal distance and depth of field."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from ._checks import (
+    ParamLike,
+    as_parameter_tensor,
+    broadcast_to_batch,
+    check_depth,
+    check_positive,
+)
+from ._checks import format_param as _fmt
+
+
+def register_physical(module: nn.Module, name: str, value: ParamLike, unit: str = "") -> None:
+    """Store a physical parameter on ``module``: an ``nn.Parameter`` stays one, anything else is a
+    buffer, so ``.to()``, ``state_dict`` and optimisers work either way."""
+    tensor = as_parameter_tensor(name, value)
+    check_positive(name, tensor.detach(), unit)
+    if isinstance(value, nn.Parameter):
+        module.register_parameter(name, value)
+    else:
+        module.register_buffer(name, tensor)
+
+
+class ThinLens(nn.Module):
+    r"""An ideal thin lens focused at a finite distance.
+
+    All lengths are in metres. Parameters may be Python floats, 0-d tensors or ``(B,)`` tensors
+    (one value per batch item); ``nn.Parameter`` values stay trainable.
+
+    For a lens of focal length :math:`f`, f-number :math:`N` (aperture diameter :math:`A = f/N`)
+    focused at :math:`D_f`, an object at depth :math:`D` is imaged as a blur circle on the sensor
+    of diameter
+
+    .. math:: c(D) = \frac{f^2 \, |D - D_f|}{N \, D \, (D_f - f)}
+                   = A \, \frac{f}{D_f - f} \, \left|1 - \frac{D_f}{D}\right|.
+
+    Args:
+        focal_length: focal length :math:`f` in metres, > 0.
+        f_number: f-number :math:`N` (dimensionless), > 0.
+        focus_distance: distance :math:`D_f` of the plane in focus, in metres, > ``focal_length``.
+
+    Raises:
+        ValueError: if a parameter is not positive and finite, or ``focus_distance`` is not beyond
+            ``focal_length``.
+
+    Example:
+        >>> lens = ThinLens(focal_length=0.05, f_number=2.0, focus_distance=2.0)
+        >>> depth = torch.tensor([1.0, 2.0, 4.0])
+        >>> lens.coc_diameter(depth) * 1e6  # micrometres on the sensor
+        tensor([641.0256,   0.0000, 320.5128])
+    """
+
+    focal_length: Tensor
+    f_number: Tensor
+    focus_distance: Tensor
+
+    def __init__(self, focal_length: ParamLike, f_number: ParamLike, focus_distance: ParamLike):
+        super().__init__()
+        register_physical(self, "focal_length", focal_length, "metres")
+        register_physical(self, "f_number", f_number)
+        register_physical(self, "focus_distance", focus_distance, "metres")
+        if not bool(torch.all(self.focus_distance.detach() > self.focal_length.detach())):
+            raise ValueError(
+                "focus_distance must be greater than focal_length (a real image needs the object "
+                f"beyond the focal point), got focus_distance={_fmt(self.focus_distance)} m "
+                f"and focal_length={_fmt(self.focal_length)} m"
+            )
+
+    def extra_repr(self) -> str:
+        return (
+            f"focal_length={_fmt(self.focal_length)} m, f_number={_fmt(self.f_number)}, "
+            f"focus_distance={_fmt(self.focus_distance)} m"
+        )
+
+    def _params(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        return (
+            broadcast_to_batch(self.focal_length, like),
+            broadcast_to_batch(self.f_number, like),
+            broadcast_to_batch(self.focus_distance, like),
+        )
+
+    def aperture_diameter(self) -> Tensor:
+        """Entrance-pupil diameter ``f / N`` in metres."""
+        return self.focal_length / self.f_number
+
+    def image_distance(self) -> Tensor:
+        """Lens-to-sensor distance ``f D_f / (D_f - f)`` in metres when focused at ``D_f``."""
+        return self.focal_length * self.focus_distance / (self.focus_distance - self.focal_length)
+
+    def signed_coc_diameter(self, depth: Tensor) -> Tensor:
+        """Signed circle-of-confusion diameter on the sensor, in metres.
+
+        Negative in front of the focus plane (``depth < focus_distance``), positive behind it.
+
+        Args:
+            depth: object depths in metres, any shape with the batch first when parameters are
+                ``(B,)``; > 0 and not NaN (``inf`` is allowed).
+
+        Returns:
+            tensor of the shape of ``depth`` (sensor metres).
+        """
+        check_depth("depth", depth)
+        f, n, df = self._params(depth)
+        return f * f / (n * (df - f)) * (1.0 - df / depth)
+
+    def coc_diameter(self, depth: Tensor) -> Tensor:
+        """Circle-of-confusion diameter on the sensor (metres), ``|signed_coc_diameter|``."""
+        return self.signed_coc_diameter(depth).abs()
+
+    def forward(self, depth: Tensor) -> Tensor:
+        return self.coc_diameter(depth)
+
+    def hyperfocal_distance(self, coc_limit: ParamLike) -> Tensor:
+        """Hyperfocal distance ``H = f^2 / (N c) + f`` in metres.
+
+        Args:
+            coc_limit: largest acceptable CoC diameter on the sensor, in metres, > 0.
+        """
+        c = as_parameter_tensor("coc_limit", coc_limit)
+        check_positive("coc_limit", c.detach(), "metres")
+        c = c.to(self.focal_length)
+        return self.focal_length**2 / (self.f_number * c) + self.focal_length
+
+    def depth_of_field(self, coc_limit: ParamLike) -> tuple[Tensor, Tensor]:
+        """Near and far limits (metres) of the depth range whose CoC stays below ``coc_limit``.
+
+        The far limit is ``inf`` when the lens is focused at or beyond the hyperfocal distance.
+
+        Example:
+            >>> near, far = ThinLens(0.05, 8.0, 3.0).depth_of_field(30e-6)
+            >>> round(near.item(), 3), round(far.item(), 3)
+            (2.338, 4.185)
+        """
+        h = self.hyperfocal_distance(coc_limit)
+        f, df = self.focal_length, self.focus_distance
+        near = df * (h - f) / (h + df - 2 * f)
+        far_denominator = h - df
+        far = torch.where(
+            far_denominator > 0,
+            df * (h - f) / far_denominator.clamp_min(torch.finfo(h.dtype).tiny),
+            torch.full_like(h, float("inf")),
+        )
+        return near, far
+
+    def depth_from_signed_coc(self, signed_coc: Tensor) -> Tensor:
+        """Invert :meth:`signed_coc_diameter`: the unique depth (metres) of a signed CoC (metres).
+
+        A CoC at or beyond the limit reached at infinite depth maps to ``inf``.
+        """
+        f, n, df = self._params(signed_coc)
+        denominator = f * f - signed_coc * n * (df - f)
+        safe = denominator.clamp_min(torch.finfo(denominator.dtype).tiny)
+        return torch.where(denominator > 0, f * f * df / safe, torch.full_like(safe, float("inf")))
+
+    def depth_from_coc(self, coc_diameter: Tensor) -> tuple[Tensor, Tensor]:
+        """The two depths (near, far), in metres, whose CoC diameter equals ``coc_diameter``.
+
+        The near solution lies in front of the focus plane, the far one behind it (``inf`` when the
+        CoC is larger than any depth behind the focus plane produces).
+        """
+        if bool(torch.any(coc_diameter < 0)):
+            raise ValueError(
+                "coc_diameter must be >= 0 metres (use depth_from_signed_coc for signed values), "
+                f"got minimum {coc_diameter.min().item():.4g}"
+            )
+        return self.depth_from_signed_coc(-coc_diameter), self.depth_from_signed_coc(coc_diameter)

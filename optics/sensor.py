@@ -1,0 +1,71 @@
+"""Image sensors: conversion between sensor metres and pixels."""
+
+from __future__ import annotations
+
+from torch import Tensor, nn
+
+from ._checks import ParamLike, broadcast_to_batch
+from ._checks import format_param as _fmt
+from .lens import register_physical
+
+
+class Sensor(nn.Module):
+    """A pixel grid on the image plane.
+
+    Args:
+        pixel_pitch: distance between pixel centres of the full-resolution sensor, in metres, > 0
+            (e.g. ``5.6e-6``). A float, a 0-d or a ``(B,)`` tensor, or an ``nn.Parameter``.
+        resolution: optional full-resolution ``(height, width)`` in pixels, for reference.
+        cfa: optional colour-filter-array pattern, e.g. ``"RGGB"``.
+        downsample: factor by which images were downsampled from the sensor (binning, half-size
+            raw decoding, resizing), > 0. It multiplies the effective pixel pitch: the paper's
+            NYU frames use ``Sensor(5.6e-6, downsample=4)``.
+
+    Example:
+        >>> sensor = Sensor(5.6e-6, downsample=4)
+        >>> sensor.effective_pixel_pitch
+        tensor(2.2400e-05)
+        >>> sensor.to_pixels(torch.tensor(44.8e-6))
+        tensor(2.)
+    """
+
+    pixel_pitch: Tensor
+    downsample: Tensor
+
+    def __init__(
+        self,
+        pixel_pitch: ParamLike,
+        resolution: tuple[int, int] | None = None,
+        cfa: str | None = None,
+        downsample: ParamLike = 1.0,
+    ):
+        super().__init__()
+        register_physical(self, "pixel_pitch", pixel_pitch, "metres")
+        register_physical(self, "downsample", downsample)
+        if resolution is not None:
+            if len(resolution) != 2 or any(int(r) <= 0 for r in resolution):
+                raise ValueError(
+                    f"resolution must be (height, width) in pixels, both > 0, got {resolution!r}"
+                )
+            resolution = (int(resolution[0]), int(resolution[1]))
+        self.resolution = resolution
+        self.cfa = cfa
+
+    def extra_repr(self) -> str:
+        return (
+            f"pixel_pitch={_fmt(self.pixel_pitch)} m, downsample={_fmt(self.downsample)}, "
+            f"resolution={self.resolution}, cfa={self.cfa}"
+        )
+
+    @property
+    def effective_pixel_pitch(self) -> Tensor:
+        """Pixel pitch of the images actually used, ``pixel_pitch * downsample``, in metres."""
+        return self.pixel_pitch * self.downsample
+
+    def to_pixels(self, length_m: Tensor) -> Tensor:
+        """Convert lengths on the sensor from metres to (effective) pixels."""
+        return length_m / broadcast_to_batch(self.effective_pixel_pitch, length_m)
+
+    def to_metres(self, length_px: Tensor) -> Tensor:
+        """Convert lengths on the sensor from (effective) pixels to metres."""
+        return length_px * broadcast_to_batch(self.effective_pixel_pitch, length_px)
