@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import Any
 
 from torch import Tensor, nn
@@ -37,6 +38,42 @@ class Camera(nn.Module):
         self.lens = lens
         self.sensor = sensor
         self.aperture = aperture
+
+    #: Keys of :meth:`settings` / :meth:`from_settings`, each in metres except the f-number.
+    SETTING_KEYS = ("focal_length", "f_number", "focus_distance", "pixel_pitch")
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any], aperture: Aperture | None = None) -> Camera:
+        """Build a camera from a dict of settings (the ``camera`` entry of a dataset sample).
+
+        Args:
+            settings: ``focal_length``, ``f_number``, ``focus_distance`` and ``pixel_pitch``
+                (the *effective* pitch of the images, metres); floats, 0-d or ``(B,)`` tensors.
+            aperture: PSF shape, :class:`~optics.Gaussian` by default.
+
+        Example:
+            >>> cam = Camera.from_settings({"focal_length": 0.035, "f_number": 2.8,
+            ...                             "focus_distance": torch.tensor([2.0, 8.0]),
+            ...                             "pixel_pitch": 22.4e-6})
+            >>> cam.coc_px(torch.full((2, 1, 1, 1), 4.0)).flatten()
+            tensor([4.9698, 2.5522])
+        """
+        missing = [k for k in cls.SETTING_KEYS if k not in settings]
+        if missing:
+            raise ValueError(
+                f"settings is missing {missing}; expected the keys {list(cls.SETTING_KEYS)}"
+            )
+        lens = ThinLens(settings["focal_length"], settings["f_number"], settings["focus_distance"])
+        return cls(lens, Sensor(settings["pixel_pitch"]), aperture)
+
+    def settings(self) -> dict[str, Tensor]:
+        """The camera's settings as a dict of tensors (inverse of :meth:`from_settings`)."""
+        return {
+            "focal_length": self.lens.focal_length,
+            "f_number": self.lens.f_number,
+            "focus_distance": self.lens.focus_distance,
+            "pixel_pitch": self.sensor.effective_pixel_pitch,
+        }
 
     def coc_px(self, depth: Tensor) -> Tensor:
         """CoC diameter in (effective) pixels for depths in metres (same shape as ``depth``)."""
