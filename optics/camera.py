@@ -56,7 +56,7 @@ class Camera(nn.Module):
             ...                             "focus_distance": torch.tensor([2.0, 8.0]),
             ...                             "pixel_pitch": 22.4e-6})
             >>> cam.coc_px(torch.full((2, 1, 1, 1), 4.0)).flatten()
-            tensor([4.9698, 2.5522])
+            tensor([4.9698, 2.4521])
         """
         missing = [k for k in cls.SETTING_KEYS if k not in settings]
         if missing:
