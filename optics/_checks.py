@@ -29,18 +29,18 @@ def _describe(value: object) -> str:
 def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
     """Turn a camera parameter (float, 0-d or ``(B,)`` tensor, list) into a tensor.
 
-    Tensors keep their device, dtype and ``requires_grad``; Python numbers become float32 tensors
-    (they follow the input's dtype later, when broadcast against it).
+    Tensors keep their device, dtype and ``requires_grad``; Python numbers become float64 tensors so
+    that no precision is lost before they are cast to the input's dtype (in ``broadcast_to_batch``).
     """
     if isinstance(value, Tensor):
         tensor = value
     elif isinstance(value, bool):
         raise TypeError(f"{name} must be a number or a tensor, got bool {value!r}")
     elif isinstance(value, int | float):
-        tensor = torch.tensor(float(value))
+        tensor = torch.tensor(float(value), dtype=torch.float64)
     elif isinstance(value, Sequence):
         try:
-            tensor = torch.tensor([float(v) for v in value])
+            tensor = torch.tensor([float(v) for v in value], dtype=torch.float64)
         except (TypeError, ValueError):
             raise TypeError(f"{name} must hold numbers, got {value!r}") from None
     else:

@@ -23,8 +23,8 @@ class Sensor(nn.Module):
 
     Example:
         >>> sensor = Sensor(5.6e-6, downsample=4)
-        >>> sensor.effective_pixel_pitch
-        tensor(2.2400e-05)
+        >>> round(sensor.effective_pixel_pitch.item(), 10)
+        2.24e-05
         >>> sensor.to_pixels(torch.tensor(44.8e-6))
         tensor(2.)
     """
