@@ -29,7 +29,11 @@ def disparity_to_depth(
         (tensor([10., 10.]), tensor([ True, False]))
     """
     mask = torch.isfinite(disparity) & (disparity + doffs_px > 0)
-    depth = focal_length_px * baseline_m / torch.where(mask, disparity + doffs_px, torch.ones_like(disparity))
+    depth = (
+        focal_length_px
+        * baseline_m
+        / torch.where(mask, disparity + doffs_px, torch.ones_like(disparity))
+    )
     fill = depth[mask].max() if bool(mask.any()) else torch.ones((), dtype=depth.dtype)
     return torch.where(mask, depth, fill), mask
 
@@ -48,4 +52,9 @@ def load_motorcycle(dtype: torch.dtype = torch.float32) -> dict[str, Tensor]:
     srgb = torch.from_numpy(np.ascontiguousarray(left)).to(dtype).permute(2, 0, 1)[None] / 255.0
     linear = torch.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
     depth, mask = disparity_to_depth(torch.from_numpy(disparity).to(dtype), **MOTORCYCLE_CALIB)
-    return {"image": linear, "depth": depth[None, None], "mask": mask[None, None], "calib": MOTORCYCLE_CALIB}
+    return {
+        "image": linear,
+        "depth": depth[None, None],
+        "mask": mask[None, None],
+        "calib": MOTORCYCLE_CALIB,
+    }

@@ -11,7 +11,10 @@ import torch
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/render"), help="output folder")
     parser.add_argument(
-        "--focus", type=float, nargs="+", default=[2.2, 3.0, 4.0, 5.0],
+        "--focus",
+        type=float,
+        nargs="+",
+        default=[2.2, 3.0, 4.0, 5.0],
         help="focus distances in metres (the scene spans about 2.1-5.0 m)",
     )
     parser.add_argument("--focal-length", type=float, default=0.085, help="focal length in metres")
@@ -19,10 +22,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--aperture", choices=["gaussian", "disk", "hexagon"], default="disk", help="PSF shape"
     )
-    parser.add_argument("--mode", choices=["gather", "scatter", "layered"], default="scatter",
-                        help="renderer semantics (see the rendering tutorial)")
-    parser.add_argument("--scale", type=float, default=0.5,
-                        help="downscale the scene by this factor first (1 = full 741x500 pixels)")
+    parser.add_argument(
+        "--mode",
+        choices=["gather", "scatter", "layered"],
+        default="scatter",
+        help="renderer semantics (see the rendering tutorial)",
+    )
+    parser.add_argument(
+        "--scale",
+        type=float,
+        default=0.5,
+        help="downscale the scene by this factor first (1 = full 741x500 pixels)",
+    )
 
 
 def focus_sweep(focus_distances, focal_length, f_number, aperture, mode, scale):
@@ -65,7 +76,9 @@ def run(args: argparse.Namespace) -> int:
     fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.0), constrained_layout=True)
 
     def show_rgb(ax, linear):
-        srgb = torch.where(linear <= 0.0031308, 12.92 * linear, 1.055 * linear.clamp_min(1e-8) ** (1 / 2.4) - 0.055)
+        srgb = torch.where(
+            linear <= 0.0031308, 12.92 * linear, 1.055 * linear.clamp_min(1e-8) ** (1 / 2.4) - 0.055
+        )
         ax.imshow(srgb[0].permute(1, 2, 0).clamp(0, 1).numpy())
         ax.axis("off")
 

@@ -87,9 +87,7 @@ def check_shape(name: str, tensor: Tensor, dims: Sequence[str]) -> None:
     if tensor.ndim != len(dims) or any(
         d.isdigit() and int(d) != s for d, s in zip(dims, tensor.shape, strict=False)
     ):
-        raise ValueError(
-            f"{name} must have shape ({', '.join(dims)}), got {tuple(tensor.shape)}"
-        )
+        raise ValueError(f"{name} must have shape ({', '.join(dims)}), got {tuple(tensor.shape)}")
 
 
 def broadcast_to_batch(param: Tensor, like: Tensor) -> Tensor:

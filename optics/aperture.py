@@ -189,7 +189,8 @@ class Polygon(Disk):
             raise ValueError(f"rotation must be a finite angle in radians, got {rotation!r}")
         self.n_blades = n_blades
         self.rotation = float(rotation)
-        normals = self.rotation + math.pi / n_blades + 2 * math.pi * torch.arange(n_blades) / n_blades
+        steps = torch.arange(n_blades, dtype=torch.float64)
+        normals = self.rotation + math.pi / n_blades + 2 * math.pi * steps / n_blades
         self.register_buffer("_normals", torch.stack([normals.sin(), normals.cos()], -1))
 
     def extra_repr(self) -> str:
@@ -208,7 +209,9 @@ class Polygon(Disk):
 class Mask(Aperture):
     """A user-supplied PSF image (e.g. a measured one), stretched so its width is the CoC diameter.
 
-    The mask is sampled bilinearly; its centre must be non-zero for a zero CoC to be the identity.
+    Each kernel pixel gets the mask's mean over the pixel's footprint (exact box integration of
+    the bilinearly interpolated summed-area table), so the kernel is anti-aliased at any size and
+    differentiable in the CoC, like the disk's soft edge.
 
     Args:
         image: ``(h, w)`` non-negative tensor, the PSF at any resolution; it is normalised per use.
@@ -221,6 +224,7 @@ class Mask(Aperture):
     """
 
     image: Tensor
+    _table: Tensor
 
     def __init__(self, image: Tensor):
         super().__init__()
@@ -233,17 +237,31 @@ class Mask(Aperture):
         if bool(torch.any(~torch.isfinite(image) | (image < 0))) or not bool(image.sum() > 0):
             raise ValueError("image must be finite, >= 0 everywhere and not all zero")
         self.register_buffer("image", image)
+        table = F.pad(image.double().cumsum(0).cumsum(1), (1, 0, 1, 0))
+        self.register_buffer("_table", table.to(image.dtype), persistent=False)
 
     def extra_repr(self) -> str:
         return f"image shape={tuple(self.image.shape)}"
 
+    def _cumulative(self, u: Tensor, v: Tensor) -> Tensor:
+        """Mask mass in ``[-1, u] x [-1, v]`` (normalised coordinates), saturating outside."""
+        grid = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
+        table = self._table.to(grid)[None, None]
+        mass = F.grid_sample(table, grid, mode="bilinear", padding_mode="border", align_corners=True)
+        return mass.reshape(u.shape)
+
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
         radius = (coc_px / 2).clamp_min(MIN_RADIUS_PX)
-        u, v = torch.broadcast_tensors(dx / radius, dy / radius)
-        grid = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
-        mask = self.image.to(grid)[None, None]
-        samples = F.grid_sample(mask, grid, mode="bilinear", padding_mode="zeros", align_corners=False)
-        return samples.reshape(u.shape)
+        dy, dx, radius = torch.broadcast_tensors(dy, dx, radius)
+        u0, u1 = (dx - 0.5) / radius, (dx + 0.5) / radius
+        v0, v1 = (dy - 0.5) / radius, (dy + 0.5) / radius
+        mass = (
+            self._cumulative(u1, v1) - self._cumulative(u0, v1)
+            - self._cumulative(u1, v0) + self._cumulative(u0, v0)
+        )
+        h, w = self.image.shape
+        # Mean mask value over the footprint: the footprint covers (w/2R) x (h/2R) mask pixels.
+        return mass.clamp_min(0) * (4 * radius * radius / (h * w))
 
     def half_width(self, coc_px: float) -> int:
-        return math.ceil(coc_px / 2 - 1e-9)
+        return math.ceil(coc_px / 2 + 0.5 - 1e-9) if coc_px > 0 else 0

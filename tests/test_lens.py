@@ -30,7 +30,9 @@ def test_coc_matches_similar_triangles(f, n, focus, dtype):
     expected = torch.tensor([coc_by_similar_triangles(f, n, focus, d) for d in DEPTHS], dtype=dtype)
     coc = lens.coc_diameter(depth)
     assert coc.dtype == dtype
-    torch.testing.assert_close(coc, expected, rtol=1e-5 if dtype == torch.float32 else 1e-10, atol=0)
+    torch.testing.assert_close(
+        coc, expected, rtol=1e-5 if dtype == torch.float32 else 1e-10, atol=0
+    )
 
 
 def test_signed_coc_sign_and_infinity(dtype):
@@ -52,8 +54,11 @@ def test_hyperfocal_closed_form_and_property(n, coc_limit):
     assert math.isclose(h.item(), f * f / (n * coc_limit) + f, rel_tol=1e-6)
     # Focused at H, a point at infinity is imaged with exactly the CoC limit.
     at_h = ThinLens(torch.tensor(f, dtype=torch.float64), n, h.double())
-    assert math.isclose(at_h.coc_diameter(torch.tensor(float("inf"), dtype=torch.float64)).item(),
-                        coc_limit, rel_tol=1e-9)
+    assert math.isclose(
+        at_h.coc_diameter(torch.tensor(float("inf"), dtype=torch.float64)).item(),
+        coc_limit,
+        rel_tol=1e-9,
+    )
 
 
 @pytest.mark.parametrize("f", FOCAL_LENGTHS)
@@ -65,10 +70,16 @@ def test_depth_of_field_limits(f, n, focus):
     near, far = lens.depth_of_field(coc_limit)
     hyperfocal = f * f / (n * coc_limit) + f
     # Textbook closed forms, written independently of the library.
-    assert math.isclose(near.item(), focus * (hyperfocal - f) / (hyperfocal + focus - 2 * f), rel_tol=1e-9)
+    assert math.isclose(
+        near.item(), focus * (hyperfocal - f) / (hyperfocal + focus - 2 * f), rel_tol=1e-9
+    )
     if focus < hyperfocal:
-        assert math.isclose(far.item(), focus * (hyperfocal - f) / (hyperfocal - focus), rel_tol=1e-9)
-        assert math.isclose(coc_by_similar_triangles(f, n, focus, far.item()), coc_limit, rel_tol=1e-6)
+        assert math.isclose(
+            far.item(), focus * (hyperfocal - f) / (hyperfocal - focus), rel_tol=1e-9
+        )
+        assert math.isclose(
+            coc_by_similar_triangles(f, n, focus, far.item()), coc_limit, rel_tol=1e-6
+        )
     else:
         assert math.isinf(far.item())
     # The CoC at both limits equals the limit (a property, not the formula again).
@@ -89,9 +100,15 @@ def test_depth_from_coc_inverts(focus, dtype):
     coc = lens.coc_diameter(depth)
     near, far = lens.depth_from_coc(coc)
     recovered = torch.where(depth < focus, near, far)
-    torch.testing.assert_close(recovered, depth, rtol=1e-4 if dtype == torch.float32 else 1e-9, atol=0)
-    torch.testing.assert_close(lens.depth_from_signed_coc(lens.signed_coc_diameter(depth)), depth,
-                               rtol=1e-4 if dtype == torch.float32 else 1e-9, atol=0)
+    torch.testing.assert_close(
+        recovered, depth, rtol=1e-4 if dtype == torch.float32 else 1e-9, atol=0
+    )
+    torch.testing.assert_close(
+        lens.depth_from_signed_coc(lens.signed_coc_diameter(depth)),
+        depth,
+        rtol=1e-4 if dtype == torch.float32 else 1e-9,
+        atol=0,
+    )
     # A CoC larger than the one at infinity has no far solution.
     _, far_big = lens.depth_from_coc(torch.tensor([1.0], dtype=dtype))
     assert torch.isinf(far_big).all()
@@ -131,7 +148,8 @@ def test_gradcheck_lens_parameters(name):
     assert torch.autograd.gradcheck(fn, (value, depth))
     # The unsigned CoC too, away from the focus plane where |.| has a kink.
     assert torch.autograd.gradcheck(
-        lambda v, d: ThinLens(0.05, v, 2.0).coc_diameter(d), (value.detach().clone().requires_grad_(), depth)
+        lambda v, d: ThinLens(0.05, v, 2.0).coc_diameter(d),
+        (value.detach().clone().requires_grad_(), depth),
     )
 
 
