@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import hashlib
+import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import torch
 from torch import Tensor
@@ -81,3 +84,84 @@ def render_focal_stack(
         {k: torch.as_tensor(v).to(image).reshape(-1) for k, v in settings.items()}, aperture
     )
     return camera.render(image.expand(n, -1, -1, -1), depth.expand(n, -1, -1, -1), **render_kwargs)
+
+
+#: Bumped when the synthesis changes in a way the cache key cannot see (e.g. a renderer fix).
+CACHE_VERSION = 1
+
+
+def focal_stack_key(
+    image: Tensor,
+    depth: Tensor,
+    settings: Mapping[str, Tensor],
+    aperture: Aperture | None = None,
+    **render_kwargs,
+) -> str:
+    """Content hash of everything a synthesised focal stack depends on (hex string).
+
+    The pixels themselves are hashed, so any change to loading, cropping or resizing gives a new
+    key and a stale stack is never reused.
+    """
+    digest = hashlib.sha1(f"v{CACHE_VERSION}".encode())
+    for tensor in (image, depth, *(torch.as_tensor(settings[k]) for k in sorted(settings))):
+        tensor = tensor.detach().cpu().contiguous()
+        digest.update(f"{tensor.dtype}{tuple(tensor.shape)}".encode())
+        digest.update(tensor.numpy().tobytes())
+    digest.update(repr(aperture).encode())
+    digest.update(repr(sorted(render_kwargs.items())).encode())
+    return digest.hexdigest()
+
+
+def cached_focal_stack(
+    image: Tensor,
+    depth: Tensor,
+    settings: Mapping[str, Tensor],
+    aperture: Aperture | None = None,
+    cache_dir: str | Path | None = None,
+    **render_kwargs,
+) -> Tensor:
+    """:func:`render_focal_stack` under ``torch.no_grad()``, reusing stacks saved in ``cache_dir``.
+
+    Stacks are stored as ``<cache_dir>/<key>.pt`` (key from :func:`focal_stack_key`) and written
+    atomically, so several DataLoader workers may share one cache folder. With ``cache_dir=None``
+    nothing is stored.
+
+    Args:
+        image: all-in-focus image ``(3,H,W)``, linear in [0, 1].
+        depth: depth ``(1,H,W)`` in metres, > 0.
+        settings: ``(F,)`` tensors as from :meth:`CameraPreset.settings`.
+        aperture: PSF shape (Gaussian, ``sigma = CoC/2``, by default).
+        cache_dir: folder for cached stacks (created on first use), or None.
+        **render_kwargs: passed to :func:`optics.render_defocus`.
+
+    Returns:
+        ``(F,3,H,W)`` focused images, in ``image``'s dtype.
+
+    Example:
+        >>> import tempfile
+        >>> preset = CameraPreset(0.035, 22.4e-6, focus_distances=(2.0, 8.0))
+        >>> image, depth = torch.rand(3, 8, 8), torch.full((1, 8, 8), 3.0)
+        >>> with tempfile.TemporaryDirectory() as folder:
+        ...     first = cached_focal_stack(image, depth, preset.settings(), cache_dir=folder)
+        ...     again = cached_focal_stack(image, depth, preset.settings(), cache_dir=folder)
+        ...     n_files = len(list(Path(folder).glob("*.pt")))
+        >>> torch.equal(first, again), n_files
+        (True, 1)
+    """
+    path = None
+    if cache_dir is not None:
+        key = focal_stack_key(image, depth, settings, aperture, **render_kwargs)
+        path = Path(cache_dir) / f"{key}.pt"
+        if path.is_file():
+            try:
+                return torch.load(path, weights_only=True).to(image)
+            except Exception:  # a half-written or corrupt entry: render again and overwrite
+                pass
+    with torch.no_grad():
+        stack = render_focal_stack(image, depth, settings, aperture, **render_kwargs)
+    if path is not None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(f".{os.getpid()}.tmp")
+        torch.save(stack.cpu(), tmp)
+        os.replace(tmp, path)
+    return stack

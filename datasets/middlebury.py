@@ -1,14 +1,35 @@
 """Middlebury stereo scenes: real images with real depth from disparity.
 
 scikit-image ships one of them, the *motorcycle* scene (Middlebury 2014, quarter size), so it is
-the library's offline real-data default.
+the library's offline real-data default (``Middlebury(None)``).
+
+Folder layout of the Middlebury 2014 scenes (``root``)::
+
+    <Scene>-perfect/im0.png      left image (the all-in-focus image)
+    <Scene>-perfect/im1.png      right image (not used)
+    <Scene>-perfect/disp0.pfm    left disparity in pixels, ``inf`` where unknown
+    <Scene>-perfect/calib.txt    cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=..., baseline=... (mm), ...
+    <split>.txt                  optional: scene folder names of a split, one per line
+
+Depth is ``Z = baseline * f / (d + doffs)``; focused images are synthesised with
+:data:`datasets.presets.MIDDLEBURY`, whose pixel pitch is set per scene to ``focal_length / f``
+so that the virtual lens keeps the scene's field of view.
 """
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 import torch
 from torch import Tensor
+
+from .base import DepthDataset
+from .focus import CameraPreset
+from .io import DataFormatError, read_pfm, read_rgb, require_file, require_root
+from .presets import MIDDLEBURY
 
 #: Calibration of scikit-image's motorcycle scene: focal length in pixels, baseline in metres,
 #: disparity offset in pixels (Middlebury 2014 ``calib.txt`` scaled to the shipped resolution).
@@ -58,3 +79,117 @@ def load_motorcycle(dtype: torch.dtype = torch.float32) -> dict[str, Tensor]:
         "mask": mask[None, None],
         "calib": MOTORCYCLE_CALIB,
     }
+
+
+LAYOUT = (
+    "  <root>/<Scene>/im0.png, <root>/<Scene>/disp0.pfm, <root>/<Scene>/calib.txt\n"
+    "  <root>/<split>.txt (optional list of scene folders)"
+)
+
+#: Name of the built-in scene (scikit-image's motorcycle), used when ``root`` is None.
+BUILTIN_SCENE = "motorcycle"
+
+
+def read_calib(path: Path) -> dict[str, float]:
+    """Read a Middlebury 2014 ``calib.txt``: focal length and disparity offset in pixels, baseline
+    in metres (the file gives millimetres).
+
+    Raises:
+        FileNotFoundError: the file is missing.
+        DataFormatError: ``cam0``, ``doffs`` or ``baseline`` is missing or malformed.
+    """
+    require_file(path, "a Middlebury calib.txt (cam0=[f 0 cx; ...], doffs=, baseline=)")
+    entries = dict(
+        line.split("=", 1) for line in path.read_text().splitlines() if "=" in line
+    )
+    try:
+        cam0 = [float(v) for v in re.split(r"[\s;\[\]]+", entries["cam0"].strip()) if v]
+        return {
+            "focal_length_px": cam0[0],
+            "baseline_m": float(entries["baseline"]) * 1e-3,
+            "doffs_px": float(entries["doffs"]),
+        }
+    except (KeyError, ValueError, IndexError) as error:
+        raise DataFormatError(
+            f"{str(path)!r}: expected lines cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=<px> and "
+            f"baseline=<mm>; could not read {error}"
+        ) from error
+
+
+class Middlebury(DepthDataset):
+    """Middlebury 2014 stereo scenes (left image, depth from disparity) with synthesised focus.
+
+    Args:
+        root: folder of scene folders, or None for the built-in motorcycle scene that ships with
+            scikit-image (no download).
+        split: ``"all"`` (every scene folder with a ``calib.txt``) or the name of a list
+            ``<root>/<split>.txt``.
+        preset: camera for focus synthesis (:data:`datasets.presets.MIDDLEBURY` by default); its
+            pixel pitch is replaced per scene by ``preset.focal_length / f_px``.
+        **kwargs: ``size``, ``crop``, ``augment``, ``cache_dir``, ``aperture``,
+            ``render_kwargs``, ``dtype`` of :class:`~datasets.base.DepthDataset`.
+
+    Raises:
+        FileNotFoundError: ``root``, the split list or a scene file is missing.
+        DataFormatError: a truncated PFM, a malformed calib.txt, or image and disparity sizes
+            differ.
+
+    Example:
+        >>> scene = Middlebury(None, size=(50, 74))[0]
+        >>> scene["image"].shape, scene["focused"].shape, scene["id"]
+        (torch.Size([3, 50, 74]), torch.Size([2, 3, 50, 74]), 'motorcycle')
+    """
+
+    name = "middlebury"
+
+    def __init__(
+        self,
+        root: str | Path | None = None,
+        split: str = "all",
+        preset: CameraPreset = MIDDLEBURY,
+        **kwargs: Any,
+    ):
+        super().__init__(preset, **kwargs)
+        self.root = None if root is None else require_root(root, "Middlebury", LAYOUT)
+        if self.root is None:
+            self.scenes: list[Path | None] = [None]
+            self.ids = [BUILTIN_SCENE]
+            return
+        if split == "all":
+            self.scenes = sorted(p.parent for p in self.root.glob("*/calib.txt"))
+            if not self.scenes:
+                raise FileNotFoundError(
+                    f"Middlebury: no scene folders with calib.txt in {str(self.root)!r}. "
+                    f"Expected:\n{LAYOUT}"
+                )
+        else:
+            listing = require_file(self.root / f"{split}.txt", "a list of scene folder names")
+            names = [line.strip() for line in listing.read_text().splitlines() if line.strip()]
+            self.scenes = [self.root / n for n in names]
+        for scene in self.scenes:
+            for name in ("im0.png", "disp0.pfm", "calib.txt"):
+                require_file(scene / name, f"the Middlebury scene file {name}")
+        self.ids = [p.name for p in self.scenes]
+
+    def load(self, index: int) -> dict[str, Any]:
+        scene = self.scenes[index]
+        if scene is None:
+            data = load_motorcycle(self.dtype)
+            image, depth, mask = data["image"][0], data["depth"][0], data["mask"][0]
+            calib = data["calib"]
+        else:
+            calib = read_calib(scene / "calib.txt")
+            image = read_rgb(scene / "im0.png", dtype=self.dtype)
+            disparity = torch.from_numpy(read_pfm(scene / "disp0.pfm").copy()).to(self.dtype)
+            if disparity.shape != image.shape[-2:]:
+                raise DataFormatError(
+                    f"{str(scene / 'disp0.pfm')!r} is {tuple(disparity.shape)} pixels but "
+                    f"{str(scene / 'im0.png')!r} is {tuple(image.shape[-2:])}"
+                )
+            depth, mask = disparity_to_depth(disparity, **calib)
+            depth, mask = depth[None], mask[None]
+        camera = self.preset.settings(self.dtype)
+        camera["pixel_pitch"] = torch.full_like(
+            camera["pixel_pitch"], self.preset.focal_length / calib["focal_length_px"]
+        )
+        return {"image": image, "depth": depth, "mask": mask, "camera": camera}

@@ -1,0 +1,150 @@
+"""The dataset base class: one sample format for every dataset.
+
+A sample is a dict:
+
+==============  ==================  ==========================================================
+key             shape / type        meaning
+==============  ==================  ==========================================================
+``image``       ``(3,H,W)`` float   all-in-focus image, linear intensity in [0, 1]
+``focused``     ``(F,3,H,W)``       focused images (synthesised or real), linear in [0, 1]
+``camera``      dict of ``(F,)``    ``focal_length`` (m), ``f_number``, ``focus_distance`` (m),
+                                    ``pixel_pitch`` (effective, m) of each focused image;
+                                    ``optics.Camera.from_settings(sample["camera"])``
+``depth``       ``(1,H,W)`` float   metres, > 0 everywhere (unknown pixels filled, see mask)
+``mask``        ``(1,H,W)`` bool    where ``depth`` is a real measurement
+``dataset``     str                 dataset name, e.g. ``"nyu"``
+``id``          str                 sample id within the dataset
+==============  ==================  ==========================================================
+
+After ``torch.utils.data.default_collate`` the camera entries become ``(B,F)`` and ``focused``
+``(B,F,3,H,W)``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import Tensor
+from torch.utils.data import Dataset
+
+from optics import Aperture
+
+from .focus import CameraPreset, cached_focal_stack
+from .transforms import JointAugment, crop_sample, resize_sample
+
+
+class DepthDataset(Dataset):
+    """Base class: subclasses list their samples and load one; this class does the rest.
+
+    Subclasses set :attr:`name`, fill ``self.ids`` (one string per sample) and implement
+    :meth:`load` returning ``image``, ``depth`` and ``mask`` at native resolution, plus
+    ``focused`` and ``camera`` where the dataset has real focused images (otherwise they are
+    synthesised from depth with the preset). :meth:`__getitem__` then crops, resizes (scaling the
+    pixel pitch), synthesises (cached), augments and checks the sample.
+
+    Args:
+        preset: the camera that synthesises the focused images.
+        size: ``(height, width)`` to resize to, in pixels, or None to keep the native size.
+        crop: ``(top, left, height, width)`` fixed crop at native resolution, before resizing.
+        augment: a :class:`~datasets.transforms.JointAugment`, applied last (training only).
+        cache_dir: folder to keep synthesised focal stacks in, or None.
+        aperture: PSF shape for synthesis (Gaussian, ``sigma = CoC/2``, by default).
+        render_kwargs: extra arguments of :func:`optics.render_defocus` for synthesis.
+        dtype: floating dtype of the returned tensors.
+    """
+
+    #: Dataset name stored in each sample's ``dataset`` entry.
+    name = "dataset"
+
+    def __init__(
+        self,
+        preset: CameraPreset,
+        size: Sequence[int] | None = None,
+        crop: Sequence[int] | None = None,
+        augment: JointAugment | None = None,
+        cache_dir: str | Path | None = None,
+        aperture: Aperture | None = None,
+        render_kwargs: Mapping[str, Any] | None = None,
+        dtype: torch.dtype = torch.float32,
+    ):
+        if not isinstance(preset, CameraPreset):
+            raise TypeError(f"preset must be a CameraPreset, got {type(preset).__name__}")
+        if crop is not None and len(crop) != 4:
+            raise ValueError(f"crop must be (top, left, height, width) in pixels, got {crop!r}")
+        if augment is not None and not isinstance(augment, JointAugment):
+            raise TypeError(f"augment must be a JointAugment or None, got {type(augment).__name__}")
+        if not dtype.is_floating_point:
+            raise TypeError(f"dtype must be a floating-point dtype, got {dtype}")
+        self.preset = preset
+        self.size = None if size is None else (int(size[0]), int(size[1]))
+        self.crop = None if crop is None else tuple(int(c) for c in crop)
+        self.augment = augment
+        self.cache_dir = None if cache_dir is None else Path(cache_dir)
+        self.aperture = aperture
+        self.render_kwargs = dict(render_kwargs or {})
+        self.dtype = dtype
+        self.ids: list[str] = []
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    def load(self, index: int) -> dict[str, Any]:
+        """Native-resolution ``image``, ``depth``, ``mask`` (and real ``focused``/``camera``)."""
+        raise NotImplementedError
+
+    def camera_settings(self, index: int) -> dict[str, Tensor]:
+        """``(F,)`` camera settings at native resolution; the preset's by default."""
+        return self.preset.settings(self.dtype)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        if not -len(self) <= index < len(self):
+            raise IndexError(f"index {index} out of range for {self.name} with {len(self)} samples")
+        index = index % len(self)
+        sample = self.load(index)
+        sample.setdefault("camera", self.camera_settings(index))
+        if self.crop is not None:
+            sample = crop_sample(sample, *self.crop)
+        if self.size is not None:
+            sample = resize_sample(sample, self.size)
+        if "focused" not in sample:
+            depth = sample["depth"].clamp_min(self.preset.min_depth)
+            sample["focused"] = cached_focal_stack(
+                sample["image"], depth, sample["camera"], self.aperture, self.cache_dir,
+                **self.render_kwargs,
+            ).clamp(0, 1)
+        if self.augment is not None:
+            sample = self.augment(sample)
+        sample["dataset"] = self.name
+        sample["id"] = self.ids[index]
+        return self._finish(sample)
+
+    def _finish(self, sample: dict[str, Any]) -> dict[str, Any]:
+        out = {
+            "image": sample["image"].to(self.dtype).contiguous(),
+            "focused": sample["focused"].to(self.dtype).contiguous(),
+            "camera": {k: torch.as_tensor(v).to(self.dtype) for k, v in sample["camera"].items()},
+            "depth": sample["depth"].to(self.dtype).contiguous(),
+            "mask": sample["mask"].bool().contiguous(),
+            "dataset": sample["dataset"],
+            "id": sample["id"],
+        }
+        h, w = out["image"].shape[-2:]
+        n = out["camera"]["focus_distance"].shape[0]
+        for key, shape in (("focused", (n, 3, h, w)), ("depth", (1, h, w)), ("mask", (1, h, w))):
+            if tuple(out[key].shape) != shape:
+                raise ValueError(
+                    f"{self.name} sample {sample['id']!r}: {key} has shape "
+                    f"{tuple(out[key].shape)}, expected {shape}"
+                )
+        if not bool(torch.isfinite(out["depth"]).all() and (out["depth"] > 0).all()):
+            raise ValueError(f"{self.name} sample {sample['id']!r}: depth must be finite and > 0")
+        return out
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(samples={len(self)}, size={self.size}, crop={self.crop}, "
+            f"augment={self.augment}, cache_dir={self.cache_dir})"
+        )

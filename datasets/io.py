@@ -1,0 +1,186 @@
+"""Reading dataset files with errors that name the file and say what was expected.
+
+Every reader raises :class:`FileNotFoundError` for a missing file and :class:`DataFormatError`
+(a ``ValueError``) for a file that exists but cannot be read as expected (truncated, wrong format,
+wrong shape), so a broken download fails at once with the path in the message instead of deep
+inside a DataLoader worker.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+from kornia.color import rgb_to_linear_rgb
+from torch import Tensor
+
+
+class DataFormatError(ValueError):
+    """A dataset file exists but does not hold what the loader expects."""
+
+
+def require_root(root: str | Path | None, dataset: str, layout: str) -> Path:
+    """Check that a dataset's ``root`` folder exists; ``layout`` describes what it must hold."""
+    if root is None:
+        raise ValueError(f"{dataset}: root must be the dataset folder, got None. Expected:\n{layout}")
+    path = Path(root).expanduser()
+    if not path.is_dir():
+        raise FileNotFoundError(
+            f"{dataset}: root folder {str(path)!r} does not exist or is not a folder. "
+            f"Expected:\n{layout}"
+        )
+    return path
+
+
+def require_file(path: Path, what: str) -> Path:
+    """Raise ``FileNotFoundError`` naming ``path`` and ``what`` it should hold unless it exists."""
+    if not path.is_file():
+        raise FileNotFoundError(f"missing file {str(path)!r}: expected {what}")
+    return path
+
+
+def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[int | None]) -> None:
+    """Raise :class:`DataFormatError` unless ``array`` has ``len(dims)`` axes of those sizes.
+
+    ``None`` in ``dims`` accepts any size.
+    """
+    shape = tuple(array.shape)
+    if len(shape) != len(dims) or any(
+        d is not None and d != s for d, s in zip(dims, shape, strict=True)
+    ):
+        wanted = "(" + ", ".join("any" if d is None else str(d) for d in dims) + ")"
+        raise DataFormatError(f"{str(path)!r}: {name} must have shape {wanted}, got {shape}")
+
+
+def read_image(path: Path, what: str = "an image") -> np.ndarray:
+    """Read a PNG/JPEG as an ``(H,W)`` or ``(H,W,C)`` array of its stored dtype (uint8/uint16)."""
+    import imageio.v3 as iio
+
+    require_file(path, what)
+    try:
+        array = iio.imread(path)
+    except Exception as error:  # imageio raises many types for broken files
+        raise DataFormatError(
+            f"{str(path)!r}: cannot be read as {what} ({type(error).__name__}: {error}); "
+            "the file may be truncated or not an image"
+        ) from error
+    return np.asarray(array)
+
+
+def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32) -> Tensor:
+    """Read an 8- or 16-bit RGB photo as a ``(3,H,W)`` tensor in [0, 1].
+
+    Args:
+        path: PNG or JPEG file.
+        linear: decode the sRGB transfer curve to linear intensity (what the renderer expects).
+        dtype: floating dtype of the result.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        DataFormatError: the file is unreadable or not an RGB(A) image.
+    """
+    array = read_image(path, "an RGB photo")
+    if array.ndim == 2:
+        array = np.repeat(array[..., None], 3, axis=2)
+    check_array_shape(path, "the RGB photo", array, (None, None, None))
+    if array.shape[2] not in (3, 4):
+        raise DataFormatError(
+            f"{str(path)!r}: expected an RGB photo with 3 (or 4) channels, got shape {array.shape}"
+        )
+    scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
+    image = torch.from_numpy(np.ascontiguousarray(array[..., :3])).to(dtype).permute(2, 0, 1)
+    image = image / scale
+    return rgb_to_linear_rgb(image) if linear else image
+
+
+def read_depth_png(path: Path, scale: float, dtype: torch.dtype = torch.float32) -> Tensor:
+    """Read a 16-bit single-channel depth PNG as ``(1,H,W)`` metres (``stored * scale``).
+
+    Zero means "no measurement" in KITTI and DSLR depth PNGs; it is returned as 0 for the caller
+    to mask.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        DataFormatError: unreadable, not single-channel, or not 16 bit.
+    """
+    array = read_image(path, "a 16-bit depth PNG")
+    if array.ndim != 2 or array.dtype != np.uint16:
+        raise DataFormatError(
+            f"{str(path)!r}: expected a single-channel 16-bit depth PNG, got shape {array.shape} "
+            f"and dtype {array.dtype}"
+        )
+    return torch.from_numpy(array.astype(np.float64) * scale).to(dtype)[None]
+
+
+def read_pfm(path: Path) -> np.ndarray:
+    """Read a PFM file (Middlebury disparities) as an upright float32 ``(H,W)`` or ``(H,W,3)``.
+
+    PFM stores rows bottom to top; the result is flipped so row 0 is the top of the picture.
+    """
+    require_file(path, "a PFM disparity map")
+    data = path.read_bytes()
+    try:
+        header, rest = data.split(b"\n", 1)
+        dims, rest = rest.split(b"\n", 1)
+        scale_line, raster = rest.split(b"\n", 1)
+        channels = {b"Pf": 1, b"PF": 3}[header.strip()]
+        width, height = (int(v) for v in dims.split())
+        scale = float(scale_line)
+    except (ValueError, KeyError) as error:
+        raise DataFormatError(
+            f"{str(path)!r}: not a PFM file (expected 'Pf'/'PF', 'width height', scale lines)"
+        ) from error
+    count = width * height * channels
+    if len(raster) < 4 * count:
+        raise DataFormatError(
+            f"{str(path)!r}: truncated PFM, header says {width}x{height}x{channels} floats "
+            f"({4 * count} bytes) but only {len(raster)} bytes follow"
+        )
+    endian = "<" if scale < 0 else ">"
+    array = np.frombuffer(raster[: 4 * count], dtype=f"{endian}f4").reshape(height, width, channels)
+    array = np.flipud(array).astype(np.float32)
+    return array[..., 0] if channels == 1 else array
+
+
+def write_pfm(path: Path, array: np.ndarray) -> None:
+    """Write an upright ``(H,W)`` float array as a little-endian PFM (inverse of :func:`read_pfm`)."""
+    array = np.asarray(array, dtype="<f4")
+    height, width = array.shape[:2]
+    header = f"Pf\n{width} {height}\n-1.0\n".encode()
+    Path(path).write_bytes(header + np.flipud(array).tobytes())
+
+
+def load_mat(path: Path, what: str) -> dict[str, np.ndarray]:
+    """Read a MATLAB v5 ``.mat`` file with scipy (use :func:`open_mat73` for v7.3 / HDF5)."""
+    import scipy.io
+
+    require_file(path, what)
+    try:
+        return scipy.io.loadmat(path)
+    except NotImplementedError:  # MAT 7.3 is HDF5: read it with h5py
+        with open_mat73(path, what) as file:
+            return {k: np.asarray(v).T for k, v in file.items() if hasattr(v, "shape")}
+    except Exception as error:
+        raise DataFormatError(
+            f"{str(path)!r}: cannot be read as a MATLAB .mat file holding {what} "
+            f"({type(error).__name__}: {error}); the file may be truncated"
+        ) from error
+
+
+def open_mat73(path: Path, what: str):
+    """Open a MATLAB v7.3 (HDF5) ``.mat`` file with h5py, with a clear error if it is broken.
+
+    MATLAB stores arrays column-major: an ``(H,W,C,N)`` MATLAB array reads as ``(N,C,W,H)``.
+    """
+    import h5py
+
+    require_file(path, what)
+    try:
+        return h5py.File(path, "r")
+    except OSError as error:
+        raise DataFormatError(
+            f"{str(path)!r}: cannot be opened as a MATLAB v7.3 / HDF5 file holding {what} "
+            f"({error}); the file may be truncated or saved in another format"
+        ) from error

@@ -1,0 +1,93 @@
+"""Make3D: outdoor photos with laser-scanned depth grids (Saxena et al.), 400 train / 134 test.
+
+Folder layout (``root``)::
+
+    Train400Img/img-<name>.jpg                  photos (1704x2272)
+    Train400Depth/depth_sph_corr-<name>.mat     MATLAB v5, Position3DGrid (H,W,4), depth in [:,:,4]
+    Test134Img/img-<name>.jpg
+    Test134Depth/depth_sph_corr-<name>.mat
+
+Both archives are on the Make3D page (make3d.cs.cornell.edu). A photo and its depth are matched
+by ``<name>``. The coarse depth grid (about 305x55) is resized to the photo with nearest
+neighbour, then both are resized to ``size`` (460x345 by default, as is common). Focused images
+are synthesised with :data:`datasets.presets.MAKE3D`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from .base import DepthDataset
+from .depth import fill_unknown, valid_depth_mask
+from .focus import CameraPreset
+from .io import DataFormatError, check_array_shape, load_mat, read_rgb, require_root
+from .presets import MAKE3D
+
+LAYOUT = (
+    "  <root>/Train400Img/img-<name>.jpg, <root>/Train400Depth/depth_sph_corr-<name>.mat\n"
+    "  <root>/Test134Img/img-<name>.jpg,  <root>/Test134Depth/depth_sph_corr-<name>.mat\n"
+    "  (.mat: MATLAB v5 with Position3DGrid of shape (H, W, 4), depth in metres in channel 4)"
+)
+
+FOLDERS = {"train": ("Train400Img", "Train400Depth"), "test": ("Test134Img", "Test134Depth")}
+
+
+class Make3D(DepthDataset):
+    """Make3D photos with laser depth and synthesised focused images.
+
+    Args:
+        root: folder holding ``Train400Img``, ``Train400Depth``, ``Test134Img``, ``Test134Depth``.
+        split: ``"train"`` (400 photos) or ``"test"`` (134).
+        preset: camera for focus synthesis (:data:`datasets.presets.MAKE3D` by default).
+        **kwargs: ``size`` (default ``(460, 345)``), ``crop``, ``augment``, ``cache_dir``,
+            ``aperture``, ``render_kwargs``, ``dtype`` of :class:`~datasets.base.DepthDataset`.
+
+    Raises:
+        FileNotFoundError: ``root``, a folder, or the depth file of a photo is missing.
+        DataFormatError: a ``.mat`` file is truncated or ``Position3DGrid`` has the wrong shape.
+    """
+
+    name = "make3d"
+
+    def __init__(
+        self, root: str | Path, split: str = "train", preset: CameraPreset = MAKE3D, **kwargs: Any
+    ):
+        kwargs.setdefault("size", (460, 345))
+        super().__init__(preset, **kwargs)
+        if split not in FOLDERS:
+            raise ValueError(f"split must be one of {tuple(FOLDERS)}, got {split!r}")
+        self.root = require_root(root, "Make3D", LAYOUT)
+        image_dir, depth_dir = (self.root / f for f in FOLDERS[split])
+        for folder in (image_dir, depth_dir):
+            if not folder.is_dir():
+                raise FileNotFoundError(f"Make3D: missing folder {str(folder)!r}. Expected:\n{LAYOUT}")
+        self.files: list[tuple[Path, Path]] = []
+        for image_path in sorted(image_dir.glob("*.jpg")):
+            name = image_path.stem.removeprefix("img-")
+            depth_path = depth_dir / f"depth_sph_corr-{name}.mat"
+            if not depth_path.is_file():
+                raise FileNotFoundError(
+                    f"missing file {str(depth_path)!r}: expected the depth grid of {image_path.name}"
+                )
+            self.files.append((image_path, depth_path))
+            self.ids.append(name)
+        if not self.files:
+            raise FileNotFoundError(f"Make3D: no img-*.jpg photos in {str(image_dir)!r}")
+
+    def load(self, index: int) -> dict[str, Any]:
+        image_path, depth_path = self.files[index]
+        image = read_rgb(image_path, dtype=self.dtype)
+        grid = load_mat(depth_path, "Position3DGrid (H, W, 4)")
+        if "Position3DGrid" not in grid:
+            raise DataFormatError(f"{str(depth_path)!r}: no 'Position3DGrid' array")
+        grid = np.asarray(grid["Position3DGrid"])
+        check_array_shape(depth_path, "Position3DGrid", grid, (None, None, 4))
+        depth = torch.from_numpy(grid[..., 3].astype(np.float64)).to(self.dtype)[None, None]
+        depth = F.interpolate(depth, size=image.shape[-2:], mode="nearest-exact")[0]
+        mask = valid_depth_mask(depth)
+        return {"image": image, "depth": fill_unknown(depth, mask), "mask": mask}

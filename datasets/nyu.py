@@ -1,0 +1,135 @@
+"""NYU Depth v2 (labeled subset): ``nyu_depth_v2_labeled.mat`` and the paper's 795/654 split.
+
+Folder layout (``root``)::
+
+    nyu_depth_v2_labeled.mat   MATLAB v7.3 (HDF5): images 480x640x3x1449 uint8, depths 480x640x1449
+    splits.mat                 MATLAB v5: trainNdxs (795x1), testNdxs (654x1), 1-based indices
+
+Both are on the NYU Depth v2 page (Silberman et al. 2012). MATLAB stores arrays column-major, so
+h5py reads ``images`` as ``(N, 3, W, H)`` and ``depths`` as ``(N, W, H)``; the loader transposes
+them back so images come out upright. Focused images are synthesised from the ground-truth depth
+with :data:`datasets.presets.NYU` (35 mm, f/2.8, focus 2 m and 8 m, pitch 22.4 um at 640x480).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .base import DepthDataset
+from .depth import fill_unknown, valid_depth_mask
+from .focus import CameraPreset
+from .io import DataFormatError, load_mat, open_mat73, require_file, require_root
+from .presets import NYU
+
+LAYOUT = (
+    "  <root>/nyu_depth_v2_labeled.mat  (MATLAB v7.3 / HDF5 with 'images' and 'depths')\n"
+    "  <root>/splits.mat                (MATLAB v5 with 'trainNdxs' and 'testNdxs', 1-based)"
+)
+
+#: Eigen et al.'s evaluation crop of 480x640 NYU frames, ``(top, left, height, width)`` pixels.
+NYU_EIGEN_CROP = (45, 41, 426, 560)
+
+SPLITS = ("train", "test", "all")
+
+
+class NYUv2(DepthDataset):
+    """NYU Depth v2 labeled frames with synthesised focused images.
+
+    Args:
+        root: folder holding ``nyu_depth_v2_labeled.mat`` and ``splits.mat``.
+        split: ``"train"`` (795 frames), ``"test"`` (654) or ``"all"`` (1449, no splits.mat
+            needed).
+        preset: camera for focus synthesis (:data:`datasets.presets.NYU` by default).
+        **kwargs: ``size``, ``crop``, ``augment``, ``cache_dir``, ``aperture``,
+            ``render_kwargs``, ``dtype`` of :class:`~datasets.base.DepthDataset`.
+
+    Raises:
+        FileNotFoundError: ``root`` or a file is missing.
+        DataFormatError: a file is truncated or holds arrays of the wrong shape.
+
+    Example:
+        >>> NYUv2("/no/such/folder")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        FileNotFoundError: NYUv2: root folder '/no/such/folder' does not exist ...
+    """
+
+    name = "nyu"
+
+    def __init__(
+        self, root: str | Path, split: str = "train", preset: CameraPreset = NYU, **kwargs: Any
+    ):
+        super().__init__(preset, **kwargs)
+        if split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        self.root = require_root(root, "NYUv2", LAYOUT)
+        self.split = split
+        self.mat_path = require_file(
+            self.root / "nyu_depth_v2_labeled.mat", "the NYU Depth v2 labeled set (MAT v7.3)"
+        )
+        with open_mat73(self.mat_path, "'images' and 'depths'") as file:
+            for key in ("images", "depths"):
+                if key not in file:
+                    raise DataFormatError(
+                        f"{str(self.mat_path)!r}: no {key!r} array; found {sorted(file.keys())}"
+                    )
+            images, depths = file["images"].shape, file["depths"].shape
+        if len(images) != 4 or images[1] != 3 or len(depths) != 3 or depths != (
+            images[0], images[2], images[3]
+        ):
+            raise DataFormatError(
+                f"{str(self.mat_path)!r}: expected images (N,3,W,H) and depths (N,W,H) as h5py "
+                f"reads MATLAB's HxWx3xN and HxWxN arrays, got {images} and {depths}"
+            )
+        count = images[0]
+        if split == "all":
+            indices = np.arange(count)
+        else:
+            splits_path = self.root / "splits.mat"
+            splits = load_mat(splits_path, "'trainNdxs' and 'testNdxs'")
+            key = "trainNdxs" if split == "train" else "testNdxs"
+            if key not in splits:
+                raise DataFormatError(f"{str(splits_path)!r}: no {key!r} array")
+            indices = np.asarray(splits[key]).reshape(-1).astype(np.int64) - 1
+            if indices.size and (indices.min() < 0 or indices.max() >= count):
+                raise DataFormatError(
+                    f"{str(splits_path)!r}: {key} must be 1-based indices in 1..{count}, got "
+                    f"{indices.min() + 1}..{indices.max() + 1}"
+                )
+        self.indices = [int(i) for i in indices]
+        self.ids = [f"{i + 1:04d}" for i in self.indices]
+        self._file = None
+        self._pid = -1
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        state["_file"] = None  # reopened in the worker
+        return state
+
+    def _handle(self):
+        # One HDF5 handle per process: handles do not survive a DataLoader fork.
+        if self._file is None or self._pid != os.getpid():
+            self._file = open_mat73(self.mat_path, "'images' and 'depths'")
+            self._pid = os.getpid()
+        return self._file
+
+    def load(self, index: int) -> dict[str, Any]:
+        file, i = self._handle(), self.indices[index]
+        try:
+            image = np.asarray(file["images"][i]).transpose(0, 2, 1)  # (3,W,H) -> (3,H,W)
+            depth = np.asarray(file["depths"][i]).T  # (W,H) -> (H,W)
+        except OSError as error:
+            raise DataFormatError(
+                f"{str(self.mat_path)!r}: cannot read frame {i + 1} ({error}); truncated file?"
+            ) from error
+        from kornia.color import rgb_to_linear_rgb
+
+        image = rgb_to_linear_rgb(torch.from_numpy(np.ascontiguousarray(image)).to(self.dtype) / 255)
+        depth = torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float64)).to(self.dtype)[None]
+        mask = valid_depth_mask(depth)
+        return {"image": image, "depth": fill_unknown(depth, mask), "mask": mask}
