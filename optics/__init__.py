@@ -3,12 +3,13 @@
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
 from .camera import Camera
 from .lens import ThinLens
-from .render import render_defocus
+from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
 
 __all__ = [
     "Aperture",
     "Camera",
+    "DefocusRenderer",
     "Disk",
     "Gaussian",
     "Mask",

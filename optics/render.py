@@ -1,12 +1,51 @@
-"""Per-pixel PSF rendering (reference implementation; see issue 3 for the fast one)."""
+r"""Per-pixel PSF rendering: blur an image with a point spread function that varies per pixel.
+
+Every pixel has its own circle of confusion (CoC, diameter in pixels, from
+:meth:`Camera.coc_px <optics.Camera.coc_px>`) and the aperture gives the PSF shape for it. Three
+semantics:
+
+=============  =================================================  ===========================
+mode           output pixel ``p``                                 handles
+=============  =================================================  ===========================
+``gather``     ``sum_q I(q) k(q-p; c_p) / sum_q k(q-p; c_p)``:    spatial variation; sharp
+               the output pixel's own PSF                         pixels never blur
+``scatter``    ``sum_q I(q) w_q(p-q) / sum_q w_q(p-q)``,          spatial variation (the
+               ``w_q = k(.; c_q) / Z_q``: each source spreads     paper's layer); default
+               its own PSF, normalised per output
+``layered``    depth layers (soft, in inverse depth) each         spatial variation and
+               scattered with its own CoCs and composited front   occlusion: no blurred
+               to back with alpha                                 background over a sharp
+                                                                  foreground edge
+=============  =================================================  ===========================
+
+``Z_q`` is the discrete sum of the source's profile over its whole window, so each source spreads
+unit energy over the pixel grid (not a continuous formula). Taps outside the image are skipped
+and every mode divides by the weight an output actually receives, so a constant image stays
+constant up to the borders.
+
+Cost: ``O(B C H W K^2)`` time and ``O(B C H W)`` extra memory (no ``K^2`` copies of the image:
+the window offsets are visited in a loop and the weights recomputed in the backward pass).
+Gaussian PSFs in scatter and layered modes use a separable per-source table and, on CPU, a
+compiled C++ kernel when a compiler is available (see :mod:`optics._render_cpp`).
+"""
 
 from __future__ import annotations
 
-import torch
-from torch import Tensor
+import math
+import warnings
 
-from ._checks import check_shape
+import torch
+from torch import Tensor, nn
+
+from ._checks import check_depth, check_shape
+from ._render_ops import GaussianScatter, ProfileFilter
 from .aperture import Aperture, Gaussian
+
+MODES = ("gather", "scatter", "layered")
+PRESETS = ("gur_wolf_2019",)
+#: Gur & Wolf (2019): CoC range in pixels and the fixed window half-width (7x7).
+PAPER_COC_RANGE = (1.0, 7.0)
+PAPER_HALF_WIDTH = 3
 
 
 def render_defocus(
@@ -16,28 +55,225 @@ def render_defocus(
     mode: str = "scatter",
     depth: Tensor | None = None,
     max_kernel_size: int = 63,
+    preset: str | None = None,
+    n_layers: int = 8,
 ) -> Tensor:
-    """Blur ``image`` (B,C,H,W) with a per-pixel PSF of CoC diameter ``coc_px`` (B,1,H,W) pixels."""
+    r"""Render defocus blur with a per-pixel PSF.
+
+    The window is ``K x K`` pixels with ``K = psf.kernel_size(max CoC)`` (``2 ceil(3 sigma) + 1``
+    for a Gaussian), capped at ``max_kernel_size``. **Beyond the cap the PSFs are truncated** to the
+    ``max_kernel_size`` window and renormalised over it (scatter: each source's weights sum to one
+    over the truncated window), so the blur is narrower than the optics say; a ``UserWarning``
+    says so.
+
+    Args:
+        image: ``(B, C, H, W)`` image, linear intensity.
+        coc_px: ``(B, 1, H, W)`` (or ``(1, 1, H, W)``) CoC *diameter* in pixels, >= 0. For the
+            Gaussian, ``sigma_px = psf.scale * coc_px`` (0.5 by default: sigma = CoC radius).
+        psf: aperture shape (:class:`~optics.Gaussian`, :class:`~optics.Disk`,
+            :class:`~optics.Polygon`, :class:`~optics.Mask`, ...); ``Gaussian()`` by default.
+        mode: ``"scatter"`` (default, the paper's), ``"gather"`` or ``"layered"`` (see the module
+            table).
+        depth: ``(B, 1, H, W)`` depth in metres; needed by ``"layered"`` only (orders the layers).
+        max_kernel_size: largest window width in pixels, a positive odd integer.
+        preset: ``"gur_wolf_2019"`` reproduces the paper's layer exactly: Gaussian with sigma =
+            CoC/2, weight of source ``q`` on output ``p`` equal to ``c_q^-2 exp(-2 |p-q|^2 /
+            c_q^2)`` with ``c`` clamped to [1, 7] px, a 7x7 window, pixels with CoC <= 1 copied
+            unchanged and left out of their neighbours' sums, out-of-image taps skipped, division
+            by the total weight each output receives. It fixes the PSF, window and semantics, so
+            ``psf`` must be ``None`` or ``Gaussian(0.5)`` and ``mode`` ``"scatter"``.
+        n_layers: number of depth layers of the ``"layered"`` mode, spread evenly in inverse depth
+            between the nearest and farthest pixel of each image; a pixel between two layer depths
+            is shared between them linearly (so the result is differentiable in the depth).
+
+    Returns:
+        ``(B, C, H, W)`` rendered image, dtype and device of ``image``. Differentiable in
+        ``image``, ``coc_px``, ``depth`` (layered) and the aperture's parameters.
+
+    Raises:
+        TypeError: if ``image``, ``coc_px`` or ``depth`` is not a floating-point tensor, or ``psf``
+            is not an :class:`~optics.Aperture`.
+        ValueError: on wrong shapes, a negative or NaN CoC, an unknown ``mode`` or ``preset``, an
+            invalid ``max_kernel_size`` or ``n_layers``, or ``"layered"`` without ``depth``.
+
+    Example:
+        >>> image = torch.zeros(1, 1, 7, 7)
+        >>> image[..., 3, 3] = 1.0
+        >>> out = render_defocus(image, torch.full((1, 1, 7, 7), 2.0))
+        >>> out[0, 0, 3, 2:5]
+        tensor([0.0970, 0.1592, 0.0970])
+    """
+    image, coc_px = _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset)
+    if preset is not None:
+        return _render_paper(image, coc_px)
     psf = Gaussian() if psf is None else psf
+    max_coc = float(coc_px.detach().max()) if coc_px.numel() else 0.0
+    half = min(psf.half_width(max_coc), max_kernel_size // 2)
+    if psf.half_width(max_coc) > half:
+        warnings.warn(
+            f"render_defocus: the largest CoC ({max_coc:.3g} px) needs a "
+            f"{psf.kernel_size(max_coc)}-pixel window; PSFs are truncated to "
+            f"max_kernel_size={max_kernel_size}",
+            stacklevel=2,
+        )
+    if mode == "layered":
+        if depth is None:
+            raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
+        return _render_layered(image, coc_px, psf, half, depth, n_layers)
+    ones = torch.ones_like(image[:, :1])
+    spread = _linear_filter(torch.cat([image, ones], 1), coc_px, psf, half, mode == "scatter")
+    return spread[:, :-1] / spread[:, -1:]
+
+
+def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Tensor, Tensor]:
     check_shape("image", image, ["B", "C", "H", "W"])
     check_shape("coc_px", coc_px, ["B", "1", "H", "W"])
-    size = min(psf.kernel_size(coc_px.detach().max()), max_kernel_size)
-    half = size // 2
+    if not image.is_floating_point():
+        raise TypeError(f"image must be a floating-point tensor, got dtype {image.dtype}")
+    if not coc_px.is_floating_point():
+        raise TypeError(f"coc_px must be a floating-point tensor, got dtype {coc_px.dtype}")
+    b, _, h, w = image.shape
+    if coc_px.shape[2:] != image.shape[2:] or coc_px.shape[0] not in (1, b):
+        raise ValueError(
+            f"coc_px must have shape ({b} or 1, 1, {h}, {w}) to match image, "
+            f"got {tuple(coc_px.shape)}"
+        )
+    if bool(torch.any(torch.isnan(coc_px) | (coc_px < 0))):
+        raise ValueError("coc_px must be >= 0 pixels and not NaN everywhere")
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if psf is not None and not isinstance(psf, Aperture):
+        raise TypeError(f"psf must be an Aperture (Gaussian, Disk, ...), got {type(psf).__name__}")
+    if isinstance(max_kernel_size, bool) or not isinstance(max_kernel_size, int) or (
+        max_kernel_size < 1 or max_kernel_size % 2 == 0
+    ):
+        raise ValueError(f"max_kernel_size must be a positive odd integer, got {max_kernel_size!r}")
+    if preset is not None:
+        if preset not in PRESETS:
+            raise ValueError(f"preset must be None or one of {PRESETS}, got {preset!r}")
+        paper_psf = psf is None or (
+            type(psf) is Gaussian and math.isclose(float(psf.scale), 0.5)
+        )
+        if not paper_psf or mode != "scatter":
+            raise ValueError(
+                f"preset={preset!r} fixes a Gaussian PSF (scale 0.5) in scatter mode, got "
+                f"psf={psf!r} and mode={mode!r}"
+            )
+    coc_px = coc_px.to(image.dtype).expand(b, 1, h, w)
+    return image, coc_px
+
+
+def _linear_filter(x: Tensor, coc_px: Tensor, psf: Aperture, half: int, scatter: bool) -> Tensor:
+    """Unnormalised spread of ``x`` (scatter: unit energy per source; gather: raw profile)."""
+    if scatter and type(psf) is Gaussian:
+        sigma = psf.sigma_px(coc_px)
+        return GaussianScatter.apply(x, sigma, 1.0 / _gaussian_window_sum(sigma, half), half)
+    params = [p for p in psf.parameters() if p.requires_grad]
+    return ProfileFilter.apply(x, coc_px, psf, scatter, half, *params)
+
+
+def _gaussian_window_sum(sigma: Tensor, half: int) -> Tensor:
+    """``Z = (sum_{d=-half..half} exp(-d^2 / (2 sigma^2)))^2``: a separable window's total."""
+    line = torch.ones_like(sigma)
+    for d in range(1, half + 1):
+        line = line + 2 * torch.exp(-(d * d) / (2 * sigma * sigma))
+    return line * line
+
+
+def _render_paper(image: Tensor, coc_px: Tensor) -> Tensor:
+    low, high = PAPER_COC_RANGE
+    coc = coc_px.clamp(low, high)
+    active = coc_px > low
+    norm = torch.where(active, coc.pow(-2), torch.zeros_like(coc))
+    ones = torch.ones_like(image[:, :1])
+    spread = GaussianScatter.apply(torch.cat([image, ones], 1), coc / 2, norm, PAPER_HALF_WIDTH)
+    total = torch.where(active, spread[:, -1:], torch.ones_like(coc))
+    return torch.where(active, spread[:, :-1] / total, image)
+
+
+def layer_weights(depth: Tensor, n_layers: int) -> Tensor:
+    """Soft assignment of each pixel to ``n_layers`` depth layers, front (nearest) first.
+
+    Layers sit evenly in inverse depth between each image's nearest and farthest pixel; a pixel
+    between two layers is split linearly between them. Returns ``(B, L, H, W)`` weights summing
+    to 1 per pixel.
+
+    Example:
+        >>> layer_weights(torch.tensor([1.0, 2.0, 4.0]).view(1, 1, 1, 3), 2)[0, :, 0]
+        tensor([[1.0000, 0.3333, 0.0000],
+                [0.0000, 0.6667, 1.0000]])
+    """
+    inverse = 1.0 / depth
+    near = inverse.amax(dim=(1, 2, 3), keepdim=True)
+    far = inverse.amin(dim=(1, 2, 3), keepdim=True)
+    step = ((near - far) / max(n_layers - 1, 1)).clamp_min(torch.finfo(depth.dtype).tiny)
+    position = ((near - inverse) / step).clamp(0, n_layers - 1)
+    centres = torch.arange(n_layers, device=depth.device, dtype=depth.dtype).view(1, -1, 1, 1)
+    return (1 - (position - centres).abs()).clamp_min(0)
+
+
+def _render_layered(image, coc_px, psf, half, depth, n_layers) -> Tensor:
+    check_shape("depth", depth, ["B", "1", "H", "W"])
+    check_depth("depth", depth)
+    if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
+        raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
     b, c, h, w = image.shape
-    ones = torch.ones(1, 1, h, w, dtype=image.dtype, device=image.device)
-    pad = (half, half, half, half)
-    img_p = torch.nn.functional.pad(image, pad)
-    valid_p = torch.nn.functional.pad(ones, pad)
-    coc_p = torch.nn.functional.pad(coc_px, pad)
-    num = torch.zeros_like(image)
-    den = torch.zeros_like(coc_px)
-    for dy in range(-half, half + 1):
-        for dx in range(-half, half + 1):
-            sl = (..., slice(half + dy, half + dy + h), slice(half + dx, half + dx + w))
-            src = coc_p[sl] if mode == "scatter" else coc_px
-            off_y = torch.tensor(float(dy), dtype=image.dtype, device=image.device)
-            off_x = torch.tensor(float(dx), dtype=image.dtype, device=image.device)
-            wgt = psf.profile(off_y, off_x, src) * valid_p[sl]
-            num = num + wgt * img_p[sl]
-            den = den + wgt
-    return num / den
+    depth = depth.to(image.dtype).expand(b, 1, h, w)
+    alpha = layer_weights(depth, n_layers)  # (B, L, H, W), front first
+    layers = torch.cat([alpha.unsqueeze(2) * image.unsqueeze(1), alpha.unsqueeze(2)], 2)
+    spread = _linear_filter(layers.reshape(b, -1, h, w), coc_px, psf, half, scatter=True)
+    spread = spread.view(b, n_layers, c + 1, h, w)
+    colour = torch.zeros_like(image)
+    coverage = torch.zeros_like(image[:, :1])
+    transmittance = torch.ones_like(coverage)
+    for layer in range(n_layers):
+        layer_alpha = spread[:, layer, -1:]
+        colour = colour + transmittance * spread[:, layer, :-1]
+        coverage = coverage + transmittance * layer_alpha
+        transmittance = transmittance * (1 - layer_alpha.clamp(max=1.0))
+    return colour / coverage.clamp_min(torch.finfo(image.dtype).tiny)
+
+
+class DefocusRenderer(nn.Module):
+    """Module form of :func:`render_defocus`: stores the PSF and the options.
+
+    Args:
+        psf: aperture shape, ``Gaussian()`` by default.
+        mode: ``"scatter"``, ``"gather"`` or ``"layered"``.
+        max_kernel_size: largest window width in pixels (odd).
+        preset: ``None`` or ``"gur_wolf_2019"``.
+        n_layers: depth layers of the layered mode.
+
+    Example:
+        >>> renderer = DefocusRenderer(Disk(), mode="gather")
+        >>> renderer(torch.rand(2, 3, 16, 16), torch.full((2, 1, 16, 16), 3.0)).shape
+        torch.Size([2, 3, 16, 16])
+    """
+
+    def __init__(
+        self,
+        psf: Aperture | None = None,
+        mode: str = "scatter",
+        max_kernel_size: int = 63,
+        preset: str | None = None,
+        n_layers: int = 8,
+    ):
+        super().__init__()
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        self.psf = Gaussian() if psf is None and preset is None else psf
+        self.mode, self.max_kernel_size, self.preset, self.n_layers = (
+            mode, max_kernel_size, preset, n_layers
+        )
+
+    def extra_repr(self) -> str:
+        return (
+            f"mode={self.mode!r}, max_kernel_size={self.max_kernel_size}, preset={self.preset!r}, "
+            f"n_layers={self.n_layers}"
+        )
+
+    def forward(self, image: Tensor, coc_px: Tensor, depth: Tensor | None = None) -> Tensor:
+        return render_defocus(
+            image, coc_px, self.psf, self.mode, depth, self.max_kernel_size, self.preset,
+            self.n_layers,
+        )
