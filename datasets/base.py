@@ -58,6 +58,9 @@ class DepthDataset(Dataset):
 
     #: Dataset name stored in each sample's ``dataset`` entry.
     name = "dataset"
+    #: Image width in pixels at which the preset's pixel pitch holds; images of another width
+    #: (e.g. small test files) get the pitch scaled by ``native_width / width``. None: as is.
+    native_width: int | None = None
 
     def __init__(
         self,
@@ -104,7 +107,11 @@ class DepthDataset(Dataset):
             raise IndexError(f"index {index} out of range for {self.name} with {len(self)} samples")
         index = index % len(self)
         sample = self.load(index)
-        sample.setdefault("camera", self.camera_settings(index))
+        if "camera" not in sample:
+            sample["camera"] = self.camera_settings(index)
+            if self.native_width is not None:
+                scale = self.native_width / sample["image"].shape[-1]
+                sample["camera"]["pixel_pitch"] = sample["camera"]["pixel_pitch"] * scale
         if self.crop is not None:
             sample = crop_sample(sample, *self.crop)
         if self.size is not None:

@@ -85,6 +85,7 @@ class KITTI(DepthDataset):
     """
 
     name = "kitti"
+    native_width = 1242
 
     def __init__(
         self,

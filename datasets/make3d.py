@@ -53,6 +53,7 @@ class Make3D(DepthDataset):
     """
 
     name = "make3d"
+    native_width = 1704
 
     def __init__(
         self, root: str | Path, split: str = "train", preset: CameraPreset = MAKE3D, **kwargs: Any

@@ -60,6 +60,7 @@ class NYUv2(DepthDataset):
     """
 
     name = "nyu"
+    native_width = 640
 
     def __init__(
         self, root: str | Path, split: str = "train", preset: CameraPreset = NYU, **kwargs: Any
