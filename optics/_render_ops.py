@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import torch
 from torch import Tensor
+from torch.autograd.function import once_differentiable
 
 from . import _render_cpp
 
@@ -102,6 +103,7 @@ class GaussianScatter(torch.autograd.Function):
         return _gaussian_scatter_forward_torch(x, sigma, norm, half)
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, grad: Tensor):
         x, sigma, norm = ctx.saved_tensors
         grad = grad.contiguous()
@@ -155,6 +157,7 @@ class ProfileFilter(torch.autograd.Function):
         return out
 
     @staticmethod
+    @once_differentiable
     def backward(ctx, grad):
         x, coc, *rest = ctx.saved_tensors
         psf, scatter, half = ctx.psf, ctx.scatter, ctx.half

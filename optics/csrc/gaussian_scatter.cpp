@@ -1,0 +1,286 @@
+// Gaussian scatter filter on CPU (see optics/_render_ops.py for the maths and the PyTorch twin).
+//
+//   y_c(p) = sum_q norm_q * t_q(py - qy) * t_q(px - qx) * x_c(q),  t_q(d) = exp(-d^2 / (2 s_q^2))
+//
+// over |p - q|_inf <= half, q and p inside the image. Arrays are contiguous (B, C, H, W), sigma and
+// norm (B, 1, H, W). The per-source table t_q(0..half) is built by the recurrence
+// t(d+1) = t(d) * e^(2d+1), e = exp(-1 / (2 s^2)): one exp per source pixel.
+// Plain C ABI (loaded with ctypes): no PyTorch headers, so it compiles in a second or two.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <vector>
+
+namespace {
+
+template <typename T>
+void fill_table(const T* sigma_row, int64_t width, int64_t half, T* table) {
+  // table[d * width + s] = exp(-d^2 / (2 sigma_s^2)), d = 0..half
+  for (int64_t s = 0; s < width; ++s) table[s] = T(1);
+  if (half == 0) return;
+  for (int64_t s = 0; s < width; ++s) {
+    const T sg = sigma_row[s];
+    const T e = std::exp(T(-0.5) / (sg * sg));
+    const T e2 = e * e;
+    T t = T(1), q = e;
+    for (int64_t d = 1; d <= half; ++d) {
+      t *= q;
+      q *= e2;
+      table[d * width + s] = t;
+    }
+  }
+}
+
+// Register blocks of two 32-byte vectors (GCC/Clang vector extensions; without AVX the compiler
+// splits them into SSE halves): 16 float or 8 double output pixels per block.
+template <typename T>
+struct Vec {
+  typedef T type __attribute__((vector_size(32), aligned(sizeof(T))));
+  static constexpr int64_t lanes = 32 / sizeof(T);
+};
+template <typename T>
+using V = typename Vec<T>::type;
+template <typename T>
+inline V<T> load(const T* p) {
+  return *reinterpret_cast<const V<T>*>(p);
+}
+constexpr int64_t kVectors = 2;
+template <typename T>
+constexpr int64_t block_lanes() {
+  return kVectors * Vec<T>::lanes;
+}
+constexpr int64_t kPadRight = 16;      // >= block_lanes<T>() for float and double
+constexpr int64_t kRowsPerBlock = 16;  // rows per task: the ring of source rows is reused
+
+// Ring of per-row buffers, padded by `half` on the left and half + kPadRight on the right with
+// zeros, so that the register blocks need no bounds checks (zero weight, finite values).
+template <typename T>
+struct RowRing {
+  int64_t half, width, padded, rows_per_slot;
+  std::vector<T> data;
+  std::vector<int64_t> row_of_slot;
+  RowRing(int64_t K, int64_t half_, int64_t width_, int64_t rows)
+      : half(half_), width(width_), padded(width_ + 2 * half_ + kPadRight), rows_per_slot(rows),
+        data(K * rows * padded, T(0)), row_of_slot(K, -1) {}
+  void reset() { std::fill(row_of_slot.begin(), row_of_slot.end(), int64_t(-1)); }
+  // Buffer of the slot holding image row y; index half + s of each of its rows is pixel s.
+  T* slot(int64_t y, bool* fresh) {
+    const int64_t k = y % static_cast<int64_t>(row_of_slot.size());
+    *fresh = row_of_slot[k] != y;
+    row_of_slot[k] = y;
+    return data.data() + k * rows_per_slot * padded;
+  }
+};
+
+// Forward for G channels of one output row, one register block starting at output pixel x0.
+template <typename T, int G>
+void forward_group(const T* const* xn_rows, const T* const* tab_rows, int64_t half, int64_t padded,
+                   int64_t x0, T* out, int64_t out_stride, int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{} ;
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
+    const T* tab = tab_rows[k];
+    if (tab == nullptr) continue;
+    const T* ty = tab + std::abs(k - half) * padded;
+    const T* const* xr = xn_rows + k * G;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = x0 - dx + half;
+      const T* tx = tab + std::abs(dx) * padded + base;
+      const T* tyb = ty + base;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = load(tyb + j * L) * load(tx + j * L);
+        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    T tmp[kVectors * L];
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
+    std::copy(tmp, tmp + n_out, out + g * out_stride);
+  }
+}
+
+template <typename T>
+void forward(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t C, int64_t H,
+             int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 4;
+#pragma omp parallel num_threads(nthreads)
+  {
+    // Each slot: half+1 table rows, then C rows of x * norm.
+    RowRing<T> ring(K, half, W, half + 1 + C);
+    std::vector<const T*> tab_rows(K), xn_rows(K * G);
+    std::vector<T> table(half + 1 == 0 ? 1 : (half + 1) * W);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; ++oy) {
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t sy = oy - (k - half);
+          if (sy < 0 || sy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          if (fresh) {
+            fill_table(sigma + b * plane + sy * W, W, half, table.data());
+            for (int64_t d = 0; d <= half; ++d)
+              std::copy(table.begin() + d * W, table.begin() + (d + 1) * W,
+                        slot + d * ring.padded + half);
+            const T* nrow = norm + b * plane + sy * W;
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + sy * W;
+              T* dst = slot + (half + 1 + c) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * nrow[s];
+            }
+          }
+          slots[k] = slot;
+        }
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k) {
+            tab_rows[k] = slots[k];
+            for (int64_t g = 0; g < G; ++g)  // unused lanes of a short group read channel c0
+              xn_rows[k * G + g] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (half + 1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+          }
+          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>()) {
+            forward_group<T, G>(xn_rows.data(), tab_rows.data(), half, ring.padded, x0,
+                                y + (b * C + c0) * plane + oy * W + x0, plane,
+                                std::min(block_lanes<T>(), W - x0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// Backward for G channels of one source row, one register block starting at source pixel s0.
+template <typename T, int G>
+void backward_group(const T* tab, const T* const* g_rows, int64_t half, int64_t padded,
+                    int64_t s0, const T* x_row, int64_t x_stride, T* dx_row, T* m_row,
+                    int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
+    const T* const* gr = g_rows + k * G;
+    if (gr[0] == nullptr) continue;
+    const int64_t dy = k - half;
+    const T* ty = tab + std::abs(dy) * padded + half + s0;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const T* tx = tab + std::abs(dx) * padded + half + s0;
+      const T r2 = T(dy * dy + dx * dx);
+      const int64_t base = half + s0 + dx;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = load(ty + j * L) * load(tx + j * L);
+        const V<T> w2 = w * r2;
+        for (int g = 0; g < G; ++g) {
+          const V<T> gv = load(gr[g] + base + j * L);
+          acc_d[g][j] += w * gv;
+          acc_f[g][j] += w2 * gv;
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    const T* xr = x_row + g * x_stride;
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) {
+        const int64_t i = j * L + l;
+        if (i >= n_out) break;
+        dx_row[g * x_stride + i] = acc_d[g][j][l];
+        m_row[i] += xr[i] * acc_f[g][j][l];
+      }
+  }
+}
+
+// dx_raw_c(q) = sum_u t_q(u) g_c(q+u);  m1(q) = sum_c x_c(q) sum_u t_q(u) |u|^2 g_c(q+u)
+template <typename T>
+void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t B, int64_t C,
+              int64_t H, int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 2;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, C);  // padded gradient rows
+    RowRing<T> own(1, half, W, half + 1);  // the source row's table
+    std::vector<const T*> g_rows(K * G);
+    std::vector<T> table((half + 1) * W);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; ++sy) {
+        bool fresh;
+        T* tab = own.slot(0, &fresh);
+        fill_table(sigma + b * plane + sy * W, W, half, table.data());
+        for (int64_t d = 0; d <= half; ++d)
+          std::copy(table.begin() + d * W, table.begin() + (d + 1) * W, tab + d * own.padded + half);
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t oy = sy + (k - half);
+          if (oy < 0 || oy >= H) continue;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh)
+            for (int64_t c = 0; c < C; ++c) {
+              const T* grow = g + (b * C + c) * plane + oy * W;
+              std::copy(grow, grow + W, slot + c * ring.padded + half);
+            }
+          slots[k] = slot;
+        }
+        T* mrow = m1 + b * plane + sy * W;
+        std::fill(mrow, mrow + W, T(0));
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k)
+            for (int64_t gi = 0; gi < G; ++gi)
+              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>()) {
+            const int64_t offset = (b * C + c0) * plane + sy * W + s0;
+            backward_group<T, G>(tab, g_rows.data(), half, ring.padded, s0, x + offset, plane,
+                                 dx_raw + offset, mrow + s0, std::min(block_lanes<T>(), W - s0),
+                                 gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+extern "C" {
+void gs_forward_f32(const float* x, const float* sigma, const float* norm, float* y, int64_t B,
+                    int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  forward(x, sigma, norm, y, B, C, H, W, half, nthreads);
+}
+void gs_forward_f64(const double* x, const double* sigma, const double* norm, double* y,
+                    int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  forward(x, sigma, norm, y, B, C, H, W, half, nthreads);
+}
+void gs_backward_f32(const float* g, const float* x, const float* sigma, float* dx_raw, float* m1,
+                     int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  backward(g, x, sigma, dx_raw, m1, B, C, H, W, half, nthreads);
+}
+void gs_backward_f64(const double* g, const double* x, const double* sigma, double* dx_raw,
+                     double* m1, int64_t B, int64_t C, int64_t H, int64_t W, int64_t half,
+                     int nthreads) {
+  backward(g, x, sigma, dx_raw, m1, B, C, H, W, half, nthreads);
+}
+}
