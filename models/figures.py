@@ -1,0 +1,78 @@
+"""Matplotlib figures of depth predictions: input, focused images, depth, ground truth, error."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+
+def linear_to_srgb(linear: Tensor) -> Tensor:
+    """Encode linear intensity in [0, 1] as sRGB for display."""
+    linear = linear.clamp(0, 1)
+    return torch.where(linear <= 0.0031308, 12.92 * linear,
+                       1.055 * linear.clamp_min(1e-8) ** (1 / 2.4) - 0.055)
+
+
+def plot_prediction(
+    path: str | Path, image: Tensor, depth: Tensor, focused: Tensor | None = None,
+    target: Tensor | None = None, mask: Tensor | None = None, title: str = "",
+    depth_range: tuple[float, float] | None = None,
+) -> Path:
+    """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
+    ground-truth depth and the relative error ``|d - g| / g`` (masked pixels grey).
+
+    Args:
+        path: PNG file to write (folders are created).
+        image: all-in-focus image ``(3,H,W)``, linear.
+        depth: predicted depth ``(1,H,W)`` metres.
+        focused: optional focused images ``(F,3,H,W)``.
+        target: optional ground-truth depth ``(1,H,W)`` metres.
+        mask: optional valid-depth mask ``(1,H,W)``.
+        title: figure title.
+        depth_range: colour range of the depth maps in metres (default: that of the data).
+
+    Returns:
+        the path written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    image, depth = image.detach().float().cpu(), depth.detach().float().cpu()
+    panels: list[tuple[str, Tensor, str]] = [("all in focus (input)", image, "rgb")]
+    if focused is not None:
+        for i, f in enumerate(focused.detach().float().cpu()):
+            panels.append((f"focused image {i + 1}", f, "rgb"))
+    panels.append(("predicted depth (m)", depth[0], "depth"))
+    if target is not None:
+        target = target.detach().float().cpu()
+        valid = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.cpu().bool()
+        panels.append(("ground truth (m)", torch.where(valid, target, torch.nan)[0], "depth"))
+        error = torch.where(valid, (depth - target).abs() / target, torch.nan)[0]
+        panels.append(("abs rel error", error, "error"))
+    if depth_range is None:
+        values = [depth] + ([target] if target is not None else [])
+        depth_range = (min(float(v.min()) for v in values), max(float(v.max()) for v in values))
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.8 * len(panels), 2.8),
+                             constrained_layout=True, squeeze=False)
+    for ax, (name, data, kind) in zip(axes[0], panels, strict=True):
+        if kind == "rgb":
+            ax.imshow(linear_to_srgb(data).permute(1, 2, 0).numpy())
+        else:
+            cmap = matplotlib.colormaps["magma_r" if kind == "depth" else "viridis"].copy()
+            cmap.set_bad("0.6")
+            limits = depth_range if kind == "depth" else (0.0, 0.5)
+            shown = ax.imshow(data.numpy(), cmap=cmap, vmin=limits[0], vmax=limits[1])
+            fig.colorbar(shown, ax=ax, shrink=0.75)
+        ax.set_title(name, fontsize=9)
+        ax.axis("off")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -1,0 +1,183 @@
+"""Self-supervised depth-from-defocus losses (Gur & Wolf 2019).
+
+The depth predicted from the all-in-focus image is rendered, through each focused image's camera,
+into a synthetic focused image that is compared with the real one:
+
+- photometric: ``ssim_weight * (1 - SSIM)/2 + (1 - ssim_weight) * L1`` (paper: 0.85), Kornia's
+  SSIM, averaged over the focus settings;
+- sharpness: L1 between the sharpness maps (Sobel gradient magnitude) of the rendered and the real
+  focused images (paper weight 0.1);
+- smoothness: edge-aware first-order smoothness of the mean-normalised depth, down-weighted at
+  image edges (paper weight 0.001).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import kornia
+import torch
+from torch import Tensor, nn
+
+from optics import Aperture, Camera
+from optics._checks import check_shape
+
+
+def render_focused(
+    image: Tensor, depth: Tensor, camera: Mapping[str, Tensor], aperture: Aperture | None = None,
+    **render_kwargs: Any,
+) -> Tensor:
+    """Render the focused images of ``image`` ``(B,3,H,W)`` seen at ``depth`` ``(B,1,H,W)`` metres
+    through ``F`` cameras given as ``(B,F)`` settings (``Camera.from_settings`` keys).
+
+    Returns:
+        ``(B,F,3,H,W)`` rendered focused images; differentiable in image, depth and settings.
+
+    Example:
+        >>> camera = {"focal_length": torch.full((1, 2), 0.05), "f_number": torch.full((1, 2), 2.0),
+        ...           "focus_distance": torch.tensor([[2.0, 6.0]]),
+        ...           "pixel_pitch": torch.full((1, 2), 180e-6)}
+        >>> render_focused(torch.rand(1, 3, 8, 8), torch.full((1, 1, 8, 8), 3.0), camera).shape
+        torch.Size([1, 2, 3, 8, 8])
+    """
+    check_shape("image", image, ["B", "C", "H", "W"])
+    check_shape("depth", depth, ["B", "1", "H", "W"])
+    b, c, h, w = image.shape
+    settings = {k: torch.as_tensor(v).to(image) for k, v in camera.items()}
+    n = settings["focus_distance"].reshape(b, -1).shape[1]
+    flat = {k: v.reshape(b, n).reshape(-1) for k, v in settings.items()}
+    cam = Camera.from_settings(flat, aperture)
+    images = image[:, None].expand(b, n, c, h, w).reshape(b * n, c, h, w)
+    depths = depth[:, None].expand(b, n, 1, h, w).reshape(b * n, 1, h, w)
+    return cam.render(images, depths, **render_kwargs).reshape(b, n, c, h, w)
+
+
+def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85,
+                     window_size: int = 7) -> Tensor:
+    """``ssim_weight * (1 - SSIM)/2 + (1 - ssim_weight) * L1``, averaged over pixels and images.
+
+    Args:
+        rendered: ``(..., C, H, W)`` images in [0, 1].
+        target: same shape as ``rendered``.
+        ssim_weight: weight of the SSIM term in [0, 1] (paper: 0.85).
+        window_size: odd SSIM window width in pixels.
+
+    Example:
+        >>> x = torch.rand(2, 3, 16, 16)
+        >>> float(photometric_loss(x, x))
+        0.0
+    """
+    if rendered.shape != target.shape:
+        raise ValueError(f"rendered and target must have the same shape, got "
+                         f"{tuple(rendered.shape)} and {tuple(target.shape)}")
+    if not 0.0 <= ssim_weight <= 1.0:
+        raise ValueError(f"ssim_weight must be in [0, 1], got {ssim_weight!r}")
+    r = rendered.reshape(-1, *rendered.shape[-3:])
+    t = target.reshape(-1, *target.shape[-3:])
+    ssim = kornia.losses.ssim_loss(r, t, window_size, max_val=1.0, reduction="mean")
+    return ssim_weight * ssim + (1 - ssim_weight) * (r - t).abs().mean()
+
+
+def sharpness_map(image: Tensor) -> Tensor:
+    """Local sharpness ``(..., 1, H, W)``: Sobel gradient magnitude of the channel mean."""
+    flat = image.reshape(-1, *image.shape[-3:]).mean(-3, keepdim=True)
+    return kornia.filters.sobel(flat).reshape(*image.shape[:-3], 1, *image.shape[-2:])
+
+
+def sharpness_loss(rendered: Tensor, target: Tensor) -> Tensor:
+    """Mean L1 distance between the sharpness maps of ``rendered`` and ``target``."""
+    return (sharpness_map(rendered) - sharpness_map(target)).abs().mean()
+
+
+def edge_aware_smoothness(depth: Tensor, image: Tensor) -> Tensor:
+    """Edge-aware smoothness: ``mean(|d_x d*| exp(-|d_x I|)) + mean(|d_y d*| exp(-|d_y I|))``.
+
+    ``d*`` is the depth divided by its per-image mean (scale free) and ``|d I|`` the channel mean
+    of the image's absolute differences.
+
+    Args:
+        depth: ``(B,1,H,W)`` metres.
+        image: ``(B,C,H,W)``.
+
+    Example:
+        >>> float(edge_aware_smoothness(torch.full((1, 1, 8, 8), 3.0), torch.rand(1, 3, 8, 8)))
+        0.0
+    """
+    check_shape("depth", depth, ["B", "1", "H", "W"])
+    d = depth / depth.mean((2, 3), keepdim=True)
+    dx, dy = (d[..., :, 1:] - d[..., :, :-1]).abs(), (d[..., 1:, :] - d[..., :-1, :]).abs()
+    ix = (image[..., :, 1:] - image[..., :, :-1]).abs().mean(1, keepdim=True)
+    iy = (image[..., 1:, :] - image[..., :-1, :]).abs().mean(1, keepdim=True)
+    return (dx * torch.exp(-ix)).mean() + (dy * torch.exp(-iy)).mean()
+
+
+class DefocusLoss(nn.Module):
+    """The paper's self-supervised loss: photometric + sharpness + smoothness.
+
+    Args:
+        ssim_weight: SSIM share of the photometric term (paper: 0.85).
+        sharpness_weight: weight of the sharpness-map L1 term (paper: 0.1).
+        smoothness_weight: weight of the edge-aware depth smoothness (paper: 0.001).
+        window_size: SSIM window width in pixels.
+        aperture: PSF shape used to render (Gaussian, ``sigma = CoC/2``, by default).
+        **render_kwargs: passed to :func:`optics.render_defocus` (``mode``, ...).
+
+    Example:
+        >>> loss = DefocusLoss()
+        >>> camera = {"focal_length": torch.full((1, 2), 0.05), "f_number": torch.full((1, 2), 2.0),
+        ...           "focus_distance": torch.tensor([[2.0, 6.0]]),
+        ...           "pixel_pitch": torch.full((1, 2), 180e-6)}
+        >>> image, depth = torch.rand(1, 3, 16, 16), torch.full((1, 1, 16, 16), 3.0)
+        >>> focused = render_focused(image, depth, camera)
+        >>> round(float(loss(depth, image, focused, camera)["loss"]), 6)
+        0.0
+    """
+
+    def __init__(self, ssim_weight: float = 0.85, sharpness_weight: float = 0.1,
+                 smoothness_weight: float = 0.001, window_size: int = 7,
+                 aperture: Aperture | None = None, **render_kwargs: Any):
+        super().__init__()
+        self.ssim_weight = float(ssim_weight)
+        self.sharpness_weight = float(sharpness_weight)
+        self.smoothness_weight = float(smoothness_weight)
+        self.window_size = int(window_size)
+        self.aperture = aperture
+        self.render_kwargs = render_kwargs
+
+    def forward(self, depth: Tensor, image: Tensor, focused: Tensor,
+                camera: Mapping[str, Tensor]) -> dict[str, Tensor]:
+        """Loss terms for predicted ``depth`` ``(B,1,H,W)`` metres, all-in-focus ``image``
+        ``(B,3,H,W)``, real ``focused`` images ``(B,F,3,H,W)`` and ``(B,F)`` ``camera`` settings.
+
+        Returns:
+            dict with ``loss`` (the weighted total), ``photometric``, ``sharpness``, ``smoothness``.
+        """
+        check_shape("focused", focused, ["B", "F", "C", "H", "W"])
+        rendered = render_focused(image, depth, camera, self.aperture, **self.render_kwargs)
+        photometric = photometric_loss(rendered, focused, self.ssim_weight, self.window_size)
+        sharpness = sharpness_loss(rendered, focused)
+        smoothness = edge_aware_smoothness(depth, image)
+        total = (photometric + self.sharpness_weight * sharpness
+                 + self.smoothness_weight * smoothness)
+        return {"loss": total, "photometric": photometric, "sharpness": sharpness,
+                "smoothness": smoothness}
+
+    def extra_repr(self) -> str:
+        return (f"ssim_weight={self.ssim_weight}, sharpness_weight={self.sharpness_weight}, "
+                f"smoothness_weight={self.smoothness_weight}, window_size={self.window_size}")
+
+
+def supervised_depth_loss(depth: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:
+    """Mean relative L1 error ``|depth - target| / target`` over valid pixels (a baseline that
+    uses depth labels; not part of the self-supervised recipe).
+
+    Example:
+        >>> float(supervised_depth_loss(torch.full((1, 1, 2, 2), 3.0), torch.full((1, 1, 2, 2), 2.0)))
+        0.5
+    """
+    error = (depth - target).abs() / target
+    if mask is None:
+        return error.mean()
+    mask = mask.to(error.dtype)
+    return (error * mask).sum() / mask.sum().clamp_min(1.0)

@@ -1,0 +1,209 @@
+"""Depth evaluation metrics (Eigen et al. 2014 conventions) and the paper-style table.
+
+Per image, over valid pixels (mask, ground truth inside ``(min_depth, max_depth)``, optional crop),
+with the prediction clamped to ``[min_depth, max_depth]``; a batch is the mean over its images:
+
+=============  ========================================================  ===========
+name           definition                                                better
+=============  ========================================================  ===========
+``abs_rel``    ``mean(|d - g| / g)``                                     lower
+``sq_rel``     ``mean((d - g)^2 / g)``                                   lower
+``rmse``       ``sqrt(mean((d - g)^2))`` (metres)                        lower
+``rmse_log``   ``sqrt(mean((ln d - ln g)^2))`` (natural log)             lower
+``log10``      ``mean(|log10 d - log10 g|)``                             lower
+``deltaK``     share of pixels with ``max(d/g, g/d) < 1.25^K``, K=1,2,3  higher
+=============  ========================================================  ===========
+
+Median scaling (multiply the prediction by ``median(g) / median(d)``) is off by default: our
+depths are metric. When on, the returned dict also holds the mean ``median_scale``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+from torch import Tensor
+
+METRIC_NAMES = ("abs_rel", "sq_rel", "rmse", "rmse_log", "log10", "delta1", "delta2", "delta3")
+HIGHER_IS_BETTER = frozenset({"delta1", "delta2", "delta3"})
+LABELS = {
+    "abs_rel": "abs rel", "sq_rel": "sq rel", "rmse": "RMSE", "rmse_log": "RMSE log",
+    "log10": "log10", "delta1": "d<1.25", "delta2": "d<1.25^2", "delta3": "d<1.25^3",
+}
+#: KITTI crops as fractions (top, bottom, left, right) of the image height and width.
+CROPS = {
+    "garg": (0.40810811, 0.99189189, 0.03594771, 0.96405229),
+    "eigen": (0.3324324, 0.91351351, 0.0359477, 0.96405229),
+}
+
+
+def crop_mask(height: int, width: int, crop: str | Sequence[float] | None,
+              device: torch.device | None = None) -> Tensor:
+    """Boolean ``(H, W)`` mask of an evaluation crop.
+
+    Args:
+        height: image height in pixels.
+        width: image width in pixels.
+        crop: ``None`` (everything), ``"garg"`` or ``"eigen"`` (KITTI), or fractions
+            ``(top, bottom, left, right)`` of the height and width.
+
+    Example:
+        >>> crop_mask(4, 4, (0.5, 1.0, 0.0, 0.5)).int()
+        tensor([[0, 0, 0, 0],
+                [0, 0, 0, 0],
+                [1, 1, 0, 0],
+                [1, 1, 0, 0]], dtype=torch.int32)
+    """
+    mask = torch.zeros(height, width, dtype=torch.bool, device=device)
+    if crop is None:
+        return mask.fill_(True)
+    if isinstance(crop, str):
+        if crop not in CROPS:
+            raise ValueError(f"crop must be None, one of {sorted(CROPS)} or 4 fractions, "
+                             f"got {crop!r}")
+        crop = CROPS[crop]
+    if len(crop) != 4 or not (0 <= crop[0] < crop[1] <= 1 and 0 <= crop[2] < crop[3] <= 1):
+        raise ValueError(f"crop fractions must be (top, bottom, left, right) with "
+                         f"0 <= top < bottom <= 1 and 0 <= left < right <= 1, got {crop!r}")
+    top, bottom = int(crop[0] * height), int(crop[1] * height)
+    left, right = int(crop[2] * width), int(crop[3] * width)
+    mask[top:bottom, left:right] = True
+    return mask
+
+
+def _as_batch(name: str, tensor: Tensor) -> Tensor:
+    if not isinstance(tensor, Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(tensor).__name__}")
+    if tensor.ndim == 2:
+        return tensor[None, None]
+    if tensor.ndim == 3:
+        return tensor[None]
+    if tensor.ndim == 4 and tensor.shape[1] == 1:
+        return tensor
+    raise ValueError(f"{name} must have shape (H,W), (1,H,W) or (B,1,H,W), "
+                     f"got {tuple(tensor.shape)}")
+
+
+def valid_mask(target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
+               max_depth: float | None = None, crop: str | Sequence[float] | None = None) -> Tensor:
+    """Pixels that count: ``mask``, ground truth in ``(min_depth, max_depth)``, inside ``crop``."""
+    target = _as_batch("target", target)
+    valid = torch.isfinite(target) & (target > min_depth)
+    if max_depth is not None:
+        valid &= target < max_depth
+    if mask is not None:
+        valid &= _as_batch("mask", mask).to(torch.bool)
+    return valid & crop_mask(*target.shape[-2:], crop, target.device)
+
+
+def depth_metrics(
+    pred: Tensor, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
+    max_depth: float | None = None, crop: str | Sequence[float] | None = None,
+    median_scaling: bool = False,
+) -> dict[str, float]:
+    """Depth metrics of ``pred`` against ``target`` (both metres), averaged over the batch.
+
+    Args:
+        pred: predicted depth ``(H,W)``, ``(1,H,W)`` or ``(B,1,H,W)``, metres.
+        target: ground truth of the same shape, metres.
+        mask: optional boolean mask of valid ground truth (same shape).
+        min_depth: ground truth at or below this is ignored; predictions are clamped to it.
+        max_depth: depth cap: ground truth at or beyond it is ignored, predictions clamped to it.
+        crop: ``None``, ``"garg"``, ``"eigen"`` or ``(top, bottom, left, right)`` fractions.
+        median_scaling: scale each prediction by ``median(target) / median(pred)`` first.
+
+    Returns:
+        dict of the :data:`METRIC_NAMES` (plus ``median_scale`` when ``median_scaling``).
+
+    Raises:
+        ValueError: if an image has no valid pixel or a prediction is not finite and positive.
+
+    Example:
+        >>> m = depth_metrics(torch.tensor([[2.0, 4.0]]), torch.tensor([[2.0, 5.0]]))
+        >>> round(m["abs_rel"], 4), round(m["rmse"], 4), m["delta1"]
+        (0.1, 0.7071, 0.5)
+    """
+    pred, target = _as_batch("pred", pred), _as_batch("target", target)
+    if pred.shape != target.shape:
+        raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
+                         f"and {tuple(target.shape)}")
+    valid = valid_mask(target, mask, min_depth, max_depth, crop)
+    totals: dict[str, float] = {}
+    for d_all, g_all, v in zip(pred.detach(), target.detach(), valid, strict=True):
+        d, g = d_all[v].double(), g_all[v].double()
+        if g.numel() == 0:
+            raise ValueError("an image has no valid ground-truth pixel (check mask, min_depth, "
+                             "max_depth and crop)")
+        if not bool(torch.all(torch.isfinite(d) & (d > 0))):
+            raise ValueError("pred must be finite and > 0 metres at every valid pixel")
+        values = {}
+        if median_scaling:
+            values["median_scale"] = float(g.median() / d.median())
+            d = d * values["median_scale"]
+        d = d.clamp(min_depth, max_depth) if max_depth is not None else d.clamp_min(min_depth)
+        ratio = torch.maximum(d / g, g / d)
+        values.update(
+            abs_rel=float(((d - g).abs() / g).mean()),
+            sq_rel=float(((d - g) ** 2 / g).mean()),
+            rmse=float(((d - g) ** 2).mean().sqrt()),
+            rmse_log=float(((d.log() - g.log()) ** 2).mean().sqrt()),
+            log10=float((d.log10() - g.log10()).abs().mean()),
+            delta1=float((ratio < 1.25).double().mean()),
+            delta2=float((ratio < 1.25**2).double().mean()),
+            delta3=float((ratio < 1.25**3).double().mean()),
+        )
+        for key, value in values.items():
+            totals[key] = totals.get(key, 0.0) + value
+    return {key: value / pred.shape[0] for key, value in totals.items()}
+
+
+def best_constant_depth(target: Tensor, mask: Tensor | None = None) -> float:
+    """The constant depth (metres) with the lowest abs rel: the median of ``target`` weighted by
+    ``1 / target`` over valid pixels (an oracle baseline; it looks at the ground truth).
+
+    Example:
+        >>> best_constant_depth(torch.tensor([1.0, 2.0, 4.0]))  # abs rel 0.42; 2 m would give 0.5
+        1.0
+    """
+    g = target.detach().reshape(-1).double()
+    if mask is not None:
+        g = g[mask.reshape(-1).to(torch.bool)]
+    g = g[torch.isfinite(g) & (g > 0)]
+    if g.numel() == 0:
+        raise ValueError("target has no valid (finite, > 0) depth")
+    g, _ = g.sort()
+    weights = torch.cumsum(1.0 / g, 0)
+    index = int(torch.searchsorted(weights, weights[-1] / 2))
+    return float(g[min(index, g.numel() - 1)])
+
+
+def format_table(results: Mapping[str, Mapping[str, float]],
+                 metrics: Sequence[str] = METRIC_NAMES) -> str:
+    """A paper-style Markdown table: one row per method, one column per metric.
+
+    Arrows mark whether lower or higher is better; a method with a ``median_scale`` entry is
+    marked ``(median scaled)``.
+
+    Example:
+        >>> print(format_table({"constant": {"abs_rel": 0.2, "delta1": 0.55}},
+        ...                    metrics=("abs_rel", "delta1")))
+        | method   | abs rel ↓ | d<1.25 ↑ |
+        |----------|-----------|----------|
+        | constant |     0.200 |    0.550 |
+    """
+    names = [name + (" (median scaled)" if "median_scale" in row else "")
+             for name, row in results.items()]
+    headers = ["method"] + [LABELS.get(m, m) + (" ↑" if m in HIGHER_IS_BETTER else " ↓")
+                            for m in metrics]
+    rows = [[name] + [f"{row[m]:.3f}" if m in row else "-" for m in metrics]
+            for name, row in zip(names, results.values(), strict=True)]
+    widths = [max(len(r[i]) for r in [headers, *rows]) for i in range(len(headers))]
+
+    def line(cells: Sequence[str]) -> str:
+        first = cells[0].ljust(widths[0])
+        rest = [c.rjust(w) for c, w in zip(cells[1:], widths[1:], strict=True)]
+        return "| " + " | ".join([first, *rest]) + " |"
+
+    separator = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+    return "\n".join([line(headers), separator, *(line(r) for r in rows)])

@@ -1,0 +1,343 @@
+"""Depth networks: a small encoder-decoder for CPUs and the paper-sized DeepLabV3+ network.
+
+Both take the all-in-focus image and, in depth-from-defocus mode, the focused images with their
+camera settings, and end in a sigmoid head that maps to depth in metres between ``depth_min`` and
+``depth_max``:
+
+============  ==================================================================  ==========
+network       architecture                                                        parameters
+============  ==================================================================  ==========
+``small``     U-Net-style encoder-decoder, 3 scales, plain convolutions            ~0.5 M
+``paper``     ResNet-50 at output stride 16, dense ASPP, self-attention,           ~40 M
+              DeepLabV3+ decoder (Gur & Wolf 2019; no pretrained weights)
+============  ==================================================================  ==========
+
+Input modes (``input_mode``):
+
+- ``"aif"``: the all-in-focus image alone (the paper: monocular at test time).
+- ``"aif+focused"``: the all-in-focus image, the ``F`` focused images, their differences to the
+  all-in-focus image, the defocus cues of :func:`defocus_cues` (``F + 1`` channels), and two
+  constant channels per focus setting describing the camera: the focus distance divided by
+  ``depth_max`` and the CoC scale ``f^2 / (N (D_f - f) p)`` in pixels / 10 (the CoC diameter of
+  an object at infinity).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import kornia
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from optics._checks import check_shape
+
+INPUT_MODES = ("aif", "aif+focused")
+
+
+def camera_channels(camera: Mapping[str, Tensor], depth_max: float) -> Tensor:
+    """Per-focus-setting camera descriptors ``(B, F, 2)`` from ``(B, F)`` settings.
+
+    The two descriptors are ``focus_distance / depth_max`` and the CoC diameter at infinity in
+    pixels divided by 10, ``f^2 / (N (D_f - f) p) / 10``.
+    """
+    f, n = camera["focal_length"], camera["f_number"]
+    focus, pitch = camera["focus_distance"], camera["pixel_pitch"]
+    coc_inf_px = f * f / (n * (focus - f) * pitch)
+    return torch.stack([focus / depth_max, coc_inf_px / 10.0], dim=-1)
+
+
+def defocus_cues(image: Tensor, focused: Tensor, window: int = 7) -> Tensor:
+    """Local blur cues ``(B, F + 1, H, W)``: per focused image, the log ratio of its local
+    high-frequency energy to the all-in-focus image's (about ``-c * sigma^2`` for a Gaussian blur
+    of ``sigma`` pixels), and the log energy of the all-in-focus image (how reliable the ratios
+    are). Energy: squared Laplacian of the channel mean, box-averaged over ``window`` pixels.
+
+    Example:
+        >>> image = torch.rand(1, 3, 16, 16)
+        >>> cues = defocus_cues(image, image[:, None].expand(1, 2, 3, 16, 16))
+        >>> cues.shape, float(cues[:, :2].abs().max())
+        (torch.Size([1, 3, 16, 16]), 0.0)
+    """
+    b, n, c, h, w = focused.shape
+    stack = torch.cat([image[:, None], focused], 1).reshape(b * (n + 1), c, h, w)
+    energy = kornia.filters.laplacian(stack.mean(1, keepdim=True), 3) ** 2
+    energy = kornia.filters.box_blur(energy, (window, window)).reshape(b, n + 1, h, w)
+    eps = 1e-8 + 1e-2 * energy[:, :1].mean((2, 3), keepdim=True)
+    log_energy = torch.log(energy + eps)
+    return torch.cat([log_energy[:, 1:] - log_energy[:, :1], log_energy[:, :1] / 10], 1)
+
+
+class DepthHead(nn.Module):
+    """Sigmoid output mapped to metres: ``depth = depth_min + (depth_max - depth_min) * sigmoid``."""
+
+    def __init__(self, depth_min: float, depth_max: float):
+        super().__init__()
+        if not 0 < depth_min < depth_max:
+            raise ValueError(
+                f"depth_min and depth_max must satisfy 0 < depth_min < depth_max metres, got "
+                f"{depth_min!r} and {depth_max!r}"
+            )
+        self.depth_min, self.depth_max = float(depth_min), float(depth_max)
+
+    def forward(self, logits: Tensor) -> Tensor:
+        return self.depth_min + (self.depth_max - self.depth_min) * torch.sigmoid(logits)
+
+    def extra_repr(self) -> str:
+        return f"depth_min={self.depth_min} m, depth_max={self.depth_max} m"
+
+
+class _DepthNetwork(nn.Module):
+    """Shared input assembly and checks; subclasses implement ``_logits(x)``."""
+
+    def __init__(self, input_mode: str, n_focus: int, depth_min: float, depth_max: float):
+        super().__init__()
+        if input_mode not in INPUT_MODES:
+            raise ValueError(f"input_mode must be one of {INPUT_MODES}, got {input_mode!r}")
+        if input_mode == "aif+focused" and int(n_focus) < 1:
+            raise ValueError(f"n_focus must be >= 1 in 'aif+focused' mode, got {n_focus!r}")
+        self.input_mode = input_mode
+        self.n_focus = int(n_focus) if input_mode == "aif+focused" else 0
+        self.head = DepthHead(depth_min, depth_max)
+
+    @property
+    def in_channels(self) -> int:
+        return 3 + 8 * self.n_focus + (self.n_focus + 1 if self.n_focus else 0)
+
+    def assemble_input(
+        self, image: Tensor, focused: Tensor | None = None,
+        camera: Mapping[str, Tensor] | None = None,
+    ) -> Tensor:
+        """Stack the network input ``(B, in_channels, H, W)`` (see the module docstring)."""
+        check_shape("image", image, ["B", "3", "H", "W"])
+        if self.input_mode == "aif":
+            return image
+        if focused is None or camera is None:
+            raise ValueError("input_mode 'aif+focused' needs focused (B,F,3,H,W) and camera")
+        check_shape("focused", focused, ["B", str(self.n_focus), "3", "H", "W"])
+        b, n, _, h, w = focused.shape
+        diff = focused - image[:, None]
+        settings = {k: torch.as_tensor(v).to(image).reshape(b, n) for k, v in camera.items()}
+        cam = camera_channels(settings, self.head.depth_max).reshape(b, 2 * n, 1, 1)
+        return torch.cat([image, focused.reshape(b, 3 * n, h, w), diff.reshape(b, 3 * n, h, w),
+                          defocus_cues(image, focused), cam.expand(b, 2 * n, h, w)], dim=1)
+
+    def forward(
+        self, image: Tensor, focused: Tensor | None = None,
+        camera: Mapping[str, Tensor] | None = None,
+    ) -> Tensor:
+        """Depth ``(B,1,H,W)`` in metres from ``image`` ``(B,3,H,W)`` (and the focused images
+        ``(B,F,3,H,W)`` with ``(B,F)`` camera settings in ``"aif+focused"`` mode)."""
+        x = self.assemble_input(image, focused, camera)
+        return self.head(self._logits(x))
+
+    def _logits(self, x: Tensor) -> Tensor:
+        raise NotImplementedError
+
+
+def _conv_block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.GroupNorm(min(8, cout), cout),
+        nn.ReLU(inplace=True),
+        nn.Conv2d(cout, cout, 3, 1, 1, bias=False), nn.GroupNorm(min(8, cout), cout),
+        nn.ReLU(inplace=True),
+    )
+
+
+class SmallDepthNet(_DepthNetwork):
+    """A small encoder-decoder (U-Net style, three scales) that trains in minutes on a CPU.
+
+    Works on any image size (inputs are padded to a multiple of 4 internally).
+
+    Args:
+        input_mode: ``"aif"`` or ``"aif+focused"``.
+        n_focus: number of focused images ``F`` in ``"aif+focused"`` mode.
+        depth_min: nearest depth the head can output, metres.
+        depth_max: farthest depth the head can output, metres.
+        width: channels of the first scale (doubled at each of the next two).
+
+    Example:
+        >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8)
+        >>> depth = net(torch.rand(2, 3, 30, 40))
+        >>> depth.shape, bool(depth.min() > 1.0), bool(depth.max() < 10.0)
+        (torch.Size([2, 1, 30, 40]), True, True)
+    """
+
+    def __init__(self, input_mode: str = "aif+focused", n_focus: int = 2,
+                 depth_min: float = 1.0, depth_max: float = 10.0, width: int = 32):
+        super().__init__(input_mode, n_focus, depth_min, depth_max)
+        w = int(width)
+        self.enc1 = _conv_block(self.in_channels, w)
+        self.enc2 = _conv_block(w, 2 * w, stride=2)
+        self.enc3 = _conv_block(2 * w, 4 * w, stride=2)
+        self.dec2 = _conv_block(4 * w + 2 * w, 2 * w)
+        self.dec1 = _conv_block(2 * w + w, w)
+        self.out = nn.Conv2d(w, 1, 3, padding=1)
+
+    def _logits(self, x: Tensor) -> Tensor:
+        h, w = x.shape[-2:]
+        pad_h, pad_w = (-h) % 4, (-w) % 4
+        x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
+        e1 = self.enc1(x)
+        e2 = self.enc2(e1)
+        e3 = self.enc3(e2)
+        d2 = self.dec2(torch.cat([F.interpolate(e3, size=e2.shape[-2:], mode="bilinear",
+                                                align_corners=False), e2], 1))
+        d1 = self.dec1(torch.cat([F.interpolate(d2, size=e1.shape[-2:], mode="bilinear",
+                                                align_corners=False), e1], 1))
+        return self.out(d1)[..., :h, :w]
+
+
+class _Bottleneck(nn.Module):
+    expansion = 4
+
+    def __init__(self, cin: int, planes: int, stride: int = 1, dilation: int = 1):
+        super().__init__()
+        cout = planes * self.expansion
+        self.body = nn.Sequential(
+            nn.Conv2d(cin, planes, 1, bias=False), nn.BatchNorm2d(planes), nn.ReLU(inplace=True),
+            nn.Conv2d(planes, planes, 3, stride, dilation, dilation, bias=False),
+            nn.BatchNorm2d(planes), nn.ReLU(inplace=True),
+            nn.Conv2d(planes, cout, 1, bias=False), nn.BatchNorm2d(cout),
+        )
+        self.shortcut = (
+            nn.Identity() if stride == 1 and cin == cout
+            else nn.Sequential(nn.Conv2d(cin, cout, 1, stride, bias=False), nn.BatchNorm2d(cout))
+        )
+
+    def forward(self, x: Tensor) -> Tensor:
+        return F.relu(self.body(x) + self.shortcut(x))
+
+
+class ResNet50OS16(nn.Module):
+    """ResNet-50 backbone at output stride 16 (the last stage dilated instead of strided).
+
+    Returns the stride-4 features (256 channels, for the decoder) and the stride-16 features
+    (2048 channels).
+    """
+
+    def __init__(self, in_channels: int = 3):
+        super().__init__()
+        self.stem = nn.Sequential(
+            nn.Conv2d(in_channels, 64, 7, 2, 3, bias=False), nn.BatchNorm2d(64),
+            nn.ReLU(inplace=True), nn.MaxPool2d(3, 2, 1),
+        )
+        cin = 64
+        stages = []
+        for planes, blocks, stride, dilation in ((64, 3, 1, 1), (128, 4, 2, 1), (256, 6, 2, 1),
+                                                 (512, 3, 1, 2)):
+            layers = []
+            for i in range(blocks):
+                layers.append(_Bottleneck(cin, planes, stride if i == 0 else 1, dilation))
+                cin = planes * _Bottleneck.expansion
+            stages.append(nn.Sequential(*layers))
+        self.layer1, self.layer2, self.layer3, self.layer4 = stages
+
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        low = self.layer1(self.stem(x))
+        return low, self.layer4(self.layer3(self.layer2(low)))
+
+
+class DenseASPP(nn.Module):
+    """Dense atrous spatial pyramid pooling (Yang et al. 2018): cascaded dilated convolutions,
+    each fed with the input and every earlier branch's output."""
+
+    def __init__(self, cin: int, rates: tuple[int, ...] = (3, 6, 12, 18, 24), mid: int = 256,
+                 growth: int = 64, cout: int = 256):
+        super().__init__()
+        self.branches = nn.ModuleList()
+        channels = cin
+        for rate in rates:
+            self.branches.append(nn.Sequential(
+                nn.Conv2d(channels, mid, 1, bias=False), nn.BatchNorm2d(mid), nn.ReLU(inplace=True),
+                nn.Conv2d(mid, growth, 3, padding=rate, dilation=rate, bias=False),
+                nn.BatchNorm2d(growth), nn.ReLU(inplace=True),
+            ))
+            channels += growth
+        self.project = nn.Sequential(nn.Conv2d(channels, cout, 1, bias=False),
+                                     nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+    def forward(self, x: Tensor) -> Tensor:
+        features = [x]
+        for branch in self.branches:
+            features.append(branch(torch.cat(features, 1)))
+        return self.project(torch.cat(features, 1))
+
+
+class SelfAttention2d(nn.Module):
+    """Non-local self-attention over all positions, with a learnt residual gate (init 0)."""
+
+    def __init__(self, channels: int, reduction: int = 8):
+        super().__init__()
+        inner = max(channels // reduction, 1)
+        self.query = nn.Conv2d(channels, inner, 1)
+        self.key = nn.Conv2d(channels, inner, 1)
+        self.value = nn.Conv2d(channels, channels, 1)
+        self.gamma = nn.Parameter(torch.zeros(()))
+
+    def forward(self, x: Tensor) -> Tensor:
+        b, c, h, w = x.shape
+        q = self.query(x).flatten(2).transpose(1, 2)
+        k = self.key(x).flatten(2).transpose(1, 2)
+        v = self.value(x).flatten(2).transpose(1, 2)
+        out = F.scaled_dot_product_attention(q, k, v)
+        return x + self.gamma * out.transpose(1, 2).reshape(b, c, h, w)
+
+
+class PaperDepthNet(_DepthNetwork):
+    """The paper-sized network: ResNet-50 (output stride 16), dense ASPP, self-attention and a
+    DeepLabV3+ decoder, with a sigmoid depth head. Randomly initialised (no pretrained weights).
+
+    Args:
+        input_mode: ``"aif"`` or ``"aif+focused"``.
+        n_focus: number of focused images ``F`` in ``"aif+focused"`` mode.
+        depth_min: nearest depth the head can output, metres.
+        depth_max: farthest depth the head can output, metres.
+
+    Example:
+        >>> net = PaperDepthNet("aif", depth_min=1.0, depth_max=10.0).eval()
+        >>> net(torch.rand(1, 3, 64, 64)).shape
+        torch.Size([1, 1, 64, 64])
+    """
+
+    def __init__(self, input_mode: str = "aif", n_focus: int = 2, depth_min: float = 1.0,
+                 depth_max: float = 10.0):
+        super().__init__(input_mode, n_focus, depth_min, depth_max)
+        self.backbone = ResNet50OS16(self.in_channels)
+        self.aspp = DenseASPP(2048)
+        self.attention = SelfAttention2d(256)
+        self.low_project = nn.Sequential(nn.Conv2d(256, 48, 1, bias=False), nn.BatchNorm2d(48),
+                                         nn.ReLU(inplace=True))
+        self.decoder = nn.Sequential(
+            nn.Conv2d(256 + 48, 256, 3, padding=1, bias=False), nn.BatchNorm2d(256),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(256, 256, 3, padding=1, bias=False), nn.BatchNorm2d(256),
+            nn.ReLU(inplace=True),
+            nn.Conv2d(256, 1, 1),
+        )
+
+    def _logits(self, x: Tensor) -> Tensor:
+        low, high = self.backbone(x)
+        high = self.attention(self.aspp(high))
+        high = F.interpolate(high, size=low.shape[-2:], mode="bilinear", align_corners=False)
+        out = self.decoder(torch.cat([high, self.low_project(low)], 1))
+        return F.interpolate(out, size=x.shape[-2:], mode="bilinear", align_corners=False)
+
+
+NETWORKS = {"small": SmallDepthNet, "paper": PaperDepthNet}
+
+
+def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
+                  width: int = 32) -> _DepthNetwork:
+    """Build a depth network by name (``"small"`` or ``"paper"``).
+
+    Example:
+        >>> build_network("small", "aif", 0, 1.0, 10.0, width=8).input_mode
+        'aif'
+    """
+    if name not in NETWORKS:
+        raise ValueError(f"network must be one of {sorted(NETWORKS)}, got {name!r}")
+    if name == "small":
+        return SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width)
+    return PaperDepthNet(input_mode, n_focus, depth_min, depth_max)
