@@ -52,7 +52,7 @@ def window_taps(half: int, height: int, width: int):
 
 
 def gaussian_table(sigma: Tensor, half: int) -> Tensor:
-    """``exp(-d^2 / (2 sigma^2))`` for ``d = 0..half``, stacked first: ``(half+1, *sigma.shape)``."""
+    """``exp(-d^2 / (2 sigma^2))`` for ``d = 0..half``, stacked: ``(half+1, *sigma.shape)``."""
     d = torch.arange(half + 1, device=sigma.device, dtype=sigma.dtype)
     d = d.view(-1, *([1] * sigma.ndim))
     return torch.exp(-(d * d) / (2 * sigma * sigma))
@@ -117,6 +117,42 @@ class GaussianScatter(torch.autograd.Function):
         return grad_x, grad_sigma, grad_norm, None
 
 
+class InverseWindowSum(torch.autograd.Function):
+    """``1 / Z`` with ``Z = (sum_{d=-half..half} exp(-d^2 / (2 sigma^2)))^2`` per pixel.
+
+    The discrete total of a separable Gaussian window: dividing by it makes each source spread
+    unit energy over its window. A custom backward keeps the memory at one map whatever ``half``.
+    """
+
+    @staticmethod
+    def forward(ctx, sigma: Tensor, half: int) -> Tensor:
+        ctx.save_for_backward(sigma)
+        ctx.half = half
+        line, _ = _window_line_sums(sigma, half)
+        return line.pow_(-2)
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: Tensor):
+        (sigma,) = ctx.saved_tensors
+        line, moment = _window_line_sums(sigma, ctx.half)
+        # d(S^-2)/d sigma = -2 S^-3 dS/d sigma, dS/d sigma = sum_d t(d) d^2 / sigma^3
+        return grad * (-2) * moment / (sigma**3 * line**3), None
+
+
+def _window_line_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
+    """``sum_d t(d)`` and ``sum_d t(d) d^2`` over ``d = -half..half``, in place (no autograd)."""
+    line = torch.ones_like(sigma)
+    moment = torch.zeros_like(sigma)
+    scale = -0.5 / (sigma * sigma)
+    term = torch.empty_like(sigma)
+    for d in range(1, half + 1):
+        torch.mul(scale, float(d * d), out=term).exp_().mul_(2)
+        line += term
+        moment.add_(term, alpha=float(d * d))
+    return line, moment
+
+
 def _profile_normaliser(psf, coc: Tensor, half: int) -> Tensor:
     """Discrete sum of a source's profile over its whole ``(2 half + 1)^2`` window."""
     total = torch.zeros_like(coc)
@@ -135,7 +171,7 @@ class ProfileFilter(torch.autograd.Function):
 
     ``scatter=True``: ``y(p) = sum_q x(q) P(p-q; coc_q) / Z_q``, ``Z_q`` the profile's sum over the
     source's full window (each source spreads unit energy). ``scatter=False`` (gather):
-    ``y(p) = sum_u x(p+u) P(u; coc_p)``, unnormalised. Extra inputs ``params`` are the aperture's
+    ``y(p) = sum_q x(q) P(p-q; coc_p)``, unnormalised. Extra inputs ``params`` are the aperture's
     trainable parameters, so that gradients reach them.
     """
 
@@ -149,8 +185,8 @@ class ProfileFilter(torch.autograd.Function):
         for dy, dx, src, dst in window_taps(half, h, w):
             if scatter:  # the source's PSF at offset output - source
                 weight = psf.profile(_scalar(dy, coc), _scalar(dx, coc), coc[src])
-            else:  # the output's PSF at offset source - output
-                weight = psf.profile(_scalar(-dy, coc), _scalar(-dx, coc), coc[dst])
+            else:  # the output's PSF, also at offset output - source (a convolution)
+                weight = psf.profile(_scalar(dy, coc), _scalar(dx, coc), coc[dst])
             out[dst].addcmul_(weight, xs[src])
         ctx.save_for_backward(x, coc, *((norm,) if scatter else ()))
         ctx.psf, ctx.scatter, ctx.half, ctx.n_params = psf, scatter, half, len(params)
@@ -195,11 +231,11 @@ class ProfileFilter(torch.autograd.Function):
         else:
             for dy, dx, src, dst in window_taps(half, h, w):
                 with torch.no_grad():
-                    weight = psf.profile(_scalar(-dy, coc), _scalar(-dx, coc), coc[dst])
+                    weight = psf.profile(_scalar(dy, coc), _scalar(dx, coc), coc[dst])
                     grad_x[src].addcmul_(weight, grad[dst])
                     upstream = torch.zeros_like(coc)
                     upstream[dst] = (x[src] * grad[dst]).sum(1, keepdim=True)
-                _accumulate_vjp(psf, -dy, -dx, coc, upstream, grad_coc, params, grad_params)
+                _accumulate_vjp(psf, dy, dx, coc, upstream, grad_coc, params, grad_params)
         return (grad_x, grad_coc, None, None, None, *grad_params)
 
 

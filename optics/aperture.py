@@ -136,7 +136,7 @@ class Gaussian(Aperture):
         return torch.exp(-(dy * dy + dx * dx) / (2 * sigma * sigma))
 
     def half_width(self, coc_px: float) -> int:
-        sigma = max(float(self.scale) * coc_px, MIN_SIGMA_PX)
+        sigma = max(float(self.scale.detach()) * coc_px, MIN_SIGMA_PX)
         return math.ceil(3 * sigma - 1e-9) if sigma > MIN_SIGMA_PX else 0
 
 

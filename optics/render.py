@@ -7,7 +7,7 @@ semantics:
 =============  =================================================  ===========================
 mode           output pixel ``p``                                 handles
 =============  =================================================  ===========================
-``gather``     ``sum_q I(q) k(q-p; c_p) / sum_q k(q-p; c_p)``:    spatial variation; sharp
+``gather``     ``sum_q I(q) k(p-q; c_p) / sum_q k(p-q; c_p)``:    spatial variation; sharp
                the output pixel's own PSF                         pixels never blur
 ``scatter``    ``sum_q I(q) w_q(p-q) / sum_q w_q(p-q)``,          spatial variation (the
                ``w_q = k(.; c_q) / Z_q``: each source spreads     paper's layer); default
@@ -38,7 +38,7 @@ import torch
 from torch import Tensor, nn
 
 from ._checks import check_depth, check_shape
-from ._render_ops import GaussianScatter, ProfileFilter
+from ._render_ops import GaussianScatter, InverseWindowSum, ProfileFilter
 from .aperture import Aperture, Gaussian
 
 MODES = ("gather", "scatter", "layered")
@@ -167,17 +167,9 @@ def _linear_filter(x: Tensor, coc_px: Tensor, psf: Aperture, half: int, scatter:
     """Unnormalised spread of ``x`` (scatter: unit energy per source; gather: raw profile)."""
     if scatter and type(psf) is Gaussian:
         sigma = psf.sigma_px(coc_px)
-        return GaussianScatter.apply(x, sigma, 1.0 / _gaussian_window_sum(sigma, half), half)
+        return GaussianScatter.apply(x, sigma, InverseWindowSum.apply(sigma, half), half)
     params = [p for p in psf.parameters() if p.requires_grad]
     return ProfileFilter.apply(x, coc_px, psf, scatter, half, *params)
-
-
-def _gaussian_window_sum(sigma: Tensor, half: int) -> Tensor:
-    """``Z = (sum_{d=-half..half} exp(-d^2 / (2 sigma^2)))^2``: a separable window's total."""
-    line = torch.ones_like(sigma)
-    for d in range(1, half + 1):
-        line = line + 2 * torch.exp(-(d * d) / (2 * sigma * sigma))
-    return line * line
 
 
 def _render_paper(image: Tensor, coc_px: Tensor) -> Tensor:
