@@ -144,7 +144,7 @@ def write_middlebury(root: Path, h: int = 12, w: int = 18, seed: int = 5) -> dic
     scene = root / "Motorcycle-perfect"
     scene.mkdir(parents=True, exist_ok=True)
     left, right = _rgb(rng, h, w), _rgb(rng, h, w)
-    disparity = rng.uniform(20, 60, size=(h, w)).astype(np.float32)
+    disparity = rng.uniform(1, 7, size=(h, w)).astype(np.float32)  # 2.1-4.4 m
     disparity[0, 0] = np.inf
     iio.imwrite(scene / "im0.png", left)
     iio.imwrite(scene / "im1.png", right)

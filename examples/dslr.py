@@ -1,0 +1,40 @@
+"""Train and evaluate depth from defocus on real aperture pairs (DSLR set, Carvalho et al. 2018).
+
+Data: the DSLR depth-from-defocus set of Carvalho et al., "Deep Depth from Defocus: how can
+defocus blur improve 3D estimation using dense neural networks?" (ECCV workshops 2018), photos
+at f/2.8 and f/8 with registered depth. The folder given as ``--root`` must hold::
+
+    train/f2.8/<name>.png   train/f8/<name>.png   train/depth/<name>.png  (16-bit, millimetres)
+    test/f2.8/...           test/f8/...           test/depth/...
+
+The f/8 photo is the all-in-focus input, the f/2.8 photo the real focused image (35 mm, focus
+about 1.7 m): no synthesis.
+
+    python examples/dslr.py --root data/dslr --size 256 384
+"""
+
+from __future__ import annotations
+
+import sys
+
+from _common import build_parser, dataset_kwargs, train_and_evaluate
+
+from datasets import DSLR, JointAugment
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser(__doc__.splitlines()[0], "runs/dslr")
+    parser.add_argument("--depth-scale", type=float, default=1e-3,
+                        help="metres per stored depth unit")
+    args = parser.parse_args(argv)
+    kwargs = dataset_kwargs(args)
+    kwargs.pop("cache_dir")  # real focused images: nothing to cache
+    train = DSLR(args.root, "train", args.depth_scale, augment=JointAugment(hflip=0.5, gain=0.1),
+                 **kwargs)
+    test = DSLR(args.root, "test", args.depth_scale, **kwargs)
+    train_and_evaluate("DSLR", args, train, test, depth_range=(0.5, 10.0))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
