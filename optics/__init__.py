@@ -1,20 +1,40 @@
 """optics: differentiable thin-lens optics and per-pixel PSF rendering for PyTorch."""
 
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
+from .calibrate import (
+    CalibrationPair,
+    CalibrationResult,
+    calibrate,
+    fit_thin_lens_curve,
+    measure_blur,
+    plot_calibration,
+)
 from .camera import Camera
 from .lens import ThinLens
+from .raw import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
 
 __all__ = [
     "Aperture",
+    "CalibrationPair",
+    "CalibrationResult",
     "Camera",
     "DefocusRenderer",
     "Disk",
     "Gaussian",
     "Mask",
     "Polygon",
+    "RawMetadata",
+    "RawReadError",
     "Sensor",
     "ThinLens",
+    "calibrate",
+    "fit_thin_lens_curve",
+    "measure_blur",
+    "plot_calibration",
+    "read_raw",
+    "read_raw_metadata",
+    "read_raw_stack",
     "render_defocus",
 ]

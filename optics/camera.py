@@ -2,12 +2,16 @@
 
 from __future__ import annotations
 
+import json
 from collections.abc import Mapping
+from os import PathLike
+from pathlib import Path
 from typing import Any
 
+import torch
 from torch import Tensor, nn
 
-from .aperture import Aperture, Gaussian
+from .aperture import Aperture, Disk, Gaussian, Polygon
 from .lens import ThinLens
 from .sensor import Sensor
 
@@ -75,6 +79,44 @@ class Camera(nn.Module):
             "pixel_pitch": self.sensor.effective_pixel_pitch,
         }
 
+    def to_json(self, path: str | PathLike, **extra: Any) -> None:
+        """Write :meth:`settings` (metres), the PSF shape and any ``extra`` JSON values to ``path``.
+
+        Parameters of one value become numbers, ``(B,)`` ones lists. The PSF is written as
+        ``{"family": "gaussian", "scale": s}``, ``{"family": "disk"}`` or
+        ``{"family": "polygon", "n_blades": n, "rotation": r}`` (a ``Mask`` cannot be written).
+        """
+        data: dict[str, Any] = {}
+        for key, value in self.settings().items():
+            values = value.detach().cpu().reshape(-1).tolist()
+            data[key] = values[0] if value.numel() == 1 else values
+        data["psf"] = _aperture_to_dict(self.aperture)
+        data.update(extra)
+        Path(path).write_text(json.dumps(data, indent=2) + "\n")
+
+    @classmethod
+    def from_json(cls, path: str | PathLike) -> Camera:
+        """Load a camera written by :meth:`to_json` (or a calibration's JSON).
+
+        Example:
+            >>> import tempfile, pathlib
+            >>> path = pathlib.Path(tempfile.mkdtemp()) / "camera.json"
+            >>> Camera(ThinLens(0.035, 2.8, 2.0), Sensor(5.6e-6), Disk()).to_json(path)
+            >>> Camera.from_json(path).lens.f_number
+            tensor(2.8000, dtype=torch.float64)
+        """
+        data = json.loads(Path(path).read_text())
+        if not isinstance(data, dict):
+            raise ValueError(f"{path}: expected a JSON object of camera settings")
+        try:
+            aperture = _aperture_from_dict(data.get("psf", {"family": "gaussian", "scale": 0.5}))
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{path}: bad 'psf' entry {data.get('psf')!r}: {error}") from None
+        settings = {
+            k: torch.tensor(v, dtype=torch.float64) for k, v in data.items() if k in cls.SETTING_KEYS
+        }
+        return cls.from_settings(settings, aperture)
+
     def coc_px(self, depth: Tensor) -> Tensor:
         """CoC diameter in (effective) pixels for depths in metres (same shape as ``depth``)."""
         return self.sensor.to_pixels(self.lens.coc_diameter(depth))
@@ -94,3 +136,24 @@ class Camera(nn.Module):
         from .render import render_defocus
 
         return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)
+
+
+def _aperture_to_dict(aperture: Aperture) -> dict[str, Any]:
+    if isinstance(aperture, Gaussian):
+        return {"family": "gaussian", "scale": float(aperture.scale.detach().reshape(-1)[0])}
+    if isinstance(aperture, Polygon):
+        return {"family": "polygon", "n_blades": aperture.n_blades, "rotation": aperture.rotation}
+    if isinstance(aperture, Disk):
+        return {"family": "disk"}
+    raise ValueError(f"cannot write a {type(aperture).__name__} aperture to JSON")
+
+
+def _aperture_from_dict(data: Mapping[str, Any]) -> Aperture:
+    family = data["family"]
+    if family == "gaussian":
+        return Gaussian(float(data.get("scale", 0.5)))
+    if family == "disk":
+        return Disk()
+    if family == "polygon":
+        return Polygon(int(data["n_blades"]), float(data.get("rotation", 0.0)))
+    raise ValueError(f"unknown PSF family {family!r}; expected gaussian, disk or polygon")
