@@ -40,7 +40,9 @@ class DSLR(DepthDataset):
         depth_scale: metres per stored depth unit (``1e-3``: millimetres).
         sensor_width_px: width in pixels of the full sensor whose pitch the preset gives (the
             Nikon D810 records 7360); the effective pitch is scaled by this over the photo width.
-        wide, reference, depth: the three sub-folder names.
+        wide: sub-folder of the wide-open photos.
+        reference: sub-folder of the f/8 reference photos.
+        depth: sub-folder of the depth PNGs.
         preset: the camera of the wide photo (:data:`datasets.presets.DSLR` by default).
         **kwargs: ``size``, ``crop``, ``augment``, ``dtype`` of
             :class:`~datasets.base.DepthDataset` (no synthesis, so no cache is needed).

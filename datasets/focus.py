@@ -7,6 +7,7 @@ import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -56,7 +57,7 @@ def render_focal_stack(
     depth: Tensor,
     settings: Mapping[str, Tensor],
     aperture: Aperture | None = None,
-    **render_kwargs,
+    **render_kwargs: Any,
 ) -> Tensor:
     """Render one scene under ``F`` camera settings.
 
@@ -95,7 +96,7 @@ def focal_stack_key(
     depth: Tensor,
     settings: Mapping[str, Tensor],
     aperture: Aperture | None = None,
-    **render_kwargs,
+    **render_kwargs: Any,
 ) -> str:
     """Content hash of everything a synthesised focal stack depends on (hex string).
 
@@ -118,7 +119,7 @@ def cached_focal_stack(
     settings: Mapping[str, Tensor],
     aperture: Aperture | None = None,
     cache_dir: str | Path | None = None,
-    **render_kwargs,
+    **render_kwargs: Any,
 ) -> Tensor:
     """:func:`render_focal_stack` under ``torch.no_grad()``, reusing stacks saved in ``cache_dir``.
 

@@ -68,7 +68,8 @@ def resize_sample(sample: dict[str, Any], size: Sequence[int]) -> dict:
         >>> s = {"image": torch.rand(3, 8, 8), "depth": torch.ones(1, 8, 8),
         ...      "camera": {"pixel_pitch": torch.tensor([1e-5])}}
         >>> r = resize_sample(s, (4, 4))
-        >>> r["image"].shape, r["camera"]["pixel_pitch"]
+        >>> camera = r["camera"]
+        >>> r["image"].shape, camera["pixel_pitch"]
         (torch.Size([3, 4, 4]), tensor([2.0000e-05]))
     """
     height, width = _check_size("size", size)
