@@ -27,7 +27,7 @@ def load_example(name: str, monkeypatch):
 
 
 def write_lightfield_splits(root: Path) -> None:
-    write_lightfield(root, n=2, h=8, w=12)
+    write_lightfield(root, n=2, h=24, w=32)  # native size: no resampling of the views
     (root / "train.txt").write_text("IMG_0000_eslf.png\n")
     (root / "test.txt").write_text("IMG_0001_eslf.png\n")
 
