@@ -10,6 +10,7 @@ recomputes the weights, so the extra memory is a few ``(B,C,H,W)`` maps whatever
   ``t_q(dy) t_q(dx)``, so a per-source table of ``K/2 + 1`` values replaces an ``exp`` per tap.
   A compiled C++ kernel (:mod:`optics._render_cpp`) runs it on CPU when it builds; otherwise (and on
   other devices) the PyTorch loop below does.
+- :class:`GaussianGather`: the same with the output pixel's Gaussian (its transpose).
 - :class:`ProfileFilter`: any :class:`~optics.Aperture` through its ``profile``; weights indexed by
   the source pixel (scatter, each source normalised to unit energy over its discrete window) or by
   the output pixel (gather). Gradients reach the CoC map and the aperture's parameters.
@@ -98,23 +99,58 @@ class GaussianScatter(torch.autograd.Function):
         x, sigma, norm = x.contiguous(), sigma.contiguous(), norm.contiguous()
         ctx.save_for_backward(x, sigma, norm)
         ctx.half = half
-        if _render_cpp.usable(x):
-            return _render_cpp.gaussian_scatter_forward(x, sigma, norm, half)
-        return _gaussian_scatter_forward_torch(x, sigma, norm, half)
+        return _scatter_forward(x, sigma, norm, half)
 
     @staticmethod
     @once_differentiable
     def backward(ctx, grad: Tensor):
         x, sigma, norm = ctx.saved_tensors
         grad = grad.contiguous()
-        if _render_cpp.usable(x):
-            dx_raw, m1 = _render_cpp.gaussian_scatter_backward(grad, x, sigma, ctx.half)
-        else:
-            dx_raw, m1 = _gaussian_scatter_backward_torch(grad, x, sigma, ctx.half)
+        dx_raw, m1 = _scatter_backward(grad, x, sigma, ctx.half)
         grad_x = dx_raw * norm if ctx.needs_input_grad[0] else None
         grad_sigma = norm * m1 / sigma**3 if ctx.needs_input_grad[1] else None
         grad_norm = (x * dx_raw).sum(1, keepdim=True) if ctx.needs_input_grad[2] else None
         return grad_x, grad_sigma, grad_norm, None
+
+
+class GaussianGather(torch.autograd.Function):
+    """``y(p) = sum_q exp(-|p-q|^2 / (2 sigma_p^2)) x(q)``: the Gaussian of the *output* pixel.
+
+    The transpose of :class:`GaussianScatter`, so it reuses its two kernels: the forward is the
+    scatter backward's ``dx_raw`` (with ``x`` as the gradient), the backward a scatter forward.
+    """
+
+    @staticmethod
+    def forward(ctx, x: Tensor, sigma: Tensor, half: int) -> Tensor:
+        x, sigma = x.contiguous(), sigma.contiguous()
+        ctx.save_for_backward(x, sigma)
+        ctx.half = half
+        return _scatter_backward(x, x, sigma, half)[0]
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad: Tensor):
+        x, sigma = ctx.saved_tensors
+        grad = grad.contiguous()
+        grad_x = grad_sigma = None
+        if ctx.needs_input_grad[0]:
+            grad_x = _scatter_forward(grad, sigma, torch.ones_like(sigma), ctx.half)
+        if ctx.needs_input_grad[1]:
+            # d y_c(p) / d sigma_p = sum_q |p-q|^2 / sigma_p^3 t_p(p-q) x_c(q)
+            grad_sigma = _scatter_backward(x, grad, sigma, ctx.half)[1] / sigma**3
+        return grad_x, grad_sigma, None
+
+
+def _scatter_forward(x: Tensor, sigma: Tensor, norm: Tensor, half: int) -> Tensor:
+    if _render_cpp.usable(x):
+        return _render_cpp.gaussian_scatter_forward(x, sigma, norm, half)
+    return _gaussian_scatter_forward_torch(x, sigma, norm, half)
+
+
+def _scatter_backward(grad: Tensor, x: Tensor, sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
+    if _render_cpp.usable(x):
+        return _render_cpp.gaussian_scatter_backward(grad, x, sigma, half)
+    return _gaussian_scatter_backward_torch(grad, x, sigma, half)
 
 
 class InverseWindowSum(torch.autograd.Function):

@@ -25,8 +25,9 @@ constant up to the borders.
 
 Cost: ``O(B C H W K^2)`` time and ``O(B C H W)`` extra memory (no ``K^2`` copies of the image:
 the window offsets are visited in a loop and the weights recomputed in the backward pass).
-Gaussian PSFs in scatter and layered modes use a separable per-source table and, on CPU, a
-compiled C++ kernel when a compiler is available (see :mod:`optics._render_cpp`).
+Gaussian PSFs use a separable per-pixel table and, on CPU, a compiled C++ kernel when a compiler
+is available (see :mod:`optics._render_cpp`); other apertures evaluate their ``profile`` per
+window offset in PyTorch.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ import torch
 from torch import Tensor, nn
 
 from ._checks import check_depth, check_shape
-from ._render_ops import GaussianScatter, InverseWindowSum, ProfileFilter
+from ._render_ops import GaussianGather, GaussianScatter, InverseWindowSum, ProfileFilter
 from .aperture import Aperture, Gaussian
 
 MODES = ("gather", "scatter", "layered")
@@ -165,8 +166,10 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
 
 def _linear_filter(x: Tensor, coc_px: Tensor, psf: Aperture, half: int, scatter: bool) -> Tensor:
     """Unnormalised spread of ``x`` (scatter: unit energy per source; gather: raw profile)."""
-    if scatter and type(psf) is Gaussian:
+    if type(psf) is Gaussian:
         sigma = psf.sigma_px(coc_px)
+        if not scatter:
+            return GaussianGather.apply(x, sigma, half)
         return GaussianScatter.apply(x, sigma, InverseWindowSum.apply(sigma, half), half)
     params = [p for p in psf.parameters() if p.requires_grad]
     return ProfileFilter.apply(x, coc_px, psf, scatter, half, *params)

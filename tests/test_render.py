@@ -300,13 +300,14 @@ def test_compiled_kernel_matches_pytorch_loop(shape, half, dtype):
                                                                     else 1e-13))
 
 
-def test_pytorch_fallback_equals_compiled_path(monkeypatch):
+@pytest.mark.parametrize("mode", MODES)
+def test_pytorch_fallback_equals_compiled_path(monkeypatch, mode):
     image, coc, depth = _small_inputs(7)
     outs = []
     for usable in (True, False):
         monkeypatch.setattr(_render_cpp, "usable", lambda x, u=usable: u and x.device.type == "cpu"
                             and _render_cpp.library() is not None)
-        out = render_defocus(image, coc, mode="scatter")
+        out = render_defocus(image, coc, mode=mode, depth=depth)
         (grad_image, grad_coc) = torch.autograd.grad(out.pow(2).sum(), (image, coc))
         outs.append((out, grad_image, grad_coc))
     for a, b in zip(*outs, strict=True):

@@ -1,0 +1,230 @@
+"""Speed and memory of the per-pixel PSF renderer against two baselines measured in the same run.
+
+For each image shape and window size ``K`` it times ``render_defocus`` in each mode (Gaussian PSF,
+a spatially varying CoC map whose largest CoC needs exactly ``K``), a naive ``unfold``
+implementation of the same scatter op, and ``kornia.filters.gaussian_blur2d`` with the same ``K``
+(the spatially invariant floor): forward, forward + backward (gradients for the image and, for the
+renderer and unfold, the CoC map), the median of ``--runs`` runs, and the peak extra memory.
+
+Memory on CPU is the peak resident set size above the level before the call (Linux ``VmHWM``
+reset through ``/proc/self/clear_refs``; large blocks are returned to the system on free so that
+reuse does not hide them); on CUDA it is ``torch.cuda.max_memory_allocated`` above the inputs.
+
+Usage::
+
+    python benchmarks/render.py                  # full table, 1 and 2 threads, CPU (+ CUDA if any)
+    python benchmarks/render.py --quick          # the goal configuration only
+    python benchmarks/render.py --device cuda
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import functools
+import gc
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import kornia  # noqa: E402
+
+from optics import Gaussian, _render_cpp, render_defocus  # noqa: E402
+
+SHAPES = [(1, 3, 256, 256), (4, 3, 256, 256), (1, 3, 512, 512)]
+KERNELS = [7, 15, 31]
+METHODS = ["scatter", "gather", "layered", "unfold", "kornia"]
+#: Skip the unfold baseline when its K^2 copies would need more than this many bytes.
+UNFOLD_LIMIT_BYTES = 6e9
+#: A run slower than this is not repeated (its time is still reported).
+SLOW_RUN_S = 20.0
+
+
+def unfold_scatter(image: torch.Tensor, coc: torch.Tensor, k: int) -> torch.Tensor:
+    """Naive scatter: ``unfold`` the image and the per-source sigma into K*K copies."""
+    b, c, h, w = image.shape
+    half = k // 2
+    sigma = (0.5 * coc).clamp_min(1e-2)
+    d = torch.arange(-half, half + 1, dtype=image.dtype, device=image.device)
+    line = torch.exp(-(d.view(-1, 1, 1, 1) ** 2) / (2 * sigma.view(1, b, h, w) ** 2)).sum(0)
+    norm = 1.0 / (line * line)  # each source spreads unit energy over its K x K window
+    patches = torch.nn.functional.unfold(image, k, padding=half).view(b, c, k * k, h * w)
+    src_sigma = torch.nn.functional.unfold(sigma, k, padding=half).view(b, 1, k * k, h * w)
+    src_norm = torch.nn.functional.unfold(norm, k, padding=half).view(b, 1, k * k, h * w)
+    valid = torch.nn.functional.unfold(torch.ones_like(sigma), k, padding=half)
+    # Patch entry (i, j) is the source at output + (i - half, j - half): offset output - source.
+    dy, dx = torch.meshgrid(-d, -d, indexing="ij")
+    r2 = (dy * dy + dx * dx).reshape(1, 1, k * k, 1)
+    weight = src_norm * torch.exp(-r2 / (2 * src_sigma**2)) * valid.view(b, 1, k * k, h * w)
+    out = (weight * patches).sum(2) / weight.sum(2)
+    return out.view(b, c, h, w)
+
+
+def make_inputs(shape, k, device, dtype=torch.float32, seed=0):
+    """Image, CoC map (largest CoC needs exactly a K-pixel Gaussian window) and depth."""
+    gen = torch.Generator().manual_seed(seed)
+    b, c, h, w = shape
+    image = torch.rand(shape, generator=gen, dtype=dtype)
+    coc_max = 2 * (k // 2) / 3  # sigma = CoC / 2, half-width ceil(3 sigma) = K // 2
+    coc = torch.rand(b, 1, h, w, generator=gen, dtype=dtype) * coc_max
+    coc[:, :, 0, 0] = coc_max
+    depth = 1.0 + coc  # any positive depth map: orders the layers of the layered mode
+    return image.to(device), coc.to(device), depth.to(device), coc_max
+
+
+def run_method(method, image, coc, depth, k, coc_max, backward):
+    image = image.detach().requires_grad_(backward)
+    coc = coc.detach().requires_grad_(backward)
+    if method == "kornia":
+        out = kornia.filters.gaussian_blur2d(image, (k, k), (coc_max / 2, coc_max / 2))
+    elif method == "unfold":
+        out = unfold_scatter(image, coc, k)
+    else:
+        out = render_defocus(image, coc, Gaussian(), method, depth=depth)
+    if backward:
+        out.backward(torch.ones_like(out))
+    return out
+
+
+class PeakMemory:
+    """Peak extra memory of a block: CUDA allocator stats, or Linux peak RSS (VmHWM)."""
+
+    def __init__(self, device: torch.device):
+        self.device = device
+        if device.type == "cpu":
+            try:  # return large blocks to the system on free (M_MMAP_THRESHOLD = -3)
+                ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)
+            except OSError:
+                pass
+
+    @staticmethod
+    def _status(key: str) -> int:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key):
+                return int(line.split()[1]) * 1024
+        raise OSError(key)
+
+    def measure(self, fn) -> float:
+        gc.collect()
+        if self.device.type == "cuda":
+            torch.cuda.synchronize()
+            torch.cuda.reset_peak_memory_stats()
+            base = torch.cuda.memory_allocated()
+            fn()
+            torch.cuda.synchronize()
+            return torch.cuda.max_memory_allocated() - base
+        try:
+            Path("/proc/self/clear_refs").write_text("5")
+            base = self._status("VmRSS")
+            fn()
+            return self._status("VmHWM") - base
+        except OSError:
+            return float("nan")
+
+
+def timed(fn, runs: int, device: torch.device) -> float:
+    def once():
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        start = time.perf_counter()
+        fn()
+        if device.type == "cuda":
+            torch.cuda.synchronize()
+        return time.perf_counter() - start
+
+    first = once()  # warm-up (also builds the C++ kernel on first use)
+    if first > SLOW_RUN_S:
+        return first
+    return statistics.median(once() for _ in range(runs))
+
+
+def benchmark(shapes, kernels, methods, threads, runs, device):
+    rows = []
+    memory = PeakMemory(device)
+    for n_threads in threads:
+        torch.set_num_threads(n_threads)
+        for shape in shapes:
+            for k in kernels:
+                image, coc, depth, coc_max = make_inputs(shape, k, device)
+                for method in methods:
+                    unfold_bytes = shape[0] * (shape[1] + 2) * k * k * shape[2] * shape[3] * 4
+                    if method == "unfold" and unfold_bytes > UNFOLD_LIMIT_BYTES:
+                        rows.append((n_threads, shape, k, method, None, None, None, None))
+                        continue
+                    result = [n_threads, shape, k, method]
+                    for backward in (False, True):
+                        fn = functools.partial(
+                            run_method, method, image, coc, depth, k, coc_max, backward
+                        )
+                        result.append(timed(fn, runs, device))
+                        result.append(memory.measure(fn))
+                    rows.append(tuple(result))
+                    print(format_row(rows[-1]), flush=True)
+    return rows
+
+
+def format_row(row) -> str:
+    n_threads, shape, k, method, fwd, fwd_mem, both, both_mem = row
+    shape_text = "x".join(map(str, shape))
+    if fwd is None:
+        return f"| {n_threads} | {shape_text} | {k} | {method} | skipped (K^2 copies) | | | |"
+    return (
+        f"| {n_threads} | {shape_text} | {k} | {method} | {fwd * 1e3:.1f} | {fwd_mem / 2**20:.1f} "
+        f"| {both * 1e3:.1f} | {both_mem / 2**20:.1f} |"
+    )
+
+
+HEADER = (
+    "| threads | shape | K | method | forward (ms) | forward peak (MiB) | forward+backward (ms) "
+    "| forward+backward peak (MiB) |\n|---|---|---|---|---|---|---|---|"
+)
+
+
+def goals(rows) -> str:
+    """The issue's goals: exact scatter Gaussian, 1x3x512x512, K=15, forward+backward, 1 thread."""
+    pick = {r[3]: r for r in rows if r[0] == 1 and r[1] == (1, 3, 512, 512) and r[2] == 15}
+    if not {"scatter", "unfold", "kornia"} <= pick.keys() or pick["unfold"][4] is None:
+        return "(goal configuration not measured)"
+    ours, unfold, floor = pick["scatter"], pick["unfold"], pick["kornia"]
+    checks = [
+        ("speed-up over unfold (fwd+bwd)", unfold[6] / ours[6], ">= 25", unfold[6] / ours[6] >= 25),
+        ("time / kornia gaussian_blur2d (fwd+bwd)", ours[6] / floor[6], "<= 4",
+         ours[6] / floor[6] <= 4),
+        ("peak memory / gaussian_blur2d (fwd+bwd)", ours[7] / floor[7], "<= 2",
+         ours[7] / floor[7] <= 2),
+        ("unfold peak memory / ours (fwd+bwd)", unfold[7] / ours[7], ">= 10",
+         unfold[7] / ours[7] >= 10),
+    ]
+    lines = ["| goal (scatter, 1x3x512x512, K=15, 1 thread) | measured | target | met |",
+             "|---|---|---|---|"]
+    lines += [f"| {name} | {value:.2f} | {target} | {'yes' if ok else 'no'} |"
+              for name, value, target, ok in checks]
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--device", default="cpu", help="cpu or cuda")
+    parser.add_argument("--runs", type=int, default=5, help="timed runs per entry (median)")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--quick", action="store_true", help="only the goal configuration")
+    parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
+    args = parser.parse_args(argv)
+    device = torch.device(args.device)
+    shapes, kernels = (SHAPES, KERNELS) if not args.quick else ([(1, 3, 512, 512)], [15])
+    compiled = device.type == "cpu" and _render_cpp.library() is not None
+    print(f"torch {torch.__version__}, device {device}, compiled CPU kernel: {compiled}")
+    print(HEADER)
+    rows = benchmark(shapes, kernels, args.methods, args.threads, args.runs, device)
+    print()
+    print(goals(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
