@@ -33,7 +33,7 @@ from torch.utils.data import Dataset
 from optics import Aperture
 
 from .focus import CameraPreset, cached_focal_stack
-from .transforms import JointAugment, crop_sample, resize_sample
+from .transforms import JointAugment, _check_size, crop_sample, resize_sample
 
 
 class DepthDataset(Dataset):
@@ -82,7 +82,7 @@ class DepthDataset(Dataset):
         if not dtype.is_floating_point:
             raise TypeError(f"dtype must be a floating-point dtype, got {dtype}")
         self.preset = preset
-        self.size = None if size is None else (int(size[0]), int(size[1]))
+        self.size = _check_size("size", size)
         self.crop = None if crop is None else tuple(int(c) for c in crop)
         self.augment = augment
         self.cache_dir = None if cache_dir is None else Path(cache_dir)

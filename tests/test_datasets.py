@@ -296,3 +296,5 @@ def test_base_class_checks_arguments():
         DepthDataset(PRESETS["nyu"], crop=(1, 2))
     with pytest.raises(ValueError, match="crop_size"):
         JointAugment(crop_size=(0, 3))
+    with pytest.raises(ValueError, match="size must be"):
+        DepthDataset(PRESETS["nyu"], size=(32, -1))
