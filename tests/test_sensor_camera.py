@@ -88,3 +88,21 @@ def test_camera_type_errors():
     with pytest.raises(TypeError, match="aperture"):
         Camera(ThinLens(0.05, 2.0, 2.0), Sensor(5e-6), aperture="disk")
     assert isinstance(Camera(ThinLens(0.05, 2.0, 2.0), Sensor(5e-6), Disk()).aperture, Disk)
+
+
+@pytest.mark.parametrize(
+    "image_shape, depth_shape, name",
+    [((3, 8, 8), (1, 1, 8, 8), "image"), ((1, 3, 8, 8), (1, 8, 8), "depth|coc_px")],
+)
+def test_render_rejects_wrong_rank(image_shape, depth_shape, name):
+    camera = make_camera()
+    with pytest.raises(ValueError, match=name):
+        camera.render(torch.rand(image_shape), torch.full(depth_shape, 3.0))
+
+
+@pytest.mark.parametrize("bad", [0.0, -2.0, float("nan")])
+def test_render_rejects_bad_depth(bad):
+    depth = torch.full((1, 1, 8, 8), 3.0)
+    depth[0, 0, 2, 2] = bad
+    with pytest.raises(ValueError, match="depth"):
+        make_camera().render(torch.rand(1, 3, 8, 8), depth)
