@@ -1,4 +1,4 @@
-"""Optional compiled CPU kernel of the Gaussian scatter filter (``optics/csrc/gaussian_scatter.cpp``).
+"""Optional compiled CPU kernel of the Gaussian scatter filter, ``optics/csrc/gaussian_scatter.cpp``.
 
 The kernel is plain C++ with OpenMP and a C ABI, loaded with :mod:`ctypes`: it needs no PyTorch
 headers, so it builds in a couple of seconds on first use, with the system's C++ compiler
@@ -8,7 +8,8 @@ neither is writable), keyed by a hash of the source and the flags, so editing th
 
 When no compiler is found or the build fails, :func:`usable` returns ``False`` and the renderer
 uses its pure PyTorch loop (same results, tested against each other). Set ``DEFOCUS_NO_CPP=1`` to
-force the PyTorch path. Build ahead of time with ``python -m optics._render_cpp``.
+force the PyTorch path. Build ahead of time with
+``python -c "import optics._render_cpp as k; print(k.library())"``.
 """
 
 from __future__ import annotations
@@ -16,9 +17,9 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import os
+import platform
 import shutil
 import subprocess
-import sys
 import tempfile
 import threading
 from pathlib import Path
@@ -53,13 +54,24 @@ def _build_dirs() -> list[Path]:
     return dirs
 
 
+def _cpu_signature() -> str:
+    """The CPU's model and features: a library built with ``-march=native`` is tied to them."""
+    try:
+        info = Path("/proc/cpuinfo").read_text().splitlines()
+    except OSError:
+        info = []
+    keep = [line for line in info if line.startswith(("model name", "flags", "Features"))][:2]
+    return platform.machine() + "".join(keep)
+
+
 def _build() -> ctypes.CDLL | None:
     compiler = _compiler()
     if compiler is None or not SOURCE.exists():
         return None
     source = SOURCE.read_bytes()
     for flags in FLAG_SETS:
-        key = hashlib.sha256(source + " ".join([compiler, *flags]).encode()).hexdigest()[:16]
+        signature = " ".join([compiler, *flags, _cpu_signature()])
+        key = hashlib.sha256(source + signature.encode()).hexdigest()[:16]
         for folder in _build_dirs():
             library = folder / f"gaussian_scatter_{key}.so"
             if not library.exists():
@@ -136,7 +148,3 @@ def gaussian_scatter_backward(
     return dx_raw, m1
 
 
-if __name__ == "__main__":
-    lib = library()
-    print(f"compiled Gaussian scatter kernel: {'built' if lib else 'NOT available'} ({SOURCE})")
-    sys.exit(0 if lib else 1)
