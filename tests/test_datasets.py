@@ -94,6 +94,17 @@ def test_nyu_resize_scales_pixel_pitch_and_caches(tmp_path):
     assert len(list(cache.glob("*.pt"))) == 1
 
 
+def test_fixed_crop_before_resize(tmp_path):
+    write_nyu(tmp_path)
+    full, cropped = NYUv2(tmp_path)[1], NYUv2(tmp_path, crop=(2, 3, 8, 10))[1]
+    check_format(cropped, 2, 8, 10)
+    for key in ("image", "depth", "mask"):
+        assert torch.equal(cropped[key], full[key][..., 2:10, 3:13]), key
+    torch.testing.assert_close(cropped["camera"]["pixel_pitch"], full["camera"]["pixel_pitch"])
+    resized = NYUv2(tmp_path, crop=(2, 3, 8, 10), size=(4, 5))[1]
+    torch.testing.assert_close(resized["camera"]["pixel_pitch"], 2 * full["camera"]["pixel_pitch"])
+
+
 def test_cache_key_changes_with_content(tmp_path):
     settings = PRESETS["nyu"].settings()
     image, depth = torch.rand(3, 6, 6), torch.full((1, 6, 6), 3.0)
@@ -137,6 +148,18 @@ def test_kitti_sparse_depth_masked_and_densified(tmp_path):
             candidates = stored[ys, xs][d2 == d2.min()]  # ties: any nearest point is right
             assert np.isclose(candidates, float(sample["depth"][0, y, x]), rtol=1e-6).any()
     check_synthesised(sample)
+
+
+def test_kitti_depth_in_benchmark_layout(tmp_path):
+    """Depth PNGs unzipped as the depth benchmark ships them: <depth_root>/train/<drive>/..."""
+    written = write_kitti(tmp_path / "raw")
+    drive = KITTI_DRIVE.split("/")[1]
+    source = tmp_path / "raw" / KITTI_DRIVE / "proj_depth"
+    target = tmp_path / "depth" / "train" / drive / "proj_depth"
+    target.parent.mkdir(parents=True)
+    source.rename(target)
+    sample = KITTI(tmp_path / "raw", "test", depth_root=tmp_path / "depth")[0]
+    assert torch.equal(sample["mask"][0], torch.from_numpy(written["depths"][-1] > 0))
 
 
 def test_kitti_densify_none_fills_with_cap(tmp_path):
