@@ -4,26 +4,19 @@ Every pixel has its own circle of confusion (CoC, diameter in pixels, from
 :meth:`Camera.coc_px <optics.Camera.coc_px>`) and the aperture gives the PSF shape for it. Three
 semantics:
 
-=============  =================================================  ===========================
-mode           output pixel ``p``                                 handles
-=============  =================================================  ===========================
-``gather``     ``sum_q I(q) k(p-q; c_p) / sum_q k(p-q; c_p)``:    spatial variation; sharp
-               the output pixel's own PSF                         pixels never blur
-``scatter``    ``sum_q I(q) w_q(p-q) / sum_q w_q(p-q)``,          spatial variation (the
-               ``w_q = k(.; c_q) / Z_q``: each source spreads     paper's layer); default
-               its own PSF, normalised per output
-``layered``    depth layers (soft, in inverse depth) each         spatial variation and
-               scattered with its own CoCs and composited front   occlusion: no blurred
-               to back with alpha                                 background over a sharp
-                                                                  foreground edge
-=============  =================================================  ===========================
+| mode | output pixel ``p`` | handles |
+|---|---|---|
+| ``gather`` | ``sum_q I(q) k(p-q; c_p) / sum_q k(p-q; c_p)``: the output pixel's own PSF | spatial variation; sharp pixels never blur |
+| ``scatter`` | ``sum_q I(q) w_q(p-q) / sum_q w_q(p-q)``, ``w_q = k(.; c_q) / Z_q``: each source spreads its own PSF, normalised per output | spatial variation (the paper's layer); the default |
+| ``layered`` | depth layers (soft, in inverse depth) each scattered with its own CoCs and composited front to back with alpha | spatial variation and occlusion: no blurred background over a sharp foreground edge |
 
 ``Z_q`` is the discrete sum of the source's profile over its whole window, so each source spreads
 unit energy over the pixel grid (not a continuous formula). Taps outside the image are skipped
 and every mode divides by the weight an output actually receives, so a constant image stays
 constant up to the borders.
 
-Cost: ``O(B C H W K^2)`` time and ``O(B C H W)`` extra memory (no ``K^2`` copies of the image:
+Cost: ``O(B C H W K^2)`` time and ``O(B C H W)`` extra memory (``L`` times that for ``L`` layers;
+no ``K^2`` copies of the image:
 the window offsets are visited in a loop and the weights recomputed in the backward pass).
 Gaussian PSFs use a separable per-pixel table and, on CPU, a compiled C++ kernel when a compiler
 is available (see :mod:`optics._render_cpp`); other apertures evaluate their ``profile`` per
