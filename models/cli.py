@@ -13,6 +13,7 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("models.cmd_demo", "the main job on the embedded default data (README)"),
     "render": ("models.cmd_render", "render a focus sweep of a real scene and save a figure"),
+    "calibrate": ("models.cmd_calibrate", "fit a camera from raw photo pairs (sharp, defocused)"),
 }
 
 

@@ -485,7 +485,7 @@ def calibrate(
                 start[name] = {"f_number": 4.0, "pixel_pitch": 5e-6, "psf_scale": 0.5}[name]
 
     # 3. Joint fit through the renderer.
-    largest = max(max(measured), 1.0) * 1.5
+    largest = max(max(measured), 1.0) * 1.2
     if margin_px is None:
         margin_px = _make_aperture(psf, max(scale0, start.get("psf_scale", scale0))).half_width(
             largest
@@ -521,7 +521,7 @@ def calibrate(
 
     # Planar targets have one CoC per pair: the render is then a spatially invariant blur
     # (exact away from the border, which the margin leaves out), done by FFT.
-    pad = max(margin_px, _make_aperture(psf, 2 * max(scale0, start.get("psf_scale", scale0)))
+    pad = max(margin_px, _make_aperture(psf, 1.3 * max(scale0, start.get("psf_scale", scale0)))
               .half_width(largest) + 1)
     invariant = [
         None if use_renderer or isinstance(p.depth, Tensor) else _ConstantBlur(s, pad)
@@ -631,7 +631,7 @@ def calibrate(
     )
 
 
-def plot_calibration(result: CalibrationResult, path: str | PathLike | None = None):
+def plot_calibration(result: CalibrationResult, path: str | PathLike | None = None) -> Any:
     """Figure of a calibration: blur versus distance with the fitted thin-lens curve, and the
     residual map of each pair.
 

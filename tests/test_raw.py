@@ -8,10 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from _synthetic_dng import BLACK, WB, WHITE, write_dng
 
 from optics import RawReadError, read_raw, read_raw_metadata, read_raw_stack
-
-from _synthetic_dng import BLACK, WB, WHITE, write_dng
 
 SAMPLES = Path(os.environ.get("DEFOCUS_RAW_SAMPLES", Path(__file__).parents[2] / "shared/data/raw"))
 needs_samples = pytest.mark.skipif(

@@ -1,0 +1,110 @@
+"""``defocus calibrate``: fit a camera from raw photo pairs (sharp reference, defocused shot).
+
+Each ``--pair SHARP BLURRED DISTANCE`` names a sharp reference, the defocused shot of the same
+planar target and the target's distance in metres. All defocused shots share the camera setting
+being calibrated. Known values come from the options, else from the defocused files' metadata;
+everything else is fitted. Writes a JSON that :meth:`optics.Camera.from_json` loads, and a figure.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--pair", nargs=3, action="append", required=True,
+        metavar=("SHARP", "BLURRED", "DISTANCE"),
+        help="sharp reference raw file, defocused raw file, target distance in metres (repeat)",
+    )
+    parser.add_argument("--out", type=Path, default=Path("fit.json"), help="JSON of the fit")
+    parser.add_argument("--figure", type=Path, default=None,
+                        help="figure path (default: the JSON path with .png)")
+    parser.add_argument("--psf", choices=["disk", "gaussian"], default="disk", help="PSF family")
+    parser.add_argument("--focal-length", type=float, help="known focal length, metres "
+                        "(default: the metadata's)")
+    parser.add_argument("--f-number", type=float, help="known f-number (default: the metadata's)")
+    parser.add_argument("--pixel-pitch", type=float,
+                        help="known sensor pixel pitch, metres (default: the metadata's EXIF "
+                        "focal-plane resolution); binning multiplies it")
+    parser.add_argument("--focus-distance", type=float, help="known focus distance, metres")
+    parser.add_argument("--psf-scale", type=float, help="known Gaussian sigma per CoC diameter")
+    parser.add_argument("--fit", action="append", default=[], choices=KNOWN[1:4],
+                        help="fit this parameter even if the metadata gives it (repeatable)")
+    parser.add_argument("--binning", type=int, default=1,
+                        help="shrink the raw images by this factor (2: half-size Bayer binning)")
+    parser.add_argument("--white-balance", choices=["camera", "daylight", "none"],
+                        default="camera", help="white balance of the decoded images")
+    parser.add_argument("--margin", type=int, default=None, help="border left out, pixels")
+    parser.add_argument("--adam-steps", type=int, default=60, help="Adam iterations")
+    parser.add_argument("--lbfgs-steps", type=int, default=40, help="L-BFGS iterations")
+    parser.add_argument("--progress", action="store_true", help="show progress bars")
+
+
+def _distance(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"a --pair distance must be a number of metres, got {text!r}") from None
+    if not value > 0:
+        raise ValueError(f"a --pair distance must be > 0 metres, got {text!r}")
+    return value
+
+
+def run(args: argparse.Namespace) -> int:
+    from optics import CalibrationPair, RawReadError, calibrate, plot_calibration, read_raw
+
+    try:
+        pairs, meta = [], None
+        for sharp_path, blurred_path, distance_text in args.pair:
+            distance = _distance(distance_text)
+            options = {"binning": args.binning, "white_balance": args.white_balance}
+            sharp, _ = read_raw(sharp_path, **options)
+            blurred, meta = read_raw(blurred_path, **options)
+            if sharp.shape != blurred.shape:
+                raise ValueError(
+                    f"{sharp_path} is {tuple(sharp.shape[-2:])} pixels but {blurred_path} is "
+                    f"{tuple(blurred.shape[-2:])}; a pair must have one size"
+                )
+            pairs.append(CalibrationPair(sharp, blurred, distance, name=Path(blurred_path).stem))
+        given = {
+            "focal_length": args.focal_length,
+            "f_number": args.f_number,
+            "pixel_pitch": None if args.pixel_pitch is None else args.pixel_pitch * args.binning,
+            "focus_distance": args.focus_distance,
+            "psf_scale": args.psf_scale,
+        }
+        from_metadata = meta.settings()
+        sources = {}
+        for name in ("focal_length", "f_number", "pixel_pitch"):
+            if given[name] is not None:
+                sources[name] = "option"
+            elif name not in args.fit and from_metadata[name] is not None:
+                given[name] = from_metadata[name]
+                sources[name] = "metadata"
+        if given["focal_length"] is None:
+            raise ValueError("the focal length is unknown: the files do not state it; pass "
+                             "--focal-length in metres")
+        result = calibrate(
+            pairs, psf=args.psf, margin_px=args.margin, adam_steps=args.adam_steps,
+            lbfgs_steps=args.lbfgs_steps, progress=args.progress, **given,
+        )
+    except (ValueError, TypeError, FileNotFoundError, RawReadError) as error:
+        print(f"defocus calibrate: error: {error}", file=sys.stderr)
+        return 2
+    for name, source in sources.items():
+        print(f"{name}: from the {source}")
+    print(result.table())
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    result.save(args.out)
+    figure = args.figure or args.out.with_suffix(".png")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    plot_calibration(result, figure)
+    print(f"wrote {args.out} and {figure}")
+    return 0
