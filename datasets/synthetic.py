@@ -10,7 +10,7 @@ The focused images are rendered through the renderer with a configurable
 The default camera, :data:`SYNTHETIC_PRESET`, is a 50 mm f/2 lens focused at 2 m and 6 m with an
 effective pixel pitch of 180 micrometres (a 4.5 um sensor downsampled 40 times, e.g. a 6000x4000
 photo shrunk to 150x100 pixels). Its CoC diameters stay below about 3.5 pixels over the default
-depth range of 1.5-7 m, so rendering is cheap on a CPU.
+depth range of 1.5-6 m, so rendering is cheap on a CPU.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ SYNTHETIC_PRESET = CameraPreset(
     pixel_pitch=180e-6,
     focus_distances=(2.0, 6.0),
     f_numbers=(2.0,),
-    depth_cap=7.0,
+    depth_cap=6.0,
     min_depth=1.5,
 )
 
@@ -104,7 +104,7 @@ def _plane(rng: np.random.Generator, grid: tuple[Tensor, Tensor], near: float, f
 def generate_scene(
     size: tuple[int, int],
     rng: np.random.Generator,
-    depth_range: tuple[float, float] = (1.5, 7.0),
+    depth_range: tuple[float, float] = (1.5, 6.0),
     textures: Sequence[Tensor] | None = None,
     max_objects: int = 4,
 ) -> tuple[Tensor, Tensor]:
@@ -123,7 +123,7 @@ def generate_scene(
 
     Example:
         >>> image, depth = generate_scene((32, 48), np.random.default_rng(0))
-        >>> image.shape, depth.shape, bool(depth.min() >= 1.5), bool(depth.max() <= 7.0)
+        >>> image.shape, depth.shape, bool(depth.min() >= 1.5), bool(depth.max() <= 6.0)
         (torch.Size([3, 32, 48]), torch.Size([1, 32, 48]), True, True)
     """
     near, far = depth_range
@@ -136,7 +136,7 @@ def generate_scene(
     grid = (yy, xx)
 
     # Background: a far plane, sometimes slanted.
-    mid = near + 0.55 * (far - near)
+    mid = near + 0.4 * (far - near)
     depth = _plane(rng, grid, mid, far, slant=rng.random() < 0.5)
     image = _texture_patch(rng, size, textures)
 

@@ -14,6 +14,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("models.cmd_demo", "the main job on the embedded default data (README)"),
     "render": ("models.cmd_render", "render a focus sweep of a real scene and save a figure"),
     "calibrate": ("models.cmd_calibrate", "fit a camera from raw photo pairs (sharp, defocused)"),
+    "train": ("models.cmd_train", "train a depth network (config YAML + key=value overrides)"),
+    "evaluate": ("models.cmd_evaluate", "depth metrics of a checkpoint on a dataset"),
+    "predict": ("models.cmd_predict", "depth of your own photos with a checkpoint"),
 }
 
 

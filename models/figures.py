@@ -64,8 +64,8 @@ def plot_prediction(
         if kind == "rgb":
             ax.imshow(linear_to_srgb(data).permute(1, 2, 0).numpy())
         else:
-            cmap = matplotlib.colormaps["magma_r" if kind == "depth" else "viridis"].copy()
-            cmap.set_bad("0.6")
+            cmap = matplotlib.colormaps["magma_r" if kind == "depth" else "viridis"]
+            cmap = cmap.with_extremes(bad="0.6")
             limits = depth_range if kind == "depth" else (0.0, 0.5)
             shown = ax.imshow(data.numpy(), cmap=cmap, vmin=limits[0], vmax=limits[1])
             fig.colorbar(shown, ax=ax, shrink=0.75)

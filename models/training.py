@@ -367,7 +367,7 @@ class Trainer:
         terms = self._forward(batch)
         if not bool(torch.isfinite(terms["loss"])):
             raise FloatingPointError(f"loss is not finite at step {self.step + 1}: "
-                                     f"{ {k: float(v) for k, v in terms.items()} }")
+                                     f"{ {k: float(v.detach()) for k, v in terms.items()} }")
         self.optimizer.zero_grad(set_to_none=True)
         terms["loss"].backward()
         if self.config.grad_clip > 0:
@@ -506,15 +506,27 @@ class Trainer:
             os.replace(tmp, target)
         return targets[-1]
 
-    def load_checkpoint(self, path: str | Path) -> None:
-        """Restore a checkpoint written by :meth:`save_checkpoint` (exact resume)."""
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, train_set: Iterable[Mapping[str, Any]] = (),
+                        device: str = "auto") -> Trainer:
+        """A trainer holding a checkpoint's config and weights (for evaluation and prediction)."""
+        state = torch.load(path, map_location="cpu", weights_only=False)
+        cfg = TrainConfig.from_dict({**state["config"], "resume": False, "progress": False,
+                                     "device": device})
+        trainer = cls(cfg, train_set)
+        trainer.load_checkpoint(path, restore_logs=False)
+        return trainer
+
+    def load_checkpoint(self, path: str | Path, restore_logs: bool = True) -> None:
+        """Restore a checkpoint written by :meth:`save_checkpoint` (exact resume); with
+        ``restore_logs`` the CSV logs are cut back to the checkpoint's step."""
         state = torch.load(path, map_location=self.device, weights_only=False)
         self.model.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
         self.history = list(state.get("history", []))
-        if self.is_main:
+        if self.is_main and restore_logs:
             for name in ("train_log.csv", "val_log.csv"):
                 self._truncate_csv(self.config.out_dir / name, self.step)
 

@@ -1,0 +1,68 @@
+"""``defocus train``: train a depth network from a YAML config plus ``key=value`` overrides."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+#: --data choices -> class name in :mod:`datasets` (``synthetic`` is the embedded default).
+DATASETS = {"synthetic": "SyntheticScenes", "dslr": "DSLR", "nyu": "NYUv2", "kitti": "KITTI",
+            "make3d": "Make3D", "middlebury": "Middlebury", "lightfield": "LightField"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None,
+                        help="YAML file of TrainConfig fields (see the training tutorial)")
+    parser.add_argument("--set", dest="overrides", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="config overrides, e.g. steps=500 lr=3e-4 input_mode=aif "
+                             "depth_min=1.5 depth_max=7 (depths in metres)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="output folder (logs, checkpoints, figures); overrides out_dir")
+    add_data_arguments(parser)
+
+
+def add_data_arguments(parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (),
+                       default: str = "synthetic") -> None:
+    parser.add_argument("--data", choices=sorted([*DATASETS, *extra_choices]), default=default,
+                        help="dataset: synthetic scenes (embedded), the real motorcycle scene "
+                             "(evaluate) or a real-format folder given by --root")
+    parser.add_argument("--root", type=Path, default=None,
+                        help="dataset folder (all but --data synthetic)")
+    parser.add_argument("--split", default="train", help="dataset split (folder datasets)")
+    parser.add_argument("--size", type=int, nargs=2, default=[48, 48], metavar=("H", "W"),
+                        help="image size in pixels (synthetic scenes; resize of real datasets)")
+    parser.add_argument("--scenes", type=int, default=256,
+                        help="number of synthetic scenes (--data synthetic)")
+    parser.add_argument("--data-seed", type=int, default=0, help="seed of the synthetic scenes")
+
+
+def build_dataset(args: argparse.Namespace, split: str | None = None, seed_offset: int = 0):
+    """The dataset selected by ``--data`` (``split`` overrides ``--split``)."""
+    import datasets
+    from datasets.synthetic import SyntheticScenes
+
+    if args.data == "synthetic":
+        return SyntheticScenes(args.scenes, tuple(args.size), seed=args.data_seed + seed_offset)
+    if args.root is None:
+        raise SystemExit(f"--data {args.data} needs --root (the dataset folder)")
+    cls = getattr(datasets, DATASETS[args.data])
+    return cls(args.root, split=split or args.split, size=tuple(args.size))
+
+
+def run(args: argparse.Namespace) -> int:
+    from .metrics import format_table
+    from .training import TrainConfig, Trainer
+
+    cfg = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
+    overrides = list(args.overrides) + ([f"out_dir={args.out}"] if args.out else [])
+    cfg = cfg.override(overrides)
+    trainer = Trainer(cfg, build_dataset(args))
+    trainer.fit()
+    if trainer.is_main:
+        print(f"trained {trainer.step} steps; last loss {trainer.history[-1]['loss']:.4f}; "
+              f"checkpoint {cfg.out_dir / 'checkpoints' / 'last.pt'}")
+        if args.data == "synthetic":
+            val = build_dataset(args, seed_offset=1_000)
+            val.num_scenes = min(len(val), 16)
+            print(format_table({"synthetic validation": trainer.evaluate(val)}))
+    return 0

@@ -1,0 +1,123 @@
+"""Self-supervised losses: perfect prediction is the minimum, gradients reach the depth."""
+
+import kornia
+import pytest
+import torch
+
+from models.losses import (
+    DefocusLoss,
+    edge_aware_smoothness,
+    photometric_loss,
+    render_focused,
+    sharpness_loss,
+    supervised_depth_loss,
+)
+from optics import Camera
+
+
+def _camera(dtype, b=1):
+    return {"focal_length": torch.full((b, 2), 0.05, dtype=dtype),
+            "f_number": torch.full((b, 2), 2.0, dtype=dtype),
+            "focus_distance": torch.tensor([[2.0, 6.0]] * b, dtype=dtype),
+            "pixel_pitch": torch.full((b, 2), 180e-6, dtype=dtype)}
+
+
+def _scene(dtype, b=1, size=16):
+    g = torch.Generator().manual_seed(0)
+    image = torch.rand(b, 3, size, size, generator=g).to(dtype)
+    depth = (1.5 + 5 * torch.rand(b, 1, size, size, generator=g)).to(dtype)
+    return image, depth
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_photometric_matches_definition(dtype):
+    g = torch.Generator().manual_seed(1)
+    a, b = torch.rand(2, 3, 12, 12, generator=g).to(dtype), torch.rand(2, 3, 12, 12, generator=g).to(dtype)
+    ssim = kornia.metrics.ssim(a, b, 7)
+    expected = 0.85 * ((1 - ssim) / 2).clamp(0, 1).mean() + 0.15 * (a - b).abs().mean()
+    torch.testing.assert_close(photometric_loss(a, b), expected)
+    assert float(photometric_loss(a, a)) == pytest.approx(0.0, abs=1e-6)
+
+
+def test_render_focused_matches_camera_render():
+    image, depth = _scene(torch.float64, b=2)
+    camera = _camera(torch.float64, b=2)
+    out = render_focused(image, depth, camera)
+    for i in range(2):
+        for f in range(2):
+            cam = Camera.from_settings({k: v[i, f] for k, v in camera.items()})
+            # windows follow the largest CoC of the batch: Gaussian tails beyond 3 sigma differ
+            torch.testing.assert_close(out[i, f], cam.render(image[i:i + 1], depth[i:i + 1])[0],
+                                       atol=2e-4, rtol=0)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_perfect_depth_is_the_minimum(dtype):
+    image, depth = _scene(dtype)
+    camera = _camera(dtype)
+    focused = render_focused(image, depth, camera)
+    loss = DefocusLoss(smoothness_weight=0.0)
+    best = float(loss(depth, image, focused, camera)["loss"])
+    assert best == pytest.approx(0.0, abs=1e-6)
+    for factor in (0.8, 0.95, 1.05, 1.3):
+        assert float(loss(depth * factor, image, focused, camera)["loss"]) > best + 1e-4
+    constant = torch.full_like(depth, float(depth.median()))
+    assert float(loss(constant, image, focused, camera)["loss"]) > best + 1e-3
+
+
+def test_gradients_reach_depth():
+    image, depth = _scene(torch.float64, size=10)
+    camera = _camera(torch.float64)
+    focused = render_focused(image, depth, camera)
+    guess = (depth * 1.2).requires_grad_()
+    terms = DefocusLoss()(guess, image, focused, camera)
+    terms["loss"].backward()
+    assert guess.grad is not None and float(guess.grad.abs().sum()) > 0
+    assert torch.isfinite(guess.grad).all()
+
+
+def test_gradcheck_photometric_and_smoothness():
+    image, depth = _scene(torch.float64, size=5)
+    target = torch.rand(1, 3, 5, 5, dtype=torch.float64)
+    rendered = image.clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda x: photometric_loss(x, target, window_size=3),
+                                    (rendered,))
+    assert torch.autograd.gradcheck(lambda x: sharpness_loss(x, target), (rendered,))
+    d = depth.clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda x: edge_aware_smoothness(x, image), (d,))
+
+
+def test_gradcheck_loss_wrt_depth():
+    image, depth = _scene(torch.float64, size=5)
+    camera = _camera(torch.float64)
+    focused = render_focused(image, depth * 0.9, camera)
+    loss = DefocusLoss(window_size=3)
+    d = depth.clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda x: loss(x, image, focused, camera)["loss"], (d,),
+                                    atol=1e-5)
+
+
+def test_smoothness_edge_aware():
+    depth = torch.ones(1, 1, 8, 8)
+    depth[..., 4:] = 2.0
+    flat, edge = torch.zeros(1, 3, 8, 8), torch.zeros(1, 3, 8, 8)
+    edge[..., 4:] = 1.0
+    assert float(edge_aware_smoothness(depth, edge)) < float(edge_aware_smoothness(depth, flat))
+    assert float(edge_aware_smoothness(torch.full((1, 1, 8, 8), 5.0), flat)) == 0.0
+
+
+def test_supervised_loss_by_hand():
+    d = torch.tensor([[[[1.0, 3.0]]]])
+    g = torch.tensor([[[[2.0, 2.0]]]])
+    assert float(supervised_depth_loss(d, g)) == pytest.approx(0.5)
+    mask = torch.tensor([[[[True, False]]]])
+    assert float(supervised_depth_loss(d, g, mask)) == pytest.approx(0.5)
+
+
+def test_errors():
+    with pytest.raises(ValueError, match="same shape"):
+        photometric_loss(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 9))
+    with pytest.raises(ValueError, match="ssim_weight"):
+        photometric_loss(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 8), ssim_weight=2.0)
+    with pytest.raises(ValueError, match="depth"):
+        render_focused(torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8) + 1, _camera(torch.float32))

@@ -1,0 +1,103 @@
+"""Depth metrics against values computed by hand."""
+
+import math
+
+import pytest
+import torch
+
+from models.metrics import (
+    METRIC_NAMES,
+    best_constant_depth,
+    crop_mask,
+    depth_metrics,
+    format_table,
+)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_metrics_match_hand_computation(dtype):
+    pred = torch.tensor([[1.0, 3.0], [4.0, 10.0]], dtype=dtype)
+    gt = torch.tensor([[2.0, 3.0], [5.0, 8.0]], dtype=dtype)
+    m = depth_metrics(pred, gt)
+    # errors: -1, 0, -1, 2 ; ratios max(d/g,g/d): 2, 1, 1.25, 1.25
+    assert m["abs_rel"] == pytest.approx((0.5 + 0 + 0.2 + 0.25) / 4)
+    assert m["sq_rel"] == pytest.approx((1 / 2 + 0 + 1 / 5 + 4 / 8) / 4)
+    assert m["rmse"] == pytest.approx(math.sqrt((1 + 0 + 1 + 4) / 4))
+    logs = [math.log(1 / 2), 0.0, math.log(4 / 5), math.log(10 / 8)]
+    assert m["rmse_log"] == pytest.approx(math.sqrt(sum(v * v for v in logs) / 4), rel=1e-6)
+    assert m["log10"] == pytest.approx(sum(abs(v) for v in logs) / math.log(10) / 4, rel=1e-6)
+    assert m["delta1"] == pytest.approx(1 / 4)  # 1.25 is not < 1.25
+    assert m["delta2"] == pytest.approx(3 / 4)
+    assert m["delta3"] == pytest.approx(3 / 4)  # 1.25^3 = 1.953 < 2
+    assert set(m) == set(METRIC_NAMES)
+
+
+def test_delta3_excludes_ratio_two():
+    m = depth_metrics(torch.tensor([[1.0, 2.0]]), torch.tensor([[2.0, 2.0]]))
+    assert m["delta3"] == pytest.approx(0.5)
+
+
+def test_mask_cap_and_clamp():
+    pred = torch.tensor([[2.0, 100.0, 1.0]])
+    gt = torch.tensor([[2.0, 9.0, 50.0]])
+    mask = torch.tensor([[True, True, True]])
+    m = depth_metrics(pred, gt, mask, max_depth=10.0)  # 50 m is beyond the cap
+    # second pixel: prediction clamped to 10 -> |10 - 9| / 9
+    assert m["abs_rel"] == pytest.approx((0 + 1 / 9) / 2)
+    m = depth_metrics(pred, gt, torch.tensor([[True, False, False]]))
+    assert m["abs_rel"] == 0.0
+
+
+def test_batch_is_mean_of_images():
+    pred = torch.tensor([2.0, 2.0, 4.0, 4.0]).reshape(2, 1, 1, 2)
+    gt = torch.tensor([2.0, 2.0, 2.0, 2.0]).reshape(2, 1, 1, 2)
+    assert depth_metrics(pred, gt)["abs_rel"] == pytest.approx(0.5)
+
+
+def test_median_scaling_reported():
+    gt = torch.tensor([[1.0, 2.0, 3.0]])
+    m = depth_metrics(gt * 2, gt, median_scaling=True)
+    assert m["median_scale"] == pytest.approx(0.5)
+    assert m["abs_rel"] == pytest.approx(0.0)
+    assert "(median scaled)" in format_table({"net": m})
+
+
+def test_crops():
+    mask = crop_mask(100, 200, "garg")
+    rows = mask.any(1).nonzero()
+    cols = mask.any(0).nonzero()
+    assert (int(rows.min()), int(rows.max())) == (40, 98)
+    assert (int(cols.min()), int(cols.max())) == (7, 191)
+    assert crop_mask(100, 200, "eigen").sum() < crop_mask(100, 200, None).sum()
+    with pytest.raises(ValueError, match="crop"):
+        crop_mask(10, 10, "kitti")
+    with pytest.raises(ValueError, match="fractions"):
+        crop_mask(10, 10, (0.5, 0.2, 0.0, 1.0))
+
+
+def test_errors():
+    with pytest.raises(ValueError, match="same shape"):
+        depth_metrics(torch.ones(2, 2), torch.ones(3, 3))
+    with pytest.raises(ValueError, match="no valid"):
+        depth_metrics(torch.ones(2, 2), torch.ones(2, 2), torch.zeros(2, 2, dtype=torch.bool))
+    with pytest.raises(ValueError, match="finite"):
+        depth_metrics(torch.full((2, 2), float("nan")), torch.ones(2, 2))
+    with pytest.raises(TypeError):
+        depth_metrics([1.0], torch.ones(1))
+
+
+def test_best_constant_depth_minimises_abs_rel():
+    gt = torch.rand(200, generator=torch.Generator().manual_seed(0)) * 3 + 2
+    best = best_constant_depth(gt)
+    grid = torch.linspace(2, 5, 601)
+    abs_rel = ((grid[:, None] - gt[None]).abs() / gt[None]).mean(1)
+    assert depth_metrics(torch.full_like(gt, best)[None], gt[None])["abs_rel"] == pytest.approx(
+        float(abs_rel.min()), abs=1e-3)
+
+
+def test_format_table_rows_and_arrows():
+    table = format_table({"a": {k: 0.1 for k in METRIC_NAMES}, "bb": {"abs_rel": 0.25}})
+    lines = table.splitlines()
+    assert len(lines) == 4
+    assert "abs rel ↓" in lines[0] and "d<1.25 ↑" in lines[0]
+    assert "0.250" in lines[3] and "-" in lines[3]

@@ -1,0 +1,103 @@
+"""Depth networks: shapes, depth range, input modes, gradients, errors."""
+
+import pytest
+import torch
+
+from models.networks import (
+    DepthHead,
+    PaperDepthNet,
+    SmallDepthNet,
+    build_network,
+    camera_channels,
+    defocus_cues,
+)
+
+
+def _camera(b, n=2):
+    return {"focal_length": torch.full((b, n), 0.05), "f_number": torch.full((b, n), 2.0),
+            "focus_distance": torch.tensor([[2.0, 6.0][:n]] * b),
+            "pixel_pitch": torch.full((b, n), 180e-6)}
+
+
+@pytest.mark.parametrize("size", [(16, 16), (19, 27)])
+@pytest.mark.parametrize("mode", ["aif", "aif+focused"])
+def test_small_net_shapes_and_range(mode, size):
+    torch.manual_seed(0)
+    net = SmallDepthNet(mode, n_focus=2, depth_min=1.5, depth_max=6.0, width=4)
+    image = torch.rand(2, 3, *size)
+    focused = torch.rand(2, 2, 3, *size)
+    depth = net(image, focused, _camera(2)) if mode != "aif" else net(image)
+    assert depth.shape == (2, 1, *size)
+    assert float(depth.min()) > 1.5 and float(depth.max()) < 6.0
+
+
+def test_head_maps_logits_to_metres():
+    head = DepthHead(2.0, 10.0)
+    torch.testing.assert_close(head(torch.tensor([0.0, -100.0, 100.0])),
+                               torch.tensor([6.0, 2.0, 10.0]))
+    with pytest.raises(ValueError, match="depth_min"):
+        DepthHead(5.0, 1.0)
+
+
+def test_camera_channels_by_hand():
+    ch = camera_channels(_camera(1), depth_max=6.0)
+    expected_coc = 0.05**2 / (2.0 * (2.0 - 0.05) * 180e-6) / 10
+    torch.testing.assert_close(ch[0, 0], torch.tensor([2.0 / 6.0, expected_coc]))
+
+
+def test_defocus_cues_measure_blur():
+    import kornia
+
+    image = torch.rand(1, 3, 32, 32, generator=torch.Generator().manual_seed(0))
+    mild = kornia.filters.gaussian_blur2d(image, (9, 9), (0.8, 0.8))
+    strong = kornia.filters.gaussian_blur2d(image, (9, 9), (1.6, 1.6))
+    cues = defocus_cues(image, torch.stack([mild, strong], 1))
+    inner = cues[..., 8:-8, 8:-8]
+    assert bool((inner[:, 1] < inner[:, 0]).all()) and bool((inner[:, 0] < 0).all())
+
+
+def test_focused_input_changes_output():
+    torch.manual_seed(0)
+    net = SmallDepthNet("aif+focused", 2, 1.0, 10.0, width=4)
+    image = torch.rand(1, 3, 12, 12)
+    a = net(image, torch.rand(1, 2, 3, 12, 12), _camera(1))
+    b = net(image, torch.rand(1, 2, 3, 12, 12), _camera(1))
+    assert not torch.allclose(a, b)
+
+
+def test_gradients_reach_all_parameters():
+    torch.manual_seed(0)
+    net = SmallDepthNet("aif+focused", 2, 1.0, 10.0, width=4)
+    net(torch.rand(1, 3, 12, 12), torch.rand(1, 2, 3, 12, 12), _camera(1)).mean().backward()
+    assert all(p.grad is not None and torch.isfinite(p.grad).all() for p in net.parameters())
+
+
+def test_gradcheck_input_float64():
+    torch.manual_seed(0)
+    net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=2).double()
+    image = torch.rand(1, 3, 8, 8, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(net, (image,))
+
+
+def test_paper_net_forward_and_modes():
+    torch.manual_seed(0)
+    net = PaperDepthNet("aif+focused", n_focus=2, depth_min=1.0, depth_max=10.0).eval()
+    assert sum(p.numel() for p in net.parameters()) > 20e6
+    with torch.no_grad():
+        depth = net(torch.rand(1, 3, 48, 64), torch.rand(1, 2, 3, 48, 64), _camera(1))
+    assert depth.shape == (1, 1, 48, 64)
+    assert float(depth.min()) > 1.0 and float(depth.max()) < 10.0
+
+
+def test_errors():
+    with pytest.raises(ValueError, match="input_mode"):
+        SmallDepthNet("stereo")
+    with pytest.raises(ValueError, match="network"):
+        build_network("resnet", "aif", 0, 1.0, 10.0)
+    net = SmallDepthNet("aif+focused", 2, 1.0, 10.0, width=4)
+    with pytest.raises(ValueError, match="focused"):
+        net(torch.rand(1, 3, 8, 8))
+    with pytest.raises(ValueError, match="focused"):
+        net(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 3, 8, 8), _camera(1, 3))
+    with pytest.raises(ValueError, match="image"):
+        net(torch.rand(1, 1, 8, 8))

@@ -1,0 +1,170 @@
+"""Trainer: config, files, exact resume, evaluation, DDP with torchrun, and learning."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+
+from datasets.synthetic import SyntheticScenes
+from models.metrics import METRIC_NAMES, best_constant_depth, depth_metrics
+from models.training import TrainConfig, Trainer, load_model
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _tiny(out_dir, **kw):
+    base = dict(steps=4, batch_size=2, lr=1e-3, width=4, out_dir=out_dir, depth_min=1.5,
+                depth_max=6.0, progress=False, seed=0)
+    base.update(kw)
+    return TrainConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    data = SyntheticScenes(6, (16, 16), seed=3)
+    [data[i] for i in range(len(data))]  # render once for every test of the module
+    return data
+
+
+def test_config_yaml_and_overrides(tmp_path):
+    path = tmp_path / "cfg.yaml"
+    path.write_text("steps: 12\nlr: 5.0e-4\ninput_mode: aif\nout_dir: somewhere\n")
+    cfg = TrainConfig.from_yaml(path)
+    assert (cfg.steps, cfg.lr, cfg.input_mode, cfg.out_dir) == (12, 5e-4, "aif", Path("somewhere"))
+    cfg2 = cfg.override(["steps=3", "flip=false", "depth_max=8"])
+    assert (cfg2.steps, cfg2.flip, cfg2.depth_max, cfg2.lr) == (3, False, 8.0, 5e-4)
+    cfg2.to_yaml(tmp_path / "again.yaml")
+    assert TrainConfig.from_yaml(tmp_path / "again.yaml") == cfg2
+    with pytest.raises(ValueError, match="unknown config keys"):
+        cfg.override(["stepz=3"])
+    with pytest.raises(ValueError, match="key=value"):
+        cfg.override(["steps"])
+    with pytest.raises(ValueError, match="input_mode"):
+        cfg.override(["input_mode=stereo"])
+    with pytest.raises(ValueError, match="steps must be of type int"):
+        cfg.override(["steps=abc"])
+
+
+def test_fit_writes_logs_checkpoints_figures(tmp_path, scenes):
+    cfg = _tiny(tmp_path / "run", checkpoint_every=2)
+    trainer = Trainer(cfg, scenes, val_set=[scenes[0]])
+    history = trainer.fit()
+    assert [row["step"] for row in history] == [1, 2, 3, 4]
+    assert all(row["loss"] > 0 for row in history)
+    lines = (cfg.out_dir / "train_log.csv").read_text().splitlines()
+    assert lines[0].startswith("step,loss,photometric,sharpness,smoothness,lr") and len(lines) == 5
+    assert (cfg.out_dir / "val_log.csv").exists()
+    assert {p.name for p in (cfg.out_dir / "checkpoints").iterdir()} == {
+        "step_000002.pt", "step_000004.pt", "last.pt"}
+    assert (cfg.out_dir / "figures" / "step_000004.png").stat().st_size > 1000
+    assert TrainConfig.from_yaml(cfg.out_dir / "config.yaml") == cfg
+    model, loaded = load_model(cfg.out_dir / "checkpoints" / "last.pt")
+    image = scenes[0]["image"][None]
+    batch = {k: v[None] for k, v in scenes[0]["camera"].items()}
+    torch.testing.assert_close(model(image, scenes[0]["focused"][None], batch),
+                               trainer.predict(image, scenes[0]["focused"][None], batch))
+    metrics = trainer.evaluate(scenes)
+    assert set(METRIC_NAMES) <= set(metrics)
+
+
+@pytest.mark.parametrize("supervision", ["self", "depth"])
+def test_resume_gives_the_same_losses(tmp_path, scenes, supervision):
+    full = Trainer(_tiny(tmp_path / "full", supervision=supervision), scenes).fit()
+    cfg = _tiny(tmp_path / "split", supervision=supervision)
+    Trainer(cfg, scenes).fit(until=2)
+    resumed = Trainer(cfg, scenes)
+    assert resumed.step == 2
+    history = resumed.fit()
+    assert [r["step"] for r in history] == [1, 2, 3, 4]
+    for a, b in zip(full, history, strict=True):
+        assert a["loss"] == b["loss"]
+    rows = (cfg.out_dir / "train_log.csv").read_text().splitlines()
+    assert [r.split(",")[0] for r in rows[1:]] == ["1", "2", "3", "4"]
+
+
+def test_iterable_and_monocular(tmp_path, scenes):
+    samples = (scenes[i] for i in range(len(scenes)))
+    cfg = _tiny(tmp_path / "mono", input_mode="aif", steps=2)
+    trainer = Trainer(cfg, list(samples))
+    trainer.fit()
+    depth = trainer.predict(scenes[0]["image"][None])
+    assert depth.shape == (1, 1, 16, 16)
+
+
+def test_nan_loss_is_an_error(tmp_path, scenes):
+    bad = dict(scenes[0])
+    bad["depth"] = torch.full_like(bad["depth"], float("nan"))
+    trainer = Trainer(_tiny(tmp_path / "nan", steps=1, batch_size=1, supervision="depth"), [bad])
+    with pytest.raises(FloatingPointError, match="not finite"):
+        trainer.fit()
+
+
+DDP_SCRIPT = textwrap.dedent("""
+    import json, os, sys
+    from pathlib import Path
+    import torch, torch.distributed as dist
+    sys.path.insert(0, os.environ["DEFOCUS_ROOT"])
+    from datasets.synthetic import SyntheticScenes
+    from models.training import TrainConfig, Trainer
+
+    base = Path(sys.argv[1])
+    rank = int(os.environ["RANK"])
+    torch.set_num_threads(1)
+    # Each rank gets its own out_dir so that anything rank 1 wrote would show up there.
+    cfg = TrainConfig(steps=3, batch_size=2, width=4, depth_min=1.5, depth_max=6.0,
+                      out_dir=base / f"rank{rank}", progress=False, checkpoint_every=1)
+    max_diff = []
+    def check(trainer, step, losses):
+        flat = torch.cat([p.detach().reshape(-1) for p in trainer.model.parameters()])
+        gathered = [torch.zeros_like(flat) for _ in range(trainer.world_size)]
+        dist.all_gather(gathered, flat)
+        max_diff.append(max(float((g - gathered[0]).abs().max()) for g in gathered))
+    trainer = Trainer(cfg, SyntheticScenes(8, (16, 16), seed=1), step_callback=check)
+    history = trainer.fit()
+    result = {"world": trainer.world_size, "max_diff": max_diff,
+              "indices": trainer._indices(0), "losses": [r["loss"] for r in history]}
+    (base / f"result{rank}.json").write_text(json.dumps(result))
+    dist.destroy_process_group()
+""")
+
+
+@pytest.mark.slow
+def test_ddp_two_processes_gloo(tmp_path):
+    script = tmp_path / "ddp_train.py"
+    script.write_text(DDP_SCRIPT)
+    env = dict(os.environ, DEFOCUS_ROOT=str(ROOT), OMP_NUM_THREADS="1")
+    torchrun = [sys.executable, "-m", "torch.distributed.run", "--standalone",
+                "--nproc_per_node=2", str(script), str(tmp_path)]
+    proc = subprocess.run(torchrun, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    r0, r1 = (json.loads((tmp_path / f"result{r}.json").read_text()) for r in (0, 1))
+    assert r0["world"] == r1["world"] == 2
+    assert len(r0["max_diff"]) == 3 and max(r0["max_diff"] + r1["max_diff"]) == 0.0
+    assert r0["indices"] != r1["indices"]  # each process trains on its own part of the batch
+    assert r0["losses"] == r1["losses"]  # logged losses are averaged over processes
+    assert (tmp_path / "rank0" / "checkpoints" / "last.pt").exists()
+    assert (tmp_path / "rank0" / "train_log.csv").exists()
+    assert not (tmp_path / "rank1").exists()  # only rank 0 writes
+
+
+@pytest.mark.slow
+def test_trained_network_beats_constant_depth(tmp_path):
+    """Self-supervised (no depth labels) on synthetic scenes: abs rel at most half the best
+    constant depth's on held-out scenes."""
+    torch.manual_seed(0)
+    train = SyntheticScenes(48, (32, 32), seed=0)
+    test = SyntheticScenes(6, (32, 32), seed=99)
+    cfg = _tiny(tmp_path / "learn", steps=120, batch_size=4, lr=3e-3, width=8)
+    trainer = Trainer(cfg, train)
+    trainer.fit()
+    net = trainer.evaluate(test)["abs_rel"]
+    constant = sum(
+        depth_metrics(torch.full_like(s["depth"], best_constant_depth(s["depth"])), s["depth"])[
+            "abs_rel"] for s in test) / len(test)
+    print(f"abs rel: network {net:.3f}, best constant {constant:.3f}")
+    assert net <= 0.5 * constant
