@@ -62,7 +62,7 @@ def render_defocus(
 
     Args:
         image: ``(B, C, H, W)`` image, linear intensity.
-        coc_px: ``(B, 1, H, W)`` (or ``(1, 1, H, W)``) CoC *diameter* in pixels, >= 0. For the
+        coc_px: ``(B, 1, H, W)`` (or ``(1, 1, H, W)``) CoC *diameter* in pixels, finite, >= 0. For the
             Gaussian, ``sigma_px = psf.scale * coc_px`` (0.5 by default: sigma = CoC radius).
         psf: aperture shape (:class:`~optics.Gaussian`, :class:`~optics.Disk`,
             :class:`~optics.Polygon`, :class:`~optics.Mask`, ...); ``Gaussian()`` by default.
@@ -87,7 +87,7 @@ def render_defocus(
     Raises:
         TypeError: if ``image``, ``coc_px`` or ``depth`` is not a floating-point tensor, or ``psf``
             is not an :class:`~optics.Aperture`.
-        ValueError: on wrong shapes, a negative or NaN CoC, an unknown ``mode`` or ``preset``, an
+        ValueError: on wrong shapes, a negative, NaN or infinite CoC, an unknown ``mode`` or ``preset``, an
             invalid ``max_kernel_size`` or ``n_layers``, or ``"layered"`` without ``depth``.
 
     Example:
@@ -132,8 +132,8 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
             f"coc_px must have shape ({b} or 1, 1, {h}, {w}) to match image, "
             f"got {tuple(coc_px.shape)}"
         )
-    if bool(torch.any(torch.isnan(coc_px) | (coc_px < 0))):
-        raise ValueError("coc_px must be >= 0 pixels and not NaN everywhere")
+    if not bool(torch.all(torch.isfinite(coc_px) & (coc_px >= 0))):
+        raise ValueError("coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)")
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if psf is not None and not isinstance(psf, Aperture):

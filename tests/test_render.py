@@ -342,7 +342,8 @@ def test_module_equals_functional_and_broadcasts():
     [
         ({"coc_px": torch.zeros(1, 2, 8, 8)}, ValueError, "coc_px must have shape"),
         ({"coc_px": torch.zeros(1, 1, 8, 7)}, ValueError, "coc_px must have shape"),
-        ({"coc_px": torch.full((1, 1, 8, 8), float("nan"))}, ValueError, "not NaN"),
+        ({"coc_px": torch.full((1, 1, 8, 8), float("nan"))}, ValueError, "finite"),
+        ({"coc_px": torch.full((1, 1, 8, 8), float("inf"))}, ValueError, "finite"),
         ({"coc_px": -torch.ones(1, 1, 8, 8)}, ValueError, ">= 0"),
         ({"mode": "blur"}, ValueError, "mode must be one of"),
         ({"mode": "layered"}, ValueError, "needs depth"),
