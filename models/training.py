@@ -240,7 +240,7 @@ class Trainer:
         >>> cfg = TrainConfig(steps=2, batch_size=2, input_mode="aif", supervision="depth",
         ...                   width=4, progress=False, out_dir=tempfile.mkdtemp())
         >>> trainer = Trainer(cfg, samples)
-        >>> trainer.fit()[-1]["step"]
+        >>> len(trainer.fit())
         2
     """
 

@@ -64,9 +64,9 @@ def test_errors():
 
 
 def test_default_preset_blur_is_small():
-    """The default camera keeps CoCs at or below about 3.5 pixels over 1.5-6 m (cheap rendering)."""
+    """The default camera keeps CoCs at or below about 5 pixels over 1.5-6 m (cheap rendering)."""
     from optics import Camera
 
     camera = Camera.from_settings(SYNTHETIC_PRESET.settings())
     depth = torch.linspace(1.5, 6.0, 50).reshape(1, 1, 1, 50).expand(2, 1, 1, 50)
-    assert float(camera.coc_px(depth).max()) < 3.6
+    assert float(camera.coc_px(depth).max()) < 5.01

@@ -1,0 +1,56 @@
+"""The defocus command line: help texts, train -> evaluate -> predict on tiny inputs."""
+
+import json
+
+import numpy as np
+import pytest
+
+from models.cli import build_parser, main
+
+
+@pytest.mark.parametrize("command", ["train", "evaluate", "predict", "demo"])
+def test_help_explains_options(command, capsys):
+    with pytest.raises(SystemExit) as info:
+        main([command, "--help"])
+    assert info.value.code == 0
+    text = capsys.readouterr().out
+    assert "metres" in text or "pixels" in text
+    assert "default" in text
+
+
+def test_demo_defaults_write_to_runs_demo():
+    args = build_parser().parse_args(["demo"])
+    assert str(args.out) == "runs/demo" and args.steps > 0
+
+
+@pytest.mark.slow
+def test_train_evaluate_predict(tmp_path, capsys):
+    from skimage.io import imsave
+
+    out = tmp_path / "run"
+    assert main(["train", "--out", str(out), "--scenes", "4", "--size", "16", "16",
+                 "--set", "steps=2", "batch_size=2", "width=4", "progress=false",
+                 "depth_min=1.5", "depth_max=6.0"]) == 0
+    checkpoint = out / "checkpoints" / "last.pt"
+    assert checkpoint.exists() and (out / "train_log.csv").exists()
+    assert "abs rel" in capsys.readouterr().out
+
+    metrics_path = tmp_path / "m.json"
+    assert main(["evaluate", str(checkpoint), "--data", "motorcycle", "--scale", "0.08",
+                 "--json", str(metrics_path)]) == 0
+    metrics = json.loads(metrics_path.read_text())
+    assert 0 < metrics["abs_rel"] < 2 and 0 <= metrics["delta1"] <= 1
+
+    rng = np.random.default_rng(0)
+    paths = []
+    for name in ("aif", "near", "far"):
+        paths.append(tmp_path / f"{name}.png")
+        imsave(paths[-1], (rng.random((20, 24, 3)) * 255).astype(np.uint8))
+    assert main(["predict", str(checkpoint), "--image", str(paths[0]), "--focused",
+                 str(paths[1]), str(paths[2]), "--focus-distance", "2", "6", "--f-number", "2",
+                 "--focal-length", "0.05", "--pixel-pitch", "180e-6",
+                 "--out", str(tmp_path / "pred")]) == 0
+    depth = np.load(tmp_path / "pred" / "depth.npy")
+    assert depth.shape == (20, 24) and 1.5 < depth.min() and depth.max() < 6.0
+    with pytest.raises(SystemExit, match="needs 2 --focused"):
+        main(["predict", str(checkpoint), "--image", str(paths[0])])
