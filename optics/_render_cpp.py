@@ -97,6 +97,7 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
     for suffix in ("f32", "f64"):
         getattr(lib, f"gs_forward_{suffix}").argtypes = [ptr] * 4 + [i64] * 5 + [i32]
         getattr(lib, f"gs_backward_{suffix}").argtypes = [ptr] * 5 + [i64] * 5 + [i32]
+        getattr(lib, f"gs_window_sums_{suffix}").argtypes = [ptr] * 3 + [i64] * 2 + [i32]
     return lib
 
 
@@ -132,6 +133,16 @@ def gaussian_scatter_forward(x: Tensor, sigma: Tensor, norm: Tensor, half: int) 
         b, c, h, w, half, torch.get_num_threads(),
     )
     return out
+
+
+def window_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
+    """Compiled twin of ``_render_ops._window_line_sums`` (contiguous CPU tensor)."""
+    line, moment = torch.empty_like(sigma), torch.empty_like(sigma)
+    getattr(library(), f"gs_window_sums_{_suffix(sigma)}")(
+        sigma.data_ptr(), line.data_ptr(), moment.data_ptr(), sigma.numel(), half,
+        torch.get_num_threads(),
+    )
+    return line, moment
 
 
 def gaussian_scatter_backward(

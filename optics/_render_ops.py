@@ -178,6 +178,9 @@ class InverseWindowSum(torch.autograd.Function):
 
 def _window_line_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
     """``sum_d t(d)`` and ``sum_d t(d) d^2`` over ``d = -half..half``, in place (no autograd)."""
+    sigma = sigma.contiguous()
+    if _render_cpp.usable(sigma):
+        return _render_cpp.window_sums(sigma, half)
     line = torch.ones_like(sigma)
     moment = torch.zeros_like(sigma)
     scale = -0.5 / (sigma * sigma)

@@ -263,9 +263,40 @@ void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t 
   }
 }
 
+// line(q) = sum_{d=-half..half} t_q(d), moment(q) = sum_d d^2 t_q(d): the separable window's total
+// (its square normalises a source to unit energy) and its sigma-derivative times sigma^3.
+template <typename T>
+void window_sums(const T* sigma, T* line, T* moment, int64_t n, int64_t half, int nthreads) {
+  // A few flops per pixel: threads only pay off on large maps (waking them costs more).
+  const int threads = n > (int64_t(1) << 20) ? nthreads : 1;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t i = 0; i < n; ++i) {
+    const T sg = sigma[i];
+    const T e = std::exp(T(-0.5) / (sg * sg));
+    const T e2 = e * e;
+    T t = T(1), q = e, l = T(1), m = T(0);
+    for (int64_t d = 1; d <= half; ++d) {
+      t *= q;
+      q *= e2;
+      l += T(2) * t;
+      m += T(2 * d * d) * t;
+    }
+    line[i] = l;
+    moment[i] = m;
+  }
+}
+
 }  // namespace
 
 extern "C" {
+void gs_window_sums_f32(const float* sigma, float* line, float* moment, int64_t n, int64_t half,
+                        int nthreads) {
+  window_sums(sigma, line, moment, n, half, nthreads);
+}
+void gs_window_sums_f64(const double* sigma, double* line, double* moment, int64_t n,
+                        int64_t half, int nthreads) {
+  window_sums(sigma, line, moment, n, half, nthreads);
+}
 void gs_forward_f32(const float* x, const float* sigma, const float* norm, float* y, int64_t B,
                     int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
   forward(x, sigma, norm, y, B, C, H, W, half, nthreads);
