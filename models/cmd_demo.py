@@ -26,11 +26,11 @@ METHODS = ("self_supervised", "supervised", "direct_optimisation", "constant")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="output folder")
-    parser.add_argument("--steps", type=int, default=400,
+    parser.add_argument("--steps", type=int, default=500,
                         help="training steps of each network (self-supervised and supervised)")
     parser.add_argument("--batch-size", type=int, default=8, help="training scenes per step")
     parser.add_argument("--lr", type=float, default=2e-3, help="Adam learning rate")
-    parser.add_argument("--width", type=int, default=16,
+    parser.add_argument("--width", type=int, default=24,
                         help="channels of the small network's first scale")
     parser.add_argument("--scenes", type=int, default=256, help="number of synthetic scenes")
     parser.add_argument("--size", type=int, default=48,
@@ -40,9 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "camera's 180 um effective pixel pitch refers to this resolution")
     parser.add_argument("--direct-steps", type=int, default=150,
                         help="Adam steps of the direct optimisation baseline")
-    parser.add_argument("--smoothness-weight", type=float, default=0.001,
+    parser.add_argument("--smoothness-weight", type=float, default=0.01,
                         help="weight of the edge-aware depth smoothness in the self-supervised "
-                             "loss (the paper: 0.001)")
+                             "loss (the paper: 0.001; 0.01 fills textureless regions better here)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (scenes, weights)")
     parser.add_argument("--threads", type=int, default=1,
                         help="CPU threads for torch (0: torch's default); the work is many small "
