@@ -158,7 +158,7 @@ def test_trained_network_beats_constant_depth(tmp_path):
     constant for the whole held-out set, chosen on its ground truth).
 
     The issue's goal is a ratio of at most 0.5; this CI-sized run (300 steps on 32x32 scenes)
-    measured 0.66 (0.162 against 0.245), so the test guards the measured level, not the goal.
+    measured 0.62 (0.151 against 0.245), so the test guards the measured level, not the goal.
     """
     torch.manual_seed(0)
     train = SyntheticScenes(128, (32, 32), seed=0)
