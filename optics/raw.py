@@ -33,6 +33,8 @@ from .sensor import Sensor
 WHITE_BALANCES = ("camera", "daylight", "none")
 #: Output colour spaces of :func:`read_raw` (all linear).
 COLOUR_SPACES = ("camera", "srgb", "xyz")
+#: Files smaller than this many bytes per photosite cannot hold the image they declare.
+MIN_BYTES_PER_PHOTOSITE = 0.02
 #: LibRaw demosaicing algorithms offered by :func:`read_raw`.
 DEMOSAIC_ALGORITHMS = ("linear", "ahd", "dcb", "vng", "ppg")
 
@@ -344,14 +346,16 @@ def read_raw(
             visible = raw.raw_image_visible
         except rawpy.LibRawError as error:
             raise _read_error(path, error) from None
-        # LibRaw fills missing pixel data with zeros or stale memory: a handful of distinct
-        # values over the whole frame, where a real photo (even a dark one) has hundreds.
+        # A stripped file is far smaller than any encoding of its pixels (real raws, even lossy
+        # DNGs, take > 0.3 byte per photosite; stripped ones < 0.01), and LibRaw then fills the
+        # missing data with zeros or stale memory from an earlier file, so its values cannot tell.
+        bytes_per_photosite = path.stat().st_size / max(visible.size, 1)
         sample = visible.reshape(-1)[:: max(visible.size // 100_000, 1)]
-        empty = sample.size == 0 or len(np.unique(sample)) <= 16
-        if empty:
+        distinct = len(np.unique(sample)) if sample.size else 0
+        if bytes_per_photosite < MIN_BYTES_PER_PHOTOSITE or distinct <= 16:
             raise RawReadError(
-                f"{path}: the file holds no image data (its raw values take only "
-                f"{len(np.unique(sample)) if sample.size else 0} distinct values); its pixel data "
+                f"{path}: the file holds no image data ({path.stat().st_size} bytes for "
+                f"{visible.size} photosites, {distinct} distinct raw values); its pixel data "
                 "are probably stripped or truncated. Use read_raw_metadata() for its metadata"
             )
         bayer = meta.cfa_pattern is not None
