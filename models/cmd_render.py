@@ -63,15 +63,32 @@ def focus_sweep(focus_distances, focal_length, f_number, aperture, mode, scale):
 
 
 def run(args: argparse.Namespace) -> int:
+    path = write_focus_sweep(
+        args.out, args.focus, args.focal_length, args.f_number, args.aperture, args.mode, args.scale
+    )
+    print(f"wrote {path}")
+    return 0
+
+
+def write_focus_sweep(
+    out: Path,
+    focus_distances=(2.2, 3.0, 4.0, 5.0),
+    focal_length: float = 0.085,
+    f_number: float = 1.4,
+    aperture: str = "disk",
+    mode: str = "scatter",
+    scale: float = 0.5,
+) -> Path:
+    """Render the focus sweep and save ``out/focus_sweep.png`` (scene, renders, CoC maps)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     image, depth, renders = focus_sweep(
-        args.focus, args.focal_length, args.f_number, args.aperture, args.mode, args.scale
+        focus_distances, focal_length, f_number, aperture, mode, scale
     )
-    args.out.mkdir(parents=True, exist_ok=True)
+    out.mkdir(parents=True, exist_ok=True)
     n = len(renders) + 1
     fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.0), constrained_layout=True)
 
@@ -91,13 +108,12 @@ def run(args: argparse.Namespace) -> int:
     coc_max = max(float(c.max()) for _, _, c in renders)
     for i, (focus, render, coc) in enumerate(renders, start=1):
         show_rgb(axes[0, i], render)
-        axes[0, i].set_title(f"focus {focus:g} m, f/{args.f_number:g}")
+        axes[0, i].set_title(f"focus {focus:g} m, f/{f_number:g}")
         im = axes[1, i].imshow(coc[0, 0].numpy(), cmap="viridis", vmin=0, vmax=coc_max)
         axes[1, i].set_title("CoC diameter (px)")
         axes[1, i].axis("off")
     fig.colorbar(im, ax=axes[1, 1:].tolist(), shrink=0.8)
-    path = args.out / "focus_sweep.png"
+    path = out / "focus_sweep.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    print(f"wrote {path}")
-    return 0
+    return path

@@ -1,0 +1,22 @@
+import matplotlib.image as mpimg
+
+from models.cli import main
+
+
+def test_render_writes_focus_sweep_of_the_motorcycle(tmp_path):
+    assert main(["render", "--out", str(tmp_path), "--scale", "0.25", "--focus", "2.2", "5.0"]) == 0
+    figure = mpimg.imread(tmp_path / "focus_sweep.png")
+    assert figure.ndim == 3 and figure.shape[0] > 100 and figure.shape[1] > 300
+
+
+def test_focus_sweep_blurs_what_is_out_of_focus():
+    from models.cmd_render import focus_sweep
+
+    image, depth, renders = focus_sweep([2.2, 5.0], 0.085, 1.4, "disk", "scatter", 0.25)
+    near = depth < 2.6  # the floor in front of the motorcycle
+    far = depth > 4.5  # the back wall
+    for focus, render, coc in renders:
+        in_focus, out_of_focus = (near, far) if focus < 3 else (far, near)
+        assert coc[in_focus].mean() < coc[out_of_focus].mean()
+        error = (render - image).abs().mean(1, keepdim=True)
+        assert error[in_focus].mean() < error[out_of_focus].mean()
