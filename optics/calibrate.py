@@ -643,6 +643,7 @@ def plot_calibration(result: CalibrationResult, path: str | PathLike | None = No
         the matplotlib ``Figure``.
     """
     import matplotlib
+    import matplotlib.ticker
 
     if path is not None:
         matplotlib.use("Agg", force=False)
@@ -662,6 +663,10 @@ def plot_calibration(result: CalibrationResult, path: str | PathLike | None = No
     ax.plot(depths, result.measured_coc_px, "o", label="each pair's own blur")
     ax.axvline(result.values["focus_distance"], color="grey", ls=":", label="focus distance")
     ax.set_xscale("log")
+    # Plain decimal ticks: distances span less than a decade, where 3x10^0-style labels collide.
+    ax.xaxis.set_major_formatter(matplotlib.ticker.FormatStrFormatter("%g"))
+    ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    ax.set_xticks(sorted(set(round(float(d), 2) for d in depths + [result.values["focus_distance"]])))
     ax.set_xlabel("target distance (m)")
     ax.set_ylabel("CoC diameter (px)")
     ax.set_title(
