@@ -6,33 +6,102 @@ import argparse
 from pathlib import Path
 
 #: --data choices -> class name in :mod:`datasets` (``synthetic`` is the embedded default).
-DATASETS = {"synthetic": "SyntheticScenes", "dslr": "DSLR", "nyu": "NYUv2", "kitti": "KITTI",
-            "make3d": "Make3D", "middlebury": "Middlebury", "lightfield": "LightField"}
+DATASETS = {
+    "synthetic": "SyntheticScenes",
+    "dslr": "DSLR",
+    "nyu": "NYUv2",
+    "kitti": "KITTI",
+    "make3d": "Make3D",
+    "middlebury": "Middlebury",
+    "lightfield": "LightField",
+}
+
+
+def config_fields_help() -> str:
+    """One line per :class:`~models.training.TrainConfig` field: name, default and the ``#:``
+    comment above it in the source (where the units are written)."""
+    import dataclasses
+    import inspect
+
+    from .training import TrainConfig
+
+    comments: dict[str, str] = {}
+    pending: list[str] = []
+    for line in inspect.getsource(TrainConfig).splitlines():
+        stripped = line.strip()
+        if stripped.startswith("#:"):
+            pending.append(stripped[2:].strip())
+        elif pending and ":" in stripped:
+            comments[stripped.split(":", 1)[0].strip()] = " ".join(pending)
+            pending = []
+    lines = ["TrainConfig fields (--config YAML keys and --set KEY=VALUE):"]
+    for field in dataclasses.fields(TrainConfig):
+        if field.default is not dataclasses.MISSING:
+            default = field.default
+        elif field.default_factory is not dataclasses.MISSING:
+            default = field.default_factory()
+        else:
+            default = "(required)"
+        lines.append(f"  {field.name} = {default!s}: {comments.get(field.name, '')}")
+    return "\n".join(lines)
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
+    """Defaults after each option; the epilog (the config fields) kept line by line."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, default=None,
-                        help="YAML file of TrainConfig fields (see the training tutorial)")
-    parser.add_argument("--set", dest="overrides", nargs="*", default=[], metavar="KEY=VALUE",
-                        help="config overrides, e.g. steps=500 lr=3e-4 input_mode=aif "
-                             "depth_min=1.5 depth_max=7 (depths in metres)")
-    parser.add_argument("--out", type=Path, default=None,
-                        help="output folder (logs, checkpoints, figures); overrides out_dir")
+    parser.formatter_class = _HelpFormatter
+    parser.epilog = config_fields_help()
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="YAML file of TrainConfig fields (see the training tutorial)",
+    )
+    parser.add_argument(
+        "--set",
+        dest="overrides",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="config overrides, e.g. steps=500 lr=3e-4 input_mode=aif "
+        "depth_min=1.5 depth_max=7 (depths in metres)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (logs, checkpoints, figures); overrides out_dir",
+    )
     add_data_arguments(parser)
 
 
-def add_data_arguments(parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (),
-                       default: str = "synthetic") -> None:
-    parser.add_argument("--data", choices=sorted([*DATASETS, *extra_choices]), default=default,
-                        help="dataset: synthetic scenes (embedded), the real motorcycle scene "
-                             "(evaluate) or a real-format folder given by --root")
-    parser.add_argument("--root", type=Path, default=None,
-                        help="dataset folder (all but --data synthetic)")
+def add_data_arguments(
+    parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (), default: str = "synthetic"
+) -> None:
+    parser.add_argument(
+        "--data",
+        choices=sorted([*DATASETS, *extra_choices]),
+        default=default,
+        help="dataset: synthetic scenes (embedded), the real motorcycle scene "
+        "(evaluate) or a real-format folder given by --root",
+    )
+    parser.add_argument(
+        "--root", type=Path, default=None, help="dataset folder (all but --data synthetic)"
+    )
     parser.add_argument("--split", default="train", help="dataset split (folder datasets)")
-    parser.add_argument("--size", type=int, nargs=2, default=[48, 48], metavar=("H", "W"),
-                        help="image size in pixels (synthetic scenes; resize of real datasets)")
-    parser.add_argument("--scenes", type=int, default=256,
-                        help="number of synthetic scenes (--data synthetic)")
+    parser.add_argument(
+        "--size",
+        type=int,
+        nargs=2,
+        default=[48, 48],
+        metavar=("H", "W"),
+        help="image size in pixels (synthetic scenes; resize of real datasets)",
+    )
+    parser.add_argument(
+        "--scenes", type=int, default=256, help="number of synthetic scenes (--data synthetic)"
+    )
     parser.add_argument("--data-seed", type=int, default=0, help="seed of the synthetic scenes")
 
 
@@ -59,8 +128,10 @@ def run(args: argparse.Namespace) -> int:
     trainer = Trainer(cfg, build_dataset(args))
     trainer.fit()
     if trainer.is_main:
-        print(f"trained {trainer.step} steps; last loss {trainer.history[-1]['loss']:.4f}; "
-              f"checkpoint {cfg.out_dir / 'checkpoints' / 'last.pt'}")
+        print(
+            f"trained {trainer.step} steps; last loss {trainer.history[-1]['loss']:.4f}; "
+            f"checkpoint {cfg.out_dir / 'checkpoints' / 'last.pt'}"
+        )
         if args.data == "synthetic":
             val = build_dataset(args, seed_offset=1_000)
             val.num_scenes = min(len(val), 16)
