@@ -157,8 +157,9 @@ def test_trained_network_beats_constant_depth(tmp_path):
     """Self-supervised (no depth labels) on synthetic scenes beats the best constant depth (one
     constant for the whole held-out set, chosen on its ground truth).
 
-    The issue's goal is a ratio of at most 0.5; this CI-sized run (300 steps on 32x32 scenes)
-    measured 0.62 (0.151 against 0.245), so the test guards the measured level, not the goal.
+    The issue's goal is a ratio of at most 0.5. This CI-sized run (300 steps on 32x32 scenes)
+    measured 0.46 (0.113 against 0.245) with training seed 0, but 0.50 and 0.57 with seeds 1 and
+    2, so the goal is not met robustly; the bound guards the level every seed reached.
     """
     torch.manual_seed(0)
     train = SyntheticScenes(128, (32, 32), seed=0)
@@ -172,4 +173,4 @@ def test_trained_network_beats_constant_depth(tmp_path):
     constant = sum(depth_metrics(torch.full_like(s["depth"], best), s["depth"])["abs_rel"]
                    for s in test) / len(test)
     print(f"abs rel: network {net:.3f}, best constant ({best:.2f} m) {constant:.3f}")
-    assert net <= 0.75 * constant
+    assert net <= 0.6 * constant
