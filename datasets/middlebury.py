@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 
 from .base import DepthDataset
@@ -71,7 +72,7 @@ def load_motorcycle(dtype: torch.dtype = torch.float32) -> dict[str, Tensor]:
 
     left, _, disparity = data.stereo_motorcycle()
     srgb = torch.from_numpy(np.ascontiguousarray(left)).to(dtype).permute(2, 0, 1)[None] / 255.0
-    linear = torch.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    linear = rgb_to_linear_rgb(srgb)
     depth, mask = disparity_to_depth(torch.from_numpy(disparity).to(dtype), **MOTORCYCLE_CALIB)
     return {
         "image": linear,

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 import torch
 import torch.nn.functional as F
+from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 from torch.utils.data import Dataset
 
@@ -47,11 +48,6 @@ TEXTURE_NAMES = (
 )
 
 
-def srgb_to_linear(srgb: Tensor) -> Tensor:
-    """Decode sRGB values in [0, 1] to linear intensity in [0, 1]."""
-    return torch.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
-
-
 @lru_cache(maxsize=1)
 def load_textures() -> tuple[Tensor, ...]:
     """The texture images as ``(3, h, w)`` float32 linear tensors in [0, 1] (cached)."""
@@ -63,7 +59,7 @@ def load_textures() -> tuple[Tensor, ...]:
         if array.ndim == 2:
             array = np.repeat(array[..., None], 3, axis=-1)
         tensor = torch.from_numpy(np.ascontiguousarray(array[..., :3])).permute(2, 0, 1)
-        textures.append(srgb_to_linear(tensor).contiguous())
+        textures.append(rgb_to_linear_rgb(tensor).contiguous())
     return tuple(textures)
 
 

@@ -85,6 +85,8 @@ def write_focus_sweep(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    from .figures import linear_to_srgb
+
     image, depth, renders = focus_sweep(
         focus_distances, focal_length, f_number, aperture, mode, scale
     )
@@ -93,10 +95,7 @@ def write_focus_sweep(
     fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.0), constrained_layout=True)
 
     def show_rgb(ax, linear):
-        srgb = torch.where(
-            linear <= 0.0031308, 12.92 * linear, 1.055 * linear.clamp_min(1e-8) ** (1 / 2.4) - 0.055
-        )
-        ax.imshow(srgb[0].permute(1, 2, 0).clamp(0, 1).numpy())
+        ax.imshow(linear_to_srgb(linear[0]).permute(1, 2, 0).numpy())
         ax.axis("off")
 
     show_rgb(axes[0, 0], image)

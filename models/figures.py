@@ -5,14 +5,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
+from kornia.color import linear_rgb_to_rgb
 from torch import Tensor
 
 
 def linear_to_srgb(linear: Tensor) -> Tensor:
     """Encode linear intensity in [0, 1] as sRGB for display."""
-    linear = linear.clamp(0, 1)
-    return torch.where(linear <= 0.0031308, 12.92 * linear,
-                       1.055 * linear.clamp_min(1e-8) ** (1 / 2.4) - 0.055)
+    return linear_rgb_to_rgb(linear.clamp(0, 1))
 
 
 def plot_prediction(
