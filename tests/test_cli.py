@@ -54,3 +54,32 @@ def test_train_evaluate_predict(tmp_path, capsys):
     assert depth.shape == (20, 24) and 1.5 < depth.min() and depth.max() < 6.0
     with pytest.raises(SystemExit, match="needs 2 --focused"):
         main(["predict", str(checkpoint), "--image", str(paths[0])])
+
+
+@pytest.mark.slow
+def test_demo_writes_metrics_json_and_figures(tmp_path, capsys):
+    import torch
+
+    from models.cmd_demo import METHODS, motorcycle_sample
+    from models.metrics import METRIC_NAMES, depth_metrics
+
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--steps", "2", "--scenes", "4", "--size", "16",
+                 "--width", "4", "--scale", "0.08", "--direct-steps", "2"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert tuple(metrics) == METHODS
+    for method, values in metrics.items():
+        assert set(values) >= set(METRIC_NAMES), method
+        assert all(np.isfinite(v) for v in values.values()), method
+        assert 0 < values["abs_rel"] < 2 and 0 <= values["delta1"] <= 1
+    # The constant row is the abs-rel-optimal constant: no other constant does better.
+    sample = motorcycle_sample(0.08)
+    for depth in torch.linspace(1.5, 6.0, 19):
+        other = depth_metrics(torch.full_like(sample["depth"], depth)[None], sample["depth"][None],
+                              sample["mask"][None])["abs_rel"]
+        assert metrics["constant"]["abs_rel"] <= other + 1e-6
+    for name in ("motorcycle_comparison.png", "focus_sweep.png",
+                 "self_supervised/checkpoints/last.pt", "supervised/train_log.csv"):
+        assert (out / name).stat().st_size > 0, name
+    printed = capsys.readouterr().out
+    assert "self_supervised" in printed and "best constant abs rel" in printed

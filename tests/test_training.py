@@ -155,16 +155,17 @@ def test_ddp_two_processes_gloo(tmp_path):
 @pytest.mark.slow
 def test_trained_network_beats_constant_depth(tmp_path):
     """Self-supervised (no depth labels) on synthetic scenes beats the best constant depth (one
-    constant for the whole held-out set, chosen on its ground truth).
+    constant for the whole held-out set, chosen on its ground truth) by at least 2x in abs rel.
 
-    The issue's goal is a ratio of at most 0.5. This CI-sized run (300 steps on 32x32 scenes)
-    measured 0.46 (0.113 against 0.245) with training seed 0, but 0.50 and 0.57 with seeds 1 and
-    2, so the goal is not met robustly; the bound guards the level every seed reached.
+    CI-sized: 300 steps on 128 scenes of 32x32 pixels, evaluated on 24 unseen scenes (about a
+    minute on one core). Measured ratios: 0.462, 0.464 and 0.475 with training seeds 0, 1, 2
+    (0.45 with 400 steps; width 16 instead of 32 gave 0.51-0.55, depth-supervised width 16
+    0.44-0.47, so the network's capacity, not the self-supervised loss, sets the level).
     """
     torch.manual_seed(0)
     train = SyntheticScenes(128, (32, 32), seed=0)
-    test = SyntheticScenes(6, (32, 32), seed=99)
-    cfg = _tiny(tmp_path / "learn", steps=300, batch_size=8, lr=3e-3, width=16)
+    test = SyntheticScenes(24, (32, 32), seed=99)
+    cfg = _tiny(tmp_path / "learn", steps=300, batch_size=8, lr=3e-3, width=32)
     trainer = Trainer(cfg, train)
     trainer.fit()
     net = trainer.evaluate(test)["abs_rel"]
@@ -172,5 +173,6 @@ def test_trained_network_beats_constant_depth(tmp_path):
     best = best_constant_depth(everything)
     constant = sum(depth_metrics(torch.full_like(s["depth"], best), s["depth"])["abs_rel"]
                    for s in test) / len(test)
-    print(f"abs rel: network {net:.3f}, best constant ({best:.2f} m) {constant:.3f}")
-    assert net <= 0.6 * constant
+    print(f"abs rel: network {net:.3f}, best constant ({best:.2f} m) {constant:.3f}, "
+          f"ratio {net / constant:.3f}")
+    assert net <= 0.5 * constant
