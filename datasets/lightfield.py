@@ -34,7 +34,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from optics._checks import check_shape
+from optics.checks import check_shape
 
 from .base import DepthDataset
 from .focus import CameraPreset

@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from optics._checks import check_shape
+from optics.checks import check_shape
 
 from .losses import DefocusLoss
 

@@ -21,7 +21,7 @@ import torch
 from torch import Tensor, nn
 
 from optics import Aperture, Camera
-from optics._checks import check_shape
+from optics.checks import check_shape
 
 
 def render_focused(

@@ -31,7 +31,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from optics._checks import check_shape
+from optics.checks import check_shape
 
 INPUT_MODES = ("aif", "aif+focused")
 

@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from ._checks import check_positive
+from .checks import check_positive
 
 #: Smallest Gaussian sigma in pixels: below it the PSF is a delta to working precision.
 MIN_SIGMA_PX = 1e-2

@@ -39,9 +39,9 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from ._checks import check_shape
 from .aperture import Aperture, Disk, Gaussian
 from .camera import Camera
+from .checks import check_shape
 from .lens import ThinLens
 from .sensor import Sensor
 

@@ -5,25 +5,15 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
-from ._checks import (
+from .checks import (
     ParamLike,
     as_parameter_tensor,
     broadcast_to_batch,
     check_depth,
     check_positive,
+    register_physical,
 )
-from ._checks import format_param as _fmt
-
-
-def register_physical(module: nn.Module, name: str, value: ParamLike, unit: str = "") -> None:
-    """Store a physical parameter on ``module``: an ``nn.Parameter`` stays one, anything else is a
-    buffer, so ``.to()``, ``state_dict`` and optimisers work either way."""
-    tensor = as_parameter_tensor(name, value)
-    check_positive(name, tensor.detach(), unit)
-    if isinstance(value, nn.Parameter):
-        module.register_parameter(name, value)
-    else:
-        module.register_buffer(name, tensor)
+from .checks import format_param as _fmt
 
 
 class ThinLens(nn.Module):

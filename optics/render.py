@@ -31,9 +31,9 @@ import warnings
 import torch
 from torch import Tensor, nn
 
-from ._checks import check_depth, check_shape
 from ._render_ops import GaussianGather, GaussianScatter, InverseWindowSum, ProfileFilter
 from .aperture import Aperture, Gaussian
+from .checks import check_depth, check_shape
 
 MODES = ("gather", "scatter", "layered")
 PRESETS = ("gur_wolf_2019",)

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 from torch import Tensor, nn
 
-from ._checks import ParamLike, broadcast_to_batch
-from ._checks import format_param as _fmt
-from .lens import register_physical
+from .checks import ParamLike, broadcast_to_batch, register_physical
+from .checks import format_param as _fmt
 
 
 class Sensor(nn.Module):

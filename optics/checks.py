@@ -1,4 +1,4 @@
-"""Input checks shared by the optics modules.
+"""Public input checks for camera parameters, images and depth maps (used by every package).
 
 Every check raises a ``ValueError`` or ``TypeError`` whose message names the argument, the value
 received and what is allowed. Messages are only formatted on failure.
@@ -9,7 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 ParamLike = float | int | Tensor | Sequence[float]
 
@@ -106,3 +106,14 @@ def format_param(value: Tensor) -> str:
     values = value.detach().reshape(-1).tolist()
     text = ", ".join(f"{v:.6g}" for v in values)
     return text if value.ndim == 0 else f"[{text}]"
+
+
+def register_physical(module: nn.Module, name: str, value: ParamLike, unit: str = "") -> None:
+    """Store a physical parameter on ``module``: an ``nn.Parameter`` stays one, anything else is a
+    buffer, so ``.to()``, ``state_dict`` and optimisers work either way."""
+    tensor = as_parameter_tensor(name, value)
+    check_positive(name, tensor.detach(), unit)
+    if isinstance(value, nn.Parameter):
+        module.register_parameter(name, value)
+    else:
+        module.register_buffer(name, tensor)
