@@ -98,6 +98,18 @@ class ThinLens(nn.Module):
         f, n, df = self._params(depth)
         return f * f / (n * (df - f)) * (1.0 - df / depth)
 
+    def coc_at_infinity(self) -> Tensor:
+        """CoC diameter on the sensor (metres) of a point at infinity, `A = f^2 / (N (D_f - f))`.
+
+        The signed CoC is linear in inverse depth: `c(D) = A (1 - D_f / D)`.
+
+        Example:
+            >>> round(ThinLens(0.05, 2.0, 2.0).coc_at_infinity().item() * 1e6, 2)  # micrometres
+            641.03
+        """
+        f, n, df = self.focal_length, self.f_number, self.focus_distance
+        return f * f / (n * (df - f))
+
     def coc_diameter(self, depth: Tensor) -> Tensor:
         """Circle-of-confusion diameter on the sensor (metres), ``|signed_coc_diameter|``."""
         return self.signed_coc_diameter(depth).abs()

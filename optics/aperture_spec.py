@@ -1,0 +1,129 @@
+"""The one registry of PSF (aperture) names: parse and write aperture specs.
+
+A spec is a short string used everywhere a PSF shape is named: camera JSON files, calibration,
+training configs and the command line.
+
+| spec | aperture |
+|---|---|
+| `gaussian` | `Gaussian(0.5)`: sigma = 0.5 x CoC diameter (the paper's choice) |
+| `gaussian:S` | `Gaussian(S)`: sigma = S x CoC diameter |
+| `disk` | `Disk()`: a pillbox with an anti-aliased edge |
+| `polygon:N` | `Polygon(N)`: an N-blade aperture |
+| `polygon:N:R` | `Polygon(N, rotation=R)`, R in radians |
+
+A `Mask` (a measured PSF image) has no spec: pass the `Mask` object itself.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+from .aperture import Aperture, Disk, Gaussian, Polygon
+
+#: Families a spec may name, with the arguments each takes after its name.
+APERTURE_FAMILIES: dict[str, str] = {
+    "gaussian": "gaussian[:SCALE]",
+    "disk": "disk",
+    "polygon": "polygon:N_BLADES[:ROTATION_RADIANS]",
+}
+
+
+def _spec_error(spec: object, why: str) -> ValueError:
+    allowed = ", ".join(APERTURE_FAMILIES.values())
+    return ValueError(f"aperture spec {spec!r} is not valid ({why}); expected one of: {allowed}")
+
+
+def _number(spec: str, text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise _spec_error(spec, f"{what} {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise _spec_error(spec, f"{what} must be finite")
+    return value
+
+
+def parse_aperture(spec: str | Aperture) -> Aperture:
+    """Build the aperture a spec names (an `Aperture` is returned as it is).
+
+    Args:
+        spec: e.g. `"gaussian"`, `"gaussian:0.5"`, `"disk"`, `"polygon:6"`, `"polygon:6:0.3"`.
+
+    Raises:
+        ValueError: for an unknown family or bad arguments (the message lists what is allowed).
+
+    Example:
+        >>> parse_aperture("polygon:6")
+        Polygon(n_blades=6, rotation=0.0)
+        >>> parse_aperture("gaussian:0.25").scale
+        tensor(0.2500, dtype=torch.float64)
+    """
+    if isinstance(spec, Aperture):
+        return spec
+    if not isinstance(spec, str):
+        raise TypeError(f"aperture must be a spec string or an Aperture, got {type(spec).__name__}")
+    family, *args = spec.strip().lower().split(":")
+    if family not in APERTURE_FAMILIES:
+        raise _spec_error(spec, f"unknown family {family!r}")
+    if family == "gaussian":
+        if len(args) > 1:
+            raise _spec_error(spec, "gaussian takes at most one argument, its scale")
+        scale = _number(spec, args[0], "scale") if args else 0.5
+        if scale <= 0:
+            raise _spec_error(spec, f"scale must be > 0, got {scale}")
+        return Gaussian(scale)
+    if family == "disk":
+        if args:
+            raise _spec_error(spec, "disk takes no argument")
+        return Disk()
+    if not 1 <= len(args) <= 2:
+        raise _spec_error(spec, "polygon needs its number of blades")
+    blades = _number(spec, args[0], "n_blades")
+    if blades != int(blades) or blades < 3:
+        raise _spec_error(spec, f"n_blades must be an integer >= 3, got {args[0]}")
+    rotation = _number(spec, args[1], "rotation") if len(args) == 2 else 0.0
+    return Polygon(int(blades), rotation)
+
+
+def aperture_spec(aperture: Aperture | str) -> str:
+    """The spec string of an aperture (inverse of `parse_aperture`).
+
+    Raises:
+        ValueError: for a `Mask` or any aperture without a spec.
+
+    Example:
+        >>> from optics import Disk, Gaussian
+        >>> aperture_spec(Gaussian(0.5)), aperture_spec(Disk())
+        ('gaussian:0.5', 'disk')
+    """
+    if isinstance(aperture, str):
+        return aperture_spec(parse_aperture(aperture))
+    if isinstance(aperture, Gaussian):
+        scale = aperture.scale.detach().reshape(-1)
+        if scale.numel() != 1:
+            raise ValueError("a Gaussian with one scale per batch item has no spec")
+        return f"gaussian:{float(scale[0]):.6g}"
+    if isinstance(aperture, Polygon):
+        rotation = float(aperture.rotation)
+        return f"polygon:{aperture.n_blades}" + (f":{rotation:.6g}" if rotation else "")
+    if type(aperture) is Disk:
+        return "disk"
+    raise ValueError(
+        f"a {type(aperture).__name__} aperture has no spec string; pass the object itself "
+        f"(specs exist for {', '.join(APERTURE_FAMILIES)})"
+    )
+
+
+def aperture_from_json(value: str | Mapping[str, Any]) -> Aperture:
+    """Read the `psf` entry of a camera JSON: a spec string, or the older
+    `{"family": ..., "scale"/"n_blades"/"rotation": ...}` object."""
+    if isinstance(value, Mapping):
+        family = str(value.get("family", ""))
+        if family == "gaussian":
+            return parse_aperture(f"gaussian:{value.get('scale', 0.5)}")
+        if family == "polygon":
+            return parse_aperture(f"polygon:{value.get('n_blades')}:{value.get('rotation', 0.0)}")
+        return parse_aperture(family)
+    return parse_aperture(value)
