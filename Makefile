@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(BIN)/defocus demo --out runs/demo
 
 test: $(STAMP)
-	$(BIN)/ruff check optics models datasets tests benchmarks examples
+	$(BIN)/ruff check optics models datasets defocus tests benchmarks examples
 	$(BIN)/python -m pytest -q --durations=15
 	$(BIN)/mkdocs build --strict --site-dir build/site
 

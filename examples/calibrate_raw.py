@@ -30,7 +30,7 @@ def synthetic_pairs(folder: Path, size: int = 96) -> list[list[str]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from models.cli import main as defocus
+    from defocus.cli import main as defocus
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pair", nargs=3, action="append", metavar=("SHARP", "BLURRED", "M"))

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from models.cli import build_parser, main
+from defocus.cli import build_parser, main
 
 
 @pytest.mark.parametrize("command", ["train", "evaluate", "predict", "demo"])
@@ -60,7 +60,7 @@ def test_train_evaluate_predict(tmp_path, capsys):
 def test_demo_writes_metrics_json_and_figures(tmp_path, capsys):
     import torch
 
-    from models.cmd_demo import METHODS, motorcycle_sample
+    from defocus.commands.demo import METHODS, motorcycle_sample
     from models.metrics import METRIC_NAMES, depth_metrics
 
     out = tmp_path / "demo"

@@ -7,7 +7,7 @@ import json
 import pytest
 from _synthetic_dng import synthetic_camera, write_pairs
 
-from models.cli import main
+from defocus.cli import main
 from optics import Camera, Disk
 
 

@@ -2,8 +2,8 @@ import dataclasses
 
 import pytest
 
-from models.cli import COMMANDS, build_parser
-from models.cmd_train import config_fields_help
+from defocus.cli import COMMANDS, build_parser
+from defocus.commands.train import config_fields_help
 from models.training import TrainConfig
 
 

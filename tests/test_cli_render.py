@@ -1,6 +1,6 @@
 import matplotlib.image as mpimg
 
-from models.cli import main
+from defocus.cli import main
 
 
 def test_render_writes_focus_sweep_of_the_motorcycle(tmp_path):
@@ -10,7 +10,7 @@ def test_render_writes_focus_sweep_of_the_motorcycle(tmp_path):
 
 
 def test_focus_sweep_blurs_what_is_out_of_focus():
-    from models.cmd_render import focus_sweep
+    from defocus.commands.render import focus_sweep
 
     image, depth, renders = focus_sweep([2.2, 5.0], 0.085, 1.4, "disk", "scatter", 0.25)
     near = depth < 2.6  # the floor in front of the motorcycle

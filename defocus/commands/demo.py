@@ -88,7 +88,7 @@ def plot_comparison(path: Path, sample: dict, predictions: dict, depth_range) ->
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .figures import linear_to_srgb
+    from models.figures import linear_to_srgb
 
     target, mask = sample["depth"][0], sample["mask"][0]
     n = len(predictions) + 1
@@ -119,12 +119,11 @@ def plot_comparison(path: Path, sample: dict, predictions: dict, depth_range) ->
 
 def run(args: argparse.Namespace) -> int:
     from datasets.synthetic import SYNTHETIC_PRESET, SyntheticScenes
-
-    from .cmd_render import write_focus_sweep
-    from .direct import fit_depth_direct
-    from .figures import plot_prediction
-    from .metrics import best_constant_depth, depth_metrics, format_table
-    from .training import TrainConfig, Trainer
+    from defocus.commands.render import write_focus_sweep
+    from models.direct import fit_depth_direct
+    from models.figures import plot_prediction
+    from models.metrics import best_constant_depth, depth_metrics, format_table
+    from models.training import TrainConfig, Trainer
 
     if args.threads:
         torch.set_num_threads(args.threads)

@@ -85,7 +85,7 @@ def write_focus_sweep(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .figures import linear_to_srgb
+    from models.figures import linear_to_srgb
 
     image, depth, renders = focus_sweep(
         focus_distances, focal_length, f_number, aperture, mode, scale

@@ -9,14 +9,16 @@ import argparse
 import importlib
 import sys
 
+from defocus import __version__
+
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
-    "demo": ("models.cmd_demo", "the main job on the embedded default data (README)"),
-    "render": ("models.cmd_render", "render a focus sweep of a real scene and save a figure"),
-    "calibrate": ("models.cmd_calibrate", "fit a camera from raw photo pairs (sharp, defocused)"),
-    "train": ("models.cmd_train", "train a depth network (config YAML + key=value overrides)"),
-    "evaluate": ("models.cmd_evaluate", "depth metrics of a checkpoint on a dataset"),
-    "predict": ("models.cmd_predict", "depth of your own photos with a checkpoint"),
+    "demo": ("defocus.commands.demo", "the main job on the embedded default data (README)"),
+    "render": ("defocus.commands.render", "render a focus sweep of a real scene and save a figure"),
+    "calibrate": ("defocus.commands.calibrate", "fit a camera from raw photo pairs (sharp, defocused)"),
+    "train": ("defocus.commands.train", "train a depth network (config YAML + key=value overrides)"),
+    "evaluate": ("defocus.commands.evaluate", "depth metrics of a checkpoint on a dataset"),
+    "predict": ("defocus.commands.predict", "depth of your own photos with a checkpoint"),
 }
 
 
@@ -25,6 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="defocus",
         description="Differentiable optics and depth from defocus. Lengths are in metres.",
     )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         command = sub.add_parser(

@@ -30,9 +30,8 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from datasets.io import read_rgb
-
-    from .figures import plot_prediction
-    from .training import Trainer
+    from models.figures import plot_prediction
+    from models.training import Trainer
 
     trainer = Trainer.from_checkpoint(args.checkpoint)
     image = read_rgb(args.image)[None]

@@ -23,7 +23,7 @@ def config_fields_help() -> str:
     import dataclasses
     import inspect
 
-    from .training import TrainConfig
+    from models.training import TrainConfig
 
     comments: dict[str, str] = {}
     pending: list[str] = []
@@ -119,8 +119,8 @@ def build_dataset(args: argparse.Namespace, split: str | None = None, seed_offse
 
 
 def run(args: argparse.Namespace) -> int:
-    from .metrics import format_table
-    from .training import TrainConfig, Trainer
+    from models.metrics import format_table
+    from models.training import TrainConfig, Trainer
 
     cfg = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
     overrides = list(args.overrides) + ([f"out_dir={args.out}"] if args.out else [])

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from .cmd_train import add_data_arguments, build_dataset
+from .train import add_data_arguments, build_dataset
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -27,12 +27,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .metrics import format_table
-    from .training import Trainer
+    from models.metrics import format_table
+    from models.training import Trainer
 
     trainer = Trainer.from_checkpoint(args.checkpoint)
     if args.data == "motorcycle":
-        from .cmd_demo import motorcycle_sample
+        from .demo import motorcycle_sample
 
         test_set = [motorcycle_sample(args.scale)]
     else:
