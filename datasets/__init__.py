@@ -5,7 +5,7 @@ Not Hugging Face's ``datasets``: never install that package in this environment.
 
 from .base import DepthDataset
 from .dslr import DSLR
-from .focus import CameraPreset, cached_focal_stack, render_focal_stack
+from .focus import CameraPreset, cached_focal_stack
 from .io import DataFormatError
 from .kitti import KITTI
 from .lightfield import LightField, LightFieldCalibration, refocus
@@ -30,5 +30,4 @@ __all__ = [
     "NYUv2",
     "cached_focal_stack",
     "refocus",
-    "render_focal_stack",
 ]

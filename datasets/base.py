@@ -7,16 +7,16 @@ key             shape / type        meaning
 ==============  ==================  ==========================================================
 ``image``       ``(3,H,W)`` float   all-in-focus image, linear intensity in [0, 1]
 ``focused``     ``(F,3,H,W)``       focused images (synthesised or real), linear in [0, 1]
-``camera``      dict of ``(F,)``    ``focal_length`` (m), ``f_number``, ``focus_distance`` (m),
-                                    ``pixel_pitch`` (effective, m) of each focused image;
-                                    ``optics.Camera.from_settings(sample["camera"])``
+``camera``      `CameraSettings`    ``(F,)`` focal length (m), f-number, focus distance (m),
+                                    effective pixel pitch (m) and aperture of the focused
+                                    images; ``sample["camera"].shot(i)`` is shot i's `Camera`
 ``depth``       ``(1,H,W)`` float   metres, > 0 everywhere (unknown pixels filled, see mask)
 ``mask``        ``(1,H,W)`` bool    where ``depth`` is a real measurement
 ``dataset``     str                 dataset name, e.g. ``"nyu"``
 ``id``          str                 sample id within the dataset
 ==============  ==================  ==========================================================
 
-After ``torch.utils.data.default_collate`` the camera entries become ``(B,F)`` and ``focused``
+After ``torch.utils.data.default_collate`` the settings become ``(B,F)`` and ``focused``
 ``(B,F,3,H,W)``.
 """
 
@@ -27,10 +27,9 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torch import Tensor
 from torch.utils.data import Dataset
 
-from optics import Aperture
+from optics import Aperture, CameraSettings
 
 from .focus import CameraPreset, cached_focal_stack
 from .transforms import JointAugment, _check_size, crop_sample, resize_sample
@@ -98,7 +97,7 @@ class DepthDataset(Dataset):
         """Native-resolution ``image``, ``depth``, ``mask`` (and real ``focused``/``camera``)."""
         raise NotImplementedError
 
-    def camera_settings(self, index: int) -> dict[str, Tensor]:
+    def camera_settings(self, index: int) -> CameraSettings:
         """``(F,)`` camera settings at native resolution; the preset's by default."""
         return self.preset.settings(self.dtype)
 
@@ -111,7 +110,8 @@ class DepthDataset(Dataset):
             sample["camera"] = self.camera_settings(index)
             if self.native_width is not None:
                 scale = self.native_width / sample["image"].shape[-1]
-                sample["camera"]["pixel_pitch"] = sample["camera"]["pixel_pitch"] * scale
+                camera = sample["camera"]
+                sample["camera"] = camera.replace(pixel_pitch=camera.pixel_pitch * scale)
         if self.crop is not None:
             sample = crop_sample(sample, *self.crop)
         if self.size is not None:
@@ -132,14 +132,14 @@ class DepthDataset(Dataset):
         out = {
             "image": sample["image"].to(self.dtype).contiguous(),
             "focused": sample["focused"].to(self.dtype).contiguous(),
-            "camera": {k: torch.as_tensor(v).to(self.dtype) for k, v in sample["camera"].items()},
+            "camera": sample["camera"].to(self.dtype),
             "depth": sample["depth"].to(self.dtype).contiguous(),
             "mask": sample["mask"].bool().contiguous(),
             "dataset": sample["dataset"],
             "id": sample["id"],
         }
         h, w = out["image"].shape[-2:]
-        n = out["camera"]["focus_distance"].shape[0]
+        n = out["camera"].n_shots
         for key, shape in (("focused", (n, 3, h, w)), ("depth", (1, h, w)), ("mask", (1, h, w))):
             if tuple(out[key].shape) != shape:
                 raise ValueError(

@@ -105,7 +105,9 @@ class DSLR(DepthDataset):
                     f"is {tuple(focused.shape[-2:])}; all three files of a scene must match"
                 )
         camera = self.preset.settings(self.dtype)
-        camera["pixel_pitch"] = camera["pixel_pitch"] * (self.sensor_width_px / image.shape[-1])
+        camera = camera.replace(
+            pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / image.shape[-1])
+        )
         mask = valid_depth_mask(depth)
         return {"image": image, "focused": focused[None], "camera": camera,
                 "depth": fill_unknown(depth, mask), "mask": mask}

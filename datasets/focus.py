@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -12,7 +12,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from optics import Aperture, Camera
+from optics import Aperture, CameraSettings, render_focal_stack
 
 
 @dataclass(frozen=True)
@@ -27,6 +27,7 @@ class CameraPreset:
         f_numbers: f-number of each focused image (one value is repeated).
         depth_cap: largest valid depth in metres (evaluation cap).
         min_depth: smallest valid depth in metres.
+        aperture: PSF spec of the focused images (`optics.aperture_spec`), Gaussian by default.
     """
 
     focal_length: float
@@ -36,65 +37,29 @@ class CameraPreset:
     depth_cap: float = 10.0
     min_depth: float = 1e-3
 
-    def settings(self, dtype: torch.dtype = torch.float32) -> dict[str, Tensor]:
-        """Per-focused-image settings, each a ``(F,)`` tensor (the samples' ``camera`` entry)."""
+    aperture: str = "gaussian"
+
+    def settings(self, dtype: torch.dtype = torch.float32) -> CameraSettings:
+        """The `(F,)` `CameraSettings` of the focused images (the samples' ``camera`` entry)."""
         n = len(self.focus_distances)
         f_numbers = list(self.f_numbers) * n if len(self.f_numbers) == 1 else list(self.f_numbers)
         if len(f_numbers) != n:
             raise ValueError(
                 f"f_numbers must hold 1 or {n} values (one per focus distance), got {self.f_numbers}"
             )
-        return {
-            "focal_length": torch.full((n,), self.focal_length, dtype=dtype),
-            "f_number": torch.tensor(f_numbers, dtype=dtype),
-            "focus_distance": torch.tensor(list(self.focus_distances), dtype=dtype),
-            "pixel_pitch": torch.full((n,), self.pixel_pitch, dtype=dtype),
-        }
-
-
-def render_focal_stack(
-    image: Tensor,
-    depth: Tensor,
-    settings: Mapping[str, Tensor],
-    aperture: Aperture | None = None,
-    **render_kwargs: Any,
-) -> Tensor:
-    """Render one scene under ``F`` camera settings.
-
-    Args:
-        image: all-in-focus image ``(3,H,W)`` or ``(1,3,H,W)``, linear in [0, 1].
-        depth: depth ``(1,H,W)`` or ``(1,1,H,W)`` in metres, > 0.
-        settings: ``(F,)`` tensors as from :meth:`CameraPreset.settings`.
-        aperture: PSF shape (Gaussian, ``sigma = CoC/2``, by default).
-        **render_kwargs: passed to :func:`optics.render_defocus` (``mode``, ...).
-
-    Returns:
-        ``(F,3,H,W)`` focused images.
-
-    Example:
-        >>> preset = CameraPreset(0.035, 22.4e-6, focus_distances=(2.0, 8.0))
-        >>> stack = render_focal_stack(torch.rand(3, 16, 16), torch.full((1, 16, 16), 3.0),
-        ...                            preset.settings())
-        >>> stack.shape
-        torch.Size([2, 3, 16, 16])
-    """
-    image = image if image.ndim == 4 else image[None]
-    depth = depth if depth.ndim == 4 else depth[None]
-    n = int(torch.as_tensor(settings["focus_distance"]).numel())
-    camera = Camera.from_settings(
-        {k: torch.as_tensor(v).to(image).reshape(-1) for k, v in settings.items()}, aperture
-    )
-    return camera.render(image.expand(n, -1, -1, -1), depth.expand(n, -1, -1, -1), **render_kwargs)
+        settings = CameraSettings(self.focal_length, f_numbers, list(self.focus_distances),
+                                  self.pixel_pitch, aperture=self.aperture)
+        return settings.to(dtype)
 
 
 #: Bumped when the synthesis changes in a way the cache key cannot see (e.g. a renderer fix).
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 def focal_stack_key(
     image: Tensor,
     depth: Tensor,
-    settings: Mapping[str, Tensor],
+    settings: CameraSettings,
     aperture: Aperture | None = None,
     **render_kwargs: Any,
 ) -> str:
@@ -104,11 +69,11 @@ def focal_stack_key(
     key and a stale stack is never reused.
     """
     digest = hashlib.sha1(f"v{CACHE_VERSION}".encode())
-    for tensor in (image, depth, *(torch.as_tensor(settings[k]) for k in sorted(settings))):
+    for tensor in (image, depth, *settings.tensors().values()):
         tensor = tensor.detach().cpu().contiguous()
         digest.update(f"{tensor.dtype}{tuple(tensor.shape)}".encode())
         digest.update(tensor.numpy().tobytes())
-    digest.update(repr(aperture).encode())
+    digest.update(f"{settings.aperture}|{aperture!r}".encode())
     digest.update(repr(sorted(render_kwargs.items())).encode())
     return digest.hexdigest()
 
@@ -116,12 +81,12 @@ def focal_stack_key(
 def cached_focal_stack(
     image: Tensor,
     depth: Tensor,
-    settings: Mapping[str, Tensor],
+    settings: CameraSettings,
     aperture: Aperture | None = None,
     cache_dir: str | Path | None = None,
     **render_kwargs: Any,
 ) -> Tensor:
-    """:func:`render_focal_stack` under ``torch.no_grad()``, reusing stacks saved in ``cache_dir``.
+    """`optics.render_focal_stack` of one scene under ``torch.no_grad()``, reusing stacks saved in ``cache_dir``.
 
     Stacks are stored as ``<cache_dir>/<key>.pt`` (key from :func:`focal_stack_key`) and written
     atomically, so several DataLoader workers may share one cache folder. With ``cache_dir=None``
@@ -130,8 +95,8 @@ def cached_focal_stack(
     Args:
         image: all-in-focus image ``(3,H,W)``, linear in [0, 1].
         depth: depth ``(1,H,W)`` in metres, > 0.
-        settings: ``(F,)`` tensors as from :meth:`CameraPreset.settings`.
-        aperture: PSF shape (Gaussian, ``sigma = CoC/2``, by default).
+        settings: ``(F,)`` settings, e.g. from `CameraPreset.settings`.
+        aperture: PSF override (the settings' aperture by default).
         cache_dir: folder for cached stacks (created on first use), or None.
         **render_kwargs: passed to :func:`optics.render_defocus`.
 
@@ -159,7 +124,8 @@ def cached_focal_stack(
             except Exception:  # a half-written or corrupt entry: render again and overwrite
                 pass
     with torch.no_grad():
-        stack = render_focal_stack(image, depth, settings, aperture, **render_kwargs)
+        stack = render_focal_stack(image[None], depth[None], settings, aperture,
+                                   **render_kwargs)[0]
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(f".{os.getpid()}.tmp")

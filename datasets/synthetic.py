@@ -27,9 +27,9 @@ from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 from torch.utils.data import Dataset
 
-from optics import Aperture
+from optics import Aperture, render_focal_stack
 
-from .focus import CameraPreset, render_focal_stack
+from .focus import CameraPreset
 
 #: The default camera of the synthetic scenes and of the demo (lengths in metres).
 SYNTHETIC_PRESET = CameraPreset(
@@ -189,7 +189,7 @@ class SyntheticScenes(Dataset):
         >>> scenes = SyntheticScenes(num_scenes=2, size=(24, 32))
         >>> sample = scenes[0]
         >>> camera = sample["camera"]
-        >>> sample["image"].shape, sample["focused"].shape, camera["focus_distance"]
+        >>> sample["image"].shape, sample["focused"].shape, camera.focus_distance
         (torch.Size([3, 24, 32]), torch.Size([2, 3, 24, 32]), tensor([2., 6.]))
     """
 
@@ -230,8 +230,8 @@ class SyntheticScenes(Dataset):
         image, depth = generate_scene(self.size, rng, self.depth_range)
         settings = self.preset.settings()
         with torch.no_grad():
-            focused = render_focal_stack(image, depth, settings, self.aperture,
-                                         **self.render_kwargs)
+            focused = render_focal_stack(image[None], depth[None], settings, self.aperture,
+                                         **self.render_kwargs)[0]
         sample = {
             "image": image,
             "focused": focused.clamp(0, 1),

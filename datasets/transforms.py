@@ -61,15 +61,15 @@ def resize_sample(sample: dict[str, Any], size: Sequence[int]) -> dict:
     """Resize ``sample`` to ``size = (height, width)`` pixels and scale the effective pixel pitch.
 
     Images use antialiased bilinear resampling; depth and mask use nearest neighbour (no depth is
-    invented across object edges and the mask stays exact). ``camera["pixel_pitch"]`` (metres) is
-    multiplied by the geometric mean of the two resize factors.
+    invented across object edges and the mask stays exact). The effective pixel pitch of the
+    ``camera`` settings (metres) is multiplied by the geometric mean of the two resize factors.
 
     Example:
+        >>> from optics import CameraSettings
         >>> s = {"image": torch.rand(3, 8, 8), "depth": torch.ones(1, 8, 8),
-        ...      "camera": {"pixel_pitch": torch.tensor([1e-5])}}
+        ...      "camera": CameraSettings(0.05, 2.0, [2.0], 1e-5).to(torch.float32)}
         >>> r = resize_sample(s, (4, 4))
-        >>> camera = r["camera"]
-        >>> r["image"].shape, camera["pixel_pitch"]
+        >>> r["image"].shape, r["camera"].pixel_pitch
         (torch.Size([3, 4, 4]), tensor([2.0000e-05]))
     """
     height, width = _check_size("size", size)
@@ -91,9 +91,9 @@ def resize_sample(sample: dict[str, Any], size: Sequence[int]) -> dict:
             flat = flat.bool() if key == "mask" else flat
         out[key] = flat.reshape(*value.shape[:-2], height, width)
     if "camera" in sample:
-        camera = dict(sample["camera"])
-        camera["pixel_pitch"] = camera["pixel_pitch"] * math.sqrt((h / height) * (w / width))
-        out["camera"] = camera
+        camera = sample["camera"]
+        factor = math.sqrt((h / height) * (w / width))
+        out["camera"] = camera.replace(pixel_pitch=camera.pixel_pitch * factor)
     return out
 
 

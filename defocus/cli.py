@@ -1,12 +1,18 @@
-"""The ``defocus`` command line. Each subcommand lives in its own module, imported on use.
+"""The `defocus` command line. Each subcommand lives in its own module, imported on use.
 
-A subcommand module defines ``add_arguments(parser)`` and ``run(args) -> int``.
+A subcommand module (`defocus.commands.NAME`) defines `add_arguments(parser)` and
+`run(args) -> int`; it parses arguments and calls the library, nothing else.
+
+Errors: a bad value, a missing file or a refused input ends the command with one line on stderr,
+`defocus COMMAND: error: MESSAGE`, and exit code 2, as argparse does for bad options. The
+traceback is shown with `--debug` or the environment variable `DEFOCUS_DEBUG=1`.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 from defocus import __version__
@@ -22,12 +28,24 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class CommandError(Exception):
+    """A problem with the user's input that a command reports in one line (exit code 2)."""
+
+
+#: Exceptions reported in one line: the library raises these for bad input, with a message that
+#: names the argument, the value and what is allowed.
+USER_ERRORS = (CommandError, ValueError, TypeError, FileNotFoundError, IsADirectoryError,
+               PermissionError, NotADirectoryError)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="defocus",
         description="Differentiable optics and depth from defocus. Lengths are in metres.",
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the full traceback of an error (also DEFOCUS_DEBUG=1)")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         command = sub.add_parser(
@@ -43,7 +61,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    return int(importlib.import_module(args._module).run(args) or 0)
+    debug = args.debug or os.environ.get("DEFOCUS_DEBUG", "") not in ("", "0")
+    try:
+        return int(importlib.import_module(args._module).run(args) or 0)
+    except USER_ERRORS as error:
+        if debug:
+            raise
+        message = " ".join(str(error).split()) or repr(error)
+        print(f"defocus {args.command}: error: {message}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -1,19 +1,18 @@
-"""Shared command line and train-then-evaluate loop of the per-dataset example scripts.
+"""The options every example script takes; the work is `models.experiment.train_and_evaluate`.
 
-Each ``examples/<dataset>.py`` builds its train and test sets and calls :func:`train_and_evaluate`,
-which trains with ``models.training.Trainer``, evaluates, and prints a paper-style table with a
-best-constant-depth baseline for reference.
+Each ``examples/<dataset>.py`` builds its train and test sets and calls `train_and_evaluate`
+below, which turns the options into a `TrainConfig`, runs the library's experiment (train, then
+evaluate next to the best constant depth, `models.metrics.best_constant_depth`) and prints the
+paper-style table.
 """
 
 from __future__ import annotations
 
 import argparse
-import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import torch
 from torch.utils.data import Dataset, Subset
 
 
@@ -53,39 +52,6 @@ def limit(dataset: Dataset, count: int | None) -> Dataset:
     return dataset if count is None or count >= len(dataset) else Subset(dataset, range(count))
 
 
-def constant_baseline(
-    train_set: Dataset, test_set: Dataset, metrics: Callable[..., dict[str, float]], **kwargs: Any
-) -> dict[str, float] | None:
-    """Metrics of the best constant depth (geometric mean of the training depths), or None when
-    the data has no depth."""
-    logs = [torch.log(s["depth"][s["mask"]]) for s in train_set if bool(s["mask"].any())]
-    if not logs:
-        return None
-    constant = math.exp(float(torch.cat(logs).mean()))
-    totals: dict[str, float] = {}
-    for sample in test_set:
-        row = metrics(torch.full_like(sample["depth"], constant), sample["depth"], sample["mask"],
-                      **kwargs)
-        for key, value in row.items():
-            totals[key] = totals.get(key, 0.0) + value / len(test_set)
-    return totals
-
-
-def reconstruction_metrics(trainer: Any, test_set: Dataset) -> dict[str, float]:
-    """Mean self-supervised loss terms on ``test_set`` (for data without ground-truth depth)."""
-    from torch.utils.data import default_collate
-
-    totals: dict[str, float] = {}
-    for sample in test_set:
-        batch = default_collate([sample])
-        depth = trainer.predict(batch["image"], batch["focused"], batch["camera"])
-        with torch.no_grad():
-            terms = trainer.loss_fn(depth, batch["image"], batch["focused"], batch["camera"])
-        for key, value in terms.items():
-            totals[key] = totals.get(key, 0.0) + float(value) / len(test_set)
-    return totals
-
-
 def train_and_evaluate(
     name: str,
     args: argparse.Namespace,
@@ -95,20 +61,11 @@ def train_and_evaluate(
     crop: str | Sequence[float] | None = None,
     has_depth: bool = True,
 ) -> dict[str, dict[str, float]]:
-    """Train on ``train_set``, evaluate on ``test_set`` and print the table; returns its rows.
-
-    Args:
-        name: dataset name for the table.
-        args: parsed :func:`build_parser` arguments.
-        train_set, test_set: datasets in the sample format.
-        depth_range: ``(depth_min, depth_max)`` metres of the network's output; ``depth_max`` is
-            also the evaluation cap.
-        crop: evaluation crop (``"eigen"``, ``"garg"`` or fractions), see ``Trainer.evaluate``.
-        has_depth: False for data without ground truth: the table then holds reconstruction
-            losses instead of depth metrics.
-    """
-    from models.metrics import depth_metrics, format_table
-    from models.training import TrainConfig, Trainer
+    """Run `models.experiment.train_and_evaluate` with the command line's settings and print
+    the table; returns its rows."""
+    from models.experiment import train_and_evaluate as run
+    from models.metrics import format_table
+    from models.training import TrainConfig
 
     train_set, test_set = limit(train_set, args.max_train), limit(test_set, args.max_test)
     first = train_set[0]
@@ -120,18 +77,9 @@ def train_and_evaluate(
     )
     print(f"{name}: {len(train_set)} training and {len(test_set)} test samples of "
           f"{tuple(first['image'].shape[-2:])} pixels, {config.n_focus} focused images each")
-    trainer = Trainer(config, train_set)
-    trainer.fit()
-    method = f"ours ({args.network}, {args.input_mode}, {args.steps} steps)"
-    if has_depth:
-        rows = {method: trainer.evaluate(test_set, depth_cap=depth_range[1], crop=crop)}
-        baseline = constant_baseline(train_set, test_set, depth_metrics,
-                                     max_depth=depth_range[1], crop=crop)
-        if baseline is not None:
-            rows["best constant depth"] = baseline
-        print(format_table(rows))
-    else:
-        rows = {method: reconstruction_metrics(trainer, test_set)}
+    rows = run(config, train_set, test_set, crop=crop, has_depth=has_depth)
+    if not has_depth:
         print("no ground-truth depth: self-supervised reconstruction losses on the test set")
-        print(format_table(rows, metrics=tuple(rows[method])))
+    print(format_table(rows, metrics=tuple(next(iter(rows.values())))) if not has_depth
+          else format_table(rows))
     return rows

@@ -9,19 +9,18 @@ texture the focused images carry no depth information and the prior fills in.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from optics import CameraSettings
 from optics.checks import check_shape
 
 from .losses import DefocusLoss
 
 
 def fit_depth_direct(
-    image: Tensor, focused: Tensor, camera: Mapping[str, Tensor], depth_min: float,
+    image: Tensor, focused: Tensor, settings: CameraSettings, depth_min: float,
     depth_max: float, steps: int = 200, lr: float = 0.1, smoothness_weight: float = 0.05,
     downsample: int = 2, loss: DefocusLoss | None = None, progress: bool = False,
 ) -> Tensor:
@@ -30,7 +29,7 @@ def fit_depth_direct(
     Args:
         image: all-in-focus images ``(B,3,H,W)``, linear.
         focused: focused images ``(B,F,3,H,W)``.
-        camera: ``(B,F)`` settings (``Camera.from_settings`` keys, metres).
+        settings: the `(B,F)` (or `(F,)`) camera settings of the focused images.
         depth_min: nearest depth, metres.
         depth_max: farthest depth, metres (the fit starts half-way in sigmoid space).
         steps: Adam steps.
@@ -45,13 +44,11 @@ def fit_depth_direct(
         the fitted depth (no gradient), metres.
 
     Example:
-        >>> camera = {"focal_length": torch.full((1, 2), 0.05), "f_number": torch.full((1, 2), 2.0),
-        ...           "focus_distance": torch.tensor([[2.0, 6.0]]),
-        ...           "pixel_pitch": torch.full((1, 2), 180e-6)}
-        >>> from models.losses import render_focused
+        >>> from optics import render_focal_stack
+        >>> settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 180e-6)
         >>> image = torch.rand(1, 3, 16, 16)
-        >>> focused = render_focused(image, torch.full((1, 1, 16, 16), 4.0), camera)
-        >>> depth = fit_depth_direct(image, focused, camera, 1.5, 7.0, steps=60)
+        >>> focused = render_focal_stack(image, torch.full((1, 1, 16, 16), 4.0), settings)
+        >>> depth = fit_depth_direct(image, focused, settings, 1.5, 7.0, steps=60)
         >>> abs(float(depth.median()) - 4.0) < 0.4
         True
     """
@@ -76,7 +73,7 @@ def fit_depth_direct(
 
     for _ in tqdm(range(int(steps)), desc="direct fit", disable=not progress):
         optimizer.zero_grad(set_to_none=True)
-        total = loss(depth_of(logits), image, focused, camera)["loss"]
+        total = loss(depth_of(logits), image, focused, settings)["loss"]
         total.backward()
         optimizer.step()
     with torch.no_grad():

@@ -13,44 +13,14 @@ into a synthetic focused image that is compared with the real one:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 import kornia
 import torch
 from torch import Tensor, nn
 
-from optics import Aperture, Camera
+from optics import Aperture, CameraSettings, render_focal_stack
 from optics.checks import check_shape
-
-
-def render_focused(
-    image: Tensor, depth: Tensor, camera: Mapping[str, Tensor], aperture: Aperture | None = None,
-    **render_kwargs: Any,
-) -> Tensor:
-    """Render the focused images of ``image`` ``(B,3,H,W)`` seen at ``depth`` ``(B,1,H,W)`` metres
-    through ``F`` cameras given as ``(B,F)`` settings (``Camera.from_settings`` keys).
-
-    Returns:
-        ``(B,F,3,H,W)`` rendered focused images; differentiable in image, depth and settings.
-
-    Example:
-        >>> camera = {"focal_length": torch.full((1, 2), 0.05), "f_number": torch.full((1, 2), 2.0),
-        ...           "focus_distance": torch.tensor([[2.0, 6.0]]),
-        ...           "pixel_pitch": torch.full((1, 2), 180e-6)}
-        >>> render_focused(torch.rand(1, 3, 8, 8), torch.full((1, 1, 8, 8), 3.0), camera).shape
-        torch.Size([1, 2, 3, 8, 8])
-    """
-    check_shape("image", image, ["B", "C", "H", "W"])
-    check_shape("depth", depth, ["B", "1", "H", "W"])
-    b, c, h, w = image.shape
-    settings = {k: torch.as_tensor(v).to(image) for k, v in camera.items()}
-    n = settings["focus_distance"].reshape(b, -1).shape[1]
-    flat = {k: v.reshape(b, n).reshape(-1) for k, v in settings.items()}
-    cam = Camera.from_settings(flat, aperture)
-    images = image[:, None].expand(b, n, c, h, w).reshape(b * n, c, h, w)
-    depths = depth[:, None].expand(b, n, 1, h, w).reshape(b * n, 1, h, w)
-    return cam.render(images, depths, **render_kwargs).reshape(b, n, c, h, w)
 
 
 def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85,
@@ -120,17 +90,16 @@ class DefocusLoss(nn.Module):
         sharpness_weight: weight of the sharpness-map L1 term (paper: 0.1).
         smoothness_weight: weight of the edge-aware depth smoothness (paper: 0.001).
         window_size: SSIM window width in pixels.
-        aperture: PSF shape used to render (Gaussian, ``sigma = CoC/2``, by default).
+        aperture: PSF shape used to render, overriding the settings' aperture (None: use the
+            aperture of the `CameraSettings` passed to `forward`).
         **render_kwargs: passed to :func:`optics.render_defocus` (``mode``, ...).
 
     Example:
         >>> loss = DefocusLoss()
-        >>> camera = {"focal_length": torch.full((1, 2), 0.05), "f_number": torch.full((1, 2), 2.0),
-        ...           "focus_distance": torch.tensor([[2.0, 6.0]]),
-        ...           "pixel_pitch": torch.full((1, 2), 180e-6)}
+        >>> settings = CameraSettings(0.05, 2.0, [[2.0, 6.0]], 180e-6)
         >>> image, depth = torch.rand(1, 3, 16, 16), torch.full((1, 1, 16, 16), 3.0)
-        >>> focused = render_focused(image, depth, camera)
-        >>> round(float(loss(depth, image, focused, camera)["loss"]), 6)
+        >>> focused = render_focal_stack(image, depth, settings)
+        >>> round(float(loss(depth, image, focused, settings)["loss"]), 6)
         0.0
     """
 
@@ -146,15 +115,15 @@ class DefocusLoss(nn.Module):
         self.render_kwargs = render_kwargs
 
     def forward(self, depth: Tensor, image: Tensor, focused: Tensor,
-                camera: Mapping[str, Tensor]) -> dict[str, Tensor]:
+                settings: CameraSettings) -> dict[str, Tensor]:
         """Loss terms for predicted ``depth`` ``(B,1,H,W)`` metres, all-in-focus ``image``
-        ``(B,3,H,W)``, real ``focused`` images ``(B,F,3,H,W)`` and ``(B,F)`` ``camera`` settings.
+        ``(B,3,H,W)``, real ``focused`` images ``(B,F,3,H,W)`` and their ``(B,F)`` settings.
 
         Returns:
             dict with ``loss`` (the weighted total), ``photometric``, ``sharpness``, ``smoothness``.
         """
         check_shape("focused", focused, ["B", "F", "C", "H", "W"])
-        rendered = render_focused(image, depth, camera, self.aperture, **self.render_kwargs)
+        rendered = render_focal_stack(image, depth, settings, self.aperture, **self.render_kwargs)
         photometric = photometric_loss(rendered, focused, self.ssim_weight, self.window_size)
         sharpness = sharpness_loss(rendered, focused)
         smoothness = edge_aware_smoothness(depth, image)

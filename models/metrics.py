@@ -20,7 +20,9 @@ depths are metric. When on, the returned dict also holds the mean ``median_scale
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import functools
+from collections.abc import Callable, Mapping, Sequence
+from typing import TypeVar
 
 import torch
 from torch import Tensor
@@ -36,6 +38,26 @@ CROPS = {
     "garg": (0.40810811, 0.99189189, 0.03594771, 0.96405229),
     "eigen": (0.3324324, 0.91351351, 0.0359477, 0.96405229),
 }
+
+
+_F = TypeVar("_F", bound=Callable)
+
+
+def _maps_by_keyword(fn: _F) -> _F:
+    """Refuse positional depth maps: `pred` and `target` swapped silently give wrong numbers
+    (Monodepth2's `compute_errors(gt, pred)` has the opposite order to most code)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        if args:
+            raise TypeError(
+                f"{fn.__name__} takes the depth maps by keyword, e.g. "
+                f"{fn.__name__}(pred=prediction, target=ground_truth, mask=valid): positional "
+                f"maps are too easy to swap (got {len(args)} positional argument(s))"
+            )
+        return fn(**kwargs)
+
+    return wrapper  # type: ignore[return-value]
 
 
 def crop_mask(height: int, width: int, crop: str | Sequence[float] | None,
@@ -85,7 +107,8 @@ def _as_batch(name: str, tensor: Tensor) -> Tensor:
                      f"got {tuple(tensor.shape)}")
 
 
-def valid_mask(target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
+@_maps_by_keyword
+def valid_mask(*, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
                max_depth: float | None = None, crop: str | Sequence[float] | None = None) -> Tensor:
     """Pixels that count: ``mask``, ground truth in ``(min_depth, max_depth)``, inside ``crop``."""
     target = _as_batch("target", target)
@@ -97,12 +120,16 @@ def valid_mask(target: Tensor, mask: Tensor | None = None, min_depth: float = 1e
     return valid & crop_mask(*target.shape[-2:], crop, target.device)
 
 
+@_maps_by_keyword
 def depth_metrics(
-    pred: Tensor, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
+    *, pred: Tensor, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
     max_depth: float | None = None, crop: str | Sequence[float] | None = None,
     median_scaling: bool = False,
 ) -> dict[str, float]:
     """Depth metrics of ``pred`` against ``target`` (both metres), averaged over the batch.
+
+    The maps are keyword-only (a positional call raises `TypeError` with this hint): swapping
+    prediction and ground truth would silently give other numbers.
 
     Args:
         pred: predicted depth ``(H,W)``, ``(1,H,W)`` or ``(B,1,H,W)``, metres.
@@ -120,7 +147,7 @@ def depth_metrics(
         ValueError: if an image has no valid pixel or a prediction is not finite and positive.
 
     Example:
-        >>> m = depth_metrics(torch.tensor([[2.0, 4.0]]), torch.tensor([[2.0, 5.0]]))
+        >>> m = depth_metrics(pred=torch.tensor([[2.0, 4.0]]), target=torch.tensor([[2.0, 5.0]]))
         >>> round(m["abs_rel"], 4), round(m["rmse"], 4), m["delta1"]
         (0.1, 0.7071, 0.5)
     """
@@ -128,7 +155,8 @@ def depth_metrics(
     if pred.shape != target.shape:
         raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
                          f"and {tuple(target.shape)}")
-    valid = valid_mask(target, mask, min_depth, max_depth, crop)
+    valid = valid_mask(target=target, mask=mask, min_depth=min_depth, max_depth=max_depth,
+                       crop=crop)
     totals: dict[str, float] = {}
     for d_all, g_all, v in zip(pred.detach(), target.detach(), valid, strict=True):
         d, g = d_all[v].double(), g_all[v].double()
@@ -158,12 +186,13 @@ def depth_metrics(
     return {key: value / pred.shape[0] for key, value in totals.items()}
 
 
-def best_constant_depth(target: Tensor, mask: Tensor | None = None) -> float:
+@_maps_by_keyword
+def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
     """The constant depth (metres) with the lowest abs rel: the median of ``target`` weighted by
     ``1 / target`` over valid pixels (an oracle baseline; it looks at the ground truth).
 
     Example:
-        >>> best_constant_depth(torch.tensor([1.0, 2.0, 4.0]))  # abs rel 0.42; 2 m would give 0.5
+        >>> best_constant_depth(target=torch.tensor([1.0, 2.0, 4.0]))  # abs rel 0.42; 2 m would give 0.5
         1.0
     """
     g = target.detach().reshape(-1).double()

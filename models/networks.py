@@ -24,28 +24,25 @@ Input modes (``input_mode``):
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-
 import kornia
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from optics import CameraSettings
 from optics.checks import check_shape
 
 INPUT_MODES = ("aif", "aif+focused")
 
 
-def camera_channels(camera: Mapping[str, Tensor], depth_max: float) -> Tensor:
-    """Per-focus-setting camera descriptors ``(B, F, 2)`` from ``(B, F)`` settings.
+def camera_channels(settings: CameraSettings, depth_max: float) -> Tensor:
+    """Per-shot camera descriptors ``(B, F, 2)`` from ``(B, F)`` settings.
 
     The two descriptors are ``focus_distance / depth_max`` and the CoC diameter at infinity in
-    pixels divided by 10, ``f^2 / (N (D_f - f) p) / 10``.
+    pixels divided by 10 (`CameraSettings.coc_at_infinity_px`, from `ThinLens`).
     """
-    f, n = camera["focal_length"], camera["f_number"]
-    focus, pitch = camera["focus_distance"], camera["pixel_pitch"]
-    coc_inf_px = f * f / (n * (focus - f) * pitch)
-    return torch.stack([focus / depth_max, coc_inf_px / 10.0], dim=-1)
+    return torch.stack([settings.focus_distance / depth_max,
+                        settings.coc_at_infinity_px() / 10.0], dim=-1)
 
 
 def defocus_cues(image: Tensor, focused: Tensor, window: int = 7) -> Tensor:
@@ -107,29 +104,30 @@ class _DepthNetwork(nn.Module):
 
     def assemble_input(
         self, image: Tensor, focused: Tensor | None = None,
-        camera: Mapping[str, Tensor] | None = None,
+        settings: CameraSettings | None = None,
     ) -> Tensor:
         """Stack the network input ``(B, in_channels, H, W)`` (see the module docstring)."""
         check_shape("image", image, ["B", "3", "H", "W"])
         if self.input_mode == "aif":
             return image
-        if focused is None or camera is None:
-            raise ValueError("input_mode 'aif+focused' needs focused (B,F,3,H,W) and camera")
+        if focused is None or settings is None:
+            raise ValueError("input_mode 'aif+focused' needs focused (B,F,3,H,W) and their "
+                             "CameraSettings")
         check_shape("focused", focused, ["B", str(self.n_focus), "3", "H", "W"])
         b, n, _, h, w = focused.shape
         diff = focused - image[:, None]
-        settings = {k: torch.as_tensor(v).to(image).reshape(b, n) for k, v in camera.items()}
+        settings = settings.batched(b).to(device=image.device, dtype=image.dtype)
         cam = camera_channels(settings, self.head.depth_max).reshape(b, 2 * n, 1, 1)
         return torch.cat([image, focused.reshape(b, 3 * n, h, w), diff.reshape(b, 3 * n, h, w),
                           defocus_cues(image, focused), cam.expand(b, 2 * n, h, w)], dim=1)
 
     def forward(
         self, image: Tensor, focused: Tensor | None = None,
-        camera: Mapping[str, Tensor] | None = None,
+        settings: CameraSettings | None = None,
     ) -> Tensor:
         """Depth ``(B,1,H,W)`` in metres from ``image`` ``(B,3,H,W)`` (and the focused images
-        ``(B,F,3,H,W)`` with ``(B,F)`` camera settings in ``"aif+focused"`` mode)."""
-        x = self.assemble_input(image, focused, camera)
+        ``(B,F,3,H,W)`` with their ``(B,F)`` camera settings in ``"aif+focused"`` mode)."""
+        x = self.assemble_input(image, focused, settings)
         return self.head(self._logits(x))
 
     def _logits(self, x: Tensor) -> Tensor:

@@ -3,7 +3,7 @@
 ``Trainer`` takes any map-style ``torch.utils.data.Dataset`` (or any iterable) of samples in the
 sample format (see the datasets tutorial). With ``supervision="self"`` (default) the loss never
 sees depth labels: the predicted depth is rendered through each focused image's camera
-(``Camera.from_settings`` + ``Camera.render``) and compared with the real focused image
+(`optics.render_focal_stack` with the sample's `CameraSettings`) and compared with the real focused image
 (:class:`~models.losses.DefocusLoss`). ``supervision="depth"`` trains on the ground truth instead
 (a baseline).
 
@@ -36,15 +36,14 @@ import yaml
 from torch import Tensor, nn
 from torch.utils.data import default_collate
 
-from optics import Disk, Gaussian
+from optics import CameraSettings, parse_aperture
 
-from .figures import plot_prediction
 from .losses import DefocusLoss, supervised_depth_loss
 from .metrics import METRIC_NAMES, depth_metrics
 from .networks import INPUT_MODES, NETWORKS, build_network
+from .plotting import plot_prediction
 
 SUPERVISIONS = ("self", "depth")
-APERTURES = {"gaussian": Gaussian, "disk": Disk}
 
 
 @dataclass
@@ -98,7 +97,8 @@ class TrainConfig:
     smoothness_weight: float = 0.001
     #: SSIM window width, pixels
     ssim_window: int = 7
-    #: PSF used to render in the loss: "gaussian" (sigma = CoC/2) or "disk"
+    #: PSF used to render in the loss, a spec of optics.aperture_spec: "gaussian" (sigma = CoC/2),
+    #: "gaussian:S", "disk", "polygon:N"
     aperture: str = "gaussian"
     #: renderer semantics: "scatter", "gather" or "layered"
     render_mode: str = "scatter"
@@ -126,11 +126,12 @@ class TrainConfig:
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
         choices = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
-                   "supervision": SUPERVISIONS, "aperture": tuple(APERTURES),
+                   "supervision": SUPERVISIONS,
                    "lr_schedule": ("cosine", "constant")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        parse_aperture(self.aperture)
         for name in ("steps", "batch_size"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
@@ -220,6 +221,8 @@ def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None
         return {k: to_device(v, device, dtype) for k, v in batch.items()}
     if isinstance(batch, list | tuple):
         return type(batch)(to_device(v, device, dtype) for v in batch)
+    if isinstance(batch, CameraSettings):
+        return batch.to(device=device, dtype=dtype) if dtype is not None else batch.to(device)
     return batch
 
 
@@ -275,7 +278,7 @@ class Trainer:
         else:
             self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: 1.0)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
-                                   cfg.ssim_window, APERTURES[cfg.aperture](),
+                                   cfg.ssim_window, parse_aperture(cfg.aperture),
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size)
         self.step = 0
         self.history: list[dict[str, float]] = []
@@ -337,9 +340,9 @@ class Trainer:
 
     # -- model -----------------------------------------------------------------------------
     def predict(self, image: Tensor, focused: Tensor | None = None,
-                camera: Mapping[str, Tensor] | None = None) -> Tensor:
-        """Depth ``(B,1,H,W)`` metres for a batch (``focused`` ``(B,F,3,H,W)`` and ``(B,F)``
-        ``camera`` in ``"aif+focused"`` mode), without gradients."""
+                settings: CameraSettings | None = None) -> Tensor:
+        """Depth ``(B,1,H,W)`` metres for a batch (``focused`` ``(B,F,3,H,W)`` and their
+        ``(B,F)`` or ``(F,)`` `CameraSettings` in ``"aif+focused"`` mode), without gradients."""
         was_training = self.model.training
         self.model.eval()
         with torch.no_grad():
@@ -347,7 +350,7 @@ class Trainer:
             if self.config.input_mode == "aif":
                 depth = self.model(image)
             else:
-                depth = self.model(image, focused.to(self.device), to_device(camera, self.device))
+                depth = self.model(image, focused.to(self.device), to_device(settings, self.device))
         self.model.train(was_training)
         return depth
 
@@ -439,8 +442,10 @@ class Trainer:
         for sample in test_set:
             batch = default_collate([sample])
             depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
-            metrics = depth_metrics(depth.cpu(), batch["depth"], batch.get("mask"), min_depth,
-                                    depth_cap, crop, median_scaling)
+            metrics = depth_metrics(pred=depth.cpu(), target=batch["depth"],
+                                    mask=batch.get("mask"), min_depth=min_depth,
+                                    max_depth=depth_cap, crop=crop,
+                                    median_scaling=median_scaling)
             for key, value in metrics.items():
                 totals[key] = totals.get(key, 0.0) + value
             count += 1

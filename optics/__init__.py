@@ -1,6 +1,7 @@
 """optics: differentiable thin-lens optics and per-pixel PSF rendering for PyTorch."""
 
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
+from .aperture_spec import APERTURE_FAMILIES, aperture_spec, parse_aperture
 from .calibrate import (
     CalibrationPair,
     CalibrationResult,
@@ -10,12 +11,19 @@ from .calibrate import (
     plot_calibration,
 )
 from .camera import Camera
+from .focal_stack import render_focal_stack
 from .lens import ThinLens
 from .raw import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
+from .settings import CameraSettings
 
 __all__ = [
+    "APERTURE_FAMILIES",
+    "CameraSettings",
+    "aperture_spec",
+    "parse_aperture",
+    "render_focal_stack",
     "Aperture",
     "CalibrationPair",
     "CalibrationResult",

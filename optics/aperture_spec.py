@@ -58,7 +58,7 @@ def parse_aperture(spec: str | Aperture) -> Aperture:
         >>> parse_aperture("polygon:6")
         Polygon(n_blades=6, rotation=0.0)
         >>> parse_aperture("gaussian:0.25").scale
-        tensor(0.2500, dtype=torch.float64)
+        tensor(0.2500)
     """
     if isinstance(spec, Aperture):
         return spec

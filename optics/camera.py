@@ -2,18 +2,18 @@
 
 from __future__ import annotations
 
-import json
-from collections.abc import Mapping
 from os import PathLike
-from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import torch
 from torch import Tensor, nn
 
-from .aperture import Aperture, Disk, Gaussian, Polygon
+from .aperture import Aperture, Gaussian
+from .aperture_spec import aperture_spec
 from .lens import ThinLens
 from .sensor import Sensor
+
+if TYPE_CHECKING:
+    from .settings import CameraSettings
 
 
 class Camera(nn.Module):
@@ -43,79 +43,47 @@ class Camera(nn.Module):
         self.sensor = sensor
         self.aperture = aperture
 
-    #: Keys of :meth:`settings` / :meth:`from_settings`, each in metres except the f-number.
-    SETTING_KEYS = ("focal_length", "f_number", "focus_distance", "pixel_pitch")
+    def settings(self) -> CameraSettings:
+        """This camera's settings as `CameraSettings` of one shot per batch item.
 
-    @classmethod
-    def from_settings(cls, settings: Mapping[str, Any], aperture: Aperture | None = None) -> Camera:
-        """Build a camera from a dict of settings (the ``camera`` entry of a dataset sample).
-
-        Args:
-            settings: ``focal_length``, ``f_number``, ``focus_distance`` and ``pixel_pitch``
-                (the *effective* pitch of the images, metres); floats, 0-d or ``(B,)`` tensors.
-            aperture: PSF shape, :class:`~optics.Gaussian` by default.
+        Raises:
+            ValueError: if the aperture has no spec string (a `Mask`).
 
         Example:
-            >>> cam = Camera.from_settings({"focal_length": 0.035, "f_number": 2.8,
-            ...                             "focus_distance": torch.tensor([2.0, 8.0]),
-            ...                             "pixel_pitch": 22.4e-6})
-            >>> cam.coc_px(torch.full((2, 1, 1, 1), 4.0)).flatten()
-            tensor([4.9698, 2.4521])
+            >>> from optics import Disk
+            >>> Camera(ThinLens(0.035, 2.8, 2.0), Sensor(5.6e-6), Disk()).settings().aperture
+            'disk'
         """
-        missing = [k for k in cls.SETTING_KEYS if k not in settings]
-        if missing:
-            raise ValueError(
-                f"settings is missing {missing}; expected the keys {list(cls.SETTING_KEYS)}"
-            )
-        lens = ThinLens(settings["focal_length"], settings["f_number"], settings["focus_distance"])
-        return cls(lens, Sensor(settings["pixel_pitch"]), aperture)
+        from .settings import CameraSettings
 
-    def settings(self) -> dict[str, Tensor]:
-        """The camera's settings as a dict of tensors (inverse of :meth:`from_settings`)."""
-        return {
-            "focal_length": self.lens.focal_length,
-            "f_number": self.lens.f_number,
-            "focus_distance": self.lens.focus_distance,
-            "pixel_pitch": self.sensor.effective_pixel_pitch,
-        }
+        return CameraSettings(
+            self.lens.focal_length, self.lens.f_number, self.lens.focus_distance,
+            self.sensor.effective_pixel_pitch, aperture=aperture_spec(self.aperture),
+        )
 
     def to_json(self, path: str | PathLike, **extra: Any) -> None:
-        """Write :meth:`settings` (metres), the PSF shape and any ``extra`` JSON values to ``path``.
-
-        Parameters of one value become numbers, ``(B,)`` ones lists. The PSF is written as
-        ``{"family": "gaussian", "scale": s}``, ``{"family": "disk"}`` or
-        ``{"family": "polygon", "n_blades": n, "rotation": r}`` (a ``Mask`` cannot be written).
-        """
-        data: dict[str, Any] = {}
-        for key, value in self.settings().items():
-            values = value.detach().cpu().reshape(-1).tolist()
-            data[key] = values[0] if value.numel() == 1 else values
-        data["psf"] = _aperture_to_dict(self.aperture)
-        data.update(extra)
-        Path(path).write_text(json.dumps(data, indent=2) + "\n")
+        """Write the camera's settings (metres), its PSF spec and any `extra` JSON values."""
+        self.settings().to_json(path, **extra)
 
     @classmethod
     def from_json(cls, path: str | PathLike) -> Camera:
-        """Load a camera written by :meth:`to_json` (or a calibration's JSON).
+        """Load a camera written by `to_json` (or a calibration's JSON).
 
         Example:
             >>> import tempfile, pathlib
+            >>> from optics import Disk
             >>> path = pathlib.Path(tempfile.mkdtemp()) / "camera.json"
             >>> Camera(ThinLens(0.035, 2.8, 2.0), Sensor(5.6e-6), Disk()).to_json(path)
             >>> Camera.from_json(path).lens.f_number
             tensor(2.8000, dtype=torch.float64)
         """
-        data = json.loads(Path(path).read_text())
-        if not isinstance(data, dict):
-            raise ValueError(f"{path}: expected a JSON object of camera settings")
-        try:
-            aperture = _aperture_from_dict(data.get("psf", {"family": "gaussian", "scale": 0.5}))
-        except (KeyError, TypeError, ValueError) as error:
-            raise ValueError(f"{path}: bad 'psf' entry {data.get('psf')!r}: {error}") from None
-        settings = {
-            k: torch.tensor(v, dtype=torch.float64) for k, v in data.items() if k in cls.SETTING_KEYS
-        }
-        return cls.from_settings(settings, aperture)
+        from .settings import CameraSettings
+
+        settings = CameraSettings.from_json(path)
+        if settings.n_shots != 1:
+            raise ValueError(f"{path}: holds {settings.n_shots} shots; read it with "
+                             "CameraSettings.from_json and pick one with .shot(i)")
+        return settings.shot(0)
 
     def coc_px(self, depth: Tensor) -> Tensor:
         """CoC diameter in (effective) pixels for depths in metres (same shape as ``depth``)."""
@@ -137,23 +105,3 @@ class Camera(nn.Module):
 
         return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)
 
-
-def _aperture_to_dict(aperture: Aperture) -> dict[str, Any]:
-    if isinstance(aperture, Gaussian):
-        return {"family": "gaussian", "scale": float(aperture.scale.detach().reshape(-1)[0])}
-    if isinstance(aperture, Polygon):
-        return {"family": "polygon", "n_blades": aperture.n_blades, "rotation": aperture.rotation}
-    if isinstance(aperture, Disk):
-        return {"family": "disk"}
-    raise ValueError(f"cannot write a {type(aperture).__name__} aperture to JSON")
-
-
-def _aperture_from_dict(data: Mapping[str, Any]) -> Aperture:
-    family = data["family"]
-    if family == "gaussian":
-        return Gaussian(float(data.get("scale", 0.5)))
-    if family == "disk":
-        return Disk()
-    if family == "polygon":
-        return Polygon(int(data["n_blades"]), float(data.get("rotation", 0.0)))
-    raise ValueError(f"unknown PSF family {family!r}; expected gaussian, disk or polygon")

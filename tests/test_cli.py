@@ -75,8 +75,8 @@ def test_demo_writes_metrics_json_and_figures(tmp_path, capsys):
     # The constant row is the abs-rel-optimal constant: no other constant does better.
     sample = motorcycle_sample(0.08)
     for depth in torch.linspace(1.5, 6.0, 19):
-        other = depth_metrics(torch.full_like(sample["depth"], depth)[None], sample["depth"][None],
-                              sample["mask"][None])["abs_rel"]
+        other = depth_metrics(pred=torch.full_like(sample["depth"], depth)[None],
+                              target=sample["depth"][None], mask=sample["mask"][None])["abs_rel"]
         assert metrics["constant"]["abs_rel"] <= other + 1e-6
     for name in ("motorcycle_comparison.png", "focus_sweep.png",
                  "self_supervised/checkpoints/last.pt", "supervised/train_log.csv"):

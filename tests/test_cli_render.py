@@ -10,13 +10,15 @@ def test_render_writes_focus_sweep_of_the_motorcycle(tmp_path):
 
 
 def test_focus_sweep_blurs_what_is_out_of_focus():
-    from defocus.commands.render import focus_sweep
+    from datasets.middlebury import motorcycle_focus_sweep
 
-    image, depth, renders = focus_sweep([2.2, 5.0], 0.085, 1.4, "disk", "scatter", 0.25)
+    sweep = motorcycle_focus_sweep([2.2, 5.0], 0.085, 1.4, "disk", "scatter", 0.25)
+    image, depth = sweep["image"], sweep["depth"]
     near = depth < 2.6  # the floor in front of the motorcycle
     far = depth > 4.5  # the back wall
-    for focus, render, coc in renders:
+    focus_distances = sweep["settings"].focus_distance.tolist()
+    for focus, render, coc in zip(focus_distances, sweep["renders"], sweep["coc_px"], strict=True):
         in_focus, out_of_focus = (near, far) if focus < 3 else (far, near)
         assert coc[in_focus].mean() < coc[out_of_focus].mean()
-        error = (render - image).abs().mean(1, keepdim=True)
+        error = (render - image).abs().mean(0, keepdim=True)
         assert error[in_focus].mean() < error[out_of_focus].mean()

@@ -26,12 +26,11 @@ from datasets import (
     Middlebury,
     NYUv2,
     refocus,
-    render_focal_stack,
 )
 from datasets.base import DepthDataset
 from datasets.focus import cached_focal_stack
 from datasets.middlebury import load_motorcycle
-from optics import Camera
+from optics import CameraSettings, render_focal_stack
 
 
 def srgb_to_linear(uint: np.ndarray) -> torch.Tensor:
@@ -45,15 +44,15 @@ def check_format(sample: dict, n_focus: int, h: int, w: int, dtype=torch.float32
     assert sample["focused"].shape == (n_focus, 3, h, w) and sample["focused"].dtype == dtype
     assert sample["depth"].shape == (1, h, w) and bool((sample["depth"] > 0).all())
     assert sample["mask"].shape == (1, h, w) and sample["mask"].dtype == torch.bool
-    assert set(sample["camera"]) == set(Camera.SETTING_KEYS)
-    assert all(v.shape == (n_focus,) for v in sample["camera"].values())
+    assert isinstance(sample["camera"], CameraSettings)
+    assert all(v.shape == (n_focus,) for v in sample["camera"].tensors().values())
     assert 0 <= float(sample["image"].min()) and float(sample["image"].max()) <= 1
     assert isinstance(sample["dataset"], str) and isinstance(sample["id"], str)
 
 
 def check_synthesised(sample: dict, dtype=torch.float32) -> None:
     """The focused images are the renders of the sample's image and depth with its camera."""
-    expected = render_focal_stack(sample["image"], sample["depth"], sample["camera"])
+    expected = render_focal_stack(sample["image"][None], sample["depth"][None], sample["camera"])[0]
     torch.testing.assert_close(sample["focused"], expected.clamp(0, 1).to(dtype))
 
 
@@ -78,7 +77,7 @@ def test_nyu_reads_back_upright(tmp_path, dtype):
             assert sample["dataset"] == "nyu" and sample["id"] == f"{i + 1:04d}"
     check_synthesised(train[0], dtype)
     assert not torch.allclose(train[0]["focused"][0], train[0]["image"])  # some blur
-    torch.testing.assert_close(train[0]["camera"]["focus_distance"], torch.tensor([2.0, 8.0], dtype=dtype))
+    torch.testing.assert_close(train[0]["camera"].focus_distance, torch.tensor([2.0, 8.0], dtype=dtype))
 
 
 def test_nyu_resize_scales_pixel_pitch_and_caches(tmp_path):
@@ -87,7 +86,7 @@ def test_nyu_resize_scales_pixel_pitch_and_caches(tmp_path):
     dataset = NYUv2(tmp_path / "nyu", size=(6, 8), cache_dir=cache)
     sample = dataset[0]
     check_format(sample, 2, 6, 8)
-    torch.testing.assert_close(sample["camera"]["pixel_pitch"], torch.full((2,), 22.4e-6 * 640 / 16 * 2))
+    torch.testing.assert_close(sample["camera"].pixel_pitch, torch.full((2,), 22.4e-6 * 640 / 16 * 2))
     check_synthesised(sample)
     assert len(list(cache.glob("*.pt"))) == 1
     assert torch.equal(dataset[0]["focused"], sample["focused"])  # from the cache
@@ -100,9 +99,9 @@ def test_fixed_crop_before_resize(tmp_path):
     check_format(cropped, 2, 8, 10)
     for key in ("image", "depth", "mask"):
         assert torch.equal(cropped[key], full[key][..., 2:10, 3:13]), key
-    torch.testing.assert_close(cropped["camera"]["pixel_pitch"], full["camera"]["pixel_pitch"])
+    torch.testing.assert_close(cropped["camera"].pixel_pitch, full["camera"].pixel_pitch)
     resized = NYUv2(tmp_path, crop=(2, 3, 8, 10), size=(4, 5))[1]
-    torch.testing.assert_close(resized["camera"]["pixel_pitch"], 2 * full["camera"]["pixel_pitch"])
+    torch.testing.assert_close(resized["camera"].pixel_pitch, 2 * full["camera"].pixel_pitch)
 
 
 def test_cache_key_changes_with_content(tmp_path):
@@ -118,8 +117,8 @@ def test_dataloader_with_workers(tmp_path):
     loader = torch.utils.data.DataLoader(NYUv2(tmp_path, split="all"), batch_size=2, num_workers=2)
     batch = next(iter(loader))
     assert batch["focused"].shape == (2, 2, 3, 12, 16)
-    assert batch["camera"]["focus_distance"].shape == (2, 2)
-    camera = Camera.from_settings({k: v[:, 0] for k, v in batch["camera"].items()})
+    assert batch["camera"].focus_distance.shape == (2, 2)
+    camera = batch["camera"].shot(0)
     assert camera.coc_px(batch["depth"]).shape == (2, 1, 12, 16)
 
 
@@ -203,8 +202,8 @@ def test_dslr_real_aperture_pairs(tmp_path):
         depth_mm = torch.from_numpy(written[name]["depth_mm"].astype(np.float64))
         assert torch.equal(sample["mask"][0], depth_mm > 0)
         torch.testing.assert_close(sample["depth"][0][depth_mm > 0], (depth_mm[depth_mm > 0] / 1000).float())
-        torch.testing.assert_close(sample["camera"]["f_number"], torch.tensor([2.8]))
-        torch.testing.assert_close(sample["camera"]["pixel_pitch"], torch.tensor([4.88e-6 * 7360 / 16]))
+        torch.testing.assert_close(sample["camera"].f_number, torch.tensor([2.8]))
+        torch.testing.assert_close(sample["camera"].pixel_pitch, torch.tensor([4.88e-6 * 7360 / 16]))
 
 
 # ---------------------------------------------------------------------------------- LightField
@@ -241,7 +240,7 @@ def test_middlebury_scene_folder(tmp_path):
     depth = written["baseline_mm"] * 1e-3 * written["f"] / (disparity + written["doffs"])
     assert torch.equal(sample["mask"][0], known)
     torch.testing.assert_close(sample["depth"][0][known], depth[known].float())
-    torch.testing.assert_close(sample["camera"]["pixel_pitch"], torch.full((2,), 0.085 / written["f"]))
+    torch.testing.assert_close(sample["camera"].pixel_pitch, torch.full((2,), 0.085 / written["f"]))
     check_synthesised(sample)
 
 
@@ -291,11 +290,11 @@ def test_joint_augment_gains_commute_with_rendering():
     torch.manual_seed(0)
     image, depth = torch.rand(3, 12, 12) * 0.5, torch.rand(1, 12, 12) * 6 + 1
     settings = PRESETS["nyu"].settings()
-    sample = {"image": image, "focused": render_focal_stack(image, depth, settings),
+    sample = {"image": image, "focused": render_focal_stack(image[None], depth[None], settings)[0],
               "depth": depth, "mask": torch.ones(1, 12, 12, dtype=torch.bool)}
     aug = JointAugment(hflip=1.0, gain=0.3)
     out = aug(sample, generator=torch.Generator().manual_seed(1))
-    rendered = render_focal_stack(out["image"], out["depth"], settings)
+    rendered = render_focal_stack(out["image"][None], out["depth"][None], settings)[0]
     torch.testing.assert_close(out["focused"], rendered, atol=1e-5, rtol=1e-5)
 
 

@@ -9,7 +9,6 @@ import torch
 
 from datasets import LightFieldCalibration, refocus
 from datasets.lightfield import aperture_offsets, mosaic_to_views
-from optics import Camera
 
 N_VIEWS, PAD, SIZE = 7, 12, 24
 
@@ -81,7 +80,7 @@ def test_refocus_blur_width_matches_shear_and_thin_lens():
     # (times D_f / (D_f - f), the thin lens's own factor).
     calib, d_f = LightFieldCalibration(), -1.0
     preset = calib.preset([d_f], radius)
-    camera = Camera.from_settings(preset.settings(torch.float64))
+    camera = preset.settings(torch.float64).camera()
     depth = calib.depth(torch.tensor([d_f + delta / 2], dtype=torch.float64))
     focus = preset.focus_distances[0]
     expected = 2 * radius * abs(delta / 2) * focus / (focus - calib.focal_length)

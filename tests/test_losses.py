@@ -8,18 +8,14 @@ from models.losses import (
     DefocusLoss,
     edge_aware_smoothness,
     photometric_loss,
-    render_focused,
     sharpness_loss,
     supervised_depth_loss,
 )
-from optics import Camera
+from optics import CameraSettings, render_focal_stack
 
 
 def _camera(dtype, b=1):
-    return {"focal_length": torch.full((b, 2), 0.05, dtype=dtype),
-            "f_number": torch.full((b, 2), 2.0, dtype=dtype),
-            "focus_distance": torch.tensor([[2.0, 6.0]] * b, dtype=dtype),
-            "pixel_pitch": torch.full((b, 2), 180e-6, dtype=dtype)}
+    return CameraSettings(0.05, 2.0, [[2.0, 6.0]] * b, 180e-6).to(dtype)
 
 
 def _scene(dtype, b=1, size=16):
@@ -39,13 +35,13 @@ def test_photometric_matches_definition(dtype):
     assert float(photometric_loss(a, a)) == pytest.approx(0.0, abs=1e-6)
 
 
-def test_render_focused_matches_camera_render():
+def test_render_focal_stack_matches_camera_render():
     image, depth = _scene(torch.float64, b=2)
     camera = _camera(torch.float64, b=2)
-    out = render_focused(image, depth, camera)
+    out = render_focal_stack(image, depth, camera)
     for i in range(2):
         for f in range(2):
-            cam = Camera.from_settings({k: v[i, f] for k, v in camera.items()})
+            cam = camera[i].shot(f)
             # windows follow the largest CoC of the batch: Gaussian tails beyond 3 sigma differ
             torch.testing.assert_close(out[i, f], cam.render(image[i:i + 1], depth[i:i + 1])[0],
                                        atol=2e-4, rtol=0)
@@ -55,7 +51,7 @@ def test_render_focused_matches_camera_render():
 def test_perfect_depth_is_the_minimum(dtype):
     image, depth = _scene(dtype)
     camera = _camera(dtype)
-    focused = render_focused(image, depth, camera)
+    focused = render_focal_stack(image, depth, camera)
     loss = DefocusLoss(smoothness_weight=0.0)
     best = float(loss(depth, image, focused, camera)["loss"])
     assert best == pytest.approx(0.0, abs=1e-6)
@@ -68,7 +64,7 @@ def test_perfect_depth_is_the_minimum(dtype):
 def test_gradients_reach_depth():
     image, depth = _scene(torch.float64, size=10)
     camera = _camera(torch.float64)
-    focused = render_focused(image, depth, camera)
+    focused = render_focal_stack(image, depth, camera)
     guess = (depth * 1.2).requires_grad_()
     terms = DefocusLoss()(guess, image, focused, camera)
     terms["loss"].backward()
@@ -90,7 +86,7 @@ def test_gradcheck_photometric_and_smoothness():
 def test_gradcheck_loss_wrt_depth():
     image, depth = _scene(torch.float64, size=5)
     camera = _camera(torch.float64)
-    focused = render_focused(image, depth * 0.9, camera)
+    focused = render_focal_stack(image, depth * 0.9, camera)
     loss = DefocusLoss(window_size=3)
     d = depth.clone().requires_grad_()
     assert torch.autograd.gradcheck(lambda x: loss(x, image, focused, camera)["loss"], (d,),
@@ -120,4 +116,4 @@ def test_errors():
     with pytest.raises(ValueError, match="ssim_weight"):
         photometric_loss(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 8), ssim_weight=2.0)
     with pytest.raises(ValueError, match="depth"):
-        render_focused(torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8) + 1, _camera(torch.float32))
+        render_focal_stack(torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8) + 1, _camera(torch.float32))

@@ -18,7 +18,7 @@ from models.metrics import (
 def test_metrics_match_hand_computation(dtype):
     pred = torch.tensor([[1.0, 3.0], [4.0, 10.0]], dtype=dtype)
     gt = torch.tensor([[2.0, 3.0], [5.0, 8.0]], dtype=dtype)
-    m = depth_metrics(pred, gt)
+    m = depth_metrics(pred=pred, target=gt)
     # errors: -1, 0, -1, 2 ; ratios max(d/g,g/d): 2, 1, 1.25, 1.25
     assert m["abs_rel"] == pytest.approx((0.5 + 0 + 0.2 + 0.25) / 4)
     assert m["sq_rel"] == pytest.approx((1 / 2 + 0 + 1 / 5 + 4 / 8) / 4)
@@ -33,7 +33,7 @@ def test_metrics_match_hand_computation(dtype):
 
 
 def test_delta3_excludes_ratio_two():
-    m = depth_metrics(torch.tensor([[1.0, 2.0]]), torch.tensor([[2.0, 2.0]]))
+    m = depth_metrics(pred=torch.tensor([[1.0, 2.0]]), target=torch.tensor([[2.0, 2.0]]))
     assert m["delta3"] == pytest.approx(0.5)
 
 
@@ -41,22 +41,22 @@ def test_mask_cap_and_clamp():
     pred = torch.tensor([[2.0, 100.0, 1.0]])
     gt = torch.tensor([[2.0, 9.0, 50.0]])
     mask = torch.tensor([[True, True, True]])
-    m = depth_metrics(pred, gt, mask, max_depth=10.0)  # 50 m is beyond the cap
+    m = depth_metrics(pred=pred, target=gt, mask=mask, max_depth=10.0)  # 50 m is beyond the cap
     # second pixel: prediction clamped to 10 -> |10 - 9| / 9
     assert m["abs_rel"] == pytest.approx((0 + 1 / 9) / 2)
-    m = depth_metrics(pred, gt, torch.tensor([[True, False, False]]))
+    m = depth_metrics(pred=pred, target=gt, mask=torch.tensor([[True, False, False]]))
     assert m["abs_rel"] == 0.0
 
 
 def test_batch_is_mean_of_images():
     pred = torch.tensor([2.0, 2.0, 4.0, 4.0]).reshape(2, 1, 1, 2)
     gt = torch.tensor([2.0, 2.0, 2.0, 2.0]).reshape(2, 1, 1, 2)
-    assert depth_metrics(pred, gt)["abs_rel"] == pytest.approx(0.5)
+    assert depth_metrics(pred=pred, target=gt)["abs_rel"] == pytest.approx(0.5)
 
 
 def test_median_scaling_reported():
     gt = torch.tensor([[1.0, 2.0, 3.0]])
-    m = depth_metrics(gt * 2, gt, median_scaling=True)
+    m = depth_metrics(pred=gt * 2, target=gt, median_scaling=True)
     assert m["median_scale"] == pytest.approx(0.5)
     assert m["abs_rel"] == pytest.approx(0.0)
     assert "(median scaled)" in format_table({"net": m})
@@ -77,21 +77,22 @@ def test_crops():
 
 def test_errors():
     with pytest.raises(ValueError, match="same shape"):
-        depth_metrics(torch.ones(2, 2), torch.ones(3, 3))
+        depth_metrics(pred=torch.ones(2, 2), target=torch.ones(3, 3))
     with pytest.raises(ValueError, match="no valid"):
-        depth_metrics(torch.ones(2, 2), torch.ones(2, 2), torch.zeros(2, 2, dtype=torch.bool))
+        depth_metrics(pred=torch.ones(2, 2), target=torch.ones(2, 2),
+                      mask=torch.zeros(2, 2, dtype=torch.bool))
     with pytest.raises(ValueError, match="finite"):
-        depth_metrics(torch.full((2, 2), float("nan")), torch.ones(2, 2))
+        depth_metrics(pred=torch.full((2, 2), float("nan")), target=torch.ones(2, 2))
     with pytest.raises(TypeError):
-        depth_metrics([1.0], torch.ones(1))
+        depth_metrics(pred=[1.0], target=torch.ones(1))
 
 
 def test_best_constant_depth_minimises_abs_rel():
     gt = torch.rand(200, generator=torch.Generator().manual_seed(0)) * 3 + 2
-    best = best_constant_depth(gt)
+    best = best_constant_depth(target=gt)
     grid = torch.linspace(2, 5, 601)
     abs_rel = ((grid[:, None] - gt[None]).abs() / gt[None]).mean(1)
-    assert depth_metrics(torch.full_like(gt, best)[None], gt[None])["abs_rel"] == pytest.approx(
+    assert depth_metrics(pred=torch.full_like(gt, best)[None], target=gt[None])["abs_rel"] == pytest.approx(
         float(abs_rel.min()), abs=1e-3)
 
 

@@ -11,12 +11,11 @@ from models.networks import (
     camera_channels,
     defocus_cues,
 )
+from optics import CameraSettings
 
 
 def _camera(b, n=2):
-    return {"focal_length": torch.full((b, n), 0.05), "f_number": torch.full((b, n), 2.0),
-            "focus_distance": torch.tensor([[2.0, 6.0][:n]] * b),
-            "pixel_pitch": torch.full((b, n), 180e-6)}
+    return CameraSettings(0.05, 2.0, [[2.0, 6.0, 9.0][:n]] * b, 180e-6).to(torch.float32)
 
 
 @pytest.mark.parametrize("size", [(16, 16), (19, 27)])

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from datasets.focus import CameraPreset, render_focal_stack
+from datasets.focus import CameraPreset
 from datasets.synthetic import SYNTHETIC_PRESET, SyntheticScenes, generate_scene
+from optics import CameraSettings, render_focal_stack
 
 
 def test_deterministic_per_seed_and_index():
@@ -27,8 +28,7 @@ def test_sample_format_and_ranges():
         assert sample["depth"].shape == (1, 16, 20) and sample["mask"].dtype == torch.bool
         assert 0 <= float(sample["image"].min()) and float(sample["image"].max()) <= 1
         assert 1.5 <= float(sample["depth"].min()) and float(sample["depth"].max()) <= 6.0
-        assert set(sample["camera"]) == {"focal_length", "f_number", "focus_distance",
-                                         "pixel_pitch"}
+        assert isinstance(sample["camera"], CameraSettings) and sample["camera"].n_shots == 2
         assert sample["dataset"] == "synthetic"
     with pytest.raises(IndexError):
         scenes[4]
@@ -38,7 +38,7 @@ def test_focused_images_are_rendered_with_the_preset():
     preset = CameraPreset(0.05, 100e-6, focus_distances=(2.5,), f_numbers=(1.4,))
     scenes = SyntheticScenes(1, (16, 16), preset=preset, depth_range=(1.0, 5.0))
     sample = scenes[0]
-    expected = render_focal_stack(sample["image"], sample["depth"], preset.settings())
+    expected = render_focal_stack(sample["image"][None], sample["depth"][None], preset.settings())[0]
     torch.testing.assert_close(sample["focused"], expected.clamp(0, 1))
     assert float(sample["depth"].max()) <= 5.0
 
@@ -65,8 +65,7 @@ def test_errors():
 
 def test_default_preset_blur_is_small():
     """The default camera keeps CoCs at or below about 5 pixels over 1.5-6 m (cheap rendering)."""
-    from optics import Camera
 
-    camera = Camera.from_settings(SYNTHETIC_PRESET.settings())
+    camera = SYNTHETIC_PRESET.settings().camera()
     depth = torch.linspace(1.5, 6.0, 50).reshape(1, 1, 1, 50).expand(2, 1, 1, 50)
     assert float(camera.coc_px(depth).max()) < 5.01

@@ -65,7 +65,7 @@ def test_fit_writes_logs_checkpoints_figures(tmp_path, scenes):
     assert TrainConfig.from_yaml(cfg.out_dir / "config.yaml") == cfg
     model, loaded = load_model(cfg.out_dir / "checkpoints" / "last.pt")
     image = scenes[0]["image"][None]
-    batch = {k: v[None] for k, v in scenes[0]["camera"].items()}
+    batch = scenes[0]["camera"].batched(1)
     torch.testing.assert_close(model(image, scenes[0]["focused"][None], batch),
                                trainer.predict(image, scenes[0]["focused"][None], batch))
     metrics = trainer.evaluate(scenes)
@@ -170,8 +170,8 @@ def test_trained_network_beats_constant_depth(tmp_path):
     trainer.fit()
     net = trainer.evaluate(test)["abs_rel"]
     everything = torch.cat([s["depth"].reshape(-1) for s in test])
-    best = best_constant_depth(everything)
-    constant = sum(depth_metrics(torch.full_like(s["depth"], best), s["depth"])["abs_rel"]
+    best = best_constant_depth(target=everything)
+    constant = sum(depth_metrics(pred=torch.full_like(s["depth"], best), target=s["depth"])["abs_rel"]
                    for s in test) / len(test)
     print(f"abs rel: network {net:.3f}, best constant ({best:.2f} m) {constant:.3f}, "
           f"ratio {net / constant:.3f}")

@@ -9,7 +9,6 @@ everything else is fitted. Writes a JSON that :meth:`optics.Camera.from_json` lo
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
@@ -56,55 +55,51 @@ def _distance(text: str) -> float:
 
 
 def run(args: argparse.Namespace) -> int:
-    from optics import CalibrationPair, RawReadError, calibrate, plot_calibration, read_raw
+    from defocus.cli import CommandError
+    from optics import CalibrationPair, calibrate, plot_calibration, read_raw
 
-    try:
-        pairs, meta = [], None
-        for sharp_path, blurred_path, distance_text in args.pair:
-            distance = _distance(distance_text)
-            options = {"binning": args.binning, "white_balance": args.white_balance}
-            sharp, _ = read_raw(sharp_path, **options)
-            blurred, meta = read_raw(blurred_path, **options)
-            if sharp.shape != blurred.shape:
-                raise ValueError(
-                    f"{sharp_path} is {tuple(sharp.shape[-2:])} pixels but {blurred_path} is "
-                    f"{tuple(blurred.shape[-2:])}; a pair must have one size"
-                )
-            pairs.append(CalibrationPair(sharp, blurred, distance, name=Path(blurred_path).stem))
-        given = {
-            "focal_length": args.focal_length,
-            "f_number": args.f_number,
-            "pixel_pitch": None if args.pixel_pitch is None else args.pixel_pitch * args.binning,
-            "focus_distance": args.focus_distance,
-            "psf_scale": args.psf_scale,
-        }
-        from_metadata = meta.settings()
-        sources = {}
-        for name in ("focal_length", "f_number", "pixel_pitch"):
-            if given[name] is not None:
-                sources[name] = "option"
-            elif name not in args.fit and from_metadata[name] is not None:
-                given[name] = from_metadata[name]
-                sources[name] = "metadata"
-        if given["focal_length"] is None:
-            raise ValueError("the focal length is unknown: the files do not state it; pass "
-                             "--focal-length in metres")
-        result = calibrate(
-            pairs, psf=args.psf, margin_px=args.margin, adam_steps=args.adam_steps,
-            lbfgs_steps=args.lbfgs_steps, progress=args.progress, **given,
-        )
-    except (ValueError, TypeError, FileNotFoundError, RawReadError) as error:
-        print(f"defocus calibrate: error: {error}", file=sys.stderr)
-        return 2
+    pairs, meta = [], None
+    for sharp_path, blurred_path, distance_text in args.pair:
+        distance = _distance(distance_text)
+        options = {"binning": args.binning, "white_balance": args.white_balance}
+        sharp, _ = read_raw(sharp_path, **options)
+        blurred, meta = read_raw(blurred_path, **options)
+        if sharp.shape != blurred.shape:
+            raise ValueError(
+                f"{sharp_path} is {tuple(sharp.shape[-2:])} pixels but {blurred_path} is "
+                f"{tuple(blurred.shape[-2:])}; a pair must have one size"
+            )
+        pairs.append(CalibrationPair(sharp, blurred, distance, name=Path(blurred_path).stem))
+    given = {
+        "focal_length": args.focal_length,
+        "f_number": args.f_number,
+        "pixel_pitch": None if args.pixel_pitch is None else args.pixel_pitch * args.binning,
+        "focus_distance": args.focus_distance,
+        "psf_scale": args.psf_scale,
+    }
+    effective_pitch = None if meta.pixel_pitch is None else meta.pixel_pitch * meta.binning
+    from_metadata = {"focal_length": meta.focal_length, "f_number": meta.f_number,
+                     "pixel_pitch": effective_pitch}
+    sources = {}
+    for name in ("focal_length", "f_number", "pixel_pitch"):
+        if given[name] is not None:
+            sources[name] = "option"
+        elif name not in args.fit and from_metadata[name] is not None:
+            given[name] = from_metadata[name]
+            sources[name] = "metadata"
+    if given["focal_length"] is None:
+        raise CommandError("the focal length is unknown: the files do not state it; pass "
+                           "--focal-length in metres")
+    result = calibrate(
+        pairs, psf=args.psf, margin_px=args.margin, adam_steps=args.adam_steps,
+        lbfgs_steps=args.lbfgs_steps, progress=args.progress, **given,
+    )
     for name, source in sources.items():
         print(f"{name}: from the {source}")
     print(result.table())
     args.out.parent.mkdir(parents=True, exist_ok=True)
     result.save(args.out)
     figure = args.figure or args.out.with_suffix(".png")
-    import matplotlib
-
-    matplotlib.use("Agg")
     plot_calibration(result, figure)
     print(f"wrote {args.out} and {figure}")
     return 0

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
     trainer = Trainer.from_checkpoint(args.checkpoint)
     if args.data == "motorcycle":
-        from .demo import motorcycle_sample
+        from datasets.middlebury import motorcycle_sample
 
         test_set = [motorcycle_sample(args.scale)]
     else:

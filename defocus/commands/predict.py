@@ -30,28 +30,28 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from datasets.io import read_rgb
-    from models.figures import plot_prediction
+    from defocus.cli import CommandError
+    from models.plotting import plot_prediction
     from models.training import Trainer
+    from optics import CameraSettings
 
     trainer = Trainer.from_checkpoint(args.checkpoint)
     image = read_rgb(args.image)[None]
-    focused = camera = None
+    focused = settings = None
     if trainer.config.input_mode == "aif+focused":
         n = len(args.focused)
         if n != trainer.config.n_focus:
-            raise SystemExit(f"this network needs {trainer.config.n_focus} --focused photos, "
+            raise CommandError(f"this network needs {trainer.config.n_focus} --focused photos, "
                              f"got {n}")
         if len(args.focus_distance) != n or len(args.f_number) not in (1, n) \
                 or args.focal_length is None or args.pixel_pitch is None:
-            raise SystemExit("give --focus-distance (one per focused photo), --f-number, "
+            raise CommandError("give --focus-distance (one per focused photo), --f-number, "
                              "--focal-length and --pixel-pitch")
         focused = torch.stack([read_rgb(p) for p in args.focused])[None]
         f_numbers = args.f_number * n if len(args.f_number) == 1 else args.f_number
-        camera = {"focal_length": torch.full((1, n), args.focal_length),
-                  "f_number": torch.tensor([f_numbers]),
-                  "focus_distance": torch.tensor([args.focus_distance]),
-                  "pixel_pitch": torch.full((1, n), args.pixel_pitch)}
-    depth = trainer.predict(image, focused, camera)[0].cpu()
+        settings = CameraSettings(args.focal_length, f_numbers, args.focus_distance,
+                                  args.pixel_pitch).to(torch.float32)
+    depth = trainer.predict(image, focused, settings)[0].cpu()
     args.out.mkdir(parents=True, exist_ok=True)
     np.save(args.out / "depth.npy", depth[0].numpy())
     plot_prediction(args.out / "depth.png", image[0], depth,

@@ -5,16 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-#: --data choices -> class name in :mod:`datasets` (``synthetic`` is the embedded default).
-DATASETS = {
-    "synthetic": "SyntheticScenes",
-    "dslr": "DSLR",
-    "nyu": "NYUv2",
-    "kitti": "KITTI",
-    "make3d": "Make3D",
-    "middlebury": "Middlebury",
-    "lightfield": "LightField",
-}
+from datasets.registry import DATASET_NAMES
 
 
 def config_fields_help() -> str:
@@ -82,7 +73,7 @@ def add_data_arguments(
 ) -> None:
     parser.add_argument(
         "--data",
-        choices=sorted([*DATASETS, *extra_choices]),
+        choices=sorted([*DATASET_NAMES, *extra_choices]),
         default=default,
         help="dataset: synthetic scenes (embedded), the real motorcycle scene "
         "(evaluate) or a real-format folder given by --root",
@@ -107,15 +98,10 @@ def add_data_arguments(
 
 def build_dataset(args: argparse.Namespace, split: str | None = None, seed_offset: int = 0):
     """The dataset selected by ``--data`` (``split`` overrides ``--split``)."""
-    import datasets
-    from datasets.synthetic import SyntheticScenes
+    from datasets.registry import build_dataset as build
 
-    if args.data == "synthetic":
-        return SyntheticScenes(args.scenes, tuple(args.size), seed=args.data_seed + seed_offset)
-    if args.root is None:
-        raise SystemExit(f"--data {args.data} needs --root (the dataset folder)")
-    cls = getattr(datasets, DATASETS[args.data])
-    return cls(args.root, split=split or args.split, size=tuple(args.size))
+    return build(args.data, args.root, split=split or args.split, size=tuple(args.size),
+                 scenes=args.scenes, seed=args.data_seed + seed_offset)
 
 
 def run(args: argparse.Namespace) -> int:

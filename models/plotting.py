@@ -1,4 +1,8 @@
-"""Matplotlib figures of depth predictions: input, focused images, depth, ground truth, error."""
+"""Figures of depth predictions (input, focused images, depth, ground truth, error).
+
+Built on `matplotlib.figure.Figure`: no `pyplot` state and no backend switch, so plotting from a
+notebook leaves its backend alone.
+"""
 
 from __future__ import annotations
 
@@ -36,9 +40,7 @@ def plot_prediction(
         the path written.
     """
     import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -57,8 +59,8 @@ def plot_prediction(
     if depth_range is None:
         values = [depth] + ([target] if target is not None else [])
         depth_range = (min(float(v.min()) for v in values), max(float(v.max()) for v in values))
-    fig, axes = plt.subplots(1, len(panels), figsize=(2.8 * len(panels), 2.8),
-                             constrained_layout=True, squeeze=False)
+    fig = Figure(figsize=(2.8 * len(panels), 2.8), layout="constrained")
+    axes = fig.subplots(1, len(panels), squeeze=False)
     for ax, (name, data, kind) in zip(axes[0], panels, strict=True):
         if kind == "rgb":
             ax.imshow(linear_to_srgb(data).permute(1, 2, 0).numpy())
@@ -73,5 +75,49 @@ def plot_prediction(
     if title:
         fig.suptitle(title, fontsize=10)
     fig.savefig(path, dpi=90)
-    plt.close(fig)
+    return path
+
+
+def plot_comparison(
+    path: str | Path, sample: dict, predictions: dict[str, Tensor],
+    depth_range: tuple[float, float],
+) -> Path:
+    """Save one figure comparing several methods on one scene: the input and the ground truth,
+    then each method's depth (top row) and its abs rel error (bottom row; unknown depth grey).
+
+    Args:
+        path: PNG file to write.
+        sample: a sample dict with ``image`` ``(3,H,W)``, ``depth`` and ``mask`` ``(1,H,W)``.
+        predictions: method name -> depth ``(1,H,W)`` metres.
+        depth_range: colour range of the depth maps in metres.
+    """
+    import matplotlib
+    from matplotlib.figure import Figure
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    target, mask = sample["depth"][0], sample["mask"][0]
+    n = len(predictions) + 1
+    fig = Figure(figsize=(3.0 * n, 4.6), layout="constrained")
+    axes = fig.subplots(2, n, squeeze=False)
+    axes[0, 0].imshow(linear_to_srgb(sample["image"]).permute(1, 2, 0).numpy())
+    axes[0, 0].set_title("all in focus", fontsize=9)
+    cmap = matplotlib.colormaps["magma_r"].with_extremes(bad="0.6")
+    shown = axes[1, 0].imshow(torch.where(mask, target, torch.nan).numpy(), cmap=cmap,
+                              vmin=depth_range[0], vmax=depth_range[1])
+    axes[1, 0].set_title("ground truth (m)", fontsize=9)
+    fig.colorbar(shown, ax=axes[1, 0], shrink=0.8)
+    errors = matplotlib.colormaps["viridis"].with_extremes(bad="0.6")
+    for i, (name, depth) in enumerate(predictions.items(), start=1):
+        d = depth.reshape(target.shape)
+        im = axes[0, i].imshow(d.numpy(), cmap=cmap, vmin=depth_range[0], vmax=depth_range[1])
+        axes[0, i].set_title(f"{name} (m)", fontsize=9)
+        error = torch.where(mask, (d - target).abs() / target, torch.nan)
+        err = axes[1, i].imshow(error.numpy(), vmin=0, vmax=0.5, cmap=errors)
+        axes[1, i].set_title(f"abs rel error, mean {float(error.nanmean()):.3f}", fontsize=9)
+    fig.colorbar(im, ax=axes[0, 1:].tolist(), shrink=0.8)
+    fig.colorbar(err, ax=axes[1, 1:].tolist(), shrink=0.8)
+    for ax in axes.flat:
+        ax.axis("off")
+    fig.savefig(path, dpi=100)
     return path

@@ -1,0 +1,55 @@
+"""The dataset registry: every dataset by the name the command line and configs use."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from .base import DepthDataset
+
+
+def dataset_classes() -> dict[str, type]:
+    """Name -> class of every dataset (`synthetic` is the embedded default; the others read a
+    folder in the dataset's real format)."""
+    from .dslr import DSLR
+    from .kitti import KITTI
+    from .lightfield import LightField
+    from .make3d import Make3D
+    from .middlebury import Middlebury
+    from .nyu import NYUv2
+    from .synthetic import SyntheticScenes
+
+    return {"synthetic": SyntheticScenes, "dslr": DSLR, "nyu": NYUv2, "kitti": KITTI,
+            "make3d": Make3D, "middlebury": Middlebury, "lightfield": LightField}
+
+
+#: Names accepted by `build_dataset`.
+DATASET_NAMES = ("synthetic", "dslr", "nyu", "kitti", "make3d", "middlebury", "lightfield")
+
+
+def build_dataset(name: str, root: str | Path | None = None, split: str = "train",
+                  size: tuple[int, int] = (48, 48), scenes: int = 256, seed: int = 0,
+                  **kwargs: Any) -> DepthDataset | Any:
+    """The dataset called `name`.
+
+    Args:
+        name: one of `DATASET_NAMES`.
+        root: the dataset folder (all but `synthetic`).
+        split: the split of a folder dataset.
+        size: `(height, width)` pixels: the synthetic scenes' size, the resize of real data.
+        scenes: number of synthetic scenes.
+        seed: seed of the synthetic scenes.
+        **kwargs: passed to the dataset class.
+
+    Example:
+        >>> len(build_dataset("synthetic", scenes=3, size=(16, 16)))
+        3
+    """
+    if name not in DATASET_NAMES:
+        raise ValueError(f"unknown dataset {name!r}; expected one of {', '.join(DATASET_NAMES)}")
+    cls = dataset_classes()[name]
+    if name == "synthetic":
+        return cls(scenes, tuple(size), seed=seed, **kwargs)
+    if root is None:
+        raise ValueError(f"dataset {name!r} needs root, the dataset folder")
+    return cls(root, split=split, size=tuple(size), **kwargs)
