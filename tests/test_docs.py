@@ -202,3 +202,17 @@ def test_license_is_the_full_apache_2_text():
         assert re.search(rf"^\s*{section}\. \S", text, re.MULTILINE), f"section {section}"
     assert "END OF TERMS AND CONDITIONS" in text
     assert "APPENDIX: How to apply the Apache License to your work." in text
+
+
+def test_maths_become_mathml():
+    """arithmatex's `$x$` and `$$` output is turned into MathML at build time (no JavaScript)."""
+    mathml = _load("mathml_hook", DOCS / "hooks" / "mathml.py")
+    page = (
+        '<p>depth <span class="arithmatex">\\(D_f &lt; D\\)</span></p>\n'
+        '<div class="arithmatex">\\[\nc = \\frac{f^2}{N}\n\\]</div>'
+    )
+    out = mathml.convert_html(page)
+    assert "\\(" not in out and "\\[" not in out
+    assert out.count("<math ") == 2 and 'display="block"' in out and "<mfrac>" in out
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))
+    assert "docs/hooks/mathml.py" in config["hooks"]
