@@ -37,14 +37,15 @@ from typing import Any
 
 import torch
 
-from .calibration.measure import _ConstantBlur, fit_thin_lens_curve, measure_blur
+from .calibration.measure import _ConstantBlur as _ConstantBlur  # noqa: F401 (tests use it)
+from .calibration.measure import fit_thin_lens_curve, measure_blur
 from .calibration.model import ResidualModel
 from .calibration.optimise import Fit, gauss_newton, optimise
 from .calibration.pair import CalibrationPair
 from .calibration.problem import PARAMETERS, PSF_FAMILIES, Problem
 from .calibration.result import CalibrationResult, fitted_settings
 from .calibration.start import Start, initial_guess, margin_and_pad
-from .plotting import plot_calibration
+from .plotting import plot_calibration as plot_calibration  # noqa: F401 (moved, still here)
 
 __all__ = [
     "PARAMETERS",
@@ -55,8 +56,6 @@ __all__ = [
     "fit_thin_lens_curve",
     "measure_blur",
 ]
-# Kept importable from here as before: `_ConstantBlur` (tests) and `plot_calibration`.
-_COMPAT = (_ConstantBlur, plot_calibration)
 
 
 def calibrate(
