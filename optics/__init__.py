@@ -8,11 +8,11 @@ from .calibrate import (
     calibrate,
     fit_thin_lens_curve,
     measure_blur,
-    plot_calibration,
 )
 from .camera import Camera
 from .focal_stack import render_focal_stack
 from .lens import ThinLens
+from .plotting import plot_calibration
 from .raw import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor

@@ -1,14 +1,14 @@
 """Reading raw photos: linear camera RGB and the metadata a calibration needs.
 
-Raw files are decoded by LibRaw (through ``rawpy``) without any tone processing: the black level is
-subtracted, values are divided by ``white_level - black_level`` (so a saturated pixel reads 1), the
+Raw files are decoded by LibRaw (through `rawpy`) without any tone processing: the black level is
+subtracted, values are divided by `white_level - black_level` (so a saturated pixel reads 1), the
 Bayer mosaic is demosaiced (or binned), and there is no gamma, no auto-brightness and no clipping
 by white balance (white balance is applied here, after decoding, so balanced values may exceed 1).
 Colour conversion to linear sRGB or CIE XYZ uses the camera's colour matrix (from the file, as
 LibRaw reads it) and colour-science's sRGB definition.
 
 Camera and lens model, exposure, ISO and the focal-plane resolution come from the EXIF tags
-(``exifread``), focal length, f-number, levels, CFA and white balance from LibRaw.
+(`exifread`), focal length, f-number, levels, CFA and white balance from LibRaw.
 """
 
 from __future__ import annotations
@@ -28,14 +28,15 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .sensor import Sensor
+from .settings import CameraSettings
 
-#: White-balance choices of :func:`read_raw`.
+#: White-balance choices of `read_raw`.
 WHITE_BALANCES = ("camera", "daylight", "none")
-#: Output colour spaces of :func:`read_raw` (all linear).
+#: Output colour spaces of `read_raw` (all linear).
 COLOUR_SPACES = ("camera", "srgb", "xyz")
 #: Files smaller than this many bytes per photosite cannot hold the image they declare.
 MIN_BYTES_PER_PHOTOSITE = 0.02
-#: LibRaw demosaicing algorithms offered by :func:`read_raw`.
+#: LibRaw demosaicing algorithms offered by `read_raw`.
 DEMOSAIC_ALGORITHMS = ("linear", "ahd", "dcb", "vng", "ppg")
 
 
@@ -49,28 +50,28 @@ class RawMetadata:
 
     Attributes:
         path: the file read.
-        camera_make: e.g. ``"Canon"`` (``None`` where the file does not say).
-        camera_model: e.g. ``"Canon EOS 6D"``.
-        lens_model: e.g. ``"EF24-105mm f/4L IS USM"``.
-        focal_length: focal length in metres, e.g. ``0.065``.
-        f_number: f-number, e.g. ``5.6``.
+        camera_make: e.g. `"Canon"` (`None` where the file does not say).
+        camera_model: e.g. `"Canon EOS 6D"`.
+        lens_model: e.g. `"EF24-105mm f/4L IS USM"`.
+        focal_length: focal length in metres, e.g. `0.065`.
+        f_number: f-number, e.g. `5.6`.
         exposure_time: exposure time in seconds.
         iso: ISO sensitivity.
         pixel_pitch: sensor pixel pitch in metres from the EXIF focal-plane resolution. It refers
             to the image size the camera wrote; a file resized by a converter may state the
-            original sensor's value. ``None`` when absent.
-        cfa_pattern: the 2x2 Bayer pattern, e.g. ``"RGGB"``; ``None`` for non-Bayer data
+            original sensor's value. `None` when absent.
+        cfa_pattern: the 2x2 Bayer pattern, e.g. `"RGGB"`; `None` for non-Bayer data
             (linear DNG, X-Trans, Foveon).
         black_level: black level per CFA channel (raw units).
         white_level: white (saturation) level (raw units).
-        camera_white_balance: as-shot multipliers ``(R, G, B)`` normalised to ``G = 1``.
-        daylight_white_balance: daylight multipliers ``(R, G, B)`` normalised to ``G = 1``.
+        camera_white_balance: as-shot multipliers `(R, G, B)` normalised to `G = 1`.
+        daylight_white_balance: daylight multipliers `(R, G, B)` normalised to `G = 1`.
         white_balance: the multipliers applied to the returned image.
         colour_matrix: 3x3 matrix from white-balanced camera RGB to linear sRGB (rows sum to 1).
-        xyz_to_camera: 3x3 matrix from CIE XYZ to camera RGB (the DNG ``ColorMatrix``).
-        colour_space: colour space of the returned image (``"camera"``, ``"srgb"``, ``"xyz"``).
+        xyz_to_camera: 3x3 matrix from CIE XYZ to camera RGB (the DNG `ColorMatrix`).
+        colour_space: colour space of the returned image (`"camera"`, `"srgb"`, `"xyz"`).
         binning: factor by which the returned image is smaller than the sensor grid.
-        raw_size: ``(height, width)`` of the sensor area LibRaw reports as visible.
+        raw_size: `(height, width)` of the sensor area LibRaw reports as visible.
     """
 
     path: str
@@ -95,13 +96,13 @@ class RawMetadata:
     raw_size: tuple[int, int] | None = None
 
     def sensor(self, pixel_pitch: float | None = None) -> Sensor:
-        """A :class:`~optics.Sensor` for the returned images (their binning sets ``downsample``).
+        """A `Sensor` for the returned images (their binning sets `downsample`).
 
         Args:
-            pixel_pitch: sensor pixel pitch in metres; by default the file's :attr:`pixel_pitch`.
+            pixel_pitch: sensor pixel pitch in metres; by default the file's `pixel_pitch`.
 
         Raises:
-            ValueError: if neither ``pixel_pitch`` nor the file gives the pitch.
+            ValueError: if neither `pixel_pitch` nor the file gives the pitch.
         """
         pitch = self.pixel_pitch if pixel_pitch is None else pixel_pitch
         if pitch is None:
@@ -111,19 +112,65 @@ class RawMetadata:
             )
         return Sensor(pitch, resolution=self.raw_size, cfa=self.cfa_pattern, downsample=self.binning)
 
-    def settings(self) -> dict[str, float | None]:
-        """The metadata's known camera settings in the keys of :meth:`optics.Camera.settings`.
+    @property
+    def effective_pixel_pitch(self) -> float | None:
+        """Pixel pitch of the returned images in metres: `pixel_pitch` times `binning` (`None`
+        where the file does not state the pitch). The value `optics.calibrate` wants."""
+        return None if self.pixel_pitch is None else self.pixel_pitch * self.binning
 
-        ``pixel_pitch`` is the *effective* pitch of the returned image (sensor pitch x binning);
-        ``focus_distance`` is not stored by most cameras and is ``None``.
+    def camera_settings(
+        self,
+        focus_distance: float | Sequence[float],
+        pixel_pitch: float | None = None,
+        aperture: str = "gaussian",
+        *,
+        focal_length: float | None = None,
+        f_number: float | None = None,
+    ) -> CameraSettings:
+        """The `optics.CameraSettings` of the returned images: the file's focal length and
+        f-number, and the effective pixel pitch (sensor pitch times `binning`).
+
+        Most cameras do not record the focus distance, so it is always given.
+
+        Args:
+            focus_distance: metres (a number, or one per shot).
+            pixel_pitch: *sensor* pixel pitch in metres; by default the file's `pixel_pitch`.
+                The settings hold the effective pitch, this times `binning`.
+            aperture: the PSF's spec (`"gaussian"`, `"disk"`, `"polygon:6"`, ...).
+            focal_length: metres, replacing the file's (for files that do not state it).
+            f_number: replacing the file's (for files that do not state it, e.g. manual lenses).
+
+        Returns:
+            `(F,)` settings (`F = 1` for one focus distance).
+
+        Raises:
+            ValueError: naming each value the file does not state and the argument to pass
+                instead, or for settings `CameraSettings` refuses.
+
+        Example:
+            >>> meta = RawMetadata("a.dng", focal_length=0.05, f_number=2.8, pixel_pitch=4e-6,
+            ...                    binning=2)
+            >>> meta.camera_settings(2.0).to_dict()
+            {'focal_length': 0.05, 'f_number': 2.8, 'focus_distance': 2.0, 'pixel_pitch': 8e-06, 'psf': 'gaussian:0.5'}
         """
-        pitch = None if self.pixel_pitch is None else self.pixel_pitch * self.binning
-        return {
-            "focal_length": self.focal_length,
-            "f_number": self.f_number,
-            "focus_distance": None,
-            "pixel_pitch": pitch,
+        values = {
+            "focal_length": self.focal_length if focal_length is None else focal_length,
+            "f_number": self.f_number if f_number is None else f_number,
+            "pixel_pitch": self.pixel_pitch if pixel_pitch is None else pixel_pitch,
         }
+        missing = {
+            "focal_length": "its focal length (EXIF FocalLength): pass focal_length in metres",
+            "f_number": "its f-number (EXIF FNumber): pass f_number",
+            "pixel_pitch": "its pixel pitch (EXIF focal-plane resolution): pass pixel_pitch, "
+            "the sensor pitch in metres",
+        }
+        problems = [why for name, why in missing.items() if values[name] is None]
+        if problems:
+            raise ValueError(f"{self.path}: the file does not state " + "; nor ".join(problems))
+        return CameraSettings(
+            values["focal_length"], values["f_number"], focus_distance,
+            values["pixel_pitch"] * self.binning, aperture=aperture,
+        )
 
 
 def _check_choice(name: str, value: str, allowed: Sequence[str]) -> str:
@@ -152,7 +199,7 @@ def _ratio(tag: Any) -> float | None:
 
 
 def _exif(path: Path) -> dict[str, Any]:
-    """EXIF tags of ``path`` (an empty dict where exifread cannot parse the file)."""
+    """EXIF tags of `path` (an empty dict where exifread cannot parse the file)."""
     import exifread
 
     logger = logging.getLogger("exifread")
@@ -224,10 +271,10 @@ def read_raw_metadata(path: str | PathLike) -> RawMetadata:
         path: raw file (DNG, CR2, NEF, ARW, RW2, ...).
 
     Returns:
-        the :class:`RawMetadata`, with ``white_balance`` set to the camera's.
+        the `RawMetadata`, with `white_balance` set to the camera's.
 
     Raises:
-        FileNotFoundError: if ``path`` does not exist.
+        FileNotFoundError: if `path` does not exist.
         RawReadError: if LibRaw cannot parse the file.
     """
     path = Path(path)
@@ -296,25 +343,25 @@ def read_raw(
 
     Args:
         path: raw file (DNG, CR2, NEF, ARW, RW2, ...).
-        white_balance: ``"camera"`` (as shot; daylight where the file has none), ``"daylight"``
-            or ``"none"`` (unit multipliers: raw camera response).
-        colour_space: ``"camera"`` (camera RGB), ``"srgb"`` (linear sRGB, D65) or ``"xyz"``
+        white_balance: `"camera"` (as shot; daylight where the file has none), `"daylight"`
+            or `"none"` (unit multipliers: raw camera response).
+        colour_space: `"camera"` (camera RGB), `"srgb"` (linear sRGB, D65) or `"xyz"`
             (CIE XYZ, D65). The last two need white balance.
         binning: integer factor by which to shrink the image. 1 demosaics at full resolution;
             an even factor first bins each 2x2 Bayer quad into one RGB pixel (LibRaw's half
-            size: no interpolation), then averages ``binning/2`` squares; an odd one averages
-            after demosaicing. The effective pixel pitch is the sensor pitch times ``binning``
-            (``metadata.sensor()`` knows it).
-        demosaic: LibRaw algorithm, one of :data:`DEMOSAIC_ALGORITHMS`.
+            size: no interpolation), then averages `binning/2` squares; an odd one averages
+            after demosaicing. The effective pixel pitch is the sensor pitch times `binning`
+            (`metadata.sensor()` knows it).
+        demosaic: LibRaw algorithm, one of `DEMOSAIC_ALGORITHMS`.
         dtype: floating-point dtype of the image.
         device: device of the image.
 
     Returns:
-        ``(image, metadata)``: the image ``(1, 3, H, W)`` with 0 at the black level and 1 at the
-        white level (before white balance), and its :class:`RawMetadata`.
+        `(image, metadata)`: the image `(1, 3, H, W)` with 0 at the black level and 1 at the
+        white level (before white balance), and its `RawMetadata`.
 
     Raises:
-        FileNotFoundError: if ``path`` does not exist.
+        FileNotFoundError: if `path` does not exist.
         RawReadError: if LibRaw cannot decode the file, or it decodes to no data (a constant
             image, e.g. a file whose pixel data were stripped).
         ValueError: for an unknown option, or a colour conversion without a colour matrix or
@@ -403,18 +450,18 @@ def read_raw(
 def read_raw_stack(
     paths: Sequence[str | PathLike], progress: bool = False, **kwargs: Any
 ) -> tuple[Tensor, list[RawMetadata]]:
-    """Read several raw photos of one size with :func:`read_raw`.
+    """Read several raw photos of one size with `read_raw`.
 
     Args:
         paths: raw files, all of the same image size.
         progress: show a tqdm progress bar.
-        **kwargs: options of :func:`read_raw`.
+        **kwargs: options of `read_raw`.
 
     Returns:
-        ``(images, metadata)``: ``(N, 3, H, W)`` images and a list of ``N`` :class:`RawMetadata`.
+        `(images, metadata)`: `(N, 3, H, W)` images and a list of `N` `RawMetadata`.
 
     Raises:
-        ValueError: if ``paths`` is empty or the images differ in size (the message names both).
+        ValueError: if `paths` is empty or the images differ in size (the message names both).
     """
     from tqdm.auto import tqdm
 

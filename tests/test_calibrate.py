@@ -23,6 +23,7 @@ from optics import (
     read_raw,
 )
 from optics.calibrate import _ConstantBlur
+from optics.settings import CameraSettings
 
 DISTANCES = (1.2, 1.5, 4.0)
 
@@ -64,6 +65,8 @@ def test_round_trip_disk_recovers_focus_and_f_number(disk_pairs, tmp_path):
     data = json.loads((tmp_path / "fit.json").read_text())
     assert set(data["uncertainty"]) == {"focus_distance", "f_number"}
     assert data["psf"] == {"family": "disk"}
+    assert CameraSettings.from_json(tmp_path / "fit.json") == fit.settings
+    assert data["rmse"] == fit.rmse and len(data["pairs"]) == 3
     camera = Camera.from_json(tmp_path / "fit.json")
     assert isinstance(camera.aperture, Disk)
     for key, value in camera.settings().items():
@@ -82,6 +85,7 @@ def test_round_trip_gaussian_scale_with_known_f_number(gaussian_pairs):
     assert fit.values["psf_scale"] == pytest.approx(0.4, rel=0.05)
     assert fit.values["focus_distance"] == pytest.approx(2.0, rel=0.02)
     assert fit.values["f_number"] == 4.0
+    assert fit.settings.aperture == f"gaussian:{fit.values['psf_scale']:.6g}"
 
 
 def _clean_pairs(camera, size=40, distances=DISTANCES, dtype=torch.float64):

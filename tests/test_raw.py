@@ -10,7 +10,8 @@ import pytest
 import torch
 from _synthetic_dng import BLACK, WB, WHITE, write_dng
 
-from optics import RawReadError, read_raw, read_raw_metadata, read_raw_stack
+from optics import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
+from optics.settings import CameraSettings
 
 SAMPLES = Path(os.environ.get("DEFOCUS_RAW_SAMPLES", Path(__file__).parents[2] / "shared/data/raw"))
 needs_samples = pytest.mark.skipif(
@@ -98,7 +99,26 @@ def test_synthetic_metadata(tmp_path):
     np.testing.assert_allclose(meta.camera_white_balance, WB, rtol=1e-3)
     sensor = meta.sensor()
     assert float(sensor.effective_pixel_pitch) == pytest.approx(8e-6)
-    assert meta.settings()["pixel_pitch"] == pytest.approx(8e-6)
+    assert meta.effective_pixel_pitch == pytest.approx(8e-6)
+    settings = meta.camera_settings(2.0, aperture="disk")
+    assert isinstance(settings, CameraSettings) and tuple(settings.shape) == (1,)
+    assert settings.aperture == "disk" and float(settings.focus_distance) == 2.0
+    assert float(settings.focal_length) == 0.05 and float(settings.f_number) == 2.8
+    assert float(settings.pixel_pitch) == pytest.approx(8e-6)  # sensor pitch x binning
+    assert float(meta.camera_settings(2.0, pixel_pitch=5e-6).pixel_pitch) == pytest.approx(1e-5)
+    assert meta.camera_settings([1.0, 3.0]).shot(1).lens.focus_distance == 3.0
+
+
+def test_camera_settings_name_what_the_file_lacks():
+    meta = RawMetadata("bare.dng", f_number=4.0)
+    with pytest.raises(ValueError, match=r"bare\.dng: .*focal length.*pass focal_length in "
+                       r"metres.*pixel pitch.*pass pixel_pitch") as error:
+        meta.camera_settings(2.0)
+    assert "f-number" not in str(error.value)
+    settings = meta.camera_settings(2.0, pixel_pitch=5e-6, focal_length=0.035)
+    assert float(settings.focal_length) == 0.035 and float(settings.pixel_pitch) == 5e-6
+    with pytest.raises(ValueError, match="focus_distance must be > focal_length"):
+        meta.camera_settings(0.01, pixel_pitch=5e-6, focal_length=0.035)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

@@ -1,0 +1,155 @@
+"""Measuring blur: spatially invariant FFT blurs, each pair's own CoC and the thin-lens curve."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..aperture import Aperture
+
+if TYPE_CHECKING:
+    from .pair import CalibrationPair
+
+#: Golden-section iterations of `measure_blur` after its grid search.
+GOLDEN_STEPS = 20
+
+
+def _optimal_gain(rendered: Tensor, target: Tensor) -> Tensor:
+    """Least-squares gain `g` minimising `|target - g rendered|^2`."""
+    return (rendered * target).sum() / (rendered * rendered).sum().clamp_min(1e-30)
+
+
+def _crop(image: Tensor, margin: int) -> Tensor:
+    return image[..., margin : image.shape[-2] - margin, margin : image.shape[-1] - margin]
+
+
+class _ConstantBlur:
+    """Spatially invariant blurs of one image by FFT: the renderer's result for a constant CoC away
+    from the borders (an exactness anchor of `optics.render_defocus`), much faster, and
+    differentiable in the kernel."""
+
+    def __init__(self, image: Tensor, pad: int):
+        self.pad = pad
+        padded = F.pad(image, (pad, pad, pad, pad), mode="replicate")
+        self.size = padded.shape[-2:]
+        self.spectrum = torch.fft.rfft2(padded)
+
+    def __call__(self, aperture: Aperture, coc_px: float | Tensor) -> Tensor:
+        coc = torch.as_tensor(coc_px, dtype=self.spectrum.real.dtype).reshape(-1)
+        kernel = aperture.kernel(coc, kernel_size=2 * self.pad + 1)[0]
+        placed = F.pad(kernel, (0, self.size[1] - kernel.shape[1], 0, self.size[0] - kernel.shape[0]))
+        placed = torch.roll(placed, (-self.pad, -self.pad), dims=(0, 1))
+        out = torch.fft.irfft2(self.spectrum * torch.fft.rfft2(placed), s=self.size)
+        return out[..., self.pad : -self.pad, self.pad : -self.pad]
+
+
+class _BlurMismatch:
+    """Mean squared residual of a pair for one constant CoC, the gain solved in closed form."""
+
+    def __init__(self, pair: CalibrationPair, aperture: Aperture, max_coc_px: float,
+                 margin_px: int | None):
+        sharp = pair.sharp.to(torch.float64)
+        if margin_px is None:
+            margin_px = min(aperture.half_width(max_coc_px) + 1, min(sharp.shape[-2:]) // 4)
+        self.margin = margin_px
+        self.aperture = aperture
+        self.blur = _ConstantBlur(sharp, aperture.half_width(max_coc_px) + 1)
+        self.target = _crop(pair.blurred.to(torch.float64), margin_px)
+
+    def __call__(self, coc: float) -> float:
+        rendered = _crop(self.blur(self.aperture, coc), self.margin)
+        gain = _optimal_gain(rendered, self.target)
+        return float(((self.target - gain * rendered) ** 2).mean())
+
+
+def _golden_section(loss: Callable[[float], float], lo: float, hi: float) -> float:
+    """The minimum of `loss` in `[lo, hi]` after `GOLDEN_STEPS` golden-section steps."""
+    ratio = (math.sqrt(5) - 1) / 2
+    a, b = hi - ratio * (hi - lo), lo + ratio * (hi - lo)
+    fa, fb = loss(a), loss(b)
+    for _ in range(GOLDEN_STEPS):
+        if fa < fb:
+            hi, b, fb = b, a, fa
+            a = hi - ratio * (hi - lo)
+            fa = loss(a)
+        else:
+            lo, a, fa = a, b, fb
+            b = lo + ratio * (hi - lo)
+            fb = loss(b)
+    return (a + b) / 2
+
+
+def measure_blur(
+    pair: CalibrationPair,
+    aperture: Aperture,
+    max_coc_px: float = 24.0,
+    margin_px: int | None = None,
+) -> float:
+    """One pair's CoC diameter in pixels, as a spatially invariant blur of the reference.
+
+    A grid search over `[0, max_coc_px]` followed by a golden-section refinement, with the
+    exposure gain solved in closed form. For a planar target this is the pair's true blur; for a
+    depth map it is a typical value (used to start `calibrate`).
+
+    Args:
+        pair: the pair.
+        aperture: PSF shape (its scale, for a Gaussian, defines what "CoC" means).
+        max_coc_px: largest CoC diameter searched, pixels.
+        margin_px: border left out, pixels (by default the largest PSF's half width, at most a
+            quarter of the image).
+
+    Returns:
+        the CoC diameter in pixels.
+
+    Example:
+        >>> sharp = torch.rand(1, 3, 48, 48, dtype=torch.float64)
+        >>> blurred = Camera(ThinLens(0.05, 2.0, 2.0), Sensor(2e-5), Disk()).render(
+        ...     sharp, torch.full((1, 1, 48, 48), 3.0, dtype=torch.float64))
+        >>> round(measure_blur(CalibrationPair(sharp, blurred, 3.0), Disk()), 1)
+        10.7
+    """
+    loss = _BlurMismatch(pair, aperture, max_coc_px, margin_px)
+    grid = [0.0] + torch.logspace(math.log10(0.5), math.log10(max_coc_px), 24).tolist()
+    losses = [loss(c) for c in grid]
+    best = min(range(len(grid)), key=losses.__getitem__)
+    return _golden_section(loss, grid[max(best - 1, 0)], grid[min(best + 1, len(grid) - 1)])
+
+
+def fit_thin_lens_curve(
+    depths: Sequence[float], coc_px: Sequence[float], focus_distance: float | None = None
+) -> tuple[float, float]:
+    """Fit `coc(D) = A |1 - D_f / D|` to measured blur (pixels) at depths `D` (metres).
+
+    Args:
+        depths: depths in metres.
+        coc_px: CoC diameters in pixels.
+        focus_distance: `D_f` if known (metres); else searched on a fine logarithmic grid.
+
+    Returns:
+        `(A, D_f)`: the CoC in pixels at infinite depth, and the focus distance in metres.
+
+    Example:
+        >>> d = [1.0, 1.5, 4.0]
+        >>> a, df = fit_thin_lens_curve(d, [8 * abs(1 - 2 / x) for x in d])
+        >>> round(a, 3), round(df, 2)
+        (8.0, 2.0)
+    """
+    depth = torch.tensor(list(depths), dtype=torch.float64)
+    coc = torch.tensor(list(coc_px), dtype=torch.float64)
+    if focus_distance is None:
+        candidates = torch.logspace(
+            math.log10(float(depth.min()) / 4), math.log10(float(depth.max()) * 4), 4001,
+            dtype=torch.float64,
+        )
+    else:
+        candidates = torch.tensor([float(focus_distance)], dtype=torch.float64)
+    u = (1 - candidates[:, None] / depth[None]).abs()
+    scale = (u * coc).sum(1) / (u * u).sum(1).clamp_min(1e-30)
+    error = ((coc - scale[:, None] * u) ** 2).sum(1)
+    best = int(error.argmin())
+    return float(scale[best]), float(candidates[best])

@@ -1,0 +1,59 @@
+"""optics.plotting draws on its own Figure: no pyplot figures, no backend change."""
+
+from __future__ import annotations
+
+import matplotlib
+import pytest
+import torch
+from matplotlib.figure import Figure
+
+from optics import CalibrationPair, Camera, Gaussian, Sensor, ThinLens, calibrate, plot_calibration
+
+
+@pytest.fixture(scope="module")
+def fit():
+    camera = Camera(ThinLens(0.025, 4.0, 2.0), Sensor(1e-5), Gaussian(0.4))
+    sharp = torch.rand(1, 3, 24, 24, generator=torch.Generator().manual_seed(1),
+                       dtype=torch.float64)
+    pairs = []
+    for d in (1.2, 1.5, 4.0):
+        with torch.no_grad():
+            blurred = camera.render(sharp, torch.full((1, 1, 24, 24), d, dtype=torch.float64))
+        pairs.append(CalibrationPair(sharp, blurred, d))
+    return calibrate(pairs, focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, psf="gaussian",
+                     adam_steps=3, lbfgs_steps=2)
+
+
+def test_plot_calibration_leaves_backend_and_pyplot_alone(fit, tmp_path):
+    import matplotlib.pyplot as plt
+
+    before = matplotlib.get_backend()
+    try:
+        matplotlib.use("svg")  # not Agg: plotting must neither switch nor need the backend
+        backend = matplotlib.get_backend()
+        plt.close("all")
+        figure = plot_calibration(fit)
+        saved = plot_calibration(fit, tmp_path / "fit.png")
+        assert matplotlib.get_backend() == backend
+        assert plt.get_fignums() == []
+    finally:
+        matplotlib.use(before)
+    assert isinstance(figure, Figure) and isinstance(saved, Figure)
+    assert len(figure.axes) == 5  # the curve, three residual maps, the colour bar
+    assert figure.axes[0].get_title().startswith("D_f = ") and ", scale " in figure.axes[0].get_title()
+    assert (tmp_path / "fit.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (tmp_path / "fit.png").stat().st_size > 1000
+
+
+def test_no_pyplot_or_backend_switch_in_optics():
+    from pathlib import Path
+
+    import optics
+
+    root = Path(optics.__file__).parent
+    for path in sorted(root.rglob("*.py")):
+        if path.name == "render.py" or path.name.startswith("_render"):
+            continue  # owned elsewhere; checked there
+        text = path.read_text()
+        for pattern in ("matplotlib.pyplot", "import pyplot", "matplotlib.use("):
+            assert pattern not in text, f"{path}: {pattern}"
