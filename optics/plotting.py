@@ -13,6 +13,7 @@ from os import PathLike
 from typing import TYPE_CHECKING
 
 import torch
+from torch import Tensor
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -90,7 +91,7 @@ def _plot_residuals(fig: Figure, axes: list[Axes], result: CalibrationResult) ->
 def plot_focus_sweep(
     image: Tensor, depth: Tensor, renders: Tensor, coc_px: Tensor, settings: CameraSettings,
     path: str | PathLike | None = None,
-") -> Figure:
+) -> Figure:
     """A focus sweep: the scene and its depth, then each shot's render and CoC map.
 
     Args:
