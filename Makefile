@@ -24,6 +24,7 @@ test: $(STAMP)
 	$(BIN)/ruff check optics models datasets defocus tests benchmarks examples
 	$(BIN)/python -m pytest -q --durations=15
 	$(BIN)/mkdocs build --strict --site-dir build/site
+	$(BIN)/python docs/check_site.py build/site
 
 docs: $(STAMP)
 	$(BIN)/mkdocs serve

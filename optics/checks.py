@@ -57,8 +57,19 @@ def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
     return tensor
 
 
+def is_tracing(*tensors: Tensor) -> bool:
+    """Whether `torch.compile` or `torch.export` is tracing (or any of `tensors` is a fake
+    tensor made for tracing): value checks are skipped then, since a traced graph cannot branch
+    on tensor values; eager calls check them."""
+    if torch.compiler.is_compiling() or torch.compiler.is_exporting():
+        return True
+    return any(type(t).__name__ == "FakeTensor" for t in tensors)
+
+
 def check_positive(name: str, value: Tensor, unit: str = "") -> None:
     """Raise ``ValueError`` unless every entry of ``value`` is finite and > 0."""
+    if is_tracing(value):
+        return
     if not bool(torch.all(torch.isfinite(value) & (value > 0))):
         suffix = f" ({unit})" if unit else ""
         raise ValueError(f"{name} must be finite and > 0{suffix}, got {_describe(value)}")
@@ -70,6 +81,8 @@ def check_depth(name: str, depth: Tensor) -> None:
         raise TypeError(f"{name} must be a torch.Tensor of depths in metres, got {type(depth)}")
     if not depth.is_floating_point():
         raise TypeError(f"{name} must be a floating-point tensor, got dtype {depth.dtype}")
+    if is_tracing(depth):
+        return
     if bool(torch.any(torch.isnan(depth) | (depth <= 0))):
         raise ValueError(
             f"{name} must be > 0 metres and not NaN everywhere, got {_describe(depth)}; "

@@ -11,6 +11,7 @@ from .checks import (
     broadcast_to_batch,
     check_depth,
     check_positive,
+    is_tracing,
     register_physical,
 )
 from .checks import format_param as _fmt
@@ -54,7 +55,8 @@ class ThinLens(nn.Module):
         register_physical(self, "focal_length", focal_length, "metres")
         register_physical(self, "f_number", f_number)
         register_physical(self, "focus_distance", focus_distance, "metres")
-        if not bool(torch.all(self.focus_distance.detach() > self.focal_length.detach())):
+        if not is_tracing(self.focus_distance) and not bool(
+                torch.all(self.focus_distance.detach() > self.focal_length.detach())):
             raise ValueError(
                 "focus_distance must be greater than focal_length (a real image needs the object "
                 f"beyond the focal point), got focus_distance={_fmt(self.focus_distance)} m "

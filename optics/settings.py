@@ -22,7 +22,7 @@ from torch import Tensor
 from .aperture import Aperture
 from .aperture_spec import aperture_from_json, aperture_spec, parse_aperture
 from .camera import Camera
-from .checks import check_positive
+from .checks import check_positive, is_tracing
 from .lens import ThinLens
 from .sensor import Sensor
 
@@ -47,10 +47,6 @@ def _as_tensor(name: str, value: Any) -> Tensor:
     if not tensor.is_floating_point():
         tensor = tensor.to(torch.get_default_dtype())
     return tensor
-
-
-def _tracing() -> bool:
-    return bool(torch.compiler.is_compiling() or torch.compiler.is_exporting())
 
 
 @dataclasses.dataclass
@@ -109,8 +105,8 @@ class CameraSettings:
             raise TypeError(f"aperture must be a spec string such as 'gaussian' or 'disk', got "
                             f"{type(self.aperture).__name__}; pass an Aperture object to the "
                             f"renderer instead")
-        self.aperture = aperture_spec(self.aperture)
-        if not _tracing():
+        if not is_tracing(*values):  # a traced graph cannot read tensor values
+            self.aperture = aperture_spec(self.aperture)
             self.check()
 
     def check(self) -> None:

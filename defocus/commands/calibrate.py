@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from defocus.commands.render import aperture_argument
+
 KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
 
 
@@ -23,7 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("fit.json"), help="JSON of the fit")
     parser.add_argument("--figure", type=Path, default=None,
                         help="figure path (default: the JSON path with .png)")
-    parser.add_argument("--psf", choices=["disk", "gaussian"], default="disk", help="PSF family")
+    parser.add_argument("--psf", type=aperture_argument, default="disk",
+                        help="PSF spec: disk, gaussian (scale fitted), gaussian:SCALE or "
+                             "polygon:N_BLADES[:ROTATION]")
     parser.add_argument("--focal-length", type=float, help="known focal length, metres "
                         "(default: the metadata's)")
     parser.add_argument("--f-number", type=float, help="known f-number (default: the metadata's)")
@@ -77,9 +81,8 @@ def run(args: argparse.Namespace) -> int:
         "focus_distance": args.focus_distance,
         "psf_scale": args.psf_scale,
     }
-    effective_pitch = None if meta.pixel_pitch is None else meta.pixel_pitch * meta.binning
     from_metadata = {"focal_length": meta.focal_length, "f_number": meta.f_number,
-                     "pixel_pitch": effective_pitch}
+                     "pixel_pitch": meta.effective_pixel_pitch}
     sources = {}
     for name in ("focal_length", "f_number", "pixel_pitch"):
         if given[name] is not None:
