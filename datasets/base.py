@@ -5,19 +5,19 @@ A sample is a dict:
 ==============  ==================  ==========================================================
 key             shape / type        meaning
 ==============  ==================  ==========================================================
-``image``       ``(3,H,W)`` float   all-in-focus image, linear intensity in [0, 1]
-``focused``     ``(F,3,H,W)``       focused images (synthesised or real), linear in [0, 1]
-``camera``      `CameraSettings`    ``(F,)`` focal length (m), f-number, focus distance (m),
+`image`       `(3,H,W)` float   all-in-focus image, linear intensity in [0, 1]
+`focused`     `(F,3,H,W)`       focused images (synthesised or real), linear in [0, 1]
+`camera`      `CameraSettings`    `(F,)` focal length (m), f-number, focus distance (m),
                                     effective pixel pitch (m) and aperture of the focused
-                                    images; ``sample["camera"].shot(i)`` is shot i's `Camera`
-``depth``       ``(1,H,W)`` float   metres, > 0 everywhere (unknown pixels filled, see mask)
-``mask``        ``(1,H,W)`` bool    where ``depth`` is a real measurement
-``dataset``     str                 dataset name, e.g. ``"nyu"``
-``id``          str                 sample id within the dataset
+                                    images; `sample["camera"].shot(i)` is shot i's `Camera`
+`depth`       `(1,H,W)` float   metres, > 0 everywhere (unknown pixels filled, see mask)
+`mask`        `(1,H,W)` bool    where `depth` is a real measurement
+`dataset`     str                 dataset name, e.g. `"nyu"`
+`id`          str                 sample id within the dataset
 ==============  ==================  ==========================================================
 
-After ``torch.utils.data.default_collate`` the settings become ``(B,F)`` and ``focused``
-``(B,F,3,H,W)``.
+After `torch.utils.data.default_collate` the settings become `(B,F)` and `focused`
+`(B,F,3,H,W)`.
 """
 
 from __future__ import annotations
@@ -38,27 +38,27 @@ from .transforms import JointAugment, _check_size, crop_sample, resize_sample
 class DepthDataset(Dataset):
     """Base class: subclasses list their samples and load one; this class does the rest.
 
-    Subclasses set :attr:`name`, fill ``self.ids`` (one string per sample) and implement
-    :meth:`load` returning ``image``, ``depth`` and ``mask`` at native resolution, plus
-    ``focused`` and ``camera`` where the dataset has real focused images (otherwise they are
-    synthesised from depth with the preset). :meth:`__getitem__` then crops, resizes (scaling the
+    Subclasses set `name`, fill `self.ids` (one string per sample) and implement
+    `load` returning `image`, `depth` and `mask` at native resolution, plus
+    `focused` and `camera` where the dataset has real focused images (otherwise they are
+    synthesised from depth with the preset). `__getitem__` then crops, resizes (scaling the
     pixel pitch), synthesises (cached), augments and checks the sample.
 
     Args:
         preset: the camera that synthesises the focused images.
-        size: ``(height, width)`` to resize to, in pixels, or None to keep the native size.
-        crop: ``(top, left, height, width)`` fixed crop at native resolution, before resizing.
-        augment: a :class:`~datasets.transforms.JointAugment`, applied last (training only).
+        size: `(height, width)` to resize to, in pixels, or None to keep the native size.
+        crop: `(top, left, height, width)` fixed crop at native resolution, before resizing.
+        augment: a `JointAugment`, applied last (training only).
         cache_dir: folder to keep synthesised focal stacks in, or None.
-        aperture: PSF shape for synthesis (Gaussian, ``sigma = CoC/2``, by default).
-        render_kwargs: extra arguments of :func:`optics.render_defocus` for synthesis.
+        aperture: PSF shape for synthesis (Gaussian, `sigma = CoC/2`, by default).
+        render_kwargs: extra arguments of `optics.render_defocus` for synthesis.
         dtype: floating dtype of the returned tensors.
     """
 
-    #: Dataset name stored in each sample's ``dataset`` entry.
+    #: Dataset name stored in each sample's `dataset` entry.
     name = "dataset"
     #: Image width in pixels at which the preset's pixel pitch holds; images of another width
-    #: (e.g. small test files) get the pitch scaled by ``native_width / width``. None: as is.
+    #: (e.g. small test files) get the pitch scaled by `native_width / width`. None: as is.
     native_width: int | None = None
 
     def __init__(
@@ -94,11 +94,11 @@ class DepthDataset(Dataset):
         return len(self.ids)
 
     def load(self, index: int) -> dict[str, Any]:
-        """Native-resolution ``image``, ``depth``, ``mask`` (and real ``focused``/``camera``)."""
+        """Native-resolution `image`, `depth`, `mask` (and real `focused`/`camera`)."""
         raise NotImplementedError
 
     def camera_settings(self, index: int) -> CameraSettings:
-        """``(F,)`` camera settings at native resolution; the preset's by default."""
+        """`(F,)` camera settings at native resolution; the preset's by default."""
         return self.preset.settings(self.dtype)
 
     def __getitem__(self, index: int) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 """Depth-map helpers for loaders: masks of valid measurements and filling the unknown pixels.
 
-The sample format asks for depth > 0 everywhere with a ``mask`` of real measurements, because
+The sample format asks for depth > 0 everywhere with a `mask` of real measurements, because
 focus synthesis needs a depth at every pixel while evaluation must only use measured ones.
 """
 
@@ -12,14 +12,14 @@ from torch import Tensor
 
 
 def valid_depth_mask(depth: Tensor) -> Tensor:
-    """``True`` where ``depth`` (metres) is a measurement: finite and > 0 (0 marks "no return")."""
+    """`True` where `depth` (metres) is a measurement: finite and > 0 (0 marks "no return")."""
     return torch.isfinite(depth) & (depth > 0)
 
 
 def fill_unknown(depth: Tensor, mask: Tensor, value: float | None = None) -> Tensor:
-    """Set the pixels outside ``mask`` to ``value`` metres (default: the largest valid depth).
+    """Set the pixels outside `mask` to `value` metres (default: the largest valid depth).
 
-    With no valid pixel at all, the fill is ``value`` or 1 m.
+    With no valid pixel at all, the fill is `value` or 1 m.
 
     Example:
         >>> fill_unknown(torch.tensor([2.0, 0.0, 5.0]), torch.tensor([True, False, True]))
@@ -31,10 +31,10 @@ def fill_unknown(depth: Tensor, mask: Tensor, value: float | None = None) -> Ten
 
 
 def densify_nearest(depth: Tensor, mask: Tensor) -> Tensor:
-    """Fill every pixel outside ``mask`` with the depth of the nearest valid pixel (per image).
+    """Fill every pixel outside `mask` with the depth of the nearest valid pixel (per image).
 
     Used for sparse LiDAR depth (KITTI) before focus synthesis; the mask still marks the real
-    measurements for evaluation. Works on ``(..., H, W)``.
+    measurements for evaluation. Works on `(..., H, W)`.
 
     Example:
         >>> densify_nearest(torch.tensor([[3.0, 0.0, 0.0, 7.0]]), torch.tensor([[1, 0, 0, 1]]).bool())

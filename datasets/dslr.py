@@ -1,15 +1,15 @@
 """DSLR aperture pairs of Carvalho et al. 2018: real photos at f/2.8 and f/8 with depth PNGs.
 
-Folder layout (``root``)::
+Folder layout (`root`)::
 
     train/f2.8/<name>.png     wide-open photos (the real focused images)
     train/f8/<name>.png       f/8 photos of the same scenes (the near all-in-focus reference)
-    train/depth/<name>.png    16-bit depth, ``stored * depth_scale`` metres, 0 = unknown
+    train/depth/<name>.png    16-bit depth, `stored * depth_scale` metres, 0 = unknown
     test/...                  the same three folders
 
 Photos may be PNG or JPEG (8 or 16 bit, sRGB; decoded to linear intensity). The folder names can
-be changed with ``wide``, ``reference`` and ``depth``. Focused images are real, so no synthesis
-happens; the camera of the wide photo is :data:`datasets.presets.DSLR` (35 mm, f/2.8, focus
+be changed with `wide`, `reference` and `depth`. Focused images are real, so no synthesis
+happens; the camera of the wide photo is `datasets.presets.DSLR` (35 mm, f/2.8, focus
 1.7 m) with the pixel pitch of the full-frame sensor scaled to the stored photo's width.
 """
 
@@ -36,19 +36,19 @@ class DSLR(DepthDataset):
 
     Args:
         root: dataset folder.
-        split: sub-folder, ``"train"`` or ``"test"``.
-        depth_scale: metres per stored depth unit (``1e-3``: millimetres).
+        split: sub-folder, `"train"` or `"test"`.
+        depth_scale: metres per stored depth unit (`1e-3`: millimetres).
         sensor_width_px: width in pixels of the full sensor whose pitch the preset gives (the
             Nikon D810 records 7360); the effective pitch is scaled by this over the photo width.
         wide: sub-folder of the wide-open photos.
         reference: sub-folder of the f/8 reference photos.
         depth: sub-folder of the depth PNGs.
-        preset: the camera of the wide photo (:data:`datasets.presets.DSLR` by default).
-        **kwargs: ``size``, ``crop``, ``augment``, ``dtype`` of
-            :class:`~datasets.base.DepthDataset` (no synthesis, so no cache is needed).
+        preset: the camera of the wide photo (`datasets.presets.DSLR` by default).
+        **kwargs: `size`, `crop`, `augment`, `dtype` of
+            `DepthDataset` (no synthesis, so no cache is needed).
 
     Raises:
-        FileNotFoundError: ``root``, a folder, or a photo or depth file of a scene is missing.
+        FileNotFoundError: `root`, a folder, or a photo or depth file of a scene is missing.
         DataFormatError: an unreadable file, or photos and depth of different sizes.
     """
 

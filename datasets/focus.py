@@ -40,7 +40,7 @@ class CameraPreset:
     aperture: str = "gaussian"
 
     def settings(self, dtype: torch.dtype = torch.float32) -> CameraSettings:
-        """The `(F,)` `CameraSettings` of the focused images (the samples' ``camera`` entry)."""
+        """The `(F,)` `CameraSettings` of the focused images (the samples' `camera` entry)."""
         n = len(self.focus_distances)
         f_numbers = list(self.f_numbers) * n if len(self.f_numbers) == 1 else list(self.f_numbers)
         if len(f_numbers) != n:
@@ -86,22 +86,22 @@ def cached_focal_stack(
     cache_dir: str | Path | None = None,
     **render_kwargs: Any,
 ) -> Tensor:
-    """`optics.render_focal_stack` of one scene under ``torch.no_grad()``, reusing stacks saved in ``cache_dir``.
+    """`optics.render_focal_stack` of one scene under `torch.no_grad()`, reusing stacks saved in `cache_dir`.
 
-    Stacks are stored as ``<cache_dir>/<key>.pt`` (key from :func:`focal_stack_key`) and written
-    atomically, so several DataLoader workers may share one cache folder. With ``cache_dir=None``
+    Stacks are stored as `<cache_dir>/<key>.pt` (key from `focal_stack_key`) and written
+    atomically, so several DataLoader workers may share one cache folder. With `cache_dir=None`
     nothing is stored.
 
     Args:
-        image: all-in-focus image ``(3,H,W)``, linear in [0, 1].
-        depth: depth ``(1,H,W)`` in metres, > 0.
-        settings: ``(F,)`` settings, e.g. from `CameraPreset.settings`.
+        image: all-in-focus image `(3,H,W)`, linear in [0, 1].
+        depth: depth `(1,H,W)` in metres, > 0.
+        settings: `(F,)` settings, e.g. from `CameraPreset.settings`.
         aperture: PSF override (the settings' aperture by default).
         cache_dir: folder for cached stacks (created on first use), or None.
-        **render_kwargs: passed to :func:`optics.render_defocus`.
+        **render_kwargs: passed to `optics.render_defocus`.
 
     Returns:
-        ``(F,3,H,W)`` focused images, in ``image``'s dtype.
+        `(F,3,H,W)` focused images, in `image`'s dtype.
 
     Example:
         >>> import tempfile

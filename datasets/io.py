@@ -1,7 +1,7 @@
 """Reading dataset files with errors that name the file and say what was expected.
 
-Every reader raises :class:`FileNotFoundError` for a missing file and :class:`DataFormatError`
-(a ``ValueError``) for a file that exists but cannot be read as expected (truncated, wrong format,
+Every reader raises `FileNotFoundError` for a missing file and `DataFormatError`
+(a `ValueError`) for a file that exists but cannot be read as expected (truncated, wrong format,
 wrong shape), so a broken download fails at once with the path in the message instead of deep
 inside a DataLoader worker.
 """
@@ -22,7 +22,7 @@ class DataFormatError(ValueError):
 
 
 def require_root(root: str | Path | None, dataset: str, layout: str) -> Path:
-    """Check that a dataset's ``root`` folder exists; ``layout`` describes what it must hold."""
+    """Check that a dataset's `root` folder exists; `layout` describes what it must hold."""
     if root is None:
         raise ValueError(f"{dataset}: root must be the dataset folder, got None. Expected:\n{layout}")
     path = Path(root).expanduser()
@@ -35,16 +35,16 @@ def require_root(root: str | Path | None, dataset: str, layout: str) -> Path:
 
 
 def require_file(path: Path, what: str) -> Path:
-    """Raise ``FileNotFoundError`` naming ``path`` and ``what`` it should hold unless it exists."""
+    """Raise `FileNotFoundError` naming `path` and `what` it should hold unless it exists."""
     if not path.is_file():
         raise FileNotFoundError(f"missing file {str(path)!r}: expected {what}")
     return path
 
 
 def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[int | None]) -> None:
-    """Raise :class:`DataFormatError` unless ``array`` has ``len(dims)`` axes of those sizes.
+    """Raise `DataFormatError` unless `array` has `len(dims)` axes of those sizes.
 
-    ``None`` in ``dims`` accepts any size.
+    `None` in `dims` accepts any size.
     """
     shape = tuple(array.shape)
     if len(shape) != len(dims) or any(
@@ -55,7 +55,7 @@ def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[i
 
 
 def read_image(path: Path, what: str = "an image") -> np.ndarray:
-    """Read a PNG/JPEG as an ``(H,W)`` or ``(H,W,C)`` array of its stored dtype (uint8/uint16)."""
+    """Read a PNG/JPEG as an `(H,W)` or `(H,W,C)` array of its stored dtype (uint8/uint16)."""
     import imageio.v3 as iio
 
     require_file(path, what)
@@ -70,7 +70,7 @@ def read_image(path: Path, what: str = "an image") -> np.ndarray:
 
 
 def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32) -> Tensor:
-    """Read an 8- or 16-bit RGB photo as a ``(3,H,W)`` tensor in [0, 1].
+    """Read an 8- or 16-bit RGB photo as a `(3,H,W)` tensor in [0, 1].
 
     Args:
         path: PNG or JPEG file.
@@ -78,7 +78,7 @@ def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32
         dtype: floating dtype of the result.
 
     Raises:
-        FileNotFoundError: ``path`` does not exist.
+        FileNotFoundError: `path` does not exist.
         DataFormatError: the file is unreadable or not an RGB(A) image.
     """
     array = read_image(path, "an RGB photo")
@@ -96,13 +96,13 @@ def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32
 
 
 def read_depth_png(path: Path, scale: float, dtype: torch.dtype = torch.float32) -> Tensor:
-    """Read a 16-bit single-channel depth PNG as ``(1,H,W)`` metres (``stored * scale``).
+    """Read a 16-bit single-channel depth PNG as `(1,H,W)` metres (`stored * scale`).
 
     Zero means "no measurement" in KITTI and DSLR depth PNGs; it is returned as 0 for the caller
     to mask.
 
     Raises:
-        FileNotFoundError: ``path`` does not exist.
+        FileNotFoundError: `path` does not exist.
         DataFormatError: unreadable, not single-channel, or not 16 bit.
     """
     array = read_image(path, "a 16-bit depth PNG")
@@ -115,7 +115,7 @@ def read_depth_png(path: Path, scale: float, dtype: torch.dtype = torch.float32)
 
 
 def read_pfm(path: Path) -> np.ndarray:
-    """Read a PFM file (Middlebury disparities) as an upright float32 ``(H,W)`` or ``(H,W,3)``.
+    """Read a PFM file (Middlebury disparities) as an upright float32 `(H,W)` or `(H,W,3)`.
 
     PFM stores rows bottom to top; the result is flipped so row 0 is the top of the picture.
     """
@@ -145,7 +145,7 @@ def read_pfm(path: Path) -> np.ndarray:
 
 
 def write_pfm(path: Path, array: np.ndarray) -> None:
-    """Write an upright ``(H,W)`` float array as a little-endian PFM (inverse of :func:`read_pfm`)."""
+    """Write an upright `(H,W)` float array as a little-endian PFM (inverse of `read_pfm`)."""
     array = np.asarray(array, dtype="<f4")
     height, width = array.shape[:2]
     header = f"Pf\n{width} {height}\n-1.0\n".encode()
@@ -153,7 +153,7 @@ def write_pfm(path: Path, array: np.ndarray) -> None:
 
 
 def load_mat(path: Path, what: str) -> dict[str, np.ndarray]:
-    """Read a MATLAB v5 ``.mat`` file with scipy (use :func:`open_mat73` for v7.3 / HDF5)."""
+    """Read a MATLAB v5 `.mat` file with scipy (use `open_mat73` for v7.3 / HDF5)."""
     import scipy.io
 
     require_file(path, what)
@@ -170,9 +170,9 @@ def load_mat(path: Path, what: str) -> dict[str, np.ndarray]:
 
 
 def open_mat73(path: Path, what: str):
-    """Open a MATLAB v7.3 (HDF5) ``.mat`` file with h5py, with a clear error if it is broken.
+    """Open a MATLAB v7.3 (HDF5) `.mat` file with h5py, with a clear error if it is broken.
 
-    MATLAB stores arrays column-major: an ``(H,W,C,N)`` MATLAB array reads as ``(N,C,W,H)``.
+    MATLAB stores arrays column-major: an `(H,W,C,N)` MATLAB array reads as `(N,C,W,H)`.
     """
     import h5py
 

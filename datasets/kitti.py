@@ -1,22 +1,22 @@
 """KITTI: raw camera frames with projected LiDAR depth (uint16 PNG / 256), Eigen split files.
 
-Folder layout (``root``)::
+Folder layout (`root`)::
 
     2011_09_26/2011_09_26_drive_0002_sync/image_02/data/0000000069.png          raw frame (left)
     2011_09_26/2011_09_26_drive_0002_sync/proj_depth/groundtruth/image_02/0000000069.png  depth
     eigen_train_files.txt, eigen_test_files.txt                                 split files
 
 Frames come from the KITTI raw data, depth PNGs from the KITTI depth benchmark
-("annotated depth maps"; also accepted under ``<depth_root>/<drive>/``, ``.../train/<drive>/`` or
-``.../val/<drive>/`` as unzipped). Depth is ``uint16 / 256`` metres, 0 where LiDAR has no return.
+("annotated depth maps"; also accepted under `<depth_root>/<drive>/`, `.../train/<drive>/` or
+`.../val/<drive>/` as unzipped). Depth is `uint16 / 256` metres, 0 where LiDAR has no return.
 Split files hold one frame per line, either as monodepth2 writes them
-(``2011_09_26/2011_09_26_drive_0002_sync 69 l``) or as an image path relative to ``root``
-(``2011_09_26/.../image_02/data/0000000069.png``; further tokens are ignored).
+(`2011_09_26/2011_09_26_drive_0002_sync 69 l`) or as an image path relative to `root`
+(`2011_09_26/.../image_02/data/0000000069.png`; further tokens are ignored).
 
 Sparse depth: LiDAR covers about 5% of the pixels. Focus synthesis needs a depth everywhere, so by
-default (``densify="nearest"``) every pixel takes the depth of the nearest LiDAR point (above the
-top LiDAR row this extends the top points upward); ``mask`` still marks only the real LiDAR points,
-so evaluation uses measured depth only. ``densify="none"`` fills the gaps with the depth cap.
+default (`densify="nearest"`) every pixel takes the depth of the nearest LiDAR point (above the
+top LiDAR row this extends the top points upward); `mask` still marks only the real LiDAR points,
+so evaluation uses measured depth only. `densify="none"` fills the gaps with the depth cap.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ KITTI_GARG_CROP_FRACTIONS = (0.40810811, 0.99189189, 0.03594771, 0.96405229)
 
 
 def garg_crop(height: int, width: int) -> tuple[int, int, int, int]:
-    """Garg et al.'s KITTI evaluation crop as ``(top, left, height, width)`` pixels.
+    """Garg et al.'s KITTI evaluation crop as `(top, left, height, width)` pixels.
 
     Example:
         >>> garg_crop(375, 1242)
@@ -53,7 +53,7 @@ def garg_crop(height: int, width: int) -> tuple[int, int, int, int]:
 
 
 def parse_split_line(line: str, path: Path, number: int) -> tuple[str, str, str]:
-    """``(drive folder, camera folder, frame name)`` from one line of a split file."""
+    """`(drive folder, camera folder, frame name)` from one line of a split file."""
     tokens = line.split()
     if len(tokens) >= 3 and tokens[2] in ("l", "r") and tokens[1].isdigit():
         return tokens[0], "image_02" if tokens[2] == "l" else "image_03", f"{int(tokens[1]):010d}"
@@ -71,16 +71,16 @@ class KITTI(DepthDataset):
 
     Args:
         root: folder of the raw data and the split files.
-        split: name of the split file ``<root>/eigen_<split>_files.txt`` (``"train"``,
-            ``"test"``, ...), or a path to a split file.
-        depth_root: folder of the depth PNGs, ``root`` by default.
-        densify: ``"nearest"`` (default) or ``"none"``, how depth gaps are filled for synthesis.
-        preset: camera for focus synthesis (:data:`datasets.presets.KITTI` by default).
-        **kwargs: ``size``, ``crop``, ``augment``, ``cache_dir``, ``aperture``,
-            ``render_kwargs``, ``dtype`` of :class:`~datasets.base.DepthDataset`.
+        split: name of the split file `<root>/eigen_<split>_files.txt` (`"train"`,
+            `"test"`, ...), or a path to a split file.
+        depth_root: folder of the depth PNGs, `root` by default.
+        densify: `"nearest"` (default) or `"none"`, how depth gaps are filled for synthesis.
+        preset: camera for focus synthesis (`datasets.presets.KITTI` by default).
+        **kwargs: `size`, `crop`, `augment`, `cache_dir`, `aperture`,
+            `render_kwargs`, `dtype` of `DepthDataset`.
 
     Raises:
-        FileNotFoundError: ``root``, the split file, a frame or its depth PNG is missing.
+        FileNotFoundError: `root`, the split file, a frame or its depth PNG is missing.
         DataFormatError: a malformed split line, an unreadable PNG, or frame and depth sizes differ.
     """
 

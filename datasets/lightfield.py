@@ -1,25 +1,25 @@
 """Lytro light fields (e.g. the Flowers set of Srinivasan et al. 2017): real refocusing.
 
-A Lytro light field is stored as one PNG *mosaic* of ``n x n`` sub-aperture views (14x14 for the
+A Lytro light field is stored as one PNG *mosaic* of `n x n` sub-aperture views (14x14 for the
 Lytro Illum). Two layouts exist:
 
-- ``"interleaved"`` (Lytro ESLF, the Flowers ``*_eslf.png`` files): each ``n x n`` block of the
-  mosaic is one micro-lens, so view ``(s, t)`` is ``mosaic[s::n, t::n]``;
-- ``"tiled"``: the views are laid side by side, view ``(s, t)`` is the ``(s, t)``-th tile.
+- `"interleaved"` (Lytro ESLF, the Flowers `*_eslf.png` files): each `n x n` block of the
+  mosaic is one micro-lens, so view `(s, t)` is `mosaic[s::n, t::n]`;
+- `"tiled"`: the views are laid side by side, view `(s, t)` is the `(s, t)`-th tile.
 
-Refocusing is shift-and-add: a scene point at *disparity* ``d`` (pixels per view step) seen at
-``(y, x)`` in the centre view appears at ``(y + d*ds, x + d*dt)`` in the view at offset
-``(ds, dt)``. Averaging the views sampled at those positions for ``d = d_f`` brings the plane at
-``d_f`` into focus; a point at ``d`` is spread over the aperture's view offsets scaled by
-``d - d_f``: a disk of diameter ``2 * radius * |d - d_f|`` pixels for a circular aperture mask of
-``radius`` view steps. The centre view is the all-in-focus image.
+Refocusing is shift-and-add: a scene point at *disparity* `d` (pixels per view step) seen at
+`(y, x)` in the centre view appears at `(y + d*ds, x + d*dt)` in the view at offset
+`(ds, dt)`. Averaging the views sampled at those positions for `d = d_f` brings the plane at
+`d_f` into focus; a point at `d` is spread over the aperture's view offsets scaled by
+`d - d_f`: a disk of diameter `2 * radius * |d - d_f|` pixels for a circular aperture mask of
+`radius` view steps. The centre view is the all-in-focus image.
 
-Folder layout (``root``)::
+Folder layout (`root`)::
 
     <name>.png            one mosaic per light field (8 or 16 bit, sRGB)
     <split>.txt           optional: the file names of a split, one per line
 
-Light fields carry no depth: samples have ``mask`` all False and depth filled with the
+Light fields carry no depth: samples have `mask` all False and depth filled with the
 calibration's zero-disparity distance.
 """
 
@@ -49,15 +49,15 @@ LAYOUTS = ("interleaved", "tiled")
 
 
 def mosaic_to_views(mosaic: Tensor, n_views: int = 14, layout: str = "interleaved") -> Tensor:
-    """Split a light-field mosaic ``(C, n*H, n*W)`` into views ``(n, n, C, H, W)``.
+    """Split a light-field mosaic `(C, n*H, n*W)` into views `(n, n, C, H, W)`.
 
     Args:
         mosaic: the mosaic image.
         n_views: views per side (14 for the Lytro Illum).
-        layout: ``"interleaved"`` (micro-lens blocks, Lytro ESLF) or ``"tiled"``.
+        layout: `"interleaved"` (micro-lens blocks, Lytro ESLF) or `"tiled"`.
 
     Raises:
-        ValueError: the mosaic size is not a multiple of ``n_views``, or an unknown layout.
+        ValueError: the mosaic size is not a multiple of `n_views`, or an unknown layout.
 
     Example:
         >>> mosaic = torch.arange(16.0).reshape(1, 4, 4)
@@ -86,9 +86,9 @@ def mosaic_to_views(mosaic: Tensor, n_views: int = 14, layout: str = "interleave
 
 
 def aperture_offsets(n_views: int, radius: float) -> list[tuple[int, int, int, int]]:
-    """``(s, t, ds, dt)`` of the views inside a circular aperture of ``radius`` view steps.
+    """`(s, t, ds, dt)` of the views inside a circular aperture of `radius` view steps.
 
-    Offsets are relative to the centre view ``(n_views // 2, n_views // 2)``.
+    Offsets are relative to the centre view `(n_views // 2, n_views // 2)`.
 
     Example:
         >>> len(aperture_offsets(5, 1.0)), len(aperture_offsets(5, 1.5))
@@ -104,19 +104,19 @@ def aperture_offsets(n_views: int, radius: float) -> list[tuple[int, int, int, i
 
 
 def refocus(views: Tensor, disparity: float | Sequence[float] | Tensor, radius: float) -> Tensor:
-    """Shift-and-add refocus at ``disparity`` pixels per view step under a circular aperture.
+    """Shift-and-add refocus at `disparity` pixels per view step under a circular aperture.
 
-    ``out(y, x) = mean_{(ds,dt) in mask} view[ds,dt](y + d*ds, x + d*dt)`` with bilinear
+    `out(y, x) = mean_{(ds,dt) in mask} view[ds,dt](y + d*ds, x + d*dt)` with bilinear
     sampling (exact for integer shifts; border pixels repeated outside the view). Differentiable
     with respect to the views.
 
     Args:
-        views: ``(n, n, C, H, W)`` sub-aperture views.
-        disparity: one disparity or ``F`` of them, pixels per view step.
-        radius: aperture radius in view steps (views with ``hypot(ds, dt) <= radius`` are used).
+        views: `(n, n, C, H, W)` sub-aperture views.
+        disparity: one disparity or `F` of them, pixels per view step.
+        radius: aperture radius in view steps (views with `hypot(ds, dt) <= radius` are used).
 
     Returns:
-        ``(C,H,W)`` for one disparity, ``(F,C,H,W)`` for several.
+        `(C,H,W)` for one disparity, `(F,C,H,W)` for several.
 
     Example:
         >>> views = torch.rand(3, 3, 1, 8, 8)
@@ -144,7 +144,7 @@ def refocus(views: Tensor, disparity: float | Sequence[float] | Tensor, radius: 
 
 
 def _sample_shifted(image: Tensor, shift: float, dim: int) -> Tensor:
-    """``out[i] = image[i + shift]`` along ``dim``, linear between pixels, edges repeated.
+    """`out[i] = image[i + shift]` along `dim`, linear between pixels, edges repeated.
 
     Exact (no resampling) for integer shifts.
     """
@@ -163,12 +163,12 @@ def _sample_shifted(image: Tensor, shift: float, dim: int) -> Tensor:
 class LightFieldCalibration:
     """An equivalent thin-lens camera for a light field (lengths in metres).
 
-    A scene point at depth ``D`` has disparity ``d = baseline * f_px * (1/D0 - 1/D)`` pixels per
-    view step (``f_px = focal_length / pixel_pitch``, ``D0`` the zero-disparity distance).
-    Refocusing at ``d_f`` with an aperture of ``radius`` views blurs it into a disk of
-    ``2 * radius * |d - d_f|`` pixels, which is the thin-lens CoC of a lens of aperture diameter
-    ``2 * radius * baseline`` focused at ``1/D_f = 1/D0 - d_f / (baseline * f_px)`` (up to the
-    factor ``D_f / (D_f - f)``, under 1% for ``D_f > 100 f``). The defaults are nominal Lytro
+    A scene point at depth `D` has disparity `d = baseline * f_px * (1/D0 - 1/D)` pixels per
+    view step (`f_px = focal_length / pixel_pitch`, `D0` the zero-disparity distance).
+    Refocusing at `d_f` with an aperture of `radius` views blurs it into a disk of
+    `2 * radius * |d - d_f|` pixels, which is the thin-lens CoC of a lens of aperture diameter
+    `2 * radius * baseline` focused at `1/D_f = 1/D0 - d_f / (baseline * f_px)` (up to the
+    factor `D_f / (D_f - f)`, under 1% for `D_f > 100 f`). The defaults are nominal Lytro
     Illum values; replace them with your calibration.
 
     Args:
@@ -198,7 +198,7 @@ class LightFieldCalibration:
         return self.baseline * self.focal_length_px * (1 / self.zero_disparity_distance - 1 / depth)
 
     def depth(self, disparity: Tensor) -> Tensor:
-        """Depth in metres of disparities in pixels per view step (inverse of :meth:`disparity`)."""
+        """Depth in metres of disparities in pixels per view step (inverse of `disparity`)."""
         inverse = 1 / self.zero_disparity_distance - disparity / (self.baseline * self.focal_length_px)
         if bool((inverse <= 0).any()):
             raise ValueError(
@@ -208,7 +208,7 @@ class LightFieldCalibration:
         return 1 / inverse
 
     def preset(self, focus_disparities: Sequence[float], radius: float) -> CameraPreset:
-        """The thin-lens :class:`~datasets.focus.CameraPreset` of refocusing at each disparity."""
+        """The thin-lens `CameraPreset` of refocusing at each disparity."""
         if not radius > 0:
             raise ValueError(f"radius must be > 0 view steps for a finite f-number, got {radius}")
         focus = self.depth(torch.tensor(list(focus_disparities), dtype=torch.float64))
@@ -225,21 +225,21 @@ class LightField(DepthDataset):
     """Lytro light fields: centre view as all-in-focus image, real refocused images as focused.
 
     Args:
-        root: folder of ``*.png`` mosaics.
-        split: ``"all"`` (every PNG in ``root``) or the name of a list ``<root>/<split>.txt``.
+        root: folder of `*.png` mosaics.
+        split: `"all"` (every PNG in `root`) or the name of a list `<root>/<split>.txt`.
         n_views: views per side of the stored mosaic (14 for the Lytro Illum).
-        layout: ``"interleaved"`` (Lytro ESLF) or ``"tiled"``.
+        layout: `"interleaved"` (Lytro ESLF) or `"tiled"`.
         views: odd number of central views per side to keep (the outer Lytro views are
-            vignetted); ``n_views`` keeps all.
+            vignetted); `n_views` keeps all.
         radius: aperture radius in view steps for refocusing.
         focus_disparities: disparities (pixels per view step) of the focused images.
         calibration: the equivalent camera, for each focused image's settings.
-        **kwargs: ``size``, ``crop``, ``augment``, ``dtype`` of
-            :class:`~datasets.base.DepthDataset`.
+        **kwargs: `size`, `crop`, `augment`, `dtype` of
+            `DepthDataset`.
 
     Raises:
-        FileNotFoundError: ``root``, the split list or a listed mosaic is missing.
-        DataFormatError: a mosaic is unreadable or not a grid of ``n_views x n_views`` views.
+        FileNotFoundError: `root`, the split list or a listed mosaic is missing.
+        DataFormatError: a mosaic is unreadable or not a grid of `n_views x n_views` views.
     """
 
     name = "lightfield"
@@ -277,7 +277,7 @@ class LightField(DepthDataset):
         self.ids = [p.stem for p in self.files]
 
     def load_views(self, index: int) -> Tensor:
-        """The kept central views ``(views, views, 3, H, W)`` of light field ``index``."""
+        """The kept central views `(views, views, 3, H, W)` of light field `index`."""
         path = self.files[index]
         mosaic = read_rgb(path, dtype=self.dtype)
         try:

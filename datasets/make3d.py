@@ -1,6 +1,6 @@
 """Make3D: outdoor photos with laser-scanned depth grids (Saxena et al.), 400 train / 134 test.
 
-Folder layout (``root``)::
+Folder layout (`root`)::
 
     Train400Img/img-<name>.jpg                  photos (1704x2272)
     Train400Depth/depth_sph_corr-<name>.mat     MATLAB v5, Position3DGrid (H,W,4), depth in [:,:,4]
@@ -8,9 +8,9 @@ Folder layout (``root``)::
     Test134Depth/depth_sph_corr-<name>.mat
 
 Both archives are on the Make3D page (make3d.cs.cornell.edu). A photo and its depth are matched
-by ``<name>``. The coarse depth grid (about 305x55) is resized to the photo with nearest
-neighbour, then both are resized to ``size`` (460x345 by default, as is common). Focused images
-are synthesised with :data:`datasets.presets.MAKE3D`.
+by `<name>`. The coarse depth grid (about 305x55) is resized to the photo with nearest
+neighbour, then both are resized to `size` (460x345 by default, as is common). Focused images
+are synthesised with `datasets.presets.MAKE3D`.
 """
 
 from __future__ import annotations
@@ -41,15 +41,15 @@ class Make3D(DepthDataset):
     """Make3D photos with laser depth and synthesised focused images.
 
     Args:
-        root: folder holding ``Train400Img``, ``Train400Depth``, ``Test134Img``, ``Test134Depth``.
-        split: ``"train"`` (400 photos) or ``"test"`` (134).
-        preset: camera for focus synthesis (:data:`datasets.presets.MAKE3D` by default).
-        **kwargs: ``size`` (default ``(460, 345)``), ``crop``, ``augment``, ``cache_dir``,
-            ``aperture``, ``render_kwargs``, ``dtype`` of :class:`~datasets.base.DepthDataset`.
+        root: folder holding `Train400Img`, `Train400Depth`, `Test134Img`, `Test134Depth`.
+        split: `"train"` (400 photos) or `"test"` (134).
+        preset: camera for focus synthesis (`datasets.presets.MAKE3D` by default).
+        **kwargs: `size` (default `(460, 345)`), `crop`, `augment`, `cache_dir`,
+            `aperture`, `render_kwargs`, `dtype` of `DepthDataset`.
 
     Raises:
-        FileNotFoundError: ``root``, a folder, or the depth file of a photo is missing.
-        DataFormatError: a ``.mat`` file is truncated or ``Position3DGrid`` has the wrong shape.
+        FileNotFoundError: `root`, a folder, or the depth file of a photo is missing.
+        DataFormatError: a `.mat` file is truncated or `Position3DGrid` has the wrong shape.
     """
 
     name = "make3d"

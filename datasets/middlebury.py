@@ -1,18 +1,18 @@
 """Middlebury stereo scenes: real images with real depth from disparity.
 
 scikit-image ships one of them, the *motorcycle* scene (Middlebury 2014, quarter size), so it is
-the library's offline real-data default (``Middlebury(None)``).
+the library's offline real-data default (`Middlebury(None)`).
 
-Folder layout of the Middlebury 2014 scenes (``root``)::
+Folder layout of the Middlebury 2014 scenes (`root`)::
 
     <Scene>-perfect/im0.png      left image (the all-in-focus image)
     <Scene>-perfect/im1.png      right image (not used)
-    <Scene>-perfect/disp0.pfm    left disparity in pixels, ``inf`` where unknown
+    <Scene>-perfect/disp0.pfm    left disparity in pixels, `inf` where unknown
     <Scene>-perfect/calib.txt    cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=..., baseline=... (mm), ...
     <split>.txt                  optional: scene folder names of a split, one per line
 
-Depth is ``Z = baseline * f / (d + doffs)``; focused images are synthesised with
-:data:`datasets.presets.MIDDLEBURY`, whose pixel pitch is set per scene to ``focal_length / f``
+Depth is `Z = baseline * f / (d + doffs)`; focused images are synthesised with
+`datasets.presets.MIDDLEBURY`, whose pixel pitch is set per scene to `focal_length / f`
 so that the virtual lens keeps the scene's field of view.
 """
 
@@ -34,16 +34,16 @@ from .io import DataFormatError, read_pfm, read_rgb, require_file, require_root
 from .presets import MIDDLEBURY
 
 #: Calibration of scikit-image's motorcycle scene: focal length in pixels, baseline in metres,
-#: disparity offset in pixels (Middlebury 2014 ``calib.txt`` scaled to the shipped resolution).
+#: disparity offset in pixels (Middlebury 2014 `calib.txt` scaled to the shipped resolution).
 MOTORCYCLE_CALIB = {"focal_length_px": 994.978, "baseline_m": 0.193, "doffs_px": 31.086}
 
 
 def disparity_to_depth(
     disparity: Tensor, focal_length_px: float, baseline_m: float, doffs_px: float = 0.0
 ) -> tuple[Tensor, Tensor]:
-    """Depth in metres from stereo disparity in pixels: ``Z = f_px * B / (d + doffs)``.
+    """Depth in metres from stereo disparity in pixels: `Z = f_px * B / (d + doffs)`.
 
-    Returns ``(depth, mask)``; unknown disparities (``inf`` or NaN, as Middlebury stores them) are
+    Returns `(depth, mask)`; unknown disparities (`inf` or NaN, as Middlebury stores them) are
     masked out and their depth set to the largest valid depth, so the map stays finite.
 
     Example:
@@ -65,9 +65,9 @@ def load_motorcycle(dtype: torch.dtype = torch.float32) -> dict[str, Tensor]:
     """The motorcycle scene shipped with scikit-image, as tensors.
 
     Returns:
-        dict with ``image`` ``(1,3,H,W)`` in [0,1] (sRGB-decoded to linear intensity), ``depth``
-        ``(1,1,H,W)`` metres (2.1-5.0 m), ``mask`` ``(1,1,H,W)`` bool (known disparity), and the
-        calibration under ``calib``.
+        dict with `image` `(1,3,H,W)` in [0,1] (sRGB-decoded to linear intensity), `depth`
+        `(1,1,H,W)` metres (2.1-5.0 m), `mask` `(1,1,H,W)` bool (known disparity), and the
+        calibration under `calib`.
     """
     from skimage import data
 
@@ -134,9 +134,9 @@ def motorcycle_focus_sweep(
 def motorcycle_sample(scale: float = 0.25, preset: CameraPreset | None = None) -> dict[str, Any]:
     """The real motorcycle scene in the sample format, for evaluation (the demo's test scene).
 
-    The scene is downscaled by ``scale`` (area-averaged; a pixel stays valid only if all of its
+    The scene is downscaled by `scale` (area-averaged; a pixel stays valid only if all of its
     source pixels had known disparity) and its focused images are rendered from its real depth
-    through ``preset`` (the synthetic scenes' camera by default). Unknown depth is filled with the
+    through `preset` (the synthetic scenes' camera by default). Unknown depth is filled with the
     farthest known depth before rendering.
 
     Args:
@@ -144,8 +144,8 @@ def motorcycle_sample(scale: float = 0.25, preset: CameraPreset | None = None) -
         preset: the camera of the focused images.
 
     Returns:
-        a sample dict (``image`` ``(3,H,W)``, ``focused`` ``(F,3,H,W)``, ``camera``
-        `CameraSettings`, ``depth`` ``(1,H,W)`` metres, ``mask``, ``dataset``, ``id``).
+        a sample dict (`image` `(3,H,W)`, `focused` `(F,3,H,W)`, `camera`
+        `CameraSettings`, `depth` `(1,H,W)` metres, `mask`, `dataset`, `id`).
 
     Example:
         >>> sample = motorcycle_sample(0.1)
@@ -184,17 +184,17 @@ LAYOUT = (
     "  <root>/<split>.txt (optional list of scene folders)"
 )
 
-#: Name of the built-in scene (scikit-image's motorcycle), used when ``root`` is None.
+#: Name of the built-in scene (scikit-image's motorcycle), used when `root` is None.
 BUILTIN_SCENE = "motorcycle"
 
 
 def read_calib(path: Path) -> dict[str, float]:
-    """Read a Middlebury 2014 ``calib.txt``: focal length and disparity offset in pixels, baseline
+    """Read a Middlebury 2014 `calib.txt`: focal length and disparity offset in pixels, baseline
     in metres (the file gives millimetres).
 
     Raises:
         FileNotFoundError: the file is missing.
-        DataFormatError: ``cam0``, ``doffs`` or ``baseline`` is missing or malformed.
+        DataFormatError: `cam0`, `doffs` or `baseline` is missing or malformed.
     """
     require_file(path, "a Middlebury calib.txt (cam0=[f 0 cx; ...], doffs=, baseline=)")
     entries = dict(
@@ -220,15 +220,15 @@ class Middlebury(DepthDataset):
     Args:
         root: folder of scene folders, or None for the built-in motorcycle scene that ships with
             scikit-image (no download).
-        split: ``"all"`` (every scene folder with a ``calib.txt``) or the name of a list
-            ``<root>/<split>.txt``.
-        preset: camera for focus synthesis (:data:`datasets.presets.MIDDLEBURY` by default); its
-            pixel pitch is replaced per scene by ``preset.focal_length / f_px``.
-        **kwargs: ``size``, ``crop``, ``augment``, ``cache_dir``, ``aperture``,
-            ``render_kwargs``, ``dtype`` of :class:`~datasets.base.DepthDataset`.
+        split: `"all"` (every scene folder with a `calib.txt`) or the name of a list
+            `<root>/<split>.txt`.
+        preset: camera for focus synthesis (`datasets.presets.MIDDLEBURY` by default); its
+            pixel pitch is replaced per scene by `preset.focal_length / f_px`.
+        **kwargs: `size`, `crop`, `augment`, `cache_dir`, `aperture`,
+            `render_kwargs`, `dtype` of `DepthDataset`.
 
     Raises:
-        FileNotFoundError: ``root``, the split list or a scene file is missing.
+        FileNotFoundError: `root`, the split list or a scene file is missing.
         DataFormatError: a truncated PFM, a malformed calib.txt, or image and disparity sizes
             differ.
 

@@ -1,14 +1,14 @@
-"""NYU Depth v2 (labeled subset): ``nyu_depth_v2_labeled.mat`` and the paper's 795/654 split.
+"""NYU Depth v2 (labeled subset): `nyu_depth_v2_labeled.mat` and the paper's 795/654 split.
 
-Folder layout (``root``)::
+Folder layout (`root`)::
 
     nyu_depth_v2_labeled.mat   MATLAB v7.3 (HDF5): images 480x640x3x1449 uint8, depths 480x640x1449
     splits.mat                 MATLAB v5: trainNdxs (795x1), testNdxs (654x1), 1-based indices
 
 Both are on the NYU Depth v2 page (Silberman et al. 2012). MATLAB stores arrays column-major, so
-h5py reads ``images`` as ``(N, 3, W, H)`` and ``depths`` as ``(N, W, H)``; the loader transposes
+h5py reads `images` as `(N, 3, W, H)` and `depths` as `(N, W, H)`; the loader transposes
 them back so images come out upright. Focused images are synthesised from the ground-truth depth
-with :data:`datasets.presets.NYU` (35 mm, f/2.8, focus 2 m and 8 m, pitch 22.4 um at 640x480).
+with `datasets.presets.NYU` (35 mm, f/2.8, focus 2 m and 8 m, pitch 22.4 um at 640x480).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ LAYOUT = (
     "  <root>/splits.mat                (MATLAB v5 with 'trainNdxs' and 'testNdxs', 1-based)"
 )
 
-#: Eigen et al.'s evaluation crop of 480x640 NYU frames, ``(top, left, height, width)`` pixels.
+#: Eigen et al.'s evaluation crop of 480x640 NYU frames, `(top, left, height, width)` pixels.
 NYU_EIGEN_CROP = (45, 41, 426, 560)
 
 SPLITS = ("train", "test", "all")
@@ -41,15 +41,15 @@ class NYUv2(DepthDataset):
     """NYU Depth v2 labeled frames with synthesised focused images.
 
     Args:
-        root: folder holding ``nyu_depth_v2_labeled.mat`` and ``splits.mat``.
-        split: ``"train"`` (795 frames), ``"test"`` (654) or ``"all"`` (1449, no splits.mat
+        root: folder holding `nyu_depth_v2_labeled.mat` and `splits.mat`.
+        split: `"train"` (795 frames), `"test"` (654) or `"all"` (1449, no splits.mat
             needed).
-        preset: camera for focus synthesis (:data:`datasets.presets.NYU` by default).
-        **kwargs: ``size``, ``crop``, ``augment``, ``cache_dir``, ``aperture``,
-            ``render_kwargs``, ``dtype`` of :class:`~datasets.base.DepthDataset`.
+        preset: camera for focus synthesis (`datasets.presets.NYU` by default).
+        **kwargs: `size`, `crop`, `augment`, `cache_dir`, `aperture`,
+            `render_kwargs`, `dtype` of `DepthDataset`.
 
     Raises:
-        FileNotFoundError: ``root`` or a file is missing.
+        FileNotFoundError: `root` or a file is missing.
         DataFormatError: a file is truncated or holds arrays of the wrong shape.
 
     Example:

@@ -1,22 +1,22 @@
 """Camera presets per dataset (DESIGN section 7): the virtual camera that synthesises focus.
 
-Every ``pixel_pitch`` is the *effective* pitch at the dataset's native image resolution (metres);
-loaders that resize scale it by the resize factor (see :mod:`datasets.transforms`). Where the
-paper gives no camera, our choice keeps the image geometry (focal length in pixels ``f / pitch``
+Every `pixel_pitch` is the *effective* pitch at the dataset's native image resolution (metres);
+loaders that resize scale it by the resize factor (see `datasets.transforms`). Where the
+paper gives no camera, our choice keeps the image geometry (focal length in pixels `f / pitch`
 equals the dataset's calibrated one) and picks an aperture that gives a few pixels of blur.
 
 ==============  ========  =========  ===========  ===========  ======  ==============================
 preset          f (mm)    pitch(um)  focus (m)    f-number     cap(m)  source
 ==============  ========  =========  ===========  ===========  ======  ==============================
-``nyu``         35        22.4       2, 8         2.8          10      paper (5.6 um x 4 at 640x480)
-``kitti``       50        69.3       8, 30        1.4          80      ours; f_px = 721.5 at 1242x375
-``make3d``      50        33.8       8, 30        1.4          70      ours; f_px ~ 1480 at 1704 wide
-``dslr``        35        (per set)  1.7          2.8          10      Carvalho et al. 2018
-``middlebury``  85        (per set)  2.5, 4       1.4          10      ours; pitch = f / f_px (calib)
+`nyu`         35        22.4       2, 8         2.8          10      paper (5.6 um x 4 at 640x480)
+`kitti`       50        69.3       8, 30        1.4          80      ours; f_px = 721.5 at 1242x375
+`make3d`      50        33.8       8, 30        1.4          70      ours; f_px ~ 1480 at 1704 wide
+`dslr`        35        (per set)  1.7          2.8          10      Carvalho et al. 2018
+`middlebury`  85        (per set)  2.5, 4       1.4          10      ours; pitch = f / f_px (calib)
 ==============  ========  =========  ===========  ===========  ======  ==============================
 
-``dslr`` and ``middlebury`` pitches depend on each image's resolution or calibration; the loaders
-fill them in. Light fields have a calibration of their own (:class:`datasets.LightFieldCalibration`).
+`dslr` and `middlebury` pitches depend on each image's resolution or calibration; the loaders
+fill them in. Light fields have a calibration of their own (`datasets.LightFieldCalibration`).
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ MAKE3D = CameraPreset(
 #: to the stored photos' width.
 DSLR = CameraPreset(0.035, 4.88e-6, focus_distances=(1.7,), f_numbers=(2.8,), depth_cap=10.0)
 
-#: Middlebury: 85 mm at f/1.4, focus 2.5 m and 4 m; the pitch is per scene, ``f / f_px``.
+#: Middlebury: 85 mm at f/1.4, focus 2.5 m and 4 m; the pitch is per scene, `f / f_px`.
 MIDDLEBURY = CameraPreset(
     0.085, 0.085 / 994.978, focus_distances=(2.5, 4.0), f_numbers=(1.4,), depth_cap=10.0
 )

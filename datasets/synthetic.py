@@ -5,9 +5,9 @@ Each scene is a layout of textured surfaces with ground-truth depth in metres: a
 objects (rectangles and ellipses, fronto-parallel or slanted). Textures are random crops of the
 images shipped with scikit-image (never the Middlebury motorcycle, which is kept for evaluation).
 The focused images are rendered through the renderer with a configurable
-:class:`~datasets.focus.CameraPreset`. Everything is deterministic given ``(seed, index)``.
+`CameraPreset`. Everything is deterministic given `(seed, index)`.
 
-The default camera, :data:`SYNTHETIC_PRESET`, is a 50 mm f/1.4 lens focused at 2 m and 6 m with an
+The default camera, `SYNTHETIC_PRESET`, is a 50 mm f/1.4 lens focused at 2 m and 6 m with an
 effective pixel pitch of 180 micrometres (a 4.5 um sensor downsampled 40 times, e.g. a 6000x4000
 photo shrunk to 150x100 pixels). Its CoC diameters stay at or below 5 pixels over the default
 depth range of 1.5-6 m, so rendering is cheap on a CPU.
@@ -50,7 +50,7 @@ TEXTURE_NAMES = (
 
 @lru_cache(maxsize=1)
 def load_textures() -> tuple[Tensor, ...]:
-    """The texture images as ``(3, h, w)`` float32 linear tensors in [0, 1] (cached)."""
+    """The texture images as `(3, h, w)` float32 linear tensors in [0, 1] (cached)."""
     from skimage import data
 
     textures = []
@@ -70,7 +70,7 @@ def _uniform(rng: np.random.Generator, low: float, high: float) -> float:
 def _texture_patch(
     rng: np.random.Generator, size: tuple[int, int], textures: Sequence[Tensor]
 ) -> Tensor:
-    """A random crop of a random texture, rescaled to ``size`` with a random colour gain."""
+    """A random crop of a random texture, rescaled to `size` with a random colour gain."""
     h, w = size
     texture = textures[int(rng.integers(len(textures)))]
     th, tw = texture.shape[-2:]
@@ -88,7 +88,7 @@ def _texture_patch(
 
 def _plane(rng: np.random.Generator, grid: tuple[Tensor, Tensor], near: float, far: float,
            slant: bool) -> Tensor:
-    """Depth of a fronto-parallel or slanted plane between ``near`` and ``far`` metres."""
+    """Depth of a fronto-parallel or slanted plane between `near` and `far` metres."""
     yy, xx = grid
     centre = _uniform(rng, near, far)
     if not slant:
@@ -109,15 +109,15 @@ def generate_scene(
     """One random scene: an all-in-focus image and its depth.
 
     Args:
-        size: ``(height, width)`` in pixels.
+        size: `(height, width)` in pixels.
         rng: NumPy random generator (the scene is a function of its state).
-        depth_range: ``(near, far)`` limits of the scene depth in metres.
-        textures: ``(3,h,w)`` linear texture images; :func:`load_textures` by default.
+        depth_range: `(near, far)` limits of the scene depth in metres.
+        textures: `(3,h,w)` linear texture images; `load_textures` by default.
         max_objects: largest number of occluding objects.
 
     Returns:
-        ``image`` ``(3,H,W)`` linear in [0, 1] and ``depth`` ``(1,H,W)`` in metres within
-        ``depth_range``.
+        `image` `(3,H,W)` linear in [0, 1] and `depth` `(1,H,W)` in metres within
+        `depth_range`.
 
     Example:
         >>> image, depth = generate_scene((32, 48), np.random.default_rng(0))
@@ -172,18 +172,18 @@ def generate_scene(
 class SyntheticScenes(Dataset):
     """Procedural scenes with ground-truth depth and focused images, in the sample format.
 
-    Sample ``i`` depends only on ``(seed, i)``; samples are rendered on first access and cached.
+    Sample `i` depends only on `(seed, i)`; samples are rendered on first access and cached.
 
     Args:
         num_scenes: number of scenes (the dataset length).
-        size: ``(height, width)`` in pixels.
-        preset: camera of the focused images, :data:`SYNTHETIC_PRESET` by default.
+        size: `(height, width)` in pixels.
+        preset: camera of the focused images, `SYNTHETIC_PRESET` by default.
         seed: random seed.
-        depth_range: ``(near, far)`` scene depth limits in metres; by default the preset's
-            ``(min_depth, depth_cap)``.
-        aperture: PSF shape of the renders (Gaussian, ``sigma = CoC/2``, by default).
+        depth_range: `(near, far)` scene depth limits in metres; by default the preset's
+            `(min_depth, depth_cap)`.
+        aperture: PSF shape of the renders (Gaussian, `sigma = CoC/2`, by default).
         cache: keep rendered samples in memory.
-        **render_kwargs: passed to :func:`optics.render_defocus` (``mode``, ...).
+        **render_kwargs: passed to `optics.render_defocus` (`mode`, ...).
 
     Example:
         >>> scenes = SyntheticScenes(num_scenes=2, size=(24, 32))

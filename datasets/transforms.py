@@ -1,14 +1,14 @@
 """Joint transforms of a sample: the image, its focused images, depth and mask move together.
 
-Geometric transforms (crop, resize, flip) are applied identically to ``image``, ``focused``,
-``depth`` and ``mask`` so they stay pixel-aligned. Resizing changes the *effective* pixel pitch
-(``camera["pixel_pitch"]``) by the resize factor, so CoC sizes in pixels stay physically right;
+Geometric transforms (crop, resize, flip) are applied identically to `image`, `focused`,
+`depth` and `mask` so they stay pixel-aligned. Resizing changes the *effective* pixel pitch
+(`camera["pixel_pitch"]`) by the resize factor, so CoC sizes in pixels stay physically right;
 cropping and flipping do not. Colour augmentation multiplies every image (all-in-focus and focused)
 by the same per-channel gains: a linear blur commutes with that, so the focused images remain the
 renders of the augmented all-in-focus image.
 
-As in torchvision's transforms v2, :meth:`JointAugment.make_params` samples once and
-:meth:`JointAugment.apply` applies the same parameters to every entry.
+As in torchvision's transforms v2, `JointAugment.make_params` samples once and
+`JointAugment.apply` applies the same parameters to every entry.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
-#: Sample entries laid out as images ``(..., H, W)``.
+#: Sample entries laid out as images `(..., H, W)`.
 SPATIAL_KEYS = ("image", "focused", "depth", "mask")
 
 
@@ -34,7 +34,7 @@ def _check_size(name: str, size: Sequence[int] | None) -> tuple[int, int] | None
 
 
 def crop_sample(sample: dict[str, Any], top: int, left: int, height: int, width: int) -> dict:
-    """Crop every spatial entry of ``sample`` to rows ``top:top+height``, columns ``left:left+width``.
+    """Crop every spatial entry of `sample` to rows `top:top+height`, columns `left:left+width`.
 
     Raises:
         ValueError: the window does not fit inside the image.
@@ -58,11 +58,11 @@ def crop_sample(sample: dict[str, Any], top: int, left: int, height: int, width:
 
 
 def resize_sample(sample: dict[str, Any], size: Sequence[int]) -> dict:
-    """Resize ``sample`` to ``size = (height, width)`` pixels and scale the effective pixel pitch.
+    """Resize `sample` to `size = (height, width)` pixels and scale the effective pixel pitch.
 
     Images use antialiased bilinear resampling; depth and mask use nearest neighbour (no depth is
     invented across object edges and the mask stays exact). The effective pixel pitch of the
-    ``camera`` settings (metres) is multiplied by the geometric mean of the two resize factors.
+    `camera` settings (metres) is multiplied by the geometric mean of the two resize factors.
 
     Example:
         >>> from optics import CameraSettings
@@ -111,9 +111,9 @@ class JointAugment:
     """Random augmentation that keeps image, focused images, depth and mask aligned.
 
     Args:
-        crop_size: ``(height, width)`` of a random crop in pixels, or None for no crop.
+        crop_size: `(height, width)` of a random crop in pixels, or None for no crop.
         hflip: probability of a left-right flip.
-        gain: per-channel colour gains are drawn from ``[1 - gain, 1 + gain]`` and applied to the
+        gain: per-channel colour gains are drawn from `[1 - gain, 1 + gain]` and applied to the
             all-in-focus and every focused image alike (results clamped to [0, 1]); 0 disables.
 
     Example:
@@ -154,7 +154,7 @@ class JointAugment:
         return params
 
     def apply(self, sample: dict[str, Any], params: dict[str, Any]) -> dict:
-        """Apply sampled ``params`` to every entry of ``sample``."""
+        """Apply sampled `params` to every entry of `sample`."""
         if "crop" in params:
             sample = crop_sample(sample, *params["crop"])
         if params.get("flip"):

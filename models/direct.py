@@ -1,9 +1,9 @@
 """Direct optimisation baseline: fit one scene's depth map through the renderer, no network.
 
-The depth map is parameterised as ``depth_min + (depth_max - depth_min) * sigmoid(logits)``
-(logits on a grid ``downsample`` times coarser than the image, upsampled bilinearly) and fitted
+The depth map is parameterised as `depth_min + (depth_max - depth_min) * sigmoid(logits)`
+(logits on a grid `downsample` times coarser than the image, upsampled bilinearly) and fitted
 with Adam so that the all-in-focus image rendered at that depth matches each focused image
-(:class:`~models.losses.DefocusLoss`), with an edge-aware smoothness prior. Where the image has no
+(`DefocusLoss`), with an edge-aware smoothness prior. Where the image has no
 texture the focused images carry no depth information and the prior fills in.
 """
 
@@ -24,11 +24,11 @@ def fit_depth_direct(
     depth_max: float, steps: int = 200, lr: float = 0.1, smoothness_weight: float = 0.05,
     downsample: int = 2, loss: DefocusLoss | None = None, progress: bool = False,
 ) -> Tensor:
-    """Fit depth ``(B,1,H,W)`` in metres to all-in-focus and focused images by gradient descent.
+    """Fit depth `(B,1,H,W)` in metres to all-in-focus and focused images by gradient descent.
 
     Args:
-        image: all-in-focus images ``(B,3,H,W)``, linear.
-        focused: focused images ``(B,F,3,H,W)``.
+        image: all-in-focus images `(B,3,H,W)`, linear.
+        focused: focused images `(B,F,3,H,W)`.
         settings: the `(B,F)` (or `(F,)`) camera settings of the focused images.
         depth_min: nearest depth, metres.
         depth_max: farthest depth, metres (the fit starts half-way in sigmoid space).
@@ -36,8 +36,8 @@ def fit_depth_direct(
         lr: Adam learning rate on the logits.
         smoothness_weight: weight of the edge-aware smoothness prior.
         downsample: the logits live on a grid this many times coarser than the image (>= 1).
-        loss: the data term; :class:`~models.losses.DefocusLoss` with the paper's weights and
-            ``smoothness_weight`` by default.
+        loss: the data term; `DefocusLoss` with the paper's weights and
+            `smoothness_weight` by default.
         progress: show a tqdm bar.
 
     Returns:

@@ -3,7 +3,7 @@
 The depth predicted from the all-in-focus image is rendered, through each focused image's camera,
 into a synthetic focused image that is compared with the real one:
 
-- photometric: ``ssim_weight * (1 - SSIM)/2 + (1 - ssim_weight) * L1`` (paper: 0.85), Kornia's
+- photometric: `ssim_weight * (1 - SSIM)/2 + (1 - ssim_weight) * L1` (paper: 0.85), Kornia's
   SSIM, averaged over the focus settings;
 - sharpness: L1 between the sharpness maps (Sobel gradient magnitude) of the rendered and the real
   focused images (paper weight 0.1);
@@ -25,11 +25,11 @@ from optics.checks import check_shape
 
 def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85,
                      window_size: int = 7) -> Tensor:
-    """``ssim_weight * (1 - SSIM)/2 + (1 - ssim_weight) * L1``, averaged over pixels and images.
+    """`ssim_weight * (1 - SSIM)/2 + (1 - ssim_weight) * L1`, averaged over pixels and images.
 
     Args:
-        rendered: ``(..., C, H, W)`` images in [0, 1].
-        target: same shape as ``rendered``.
+        rendered: `(..., C, H, W)` images in [0, 1].
+        target: same shape as `rendered`.
         ssim_weight: weight of the SSIM term in [0, 1] (paper: 0.85).
         window_size: odd SSIM window width in pixels.
 
@@ -50,25 +50,25 @@ def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85
 
 
 def sharpness_map(image: Tensor) -> Tensor:
-    """Local sharpness ``(..., 1, H, W)``: Sobel gradient magnitude of the channel mean."""
+    """Local sharpness `(..., 1, H, W)`: Sobel gradient magnitude of the channel mean."""
     flat = image.reshape(-1, *image.shape[-3:]).mean(-3, keepdim=True)
     return kornia.filters.sobel(flat).reshape(*image.shape[:-3], 1, *image.shape[-2:])
 
 
 def sharpness_loss(rendered: Tensor, target: Tensor) -> Tensor:
-    """Mean L1 distance between the sharpness maps of ``rendered`` and ``target``."""
+    """Mean L1 distance between the sharpness maps of `rendered` and `target`."""
     return (sharpness_map(rendered) - sharpness_map(target)).abs().mean()
 
 
 def edge_aware_smoothness(depth: Tensor, image: Tensor) -> Tensor:
-    """Edge-aware smoothness: ``mean(|d_x d*| exp(-|d_x I|)) + mean(|d_y d*| exp(-|d_y I|))``.
+    """Edge-aware smoothness: `mean(|d_x d*| exp(-|d_x I|)) + mean(|d_y d*| exp(-|d_y I|))`.
 
-    ``d*`` is the depth divided by its per-image mean (scale free) and ``|d I|`` the channel mean
+    `d*` is the depth divided by its per-image mean (scale free) and `|d I|` the channel mean
     of the image's absolute differences.
 
     Args:
-        depth: ``(B,1,H,W)`` metres.
-        image: ``(B,C,H,W)``.
+        depth: `(B,1,H,W)` metres.
+        image: `(B,C,H,W)`.
 
     Example:
         >>> float(edge_aware_smoothness(torch.full((1, 1, 8, 8), 3.0), torch.rand(1, 3, 8, 8)))
@@ -92,7 +92,7 @@ class DefocusLoss(nn.Module):
         window_size: SSIM window width in pixels.
         aperture: PSF shape used to render, overriding the settings' aperture (None: use the
             aperture of the `CameraSettings` passed to `forward`).
-        **render_kwargs: passed to :func:`optics.render_defocus` (``mode``, ...).
+        **render_kwargs: passed to `optics.render_defocus` (`mode`, ...).
 
     Example:
         >>> loss = DefocusLoss()
@@ -116,11 +116,11 @@ class DefocusLoss(nn.Module):
 
     def forward(self, depth: Tensor, image: Tensor, focused: Tensor,
                 settings: CameraSettings) -> dict[str, Tensor]:
-        """Loss terms for predicted ``depth`` ``(B,1,H,W)`` metres, all-in-focus ``image``
-        ``(B,3,H,W)``, real ``focused`` images ``(B,F,3,H,W)`` and their ``(B,F)`` settings.
+        """Loss terms for predicted `depth` `(B,1,H,W)` metres, all-in-focus `image`
+        `(B,3,H,W)`, real `focused` images `(B,F,3,H,W)` and their `(B,F)` settings.
 
         Returns:
-            dict with ``loss`` (the weighted total), ``photometric``, ``sharpness``, ``smoothness``.
+            dict with `loss` (the weighted total), `photometric`, `sharpness`, `smoothness`.
         """
         check_shape("focused", focused, ["B", "F", "C", "H", "W"])
         rendered = render_focal_stack(image, depth, settings, self.aperture, **self.render_kwargs)
@@ -138,7 +138,7 @@ class DefocusLoss(nn.Module):
 
 
 def supervised_depth_loss(depth: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:
-    """Mean relative L1 error ``|depth - target| / target`` over valid pixels (a baseline that
+    """Mean relative L1 error `|depth - target| / target` over valid pixels (a baseline that
     uses depth labels; not part of the self-supervised recipe).
 
     Example:

@@ -1,21 +1,21 @@
 """Depth evaluation metrics (Eigen et al. 2014 conventions) and the paper-style table.
 
-Per image, over valid pixels (mask, ground truth inside ``(min_depth, max_depth)``, optional crop),
-with the prediction clamped to ``[min_depth, max_depth]``; a batch is the mean over its images:
+Per image, over valid pixels (mask, ground truth inside `(min_depth, max_depth)`, optional crop),
+with the prediction clamped to `[min_depth, max_depth]`; a batch is the mean over its images:
 
 =============  ========================================================  ===========
 name           definition                                                better
 =============  ========================================================  ===========
-``abs_rel``    ``mean(|d - g| / g)``                                     lower
-``sq_rel``     ``mean((d - g)^2 / g)``                                   lower
-``rmse``       ``sqrt(mean((d - g)^2))`` (metres)                        lower
-``rmse_log``   ``sqrt(mean((ln d - ln g)^2))`` (natural log)             lower
-``log10``      ``mean(|log10 d - log10 g|)``                             lower
-``deltaK``     share of pixels with ``max(d/g, g/d) < 1.25^K``, K=1,2,3  higher
+`abs_rel`    `mean(|d - g| / g)`                                     lower
+`sq_rel`     `mean((d - g)^2 / g)`                                   lower
+`rmse`       `sqrt(mean((d - g)^2))` (metres)                        lower
+`rmse_log`   `sqrt(mean((ln d - ln g)^2))` (natural log)             lower
+`log10`      `mean(|log10 d - log10 g|)`                             lower
+`deltaK`     share of pixels with `max(d/g, g/d) < 1.25^K`, K=1,2,3  higher
 =============  ========================================================  ===========
 
-Median scaling (multiply the prediction by ``median(g) / median(d)``) is off by default: our
-depths are metric. When on, the returned dict also holds the mean ``median_scale``.
+Median scaling (multiply the prediction by `median(g) / median(d)`) is off by default: our
+depths are metric. When on, the returned dict also holds the mean `median_scale`.
 """
 
 from __future__ import annotations
@@ -62,13 +62,13 @@ def _maps_by_keyword(fn: _F) -> _F:
 
 def crop_mask(height: int, width: int, crop: str | Sequence[float] | None,
               device: torch.device | None = None) -> Tensor:
-    """Boolean ``(H, W)`` mask of an evaluation crop.
+    """Boolean `(H, W)` mask of an evaluation crop.
 
     Args:
         height: image height in pixels.
         width: image width in pixels.
-        crop: ``None`` (everything), ``"garg"`` or ``"eigen"`` (KITTI), or fractions
-            ``(top, bottom, left, right)`` of the height and width.
+        crop: `None` (everything), `"garg"` or `"eigen"` (KITTI), or fractions
+            `(top, bottom, left, right)` of the height and width.
 
     Example:
         >>> crop_mask(4, 4, (0.5, 1.0, 0.0, 0.5)).int()
@@ -110,7 +110,7 @@ def _as_batch(name: str, tensor: Tensor) -> Tensor:
 @_maps_by_keyword
 def valid_mask(*, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
                max_depth: float | None = None, crop: str | Sequence[float] | None = None) -> Tensor:
-    """Pixels that count: ``mask``, ground truth in ``(min_depth, max_depth)``, inside ``crop``."""
+    """Pixels that count: `mask`, ground truth in `(min_depth, max_depth)`, inside `crop`."""
     target = _as_batch("target", target)
     valid = torch.isfinite(target) & (target > min_depth)
     if max_depth is not None:
@@ -126,22 +126,22 @@ def depth_metrics(
     max_depth: float | None = None, crop: str | Sequence[float] | None = None,
     median_scaling: bool = False,
 ) -> dict[str, float]:
-    """Depth metrics of ``pred`` against ``target`` (both metres), averaged over the batch.
+    """Depth metrics of `pred` against `target` (both metres), averaged over the batch.
 
     The maps are keyword-only (a positional call raises `TypeError` with this hint): swapping
     prediction and ground truth would silently give other numbers.
 
     Args:
-        pred: predicted depth ``(H,W)``, ``(1,H,W)`` or ``(B,1,H,W)``, metres.
+        pred: predicted depth `(H,W)`, `(1,H,W)` or `(B,1,H,W)`, metres.
         target: ground truth of the same shape, metres.
         mask: optional boolean mask of valid ground truth (same shape).
         min_depth: ground truth at or below this is ignored; predictions are clamped to it.
         max_depth: depth cap: ground truth at or beyond it is ignored, predictions clamped to it.
-        crop: ``None``, ``"garg"``, ``"eigen"`` or ``(top, bottom, left, right)`` fractions.
-        median_scaling: scale each prediction by ``median(target) / median(pred)`` first.
+        crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
+        median_scaling: scale each prediction by `median(target) / median(pred)` first.
 
     Returns:
-        dict of the :data:`METRIC_NAMES` (plus ``median_scale`` when ``median_scaling``).
+        dict of the `METRIC_NAMES` (plus `median_scale` when `median_scaling`).
 
     Raises:
         ValueError: if an image has no valid pixel or a prediction is not finite and positive.
@@ -188,8 +188,8 @@ def depth_metrics(
 
 @_maps_by_keyword
 def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
-    """The constant depth (metres) with the lowest abs rel: the median of ``target`` weighted by
-    ``1 / target`` over valid pixels (an oracle baseline; it looks at the ground truth).
+    """The constant depth (metres) with the lowest abs rel: the median of `target` weighted by
+    `1 / target` over valid pixels (an oracle baseline; it looks at the ground truth).
 
     Example:
         >>> best_constant_depth(target=torch.tensor([1.0, 2.0, 4.0]))  # abs rel 0.42; 2 m would give 0.5
@@ -211,8 +211,8 @@ def format_table(results: Mapping[str, Mapping[str, float]],
                  metrics: Sequence[str] = METRIC_NAMES) -> str:
     """A paper-style Markdown table: one row per method, one column per metric.
 
-    Arrows mark whether lower or higher is better; a method with a ``median_scale`` entry is
-    marked ``(median scaled)``.
+    Arrows mark whether lower or higher is better; a method with a `median_scale` entry is
+    marked `(median scaled)`.
 
     Example:
         >>> print(format_table({"constant": {"abs_rel": 0.2, "delta1": 0.55}},

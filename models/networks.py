@@ -1,24 +1,24 @@
 """Depth networks: a small encoder-decoder for CPUs and the paper-sized DeepLabV3+ network.
 
 Both take the all-in-focus image and, in depth-from-defocus mode, the focused images with their
-camera settings, and end in a sigmoid head that maps to depth in metres between ``depth_min`` and
-``depth_max``:
+camera settings, and end in a sigmoid head that maps to depth in metres between `depth_min` and
+`depth_max`:
 
 ============  ==================================================================  ==========
 network       architecture                                                        parameters
 ============  ==================================================================  ==========
-``small``     U-Net-style encoder-decoder, 3 scales, plain convolutions            ~0.5 M
-``paper``     ResNet-50 at output stride 16, dense ASPP, self-attention,           ~40 M
+`small`     U-Net-style encoder-decoder, 3 scales, plain convolutions            ~0.5 M
+`paper`     ResNet-50 at output stride 16, dense ASPP, self-attention,           ~40 M
               DeepLabV3+ decoder (Gur & Wolf 2019; no pretrained weights)
 ============  ==================================================================  ==========
 
-Input modes (``input_mode``):
+Input modes (`input_mode`):
 
-- ``"aif"``: the all-in-focus image alone (the paper: monocular at test time).
-- ``"aif+focused"``: the all-in-focus image, the ``F`` focused images, their differences to the
-  all-in-focus image, the defocus cues of :func:`defocus_cues` (``F + 1`` channels), and two
+- `"aif"`: the all-in-focus image alone (the paper: monocular at test time).
+- `"aif+focused"`: the all-in-focus image, the `F` focused images, their differences to the
+  all-in-focus image, the defocus cues of `defocus_cues` (`F + 1` channels), and two
   constant channels per focus setting describing the camera: the focus distance divided by
-  ``depth_max`` and the CoC scale ``f^2 / (N (D_f - f) p)`` in pixels / 10 (the CoC diameter of
+  `depth_max` and the CoC scale `f^2 / (N (D_f - f) p)` in pixels / 10 (the CoC diameter of
   an object at infinity).
 """
 
@@ -36,9 +36,9 @@ INPUT_MODES = ("aif", "aif+focused")
 
 
 def camera_channels(settings: CameraSettings, depth_max: float) -> Tensor:
-    """Per-shot camera descriptors ``(B, F, 2)`` from ``(B, F)`` settings.
+    """Per-shot camera descriptors `(B, F, 2)` from `(B, F)` settings.
 
-    The two descriptors are ``focus_distance / depth_max`` and the CoC diameter at infinity in
+    The two descriptors are `focus_distance / depth_max` and the CoC diameter at infinity in
     pixels divided by 10 (`CameraSettings.coc_at_infinity_px`, from `ThinLens`).
     """
     return torch.stack([settings.focus_distance / depth_max,
@@ -46,10 +46,10 @@ def camera_channels(settings: CameraSettings, depth_max: float) -> Tensor:
 
 
 def defocus_cues(image: Tensor, focused: Tensor, window: int = 7) -> Tensor:
-    """Local blur cues ``(B, F + 1, H, W)``: per focused image, the log ratio of its local
-    high-frequency energy to the all-in-focus image's (about ``-c * sigma^2`` for a Gaussian blur
-    of ``sigma`` pixels), and the log energy of the all-in-focus image (how reliable the ratios
-    are). Energy: squared Laplacian of the channel mean, box-averaged over ``window`` pixels.
+    """Local blur cues `(B, F + 1, H, W)`: per focused image, the log ratio of its local
+    high-frequency energy to the all-in-focus image's (about `-c * sigma^2` for a Gaussian blur
+    of `sigma` pixels), and the log energy of the all-in-focus image (how reliable the ratios
+    are). Energy: squared Laplacian of the channel mean, box-averaged over `window` pixels.
 
     Example:
         >>> image = torch.rand(1, 3, 16, 16)
@@ -67,7 +67,7 @@ def defocus_cues(image: Tensor, focused: Tensor, window: int = 7) -> Tensor:
 
 
 class DepthHead(nn.Module):
-    """Sigmoid output mapped to metres: ``depth = depth_min + (depth_max - depth_min) * sigmoid``."""
+    """Sigmoid output mapped to metres: `depth = depth_min + (depth_max - depth_min) * sigmoid`."""
 
     def __init__(self, depth_min: float, depth_max: float):
         super().__init__()
@@ -86,7 +86,7 @@ class DepthHead(nn.Module):
 
 
 class _DepthNetwork(nn.Module):
-    """Shared input assembly and checks; subclasses implement ``_logits(x)``."""
+    """Shared input assembly and checks; subclasses implement `_logits(x)`."""
 
     def __init__(self, input_mode: str, n_focus: int, depth_min: float, depth_max: float):
         super().__init__()
@@ -106,7 +106,7 @@ class _DepthNetwork(nn.Module):
         self, image: Tensor, focused: Tensor | None = None,
         settings: CameraSettings | None = None,
     ) -> Tensor:
-        """Stack the network input ``(B, in_channels, H, W)`` (see the module docstring)."""
+        """Stack the network input `(B, in_channels, H, W)` (see the module docstring)."""
         check_shape("image", image, ["B", "3", "H", "W"])
         if self.input_mode == "aif":
             return image
@@ -125,8 +125,8 @@ class _DepthNetwork(nn.Module):
         self, image: Tensor, focused: Tensor | None = None,
         settings: CameraSettings | None = None,
     ) -> Tensor:
-        """Depth ``(B,1,H,W)`` in metres from ``image`` ``(B,3,H,W)`` (and the focused images
-        ``(B,F,3,H,W)`` with their ``(B,F)`` camera settings in ``"aif+focused"`` mode)."""
+        """Depth `(B,1,H,W)` in metres from `image` `(B,3,H,W)` (and the focused images
+        `(B,F,3,H,W)` with their `(B,F)` camera settings in `"aif+focused"` mode)."""
         x = self.assemble_input(image, focused, settings)
         return self.head(self._logits(x))
 
@@ -149,8 +149,8 @@ class SmallDepthNet(_DepthNetwork):
     Works on any image size (inputs are padded to a multiple of 4 internally).
 
     Args:
-        input_mode: ``"aif"`` or ``"aif+focused"``.
-        n_focus: number of focused images ``F`` in ``"aif+focused"`` mode.
+        input_mode: `"aif"` or `"aif+focused"`.
+        n_focus: number of focused images `F` in `"aif+focused"` mode.
         depth_min: nearest depth the head can output, metres.
         depth_max: farthest depth the head can output, metres.
         width: channels of the first scale (doubled at each of the next two).
@@ -288,8 +288,8 @@ class PaperDepthNet(_DepthNetwork):
     DeepLabV3+ decoder, with a sigmoid depth head. Randomly initialised (no pretrained weights).
 
     Args:
-        input_mode: ``"aif"`` or ``"aif+focused"``.
-        n_focus: number of focused images ``F`` in ``"aif+focused"`` mode.
+        input_mode: `"aif"` or `"aif+focused"`.
+        n_focus: number of focused images `F` in `"aif+focused"` mode.
         depth_min: nearest depth the head can output, metres.
         depth_max: farthest depth the head can output, metres.
 
@@ -328,7 +328,7 @@ NETWORKS = {"small": SmallDepthNet, "paper": PaperDepthNet}
 
 def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
                   width: int = 32) -> _DepthNetwork:
-    """Build a depth network by name (``"small"`` or ``"paper"``).
+    """Build a depth network by name (`"small"` or `"paper"`).
 
     Example:
         >>> build_network("small", "aif", 0, 1.0, 10.0, width=8).input_mode

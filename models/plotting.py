@@ -24,15 +24,15 @@ def plot_prediction(
     depth_range: tuple[float, float] | None = None,
 ) -> Path:
     """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
-    ground-truth depth and the relative error ``|d - g| / g`` (masked pixels grey).
+    ground-truth depth and the relative error `|d - g| / g` (masked pixels grey).
 
     Args:
         path: PNG file to write (folders are created).
-        image: all-in-focus image ``(3,H,W)``, linear.
-        depth: predicted depth ``(1,H,W)`` metres.
-        focused: optional focused images ``(F,3,H,W)``.
-        target: optional ground-truth depth ``(1,H,W)`` metres.
-        mask: optional valid-depth mask ``(1,H,W)``.
+        image: all-in-focus image `(3,H,W)`, linear.
+        depth: predicted depth `(1,H,W)` metres.
+        focused: optional focused images `(F,3,H,W)`.
+        target: optional ground-truth depth `(1,H,W)` metres.
+        mask: optional valid-depth mask `(1,H,W)`.
         title: figure title.
         depth_range: colour range of the depth maps in metres (default: that of the data).
 
@@ -87,8 +87,8 @@ def plot_comparison(
 
     Args:
         path: PNG file to write.
-        sample: a sample dict with ``image`` ``(3,H,W)``, ``depth`` and ``mask`` ``(1,H,W)``.
-        predictions: method name -> depth ``(1,H,W)`` metres.
+        sample: a sample dict with `image` `(3,H,W)`, `depth` and `mask` `(1,H,W)`.
+        predictions: method name -> depth `(1,H,W)` metres.
         depth_range: colour range of the depth maps in metres.
     """
     import matplotlib

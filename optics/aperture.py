@@ -1,19 +1,19 @@
 """Aperture shapes: the point spread function (PSF) of a defocused point, as a function of its CoC.
 
-Every aperture is a small ``nn.Module`` with one primitive, :meth:`Aperture.profile`: the
-unnormalised PSF value at an integer pixel offset ``(dy, dx)`` for a CoC *diameter* in pixels. It
+Every aperture is a small `nn.Module` with one primitive, `Aperture.profile`: the
+unnormalised PSF value at an integer pixel offset `(dy, dx)` for a CoC *diameter* in pixels. It
 broadcasts, so the renderer evaluates it for a whole CoC map at one offset at a time and
-:meth:`Aperture.kernel` evaluates it on a grid of offsets for one CoC per batch item. Profiles are
+`Aperture.kernel` evaluates it on a grid of offsets for one CoC per batch item. Profiles are
 differentiable in the CoC (the disk and polygon have an anti-aliased edge one pixel wide for this).
 
 =============  ===========================================  =================================
-aperture       profile at distance ``r`` (pixels)          window half-width (pixels)
+aperture       profile at distance `r` (pixels)          window half-width (pixels)
 =============  ===========================================  =================================
-``Gaussian``   ``exp(-r^2 / (2 sigma^2))``,                 ``ceil(3 sigma)``
-               ``sigma = scale * coc``
-``Disk``       ``clamp(coc/2 - r + 1/2, 0, 1)``             ``ceil(coc/2 - 1/2)``
-``Polygon``    as the disk, with a polygonal norm           ``ceil(coc/2 - 1/2)``
-``Mask``       the mask image stretched to ``coc`` across   ``ceil(coc/2)``
+`Gaussian`   `exp(-r^2 / (2 sigma^2))`,                 `ceil(3 sigma)`
+               `sigma = scale * coc`
+`Disk`       `clamp(coc/2 - r + 1/2, 0, 1)`             `ceil(coc/2 - 1/2)`
+`Polygon`    as the disk, with a polygonal norm           `ceil(coc/2 - 1/2)`
+`Mask`       the mask image stretched to `coc` across   `ceil(coc/2)`
 =============  ===========================================  =================================
 """
 
@@ -48,21 +48,21 @@ def _as_coc_tensor(coc_px: float | Tensor, like: Tensor | None = None) -> Tensor
 
 
 class Aperture(nn.Module):
-    """Base class of PSF shapes. Subclasses implement :meth:`profile` and :meth:`half_width`."""
+    """Base class of PSF shapes. Subclasses implement `profile` and `half_width`."""
 
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
-        """Unnormalised PSF value at offset ``(dy, dx)`` pixels for CoC diameter ``coc_px`` pixels.
+        """Unnormalised PSF value at offset `(dy, dx)` pixels for CoC diameter `coc_px` pixels.
 
         All three arguments broadcast against each other.
         """
         raise NotImplementedError
 
     def half_width(self, coc_px: float) -> int:
-        """Largest offset (pixels, along an axis) where :meth:`profile` is non-negligible."""
+        """Largest offset (pixels, along an axis) where `profile` is non-negligible."""
         raise NotImplementedError
 
     def kernel_size(self, max_coc_px: float | Tensor) -> int:
-        """Odd window width (pixels) that holds the PSF of the largest CoC ``max_coc_px``."""
+        """Odd window width (pixels) that holds the PSF of the largest CoC `max_coc_px`."""
         coc = float(_as_coc_tensor(max_coc_px).detach().max())
         return 2 * max(self.half_width(coc), 0) + 1
 
@@ -70,12 +70,12 @@ class Aperture(nn.Module):
         """Normalised PSF kernels on a pixel grid.
 
         Args:
-            coc_px: CoC diameter(s) in pixels: a float, a 0-d or a ``(B,)`` tensor, >= 0.
-            kernel_size: odd window width in pixels; by default :meth:`kernel_size` of the
+            coc_px: CoC diameter(s) in pixels: a float, a 0-d or a `(B,)` tensor, >= 0.
+            kernel_size: odd window width in pixels; by default `kernel_size` of the
                 largest CoC.
 
         Returns:
-            ``(B, K, K)`` kernels (``B = 1`` for a scalar) that each sum to 1, centred on the
+            `(B, K, K)` kernels (`B = 1` for a scalar) that each sum to 1, centred on the
             middle pixel. A kernel whose profile is zero everywhere in the window becomes a delta.
 
         Example:
@@ -99,12 +99,12 @@ class Aperture(nn.Module):
 
 
 class Gaussian(Aperture):
-    """Gaussian PSF with ``sigma_px = scale * coc_px`` (``coc_px`` is the CoC diameter).
+    """Gaussian PSF with `sigma_px = scale * coc_px` (`coc_px` is the CoC diameter).
 
-    The paper's choice is ``scale = 0.5``: sigma equals the CoC radius.
+    The paper's choice is `scale = 0.5`: sigma equals the CoC radius.
 
     Args:
-        scale: sigma per CoC diameter, > 0. A float or an ``nn.Parameter`` (for calibration).
+        scale: sigma per CoC diameter, > 0. A float or an `nn.Parameter` (for calibration).
 
     Example:
         >>> Gaussian().kernel(2.0, kernel_size=3)
@@ -128,7 +128,7 @@ class Gaussian(Aperture):
         return f"scale={self.scale.tolist()}"
 
     def sigma_px(self, coc_px: Tensor) -> Tensor:
-        """Standard deviation in pixels for CoC diameter ``coc_px``, at least ``MIN_SIGMA_PX``."""
+        """Standard deviation in pixels for CoC diameter `coc_px`, at least `MIN_SIGMA_PX`."""
         return (self.scale.to(coc_px) * coc_px).clamp_min(MIN_SIGMA_PX)
 
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
@@ -141,7 +141,7 @@ class Gaussian(Aperture):
 
 
 class Disk(Aperture):
-    """Uniform disk (pillbox) of diameter ``coc_px`` with an anti-aliased edge one pixel wide.
+    """Uniform disk (pillbox) of diameter `coc_px` with an anti-aliased edge one pixel wide.
 
     The edge makes the PSF, and the rendered image, differentiable in the radius.
 
@@ -157,7 +157,7 @@ class Disk(Aperture):
         return torch.sqrt(dy * dy + dx * dx)
 
     def edge_radius(self, coc_px: Tensor) -> Tensor:
-        """Distance of the edge from the centre along the norm of :meth:`distance`, in pixels."""
+        """Distance of the edge from the centre along the norm of `distance`, in pixels."""
         return coc_px / 2
 
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
@@ -169,7 +169,7 @@ class Disk(Aperture):
 
 
 class Polygon(Disk):
-    """Regular polygon inscribed in the CoC circle: the bokeh of an ``n_blades`` iris.
+    """Regular polygon inscribed in the CoC circle: the bokeh of an `n_blades` iris.
 
     Args:
         n_blades: number of sides, >= 3.
@@ -214,7 +214,7 @@ class Mask(Aperture):
     differentiable in the CoC, like the disk's soft edge.
 
     Args:
-        image: ``(h, w)`` non-negative tensor, the PSF at any resolution; it is normalised per use.
+        image: `(h, w)` non-negative tensor, the PSF at any resolution; it is normalised per use.
 
     Example:
         >>> yy, xx = torch.meshgrid(torch.linspace(-1, 1, 33), torch.linspace(-1, 1, 33), indexing="ij")
@@ -244,7 +244,7 @@ class Mask(Aperture):
         return f"image shape={tuple(self.image.shape)}"
 
     def _cumulative(self, u: Tensor, v: Tensor) -> Tensor:
-        """Mask mass in ``[-1, u] x [-1, v]`` (normalised coordinates), saturating outside."""
+        """Mask mass in `[-1, u] x [-1, v]` (normalised coordinates), saturating outside."""
         grid = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
         table = self._table.to(grid)[None, None]
         mass = F.grid_sample(table, grid, mode="bilinear", padding_mode="border", align_corners=True)

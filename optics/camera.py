@@ -20,9 +20,9 @@ class Camera(nn.Module):
     """Thin lens + sensor + aperture: maps depth (metres) to CoC (pixels) and renders defocus.
 
     Args:
-        lens: the :class:`~optics.ThinLens` (focal length, f-number, focus distance in metres).
-        sensor: the :class:`~optics.Sensor` (pixel pitch in metres, downsampling).
-        aperture: PSF shape; :class:`~optics.Gaussian` (``sigma = 0.5 * CoC``) by default.
+        lens: the `ThinLens` (focal length, f-number, focus distance in metres).
+        sensor: the `Sensor` (pixel pitch in metres, downsampling).
+        aperture: PSF shape; `Gaussian` (`sigma = 0.5 * CoC`) by default.
 
     Example:
         >>> camera = Camera(ThinLens(0.035, 2.8, 2.0), Sensor(5.6e-6, downsample=4))
@@ -86,7 +86,7 @@ class Camera(nn.Module):
         return settings.shot(0)
 
     def coc_px(self, depth: Tensor) -> Tensor:
-        """CoC diameter in (effective) pixels for depths in metres (same shape as ``depth``)."""
+        """CoC diameter in (effective) pixels for depths in metres (same shape as `depth`)."""
         return self.sensor.to_pixels(self.lens.coc_diameter(depth))
 
     def signed_coc_px(self, depth: Tensor) -> Tensor:
@@ -97,9 +97,9 @@ class Camera(nn.Module):
         return self.coc_px(depth)
 
     def render(self, image: Tensor, depth: Tensor, **kwargs: Any) -> Tensor:
-        """Render ``image`` ``(B,C,H,W)`` as this camera sees a scene of ``depth`` ``(B,1,H,W)``.
+        """Render `image` `(B,C,H,W)` as this camera sees a scene of `depth` `(B,1,H,W)`.
 
-        Keyword arguments go to :func:`optics.render_defocus` (``mode``, ``max_kernel_size``, ...).
+        Keyword arguments go to `optics.render_defocus` (`mode`, `max_kernel_size`, ...).
         """
         from .render import render_defocus
 

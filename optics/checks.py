@@ -1,6 +1,6 @@
 """Public input checks for camera parameters, images and depth maps (used by every package).
 
-Every check raises a ``ValueError`` or ``TypeError`` whose message names the argument, the value
+Every check raises a `ValueError` or `TypeError` whose message names the argument, the value
 received and what is allowed. Messages are only formatted on failure.
 """
 
@@ -27,10 +27,10 @@ def _describe(value: object) -> str:
 
 
 def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
-    """Turn a camera parameter (float, 0-d or ``(B,)`` tensor, list) into a tensor.
+    """Turn a camera parameter (float, 0-d or `(B,)` tensor, list) into a tensor.
 
-    Tensors keep their device, dtype and ``requires_grad``; Python numbers become float64 tensors so
-    that no precision is lost before they are cast to the input's dtype (in ``broadcast_to_batch``).
+    Tensors keep their device, dtype and `requires_grad`; Python numbers become float64 tensors so
+    that no precision is lost before they are cast to the input's dtype (in `broadcast_to_batch`).
     """
     if isinstance(value, Tensor):
         tensor = value
@@ -67,7 +67,7 @@ def is_tracing(*tensors: Tensor) -> bool:
 
 
 def check_positive(name: str, value: Tensor, unit: str = "") -> None:
-    """Raise ``ValueError`` unless every entry of ``value`` is finite and > 0."""
+    """Raise `ValueError` unless every entry of `value` is finite and > 0."""
     if is_tracing(value):
         return
     if not bool(torch.all(torch.isfinite(value) & (value > 0))):
@@ -76,7 +76,7 @@ def check_positive(name: str, value: Tensor, unit: str = "") -> None:
 
 
 def check_depth(name: str, depth: Tensor) -> None:
-    """Depth maps must be tensors of positive, non-NaN metres (``inf`` is allowed: far away)."""
+    """Depth maps must be tensors of positive, non-NaN metres (`inf` is allowed: far away)."""
     if not isinstance(depth, Tensor):
         raise TypeError(f"{name} must be a torch.Tensor of depths in metres, got {type(depth)}")
     if not depth.is_floating_point():
@@ -91,9 +91,9 @@ def check_depth(name: str, depth: Tensor) -> None:
 
 
 def check_shape(name: str, tensor: Tensor, dims: Sequence[str]) -> None:
-    """Check ``tensor`` against named dimensions, e.g. ``["B", "C", "H", "W"]``.
+    """Check `tensor` against named dimensions, e.g. `["B", "C", "H", "W"]`.
 
-    A dimension given as a digit string (``"1"``, ``"3"``) must have exactly that size.
+    A dimension given as a digit string (`"1"`, `"3"`) must have exactly that size.
     """
     if not isinstance(tensor, Tensor):
         raise TypeError(f"{name} must be a torch.Tensor, got {type(tensor).__name__}")
@@ -104,9 +104,9 @@ def check_shape(name: str, tensor: Tensor, dims: Sequence[str]) -> None:
 
 
 def broadcast_to_batch(param: Tensor, like: Tensor) -> Tensor:
-    """Reshape a 0-d or ``(B,)`` parameter to broadcast against ``like`` (batch first).
+    """Reshape a 0-d or `(B,)` parameter to broadcast against `like` (batch first).
 
-    The result follows ``like``'s device and dtype.
+    The result follows `like`'s device and dtype.
     """
     param = param.to(device=like.device, dtype=like.dtype)
     if param.ndim == 1 and like.ndim > 1:
@@ -115,15 +115,15 @@ def broadcast_to_batch(param: Tensor, like: Tensor) -> Tensor:
 
 
 def format_param(value: Tensor) -> str:
-    """Short human-readable form of a parameter for ``__repr__`` and messages."""
+    """Short human-readable form of a parameter for `__repr__` and messages."""
     values = value.detach().reshape(-1).tolist()
     text = ", ".join(f"{v:.6g}" for v in values)
     return text if value.ndim == 0 else f"[{text}]"
 
 
 def register_physical(module: nn.Module, name: str, value: ParamLike, unit: str = "") -> None:
-    """Store a physical parameter on ``module``: an ``nn.Parameter`` stays one, anything else is a
-    buffer, so ``.to()``, ``state_dict`` and optimisers work either way."""
+    """Store a physical parameter on `module`: an `nn.Parameter` stays one, anything else is a
+    buffer, so `.to()`, `state_dict` and optimisers work either way."""
     tensor = as_parameter_tensor(name, value)
     check_positive(name, tensor.detach(), unit)
     if isinstance(value, nn.Parameter):

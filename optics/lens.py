@@ -20,24 +20,26 @@ from .checks import format_param as _fmt
 class ThinLens(nn.Module):
     r"""An ideal thin lens focused at a finite distance.
 
-    All lengths are in metres. Parameters may be Python floats, 0-d tensors or ``(B,)`` tensors
-    (one value per batch item); ``nn.Parameter`` values stay trainable.
+    All lengths are in metres. Parameters may be Python floats, 0-d tensors or `(B,)` tensors
+    (one value per batch item); `nn.Parameter` values stay trainable.
 
-    For a lens of focal length :math:`f`, f-number :math:`N` (aperture diameter :math:`A = f/N`)
-    focused at :math:`D_f`, an object at depth :math:`D` is imaged as a blur circle on the sensor
+    For a lens of focal length $f$, f-number $N$ (aperture diameter $A = f/N$)
+    focused at $D_f$, an object at depth $D$ is imaged as a blur circle on the sensor
     of diameter
 
-    .. math:: c(D) = \frac{f^2 \, |D - D_f|}{N \, D \, (D_f - f)}
-                   = A \, \frac{f}{D_f - f} \, \left|1 - \frac{D_f}{D}\right|.
+    $$
+    c(D) = \frac{f^2 \, |D - D_f|}{N \, D \, (D_f - f)}
+    = A \, \frac{f}{D_f - f} \, \left|1 - \frac{D_f}{D}\right|.
+    $$
 
     Args:
-        focal_length: focal length :math:`f` in metres, > 0.
-        f_number: f-number :math:`N` (dimensionless), > 0.
-        focus_distance: distance :math:`D_f` of the plane in focus, in metres, > ``focal_length``.
+        focal_length: focal length $f$ in metres, > 0.
+        f_number: f-number $N$ (dimensionless), > 0.
+        focus_distance: distance $D_f$ of the plane in focus, in metres, > `focal_length`.
 
     Raises:
-        ValueError: if a parameter is not positive and finite, or ``focus_distance`` is not beyond
-            ``focal_length``.
+        ValueError: if a parameter is not positive and finite, or `focus_distance` is not beyond
+            `focal_length`.
 
     Example:
         >>> lens = ThinLens(focal_length=0.05, f_number=2.0, focus_distance=2.0)
@@ -77,24 +79,24 @@ class ThinLens(nn.Module):
         )
 
     def aperture_diameter(self) -> Tensor:
-        """Entrance-pupil diameter ``f / N`` in metres."""
+        """Entrance-pupil diameter `f / N` in metres."""
         return self.focal_length / self.f_number
 
     def image_distance(self) -> Tensor:
-        """Lens-to-sensor distance ``f D_f / (D_f - f)`` in metres when focused at ``D_f``."""
+        """Lens-to-sensor distance `f D_f / (D_f - f)` in metres when focused at `D_f`."""
         return self.focal_length * self.focus_distance / (self.focus_distance - self.focal_length)
 
     def signed_coc_diameter(self, depth: Tensor) -> Tensor:
         """Signed circle-of-confusion diameter on the sensor, in metres.
 
-        Negative in front of the focus plane (``depth < focus_distance``), positive behind it.
+        Negative in front of the focus plane (`depth < focus_distance`), positive behind it.
 
         Args:
             depth: object depths in metres, any shape with the batch first when parameters are
-                ``(B,)``; > 0 and not NaN (``inf`` is allowed).
+                `(B,)`; > 0 and not NaN (`inf` is allowed).
 
         Returns:
-            tensor of the shape of ``depth`` (sensor metres).
+            tensor of the shape of `depth` (sensor metres).
         """
         check_depth("depth", depth)
         f, n, df = self._params(depth)
@@ -113,14 +115,14 @@ class ThinLens(nn.Module):
         return f * f / (n * (df - f))
 
     def coc_diameter(self, depth: Tensor) -> Tensor:
-        """Circle-of-confusion diameter on the sensor (metres), ``|signed_coc_diameter|``."""
+        """Circle-of-confusion diameter on the sensor (metres), `|signed_coc_diameter|`."""
         return self.signed_coc_diameter(depth).abs()
 
     def forward(self, depth: Tensor) -> Tensor:
         return self.coc_diameter(depth)
 
     def hyperfocal_distance(self, coc_limit: ParamLike) -> Tensor:
-        """Hyperfocal distance ``H = f^2 / (N c) + f`` in metres.
+        """Hyperfocal distance `H = f^2 / (N c) + f` in metres.
 
         Args:
             coc_limit: largest acceptable CoC diameter on the sensor, in metres, > 0.
@@ -131,9 +133,9 @@ class ThinLens(nn.Module):
         return self.focal_length**2 / (self.f_number * c) + self.focal_length
 
     def depth_of_field(self, coc_limit: ParamLike) -> tuple[Tensor, Tensor]:
-        """Near and far limits (metres) of the depth range whose CoC stays below ``coc_limit``.
+        """Near and far limits (metres) of the depth range whose CoC stays below `coc_limit`.
 
-        The far limit is ``inf`` when the lens is focused at or beyond the hyperfocal distance.
+        The far limit is `inf` when the lens is focused at or beyond the hyperfocal distance.
 
         Example:
             >>> near, far = ThinLens(0.05, 8.0, 3.0).depth_of_field(30e-6)
@@ -152,9 +154,9 @@ class ThinLens(nn.Module):
         return near, far
 
     def depth_from_signed_coc(self, signed_coc: Tensor) -> Tensor:
-        """Invert :meth:`signed_coc_diameter`: the unique depth (metres) of a signed CoC (metres).
+        """Invert `signed_coc_diameter`: the unique depth (metres) of a signed CoC (metres).
 
-        A CoC at or beyond the limit reached at infinite depth maps to ``inf``.
+        A CoC at or beyond the limit reached at infinite depth maps to `inf`.
         """
         f, n, df = self._params(signed_coc)
         denominator = f * f - signed_coc * n * (df - f)
@@ -162,9 +164,9 @@ class ThinLens(nn.Module):
         return torch.where(denominator > 0, f * f * df / safe, torch.full_like(safe, float("inf")))
 
     def depth_from_coc(self, coc_diameter: Tensor) -> tuple[Tensor, Tensor]:
-        """The two depths (near, far), in metres, whose CoC diameter equals ``coc_diameter``.
+        """The two depths (near, far), in metres, whose CoC diameter equals `coc_diameter`.
 
-        The near solution lies in front of the focus plane, the far one behind it (``inf`` when the
+        The near solution lies in front of the focus plane, the far one behind it (`inf` when the
         CoC is larger than any depth behind the focus plane produces).
         """
         if bool(torch.any(coc_diameter < 0)):

@@ -13,12 +13,12 @@ class Sensor(nn.Module):
 
     Args:
         pixel_pitch: distance between pixel centres of the full-resolution sensor, in metres, > 0
-            (e.g. ``5.6e-6``). A float, a 0-d or a ``(B,)`` tensor, or an ``nn.Parameter``.
-        resolution: optional full-resolution ``(height, width)`` in pixels, for reference.
-        cfa: optional colour-filter-array pattern, e.g. ``"RGGB"``.
+            (e.g. `5.6e-6`). A float, a 0-d or a `(B,)` tensor, or an `nn.Parameter`.
+        resolution: optional full-resolution `(height, width)` in pixels, for reference.
+        cfa: optional colour-filter-array pattern, e.g. `"RGGB"`.
         downsample: factor by which images were downsampled from the sensor (binning, half-size
             raw decoding, resizing), > 0. It multiplies the effective pixel pitch: the paper's
-            NYU frames use ``Sensor(5.6e-6, downsample=4)``.
+            NYU frames use `Sensor(5.6e-6, downsample=4)`.
 
     Example:
         >>> sensor = Sensor(5.6e-6, downsample=4)
@@ -58,7 +58,7 @@ class Sensor(nn.Module):
 
     @property
     def effective_pixel_pitch(self) -> Tensor:
-        """Pixel pitch of the images actually used, ``pixel_pitch * downsample``, in metres."""
+        """Pixel pitch of the images actually used, `pixel_pitch * downsample`, in metres."""
         return self.pixel_pitch * self.downsample
 
     def to_pixels(self, length_m: Tensor) -> Tensor:

@@ -1,9 +1,9 @@
-"""``defocus calibrate``: fit a camera from raw photo pairs (sharp reference, defocused shot).
+"""`defocus calibrate`: fit a camera from raw photo pairs (sharp reference, defocused shot).
 
-Each ``--pair SHARP BLURRED DISTANCE`` names a sharp reference, the defocused shot of the same
+Each `--pair SHARP BLURRED DISTANCE` names a sharp reference, the defocused shot of the same
 planar target and the target's distance in metres. All defocused shots share the camera setting
 being calibrated. Known values come from the options, else from the defocused files' metadata;
-everything else is fitted. Writes a JSON that :meth:`optics.Camera.from_json` loads, and a figure.
+everything else is fitted. Writes a JSON that `optics.Camera.from_json` loads, and a figure.
 """
 
 from __future__ import annotations

@@ -1,15 +1,15 @@
-"""``defocus demo``: the README's main job.
+"""`defocus demo`: the README's main job.
 
 1. Train the small depth-from-defocus network self-supervised (no depth labels in the loss) on the
    synthetic scenes of `datasets.synthetic` (camera `datasets.synthetic.SYNTHETIC_PRESET`:
    50 mm f/1.4 focused at 2 m and 6 m, effective pixel pitch 180 um).
 2. Train the same network with supervised depth for the same number of steps.
 3. Evaluate both on the real Middlebury motorcycle scene (never seen in training), downscaled by
-   ``--scale``, whose focused images are rendered from its real depth through the same camera;
+   `--scale`, whose focused images are rendered from its real depth through the same camera;
    add the direct optimisation baseline (`models.direct.fit_depth_direct`) and the best
    constant depth (an oracle: the abs-rel-optimal constant of the ground truth).
-4. Print the metrics table; write ``metrics.json`` and the figures under ``--out``, among them
-   ``focus_sweep.png``: the motorcycle rendered at four focus distances (``defocus render``).
+4. Print the metrics table; write `metrics.json` and the figures under `--out`, among them
+   `focus_sweep.png`: the motorcycle rendered at four focus distances (`defocus render`).
 """
 
 from __future__ import annotations

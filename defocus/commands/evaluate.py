@@ -1,4 +1,4 @@
-"""``defocus evaluate``: metrics of a trained checkpoint on a dataset or the motorcycle scene."""
+"""`defocus evaluate`: metrics of a trained checkpoint on a dataset or the motorcycle scene."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""``defocus predict``: depth of your own photos with a trained checkpoint."""
+"""`defocus predict`: depth of your own photos with a trained checkpoint."""
 
 from __future__ import annotations
 

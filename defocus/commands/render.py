@@ -1,4 +1,4 @@
-"""``defocus render``: a defocus sweep of the real motorcycle scene through a thin-lens camera."""
+"""`defocus render`: a defocus sweep of the real motorcycle scene through a thin-lens camera."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def write_focus_sweep(out: Path, focus_distances=(2.2, 3.0, 4.0, 5.0), focal_length=0.085,
                       f_number=1.4, aperture="disk", mode="scatter", scale=0.5) -> Path:
     """Render the sweep (`datasets.middlebury.motorcycle_focus_sweep`) and save
-    ``out/focus_sweep.png`` (`optics.plotting.plot_focus_sweep`)."""
+    `out/focus_sweep.png` (`optics.plotting.plot_focus_sweep`)."""
     from datasets.middlebury import motorcycle_focus_sweep
     from optics.plotting import plot_focus_sweep
 

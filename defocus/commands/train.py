@@ -1,4 +1,4 @@
-"""``defocus train``: train a depth network from a YAML config plus ``key=value`` overrides."""
+"""`defocus train`: train a depth network from a YAML config plus `key=value` overrides."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from datasets.registry import DATASET_NAMES
 
 
 def config_fields_help() -> str:
-    """One line per :class:`~models.training.TrainConfig` field: name, default and the ``#:``
+    """One line per `TrainConfig` field: name, default and the `#:`
     comment above it in the source (where the units are written)."""
     import dataclasses
     import inspect
@@ -97,7 +97,7 @@ def add_data_arguments(
 
 
 def build_dataset(args: argparse.Namespace, split: str | None = None, seed_offset: int = 0):
-    """The dataset selected by ``--data`` (``split`` overrides ``--split``)."""
+    """The dataset selected by `--data` (`split` overrides `--split`)."""
     from datasets.registry import build_dataset as build
 
     return build(args.data, args.root, split=split or args.split, size=tuple(args.size),
