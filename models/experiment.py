@@ -67,7 +67,8 @@ def train_and_evaluate(
 
     Args:
         config: the training run (its `depth_max` is also the evaluation cap).
-        train_set, test_set: samples in the sample format.
+        train_set: training samples in the sample format.
+        test_set: test samples in the sample format.
         crop: evaluation crop (`"eigen"`, `"garg"` or fractions), see `Trainer.evaluate`.
         has_depth: False for data without ground truth: the rows then hold the self-supervised
             reconstruction losses instead of depth metrics.
@@ -102,7 +103,8 @@ def compare_on_scene(
 
     Args:
         config: the training run; `out_dir` gets one subfolder per trained method.
-        train_set, val_set: training and validation samples.
+        train_set: training samples.
+        val_set: validation samples (or None).
         sample: the test scene (unbatched sample with `depth` and `mask`).
         direct_steps: Adam steps of the direct fit.
 
