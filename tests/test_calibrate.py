@@ -69,7 +69,7 @@ def test_round_trip_disk_recovers_focus_and_f_number(disk_pairs, tmp_path):
     assert data["rmse"] == fit.rmse and len(data["pairs"]) == 3
     camera = Camera.from_json(tmp_path / "fit.json")
     assert isinstance(camera.aperture, Disk)
-    for key, value in camera.settings().items():
+    for key, value in camera.settings().tensors().items():
         assert float(value) == pytest.approx(fit.values[key], rel=1e-12)
     fig = plot_calibration(fit, tmp_path / "fit.png")
     assert (tmp_path / "fit.png").stat().st_size > 1000 and len(fig.axes) >= 4
