@@ -32,11 +32,14 @@ Example:
 from __future__ import annotations
 
 import dataclasses
+import datetime
+import enum
 import io
 import os
 import pickle
 import re
 import zipfile
+from collections import OrderedDict
 from collections.abc import Mapping
 from pathlib import Path, PurePath
 from typing import Any
@@ -102,7 +105,7 @@ def load_checkpoint(path: str | Path, map_location: Any = "cpu") -> dict[str, An
 
 
 def _atomic_write(data: bytes, target: Path) -> None:
-    """Write ``data`` to a temporary file next to ``target``, then rename it over ``target``
+    """Write `data` to a temporary file next to `target`, then rename it over `target`
     (`os.replace`), so that a reader never sees a partly written file."""
     tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
     try:
@@ -125,7 +128,7 @@ def serialize(state: Mapping[str, Any]) -> bytes:
 
 
 def save_checkpoint(state: Mapping[str, Any], path: str | Path) -> Path:
-    """Write a checkpoint atomically (temporary file + `os.replace`); returns ``path``."""
+    """Write a checkpoint atomically (temporary file + `os.replace`); returns `path`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     _atomic_write(serialize(state), path)
@@ -137,53 +140,64 @@ _PLAIN_SCALARS = (str, int, float, bool, complex, type(None), torch.dtype, torch
 
 
 def check_plain(value: Any, where: str = "checkpoint") -> None:
-    """Raise `ValueError` unless ``value`` is made of tensors and plain data only."""
-    if isinstance(value, Tensor):
-        if type(value) not in (Tensor, torch.nn.Parameter):
-            raise ValueError(f"{where} is a tensor subclass {type(value).__name__}")
+    """Raise `ValueError` unless `value` is made of tensors and plain data only (exact types:
+    a numpy float, a subclass of `float`, is not plain data)."""
+    kind = type(value)
+    if kind in (Tensor, torch.nn.Parameter) or kind in _PLAIN_SCALARS:
         return
-    if isinstance(value, _PLAIN_SCALARS):
-        return
-    if isinstance(value, Mapping):
+    if kind in (dict, OrderedDict):
         for key, item in value.items():
             check_plain(key, f"{where} key")
             check_plain(item, f"{where}[{key!r}]")
         return
-    if isinstance(value, list | tuple) and type(value) in (list, tuple):
+    if kind in (list, tuple):
         for i, item in enumerate(value):
             check_plain(item, f"{where}[{i}]")
         return
-    raise ValueError(f"{where} holds a {type(value).__module__}.{type(value).__qualname__}, "
-                     "not a tensor or plain data")
+    raise ValueError(f"{where} holds a {kind.__module__}.{kind.__qualname__}, not a tensor or "
+                     "plain data")
 
 
 def to_plain(value: Any, where: str = "checkpoint") -> Any:
-    """A copy of ``value`` made of tensors and plain data: paths become `str`, numpy arrays and
-    parameters tensors, numpy scalars numbers, sets sorted lists, dataclasses dicts.
+    """A copy of `value` made of tensors and plain data: paths become `str`, numpy arrays and
+    parameters tensors, numpy scalars numbers, dates ISO strings, sets sorted lists,
+    dataclasses dicts.
 
     Raises:
-        ValueError: a value of another type (named with its place in ``value``).
+        ValueError: a value of another type (named with its place in `value`).
     """
     import numpy as np
 
     if isinstance(value, Tensor):
-        return value.detach().clone() if type(value) is not Tensor else value
-    if isinstance(value, _PLAIN_SCALARS):
-        return value
-    if isinstance(value, PurePath):
-        return str(value)
+        return value if type(value) is Tensor else value.detach().as_subclass(Tensor).clone()
     if isinstance(value, np.ndarray):
         return torch.from_numpy(np.array(value))
     if isinstance(value, np.generic):
         return value.item()
+    if type(value) in _PLAIN_SCALARS:
+        return value
+    if isinstance(value, PurePath):
+        return str(value)
+    if isinstance(value, datetime.date | datetime.time):
+        return value.isoformat()
+    if isinstance(value, enum.Enum):
+        return to_plain(value.value, where)
+    for kind in (bool, int, float, complex, str):  # other subclasses
+        if isinstance(value, kind):
+            return kind(value)
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         to_dict = getattr(value, "to_dict", None)
         return to_plain(to_dict() if callable(to_dict) else dataclasses.asdict(value), where)
     if isinstance(value, Mapping):
-        return {to_plain(k, f"{where} key"): to_plain(v, f"{where}[{k!r}]")
-                for k, v in value.items()}
+        kind = OrderedDict if isinstance(value, OrderedDict) else dict
+        return kind((to_plain(k, f"{where} key"), to_plain(v, f"{where}[{k!r}]"))
+                    for k, v in value.items())
     if isinstance(value, set | frozenset):
-        return sorted(to_plain(v, where) for v in value)
+        items = [to_plain(v, where) for v in value]
+        try:
+            return sorted(items)
+        except TypeError:
+            return items
     if isinstance(value, list | tuple):
         items = [to_plain(v, f"{where}[{i}]") for i, v in enumerate(value)]
         return tuple(items) if isinstance(value, tuple) else items
@@ -195,11 +209,11 @@ def convert_checkpoint(source: str | Path, target: str | Path) -> Path:
     """Rewrite a trusted checkpoint so that it opens with `weights_only=True`.
 
     Warning:
-        This unpickles ``source`` with `weights_only=False`, which runs whatever code the file
+        This unpickles `source` with `weights_only=False`, which runs whatever code the file
         holds. Use it only on files you wrote yourself or whose author you trust.
 
     Returns:
-        ``target``, written atomically and checked by reading it back safely.
+        `target`, written atomically and checked by reading it back safely.
     """
     source, target = Path(source), Path(target)
     if not source.is_file():
@@ -212,17 +226,22 @@ def convert_checkpoint(source: str | Path, target: str | Path) -> Path:
     if not isinstance(state, Mapping):
         raise CheckpointError(f"{source} is not a defocus checkpoint (not a dict)")
     save_checkpoint(to_plain(dict(state), str(source)), target)
-    load_checkpoint(target)
+    try:
+        load_checkpoint(target)
+    except CheckpointError as error:
+        target.unlink(missing_ok=True)
+        raise CheckpointError(f"converting {source} did not give a safe checkpoint: "
+                              f"{error}") from None
     return target
 
 
 class CheckpointStore:
-    """The checkpoints of one run: ``step_XXXXXX.pt`` files and ``last.pt`` in one folder.
+    """The checkpoints of one run: `step_XXXXXX.pt` files and `last.pt` in one folder.
 
     Args:
         directory: the folder (created on the first save).
-        keep: keep only the newest ``keep`` step files after each save (0: keep all);
-            ``last.pt`` is always kept.
+        keep: keep only the newest `keep` step files after each save (0: keep all);
+            `last.pt` is always kept.
     """
 
     def __init__(self, directory: str | Path, keep: int = 0):
@@ -231,22 +250,22 @@ class CheckpointStore:
 
     @property
     def last(self) -> Path:
-        """Path of ``last.pt`` (which may not exist yet)."""
+        """Path of `last.pt` (which may not exist yet)."""
         return self.directory / "last.pt"
 
     def path(self, step: int) -> Path:
-        """Path of the checkpoint of ``step``."""
+        """Path of the checkpoint of `step`."""
         return self.directory / f"step_{int(step):06d}.pt"
 
     def exists(self) -> bool:
-        """Whether ``last.pt`` exists (a run to resume)."""
+        """Whether `last.pt` exists (a run to resume)."""
         return self.last.is_file()
 
     def save(self, state: Mapping[str, Any], step: int) -> Path:
-        """Write ``state`` as the step file and as ``last.pt`` (each atomically), then prune.
+        """Write `state` as the step file and as `last.pt` (each atomically), then prune.
 
         Returns:
-            the path of ``last.pt``.
+            the path of `last.pt`.
         """
         self.directory.mkdir(parents=True, exist_ok=True)
         data = serialize(state)
@@ -256,7 +275,7 @@ class CheckpointStore:
         return self.last
 
     def load(self, path: str | Path | None = None, map_location: Any = "cpu") -> dict[str, Any]:
-        """Read ``path`` (default ``last.pt``) safely, see `load_checkpoint`."""
+        """Read `path` (default `last.pt`) safely, see `load_checkpoint`."""
         return load_checkpoint(self.last if path is None else path, map_location)
 
     def list(self) -> list[Path]:
@@ -266,7 +285,7 @@ class CheckpointStore:
         return sorted(self.directory.glob("step_[0-9]*.pt"))
 
     def prune(self, keep: int | None = None) -> list[Path]:
-        """Delete all but the newest ``keep`` (default `self.keep`; 0: none) step files.
+        """Delete all but the newest `keep` (default `self.keep`; 0: none) step files.
 
         Returns:
             the deleted paths.

@@ -1,6 +1,6 @@
-"""CSV logs of a training run: ``train_log.csv`` (losses per step) and ``val_log.csv``.
+"""CSV logs of a training run: `train_log.csv` (losses per step) and `val_log.csv`.
 
-Each row is a mapping with a ``step`` column; the header is written with the first row. On
+Each row is a mapping with a `step` column; the header is written with the first row. On
 resume, `RunLog.truncate` drops the rows after the checkpoint's step so that the logs of a
 resumed run match those of an uninterrupted one.
 
@@ -23,7 +23,7 @@ from typing import Any
 
 
 class CsvLog:
-    """One CSV file of rows that each hold a ``step`` column.
+    """One CSV file of rows that each hold a `step` column.
 
     Args:
         path: the CSV file (its folder must exist when the first row is appended).
@@ -49,7 +49,7 @@ class CsvLog:
             return list(csv.DictReader(handle))
 
     def truncate(self, step: int) -> None:
-        """Drop the rows whose ``step`` is after ``step``."""
+        """Drop the rows whose `step` is after `step`."""
         if not self.path.exists():
             return
         rows = [r for r in self.rows() if int(r["step"]) <= step]
@@ -59,7 +59,7 @@ class CsvLog:
 
 
 class RunLog:
-    """The train and validation logs of a run in ``out_dir``."""
+    """The train and validation logs of a run in `out_dir`."""
 
     def __init__(self, out_dir: str | Path):
         out_dir = Path(out_dir)
@@ -67,7 +67,7 @@ class RunLog:
         self.val = CsvLog(out_dir / "val_log.csv")
 
     def truncate(self, step: int) -> None:
-        """Cut both logs back to ``step`` (resume from a checkpoint of that step)."""
+        """Cut both logs back to `step` (resume from a checkpoint of that step)."""
         self.train.truncate(step)
         self.val.truncate(step)
 

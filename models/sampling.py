@@ -1,9 +1,9 @@
 """Which samples each training step sees, and their random flips, as functions of the step.
 
-The batch of step ``k`` is drawn from a permutation seeded by ``(seed, epoch)`` and its flips
-from a generator seeded by ``(seed, step, rank)``, so a run resumed at step ``k`` sees the same
+The batch of step `k` is drawn from a permutation seeded by `(seed, epoch)` and its flips
+from a generator seeded by `(seed, step, rank)`, so a run resumed at step `k` sees the same
 batches as an uninterrupted run. Under data parallelism each process takes its own part of the
-global batch of ``batch_size * world_size`` samples.
+global batch of `batch_size * world_size` samples.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ class StepSampler:
     """The samples of each step from a map-style dataset (exactly reproducible) or an iterable.
 
     Args:
-        dataset: a map-style dataset (``len`` and indexing) or any iterable of samples.
+        dataset: a map-style dataset (`len` and indexing) or any iterable of samples.
         batch_size: samples per step and per process.
         seed: seed of the batch order.
         rank, world_size: this process and the number of processes.
@@ -36,7 +36,7 @@ class StepSampler:
         return hasattr(self.dataset, "__len__") and hasattr(self.dataset, "__getitem__")
 
     def indices(self, step: int) -> list[int]:
-        """Dataset indices of this process's part of the batch of ``step`` (0-based)."""
+        """Dataset indices of this process's part of the batch of `step` (0-based)."""
         n, b = len(self.dataset), self.batch_size
         start = step * b * self.world_size + self.rank * b
         indices, permutations = [], {}
@@ -49,7 +49,7 @@ class StepSampler:
         return indices
 
     def samples(self, step: int) -> list[Mapping[str, Any]]:
-        """This process's samples of step ``step`` (0-based)."""
+        """This process's samples of step `step` (0-based)."""
         if self.is_map_style():
             return [self.dataset[i] for i in self.indices(step)]
         per_step = self.batch_size * self.world_size
@@ -71,8 +71,8 @@ class StepSampler:
 
 
 def random_flip(batch: dict[str, Any], seed: int, step: int, rank: int = 0) -> dict[str, Any]:
-    """Flip each sample of a collated batch left-right with probability 1/2 (``image``,
-    ``focused``, ``depth`` and ``mask`` together), reproducibly from ``(seed, step, rank)``."""
+    """Flip each sample of a collated batch left-right with probability 1/2 (`image`,
+    `focused`, `depth` and `mask` together), reproducibly from `(seed, step, rank)`."""
     generator = torch.Generator().manual_seed(seed * 7919 + step * 31 + rank)
     flip = torch.rand(batch["image"].shape[0], generator=generator) < 0.5
     out = dict(batch)

@@ -1,21 +1,21 @@
 """Training: a config, a trainer with exact resume, CSV logs, figures and DDP.
 
-``Trainer`` takes any map-style ``torch.utils.data.Dataset`` (or any iterable) of samples in the
-sample format (see the datasets tutorial). With ``supervision="self"`` (default) the loss never
+`Trainer` takes any map-style `torch.utils.data.Dataset` (or any iterable) of samples in the
+sample format (see the datasets tutorial). With `supervision="self"` (default) the loss never
 sees depth labels: the predicted depth is rendered through each focused image's camera
 (`optics.render_focal_stack` with the sample's `CameraSettings`) and compared with the real focused image
-(`models.losses.DefocusLoss`). ``supervision="depth"`` trains on the ground truth instead
+(`models.losses.DefocusLoss`). `supervision="depth"` trains on the ground truth instead
 (a baseline).
 
-Reproducibility: the batch of step ``k`` is drawn from a permutation seeded by ``(seed, epoch)``,
+Reproducibility: the batch of step `k` is drawn from a permutation seeded by `(seed, epoch)`,
 so a run resumed from a checkpoint sees the same batches and gives the same losses as an
-uninterrupted run. Launched with ``torchrun --nproc_per_node=N``, training is data parallel (DDP;
-gloo on CPU, NCCL on GPU): ``batch_size`` is per process, every process holds the same weights
+uninterrupted run. Launched with `torchrun --nproc_per_node=N`, training is data parallel (DDP;
+gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the same weights
 after each step, and only rank 0 writes files.
 
-Files under ``out_dir``: ``config.yaml``, ``train_log.csv`` (step, losses, learning rate,
-seconds), ``val_log.csv`` (validation metrics), ``checkpoints/last.pt`` (and ``step_XXXXXX.pt``),
-``figures/step_XXXXXX.png``.
+Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
+seconds), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and `step_XXXXXX.pt`),
+`figures/step_XXXXXX.png`.
 
 The pieces: `models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint
 files that open without running code, `CheckpointStore`), `models.run_log` (CSV logs) and
@@ -66,7 +66,7 @@ class TrainConfig:
     """Everything a training run depends on (lengths in metres).
 
     Load from YAML with `from_yaml`, change fields with `override`
-    (``["steps=100", "lr=3e-4"]``), save with `to_yaml`.
+    (`["steps=100", "lr=3e-4"]`), save with `to_yaml`.
 
     Example:
         >>> cfg = TrainConfig(steps=10).override(["lr=3e-4", "input_mode=aif"])
@@ -183,7 +183,7 @@ class TrainConfig:
         return cls.from_dict(data)
 
     def override(self, assignments: Sequence[str]) -> TrainConfig:
-        """A copy with ``key=value`` assignments applied (values parsed as YAML)."""
+        """A copy with `key=value` assignments applied (values parsed as YAML)."""
         data = self.to_dict()
         for item in assignments:
             key, sep, value = item.partition("=")
@@ -194,7 +194,7 @@ class TrainConfig:
 
 
 def _coerce(cls: type, name: str, value: Any) -> Any:
-    """Convert a YAML value to the type of field ``name``."""
+    """Convert a YAML value to the type of field `name`."""
     kind = {f.name: f.type for f in dataclasses.fields(cls)}.get(name)
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
     try:
@@ -218,7 +218,7 @@ def _coerce(cls: type, name: str, value: Any) -> Any:
 
 
 def _distributed() -> tuple[int, int]:
-    """(rank, world size), initialising the process group under ``torchrun``."""
+    """(rank, world size), initialising the process group under `torchrun`."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world > 1 and not dist.is_initialized():
         backend = "nccl" if torch.cuda.is_available() else "gloo"
@@ -229,7 +229,7 @@ def _distributed() -> tuple[int, int]:
 
 
 def _select_device(name: str) -> torch.device:
-    """``name``, or for ``"auto"`` this process's GPU when CUDA is available, else the CPU."""
+    """`name`, or for `"auto"` this process's GPU when CUDA is available, else the CPU."""
     if name == "auto":
         available = torch.cuda.is_available()
         name = f"cuda:{int(os.environ.get('LOCAL_RANK', 0))}" if available else "cpu"
@@ -238,7 +238,7 @@ def _select_device(name: str) -> torch.device:
 
 def _build_scheduler(optimizer: torch.optim.Optimizer,
                      cfg: TrainConfig) -> torch.optim.lr_scheduler.LRScheduler:
-    """Cosine decay to 0 over ``cfg.steps``, or a constant learning rate."""
+    """Cosine decay to 0 over `cfg.steps`, or a constant learning rate."""
     if cfg.lr_schedule == "cosine":
         return torch.optim.lr_scheduler.LambdaLR(
             optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps) / cfg.steps)))
@@ -264,7 +264,7 @@ def set_rng_state(state: Mapping[str, Any]) -> None:
 
 
 def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None) -> Any:
-    """Move every tensor of a (nested) batch to ``device`` (floating tensors to ``dtype``)."""
+    """Move every tensor of a (nested) batch to `device` (floating tensors to `dtype`)."""
     if isinstance(batch, Tensor):
         if dtype is not None and batch.is_floating_point():
             return batch.to(device=device, dtype=dtype)
@@ -288,12 +288,12 @@ class Trainer:
     Args:
         config: the `TrainConfig`.
         train_set: a map-style dataset (exactly reproducible batches) or any iterable of samples.
-        val_set: optional samples to evaluate on at ``val_every`` and at the end.
-        step_callback: optional ``f(trainer, step, losses)`` called after every step (hooks,
+        val_set: optional samples to evaluate on at `val_every` and at the end.
+        step_callback: optional `f(trainer, step, losses)` called after every step (hooks,
             tests).
 
     Raises:
-        CheckpointError: ``out_dir/checkpoints/last.pt`` exists (and ``config.resume``) but is not
+        CheckpointError: `out_dir/checkpoints/last.pt` exists (and `config.resume`) but is not
             a checkpoint or holds more than tensors and plain data (it is not run).
 
     Example:
@@ -341,18 +341,18 @@ class Trainer:
 
     @property
     def checkpoint_dir(self) -> Path:
-        """The folder of ``last.pt`` and the step checkpoints."""
+        """The folder of `last.pt` and the step checkpoints."""
         return self.checkpoints.directory
 
     def _indices(self, step: int) -> list[int]:
-        """Dataset indices of this process's part of the batch of ``step`` (0-based)."""
+        """Dataset indices of this process's part of the batch of `step` (0-based)."""
         return self.sampler.indices(step)
 
     # -- model -----------------------------------------------------------------------------
     def predict(self, image: Tensor, focused: Tensor | None = None,
                 settings: CameraSettings | None = None) -> Tensor:
-        """Depth ``(B,1,H,W)`` metres for a batch (``focused`` ``(B,F,3,H,W)`` and their
-        ``(B,F)`` or ``(F,)`` `CameraSettings` in ``"aif+focused"`` mode), without gradients."""
+        """Depth `(B,1,H,W)` metres for a batch (`focused` `(B,F,3,H,W)` and their
+        `(B,F)` or `(F,)` `CameraSettings` in `"aif+focused"` mode), without gradients."""
         was_training = self.model.training
         self.model.eval()
         with torch.no_grad():
@@ -395,7 +395,7 @@ class Trainer:
 
     # -- loop ------------------------------------------------------------------------------
     def fit(self, until: int | None = None) -> list[dict[str, float]]:
-        """Train from the current step to ``until`` (default ``config.steps``); returns the
+        """Train from the current step to `until` (default `config.steps`); returns the
         history of logged losses (one dict per step of this run and of resumed runs)."""
         from tqdm.auto import tqdm
 
@@ -449,14 +449,14 @@ class Trainer:
     def evaluate(self, test_set: Iterable[Mapping[str, Any]], depth_cap: float | None = None,
                  crop: str | Sequence[float] | None = None, median_scaling: bool = False,
                  min_depth: float = 1e-3) -> dict[str, float]:
-        """Mean per-image metrics (`models.metrics.METRIC_NAMES`) over ``test_set``.
+        """Mean per-image metrics (`models.metrics.METRIC_NAMES`) over `test_set`.
 
         Args:
-            test_set: samples with ``image``, ``depth`` (and ``mask``; ``focused`` and ``camera``
-                in ``"aif+focused"`` mode), unbatched.
+            test_set: samples with `image`, `depth` (and `mask`; `focused` and `camera`
+                in `"aif+focused"` mode), unbatched.
             depth_cap: ignore ground truth beyond this (metres) and clamp predictions to it.
-            crop: ``None``, ``"garg"``, ``"eigen"`` or ``(top, bottom, left, right)`` fractions.
-            median_scaling: scale predictions by the median ratio (adds ``median_scale``).
+            crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
+            median_scaling: scale predictions by the median ratio (adds `median_scale`).
             min_depth: ignore ground truth at or below this (metres).
         """
         totals: dict[str, float] = {}
@@ -511,7 +511,7 @@ class Trainer:
                 "history": [dict(row) for row in self.history], "rng": rng_state()}
 
     def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore what `state_dict` returned (also older checkpoints without ``rng``)."""
+        """Restore what `state_dict` returned (also older checkpoints without `rng`)."""
         self.model.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
@@ -521,8 +521,8 @@ class Trainer:
 
     def save_checkpoint(self, path: str | Path | None = None) -> Path | None:
         """Save model, optimiser, scheduler, step, config, history and random states (rank 0
-        only; atomic). Without ``path``: ``step_XXXXXX.pt`` and ``last.pt`` in
-        `checkpoint_dir`, pruned to ``config.keep_checkpoints``. Returns the path written."""
+        only; atomic). Without `path`: `step_XXXXXX.pt` and `last.pt` in
+        `checkpoint_dir`, pruned to `config.keep_checkpoints`. Returns the path written."""
         if not self.is_main:
             return None
         if path is not None:
@@ -546,7 +546,7 @@ class Trainer:
 
     def load_checkpoint(self, path: str | Path, restore_logs: bool = True) -> None:
         """Restore a checkpoint written by `save_checkpoint` (exact resume); with
-        ``restore_logs`` the CSV logs are cut back to the checkpoint's step.
+        `restore_logs` the CSV logs are cut back to the checkpoint's step.
 
         Raises:
             CheckpointError: the file is not a checkpoint or holds more than tensors and plain
@@ -558,7 +558,7 @@ class Trainer:
 
 
 def _config_from(state: Mapping[str, Any], path: str | Path, **changes: Any) -> TrainConfig:
-    """The `TrainConfig` of a loaded checkpoint, with ``changes``; a bad one is a
+    """The `TrainConfig` of a loaded checkpoint, with `changes`; a bad one is a
     `CheckpointError` naming the file."""
     try:
         return TrainConfig.from_dict({**state["config"], **changes})
