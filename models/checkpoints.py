@@ -69,7 +69,14 @@ def _refusal(path: Path, error: Exception) -> CheckpointError:
             f"refused to open checkpoint {path}: it holds a Python object ({found.group(1)}) "
             "besides tensors and plain data, and loading it could run code, so nothing in it "
             f"was run; {CONVERT_HINT.format(path=path)}")
-    reason = " ".join(text.split())[:120] or type(error).__name__
+    detail = re.search(r"Unsupported operand \d+|invalid load key[^.\n]*", text)
+    if detail:
+        reason = f"neither a zip archive nor a pickle: {detail.group(0)}"
+    elif isinstance(error, EOFError):
+        reason = "empty or truncated"
+    else:
+        reason = re.split(r"(?<=\.)\s", " ".join(text.split()))[0].rstrip(".")[:120]
+    reason = reason or type(error).__name__
     return CheckpointError(f"{path} is not a readable PyTorch checkpoint ({reason})")
 
 
