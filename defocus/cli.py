@@ -25,6 +25,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("defocus.commands.train", "train a depth network (config YAML + key=value overrides)"),
     "evaluate": ("defocus.commands.evaluate", "depth metrics of a checkpoint on a dataset"),
     "predict": ("defocus.commands.predict", "depth of your own photos with a checkpoint"),
+    "convert-checkpoint": ("defocus.commands.convert_checkpoint",
+                           "rewrite a trusted old checkpoint so that it opens without running code"),
 }
 
 

@@ -1,26 +1,31 @@
 """Training: a config, a trainer with exact resume, CSV logs, figures and DDP.
 
-``Trainer`` takes any map-style ``torch.utils.data.Dataset`` (or any iterable) of samples in the
-sample format (see the datasets tutorial). With ``supervision="self"`` (default) the loss never
+`Trainer` takes any map-style `torch.utils.data.Dataset` (or any iterable) of samples in the
+sample format (see the datasets tutorial). With `supervision="self"` (default) the loss never
 sees depth labels: the predicted depth is rendered through each focused image's camera
 (`optics.render_focal_stack` with the sample's `CameraSettings`) and compared with the real focused image
-(:class:`~models.losses.DefocusLoss`). ``supervision="depth"`` trains on the ground truth instead
+(`models.losses.DefocusLoss`). `supervision="depth"` trains on the ground truth instead
 (a baseline).
 
-Reproducibility: the batch of step ``k`` is drawn from a permutation seeded by ``(seed, epoch)``,
+Reproducibility: the batch of step `k` is drawn from a permutation seeded by `(seed, epoch)`,
 so a run resumed from a checkpoint sees the same batches and gives the same losses as an
-uninterrupted run. Launched with ``torchrun --nproc_per_node=N``, training is data parallel (DDP;
-gloo on CPU, NCCL on GPU): ``batch_size`` is per process, every process holds the same weights
+uninterrupted run. Launched with `torchrun --nproc_per_node=N`, training is data parallel (DDP;
+gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the same weights
 after each step, and only rank 0 writes files.
 
-Files under ``out_dir``: ``config.yaml``, ``train_log.csv`` (step, losses, learning rate,
-seconds), ``val_log.csv`` (validation metrics), ``checkpoints/last.pt`` (and ``step_XXXXXX.pt``),
-``figures/step_XXXXXX.png``.
+Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
+seconds), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and `step_XXXXXX.pt`),
+`figures/step_XXXXXX.png`.
+
+The pieces: `models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint
+files that open without running code, `CheckpointStore`), `models.run_log` (CSV logs) and
+`models.plotting` (figures); `Trainer` runs the loop. Checkpoints hold only tensors and plain
+data and are read with `torch.load(..., weights_only=True)`: a file holding anything else is
+refused with `CheckpointError` (see `docs/security.md`).
 """
 
 from __future__ import annotations
 
-import csv
 import dataclasses
 import math
 import os
@@ -38,10 +43,20 @@ from torch.utils.data import default_collate
 
 from optics import CameraSettings, parse_aperture
 
+from .checkpoints import (
+    CHECKPOINT_FORMAT,
+    CheckpointError,
+    CheckpointStore,
+    load_checkpoint,
+    save_checkpoint,
+    to_plain,
+)
 from .losses import DefocusLoss, supervised_depth_loss
 from .metrics import METRIC_NAMES, depth_metrics
 from .networks import INPUT_MODES, NETWORKS, build_network
 from .plotting import plot_prediction
+from .run_log import RunLog
+from .sampling import StepSampler, random_flip
 
 SUPERVISIONS = ("self", "depth")
 
@@ -50,8 +65,8 @@ SUPERVISIONS = ("self", "depth")
 class TrainConfig:
     """Everything a training run depends on (lengths in metres).
 
-    Load from YAML with :meth:`from_yaml`, change fields with :meth:`override`
-    (``["steps=100", "lr=3e-4"]``), save with :meth:`to_yaml`.
+    Load from YAML with `from_yaml`, change fields with `override`
+    (`["steps=100", "lr=3e-4"]`), save with `to_yaml`.
 
     Example:
         >>> cfg = TrainConfig(steps=10).override(["lr=3e-4", "input_mode=aif"])
@@ -110,6 +125,8 @@ class TrainConfig:
     log_every: int = 1
     #: save a checkpoint every this many steps (0: only at the end)
     checkpoint_every: int = 0
+    #: keep only the newest this many step_XXXXXX.pt checkpoints (0: keep all; last.pt is kept)
+    keep_checkpoints: int = 0
     #: evaluate on the validation set every this many steps (0: only at the end)
     val_every: int = 0
     #: write a figure every this many steps (0: only at the end)
@@ -166,7 +183,7 @@ class TrainConfig:
         return cls.from_dict(data)
 
     def override(self, assignments: Sequence[str]) -> TrainConfig:
-        """A copy with ``key=value`` assignments applied (values parsed as YAML)."""
+        """A copy with `key=value` assignments applied (values parsed as YAML)."""
         data = self.to_dict()
         for item in assignments:
             key, sep, value = item.partition("=")
@@ -177,7 +194,7 @@ class TrainConfig:
 
 
 def _coerce(cls: type, name: str, value: Any) -> Any:
-    """Convert a YAML value to the type of field ``name``."""
+    """Convert a YAML value to the type of field `name`."""
     kind = {f.name: f.type for f in dataclasses.fields(cls)}.get(name)
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
     try:
@@ -201,7 +218,7 @@ def _coerce(cls: type, name: str, value: Any) -> Any:
 
 
 def _distributed() -> tuple[int, int]:
-    """(rank, world size), initialising the process group under ``torchrun``."""
+    """(rank, world size), initialising the process group under `torchrun`."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world > 1 and not dist.is_initialized():
         backend = "nccl" if torch.cuda.is_available() else "gloo"
@@ -211,8 +228,43 @@ def _distributed() -> tuple[int, int]:
     return 0, 1
 
 
+def _select_device(name: str) -> torch.device:
+    """`name`, or for `"auto"` this process's GPU when CUDA is available, else the CPU."""
+    if name == "auto":
+        available = torch.cuda.is_available()
+        name = f"cuda:{int(os.environ.get('LOCAL_RANK', 0))}" if available else "cpu"
+    return torch.device(name)
+
+
+def _build_scheduler(optimizer: torch.optim.Optimizer,
+                     cfg: TrainConfig) -> torch.optim.lr_scheduler.LRScheduler:
+    """Cosine decay to 0 over `cfg.steps`, or a constant learning rate."""
+    if cfg.lr_schedule == "cosine":
+        return torch.optim.lr_scheduler.LambdaLR(
+            optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps) / cfg.steps)))
+    return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: 1.0)
+
+
+def rng_state() -> dict[str, Any]:
+    """The global torch random states (CPU and CUDA) as `uint8` tensors (checkpoint data)."""
+    state: dict[str, Any] = {"torch": torch.get_rng_state()}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        state["cuda"] = torch.cuda.get_rng_state_all()
+    return state
+
+
+def set_rng_state(state: Mapping[str, Any]) -> None:
+    """Restore states saved by `rng_state` (tensors may have been loaded onto a GPU)."""
+    if "torch" in state:
+        torch.set_rng_state(state["torch"].cpu())
+    if "cuda" in state and torch.cuda.is_available():
+        states = [s.cpu() for s in state["cuda"]]
+        if len(states) == torch.cuda.device_count():
+            torch.cuda.set_rng_state_all(states)
+
+
 def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None) -> Any:
-    """Move every tensor of a (nested) batch to ``device`` (floating tensors to ``dtype``)."""
+    """Move every tensor of a (nested) batch to `device` (floating tensors to `dtype`)."""
     if isinstance(batch, Tensor):
         if dtype is not None and batch.is_floating_point():
             return batch.to(device=device, dtype=dtype)
@@ -229,12 +281,20 @@ def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None
 class Trainer:
     """Trains a depth network on samples in the sample format.
 
+    The loop lives here; the batches of each step come from `models.sampling.StepSampler`,
+    checkpoints go to a `models.checkpoints.CheckpointStore`, CSV logs to a
+    `models.run_log.RunLog` and figures through `models.plotting.plot_prediction`.
+
     Args:
-        config: the :class:`TrainConfig`.
+        config: the `TrainConfig`.
         train_set: a map-style dataset (exactly reproducible batches) or any iterable of samples.
-        val_set: optional samples to evaluate on at ``val_every`` and at the end.
-        step_callback: optional ``f(trainer, step, losses)`` called after every step (hooks,
+        val_set: optional samples to evaluate on at `val_every` and at the end.
+        step_callback: optional `f(trainer, step, losses)` called after every step (hooks,
             tests).
+
+    Raises:
+        CheckpointError: `out_dir/checkpoints/last.pt` exists (and `config.resume`) but is not
+            a checkpoint or holds more than tensors and plain data (it is not run).
 
     Example:
         >>> samples = [{"image": torch.rand(3, 8, 8), "depth": torch.full((1, 8, 8), 2.0),
@@ -251,16 +311,12 @@ class Trainer:
                  val_set: Iterable[Mapping[str, Any]] | None = None,
                  step_callback: Callable[[Trainer, int, dict[str, float]], None] | None = None):
         self.config = cfg = config
+        to_plain(cfg.to_dict(), "config")  # a config that a checkpoint cannot hold fails now
         self.train_set, self.val_set = train_set, val_set
         self.step_callback = step_callback
         self.rank, self.world_size = _distributed()
         self.is_main = self.rank == 0
-        if cfg.device == "auto":
-            device = f"cuda:{int(os.environ.get('LOCAL_RANK', 0))}" if torch.cuda.is_available() \
-                else "cpu"
-        else:
-            device = cfg.device
-        self.device = torch.device(device)
+        self.device = _select_device(cfg.device)
         torch.manual_seed(cfg.seed)
         self.model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min,
                                    cfg.depth_max, cfg.width).to(self.device)
@@ -270,79 +326,33 @@ class Trainer:
             self.ddp_model = nn.parallel.DistributedDataParallel(self.model, device_ids=ids)
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr,
                                            weight_decay=cfg.weight_decay)
-        if cfg.lr_schedule == "cosine":
-            self.scheduler: torch.optim.lr_scheduler.LRScheduler = \
-                torch.optim.lr_scheduler.LambdaLR(
-                    self.optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps)
-                                                                  / cfg.steps)))
-        else:
-            self.scheduler = torch.optim.lr_scheduler.LambdaLR(self.optimizer, lambda s: 1.0)
+        self.scheduler = _build_scheduler(self.optimizer, cfg)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
                                    cfg.ssim_window, parse_aperture(cfg.aperture),
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size)
+        self.sampler = StepSampler(train_set, cfg.batch_size, cfg.seed, self.rank,
+                                   self.world_size)
+        self.checkpoints = CheckpointStore(cfg.out_dir / "checkpoints", keep=cfg.keep_checkpoints)
+        self.log = RunLog(cfg.out_dir)
         self.step = 0
         self.history: list[dict[str, float]] = []
-        self._iterator: Any = None
-        self.checkpoint_dir = cfg.out_dir / "checkpoints"
-        if cfg.resume and (self.checkpoint_dir / "last.pt").exists():
-            self.load_checkpoint(self.checkpoint_dir / "last.pt")
+        if cfg.resume and self.checkpoints.exists():
+            self.load_checkpoint(self.checkpoints.last)
 
-    # -- data ------------------------------------------------------------------------------
-    def _is_map_style(self) -> bool:
-        return hasattr(self.train_set, "__len__") and hasattr(self.train_set, "__getitem__")
+    @property
+    def checkpoint_dir(self) -> Path:
+        """The folder of `last.pt` and the step checkpoints."""
+        return self.checkpoints.directory
 
     def _indices(self, step: int) -> list[int]:
-        """Dataset indices of this process's part of the batch of ``step`` (0-based)."""
-        n, b, world = len(self.train_set), self.config.batch_size, self.world_size
-        start = step * b * world + self.rank * b
-        indices, permutations = [], {}
-        for position in range(start, start + b):
-            epoch = position // n
-            if epoch not in permutations:
-                generator = torch.Generator().manual_seed(self.config.seed * 100_003 + epoch)
-                permutations[epoch] = torch.randperm(n, generator=generator)
-            indices.append(int(permutations[epoch][position % n]))
-        return indices
-
-    def _next_samples(self, step: int) -> list[Mapping[str, Any]]:
-        if self._is_map_style():
-            return [self.train_set[i] for i in self._indices(step)]
-        if self._iterator is None:  # iterable: consume, skipping what earlier steps used
-            self._iterator = self._cycle()
-            for _ in range(step * self.config.batch_size * self.world_size):
-                next(self._iterator)
-        samples = []
-        for _ in range(self.config.batch_size * self.world_size):
-            samples.append(next(self._iterator))
-        return samples[self.rank :: self.world_size]
-
-    def _cycle(self):
-        while True:
-            empty = True
-            for sample in self.train_set:
-                empty = False
-                yield sample
-            if empty:
-                raise ValueError("train_set yielded no samples")
-
-    def _augment(self, batch: dict[str, Any], step: int) -> dict[str, Any]:
-        if not self.config.flip:
-            return batch
-        generator = torch.Generator().manual_seed(self.config.seed * 7919 + step * 31 + self.rank)
-        flip = torch.rand(batch["image"].shape[0], generator=generator) < 0.5
-        out = dict(batch)
-        for key in ("image", "focused", "depth", "mask"):
-            if key in batch and isinstance(batch[key], Tensor):
-                value = batch[key]
-                shape = (-1,) + (1,) * (value.ndim - 1)
-                out[key] = torch.where(flip.view(shape).to(value.device), value.flip(-1), value)
-        return out
+        """Dataset indices of this process's part of the batch of `step` (0-based)."""
+        return self.sampler.indices(step)
 
     # -- model -----------------------------------------------------------------------------
     def predict(self, image: Tensor, focused: Tensor | None = None,
                 settings: CameraSettings | None = None) -> Tensor:
-        """Depth ``(B,1,H,W)`` metres for a batch (``focused`` ``(B,F,3,H,W)`` and their
-        ``(B,F)`` or ``(F,)`` `CameraSettings` in ``"aif+focused"`` mode), without gradients."""
+        """Depth `(B,1,H,W)` metres for a batch (`focused` `(B,F,3,H,W)` and their
+        `(B,F)` or `(F,)` `CameraSettings` in `"aif+focused"` mode), without gradients."""
         was_training = self.model.training
         self.model.eval()
         with torch.no_grad():
@@ -383,8 +393,9 @@ class Trainer:
             values = values / self.world_size
         return dict(zip(terms, values.tolist(), strict=True))
 
+    # -- loop ------------------------------------------------------------------------------
     def fit(self, until: int | None = None) -> list[dict[str, float]]:
-        """Train from the current step to ``until`` (default ``config.steps``); returns the
+        """Train from the current step to `until` (default `config.steps`); returns the
         history of logged losses (one dict per step of this run and of resumed runs)."""
         from tqdm.auto import tqdm
 
@@ -397,25 +408,12 @@ class Trainer:
                    disable=not (cfg.progress and self.is_main))
         started = time.perf_counter()
         while self.step < until:
-            batch = default_collate(self._next_samples(self.step))
-            batch = self._augment(to_device(batch, self.device), self.step)
-            losses = self.train_step(batch)
-            self.step += 1
-            row = {"step": self.step, **losses, "lr": self.scheduler.get_last_lr()[0],
-                   "seconds": time.perf_counter() - started}
-            self.history.append(row)
-            if self.is_main and (self.step % cfg.log_every == 0 or self.step == until):
-                self._append_csv(cfg.out_dir / "train_log.csv", row)
+            losses = self._advance(until, started)
             bar.set_postfix(loss=f"{losses['loss']:.4f}")
             bar.update(1)
             if self.step_callback is not None:
                 self.step_callback(self, self.step, losses)
-            if self.val_set is not None and cfg.val_every and self.step % cfg.val_every == 0:
-                self._validate()
-            if cfg.figure_every and self.step % cfg.figure_every == 0:
-                self.save_figure()
-            if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0:
-                self.save_checkpoint()
+            self._periodic_tasks()
         bar.close()
         if self.val_set is not None and not (cfg.val_every and self.step % cfg.val_every == 0):
             self._validate()
@@ -423,18 +421,42 @@ class Trainer:
         self.save_checkpoint()
         return self.history
 
+    def _advance(self, until: int, started: float) -> dict[str, float]:
+        """Train one step on this step's batch, record it in the history and the train log."""
+        batch = to_device(default_collate(self.sampler.samples(self.step)), self.device)
+        if self.config.flip:
+            batch = random_flip(batch, self.config.seed, self.step, self.rank)
+        losses = self.train_step(batch)
+        self.step += 1
+        row = {"step": self.step, **losses, "lr": self.scheduler.get_last_lr()[0],
+               "seconds": time.perf_counter() - started}
+        self.history.append(row)
+        if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
+            self.log.train.append(row)
+        return losses
+
+    def _periodic_tasks(self) -> None:
+        """Validation, figure and checkpoint when the step is a multiple of their period."""
+        cfg = self.config
+        if self.val_set is not None and cfg.val_every and self.step % cfg.val_every == 0:
+            self._validate()
+        if cfg.figure_every and self.step % cfg.figure_every == 0:
+            self.save_figure()
+        if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0:
+            self.save_checkpoint()
+
     # -- evaluation --------------------------------------------------------------------------
     def evaluate(self, test_set: Iterable[Mapping[str, Any]], depth_cap: float | None = None,
                  crop: str | Sequence[float] | None = None, median_scaling: bool = False,
                  min_depth: float = 1e-3) -> dict[str, float]:
-        """Mean per-image metrics (:data:`~models.metrics.METRIC_NAMES`) over ``test_set``.
+        """Mean per-image metrics (`models.metrics.METRIC_NAMES`) over `test_set`.
 
         Args:
-            test_set: samples with ``image``, ``depth`` (and ``mask``; ``focused`` and ``camera``
-                in ``"aif+focused"`` mode), unbatched.
+            test_set: samples with `image`, `depth` (and `mask`; `focused` and `camera`
+                in `"aif+focused"` mode), unbatched.
             depth_cap: ignore ground truth beyond this (metres) and clamp predictions to it.
-            crop: ``None``, ``"garg"``, ``"eigen"`` or ``(top, bottom, left, right)`` fractions.
-            median_scaling: scale predictions by the median ratio (adds ``median_scale``).
+            crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
+            median_scaling: scale predictions by the median ratio (adds `median_scale`).
             min_depth: ignore ground truth at or below this (metres).
         """
         totals: dict[str, float] = {}
@@ -456,8 +478,9 @@ class Trainer:
     def _validate(self) -> None:
         metrics = self.evaluate(self.val_set)
         if self.is_main:
-            self._append_csv(self.config.out_dir / "val_log.csv", {"step": self.step, **metrics})
+            self.log.val.append({"step": self.step, **metrics})
 
+    # -- figures -----------------------------------------------------------------------------
     def _figure_sample(self) -> Mapping[str, Any]:
         source = self.val_set if self.val_set is not None else self.train_set
         if hasattr(source, "__getitem__"):
@@ -477,74 +500,87 @@ class Trainer:
                                title=f"{sample.get('id', '')} step {self.step}",
                                depth_range=(self.config.depth_min, self.config.depth_max))
 
-    # -- files -------------------------------------------------------------------------------
-    def _append_csv(self, path: Path, row: Mapping[str, Any]) -> None:
-        new = not path.exists()
-        with path.open("a", newline="") as handle:
-            writer = csv.DictWriter(handle, fieldnames=list(row))
-            if new:
-                writer.writeheader()
-            writer.writerow(row)
+    # -- checkpoints -------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Everything exact resume needs, as tensors and plain data only (see
+        `models.checkpoints`)."""
+        return {"format": CHECKPOINT_FORMAT, "model": self.model.state_dict(),
+                "optimizer": self.optimizer.state_dict(),
+                "scheduler": self.scheduler.state_dict(), "step": self.step,
+                "config": to_plain(self.config.to_dict(), "config"),
+                "history": [dict(row) for row in self.history], "rng": rng_state()}
 
-    def _truncate_csv(self, path: Path, step: int) -> None:
-        if not path.exists():
-            return
-        with path.open(newline="") as handle:
-            rows = [r for r in csv.DictReader(handle) if int(r["step"]) <= step]
-        path.unlink()
-        for row in rows:
-            self._append_csv(path, row)
-
-    def save_checkpoint(self, path: str | Path | None = None) -> Path | None:
-        """Save model, optimiser, scheduler, step and config (rank 0 only; atomic)."""
-        if not self.is_main:
-            return None
-        self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
-        state = {"model": self.model.state_dict(), "optimizer": self.optimizer.state_dict(),
-                 "scheduler": self.scheduler.state_dict(), "step": self.step,
-                 "config": self.config.to_dict(), "history": self.history}
-        targets = [Path(path)] if path else [self.checkpoint_dir / f"step_{self.step:06d}.pt",
-                                             self.checkpoint_dir / "last.pt"]
-        for target in targets:
-            tmp = target.with_suffix(".tmp")
-            torch.save(state, tmp)
-            os.replace(tmp, target)
-        return targets[-1]
-
-    @classmethod
-    def from_checkpoint(cls, path: str | Path, train_set: Iterable[Mapping[str, Any]] = (),
-                        device: str = "auto") -> Trainer:
-        """A trainer holding a checkpoint's config and weights (for evaluation and prediction)."""
-        state = torch.load(path, map_location="cpu", weights_only=False)
-        cfg = TrainConfig.from_dict({**state["config"], "resume": False, "progress": False,
-                                     "device": device})
-        trainer = cls(cfg, train_set)
-        trainer.load_checkpoint(path, restore_logs=False)
-        return trainer
-
-    def load_checkpoint(self, path: str | Path, restore_logs: bool = True) -> None:
-        """Restore a checkpoint written by :meth:`save_checkpoint` (exact resume); with
-        ``restore_logs`` the CSV logs are cut back to the checkpoint's step."""
-        state = torch.load(path, map_location=self.device, weights_only=False)
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore what `state_dict` returned (also older checkpoints without `rng`)."""
         self.model.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
-        self.history = list(state.get("history", []))
+        self.history = [dict(row) for row in state.get("history", [])]
+        set_rng_state(state.get("rng", {}))
+
+    def save_checkpoint(self, path: str | Path | None = None) -> Path | None:
+        """Save model, optimiser, scheduler, step, config, history and random states (rank 0
+        only; atomic). Without `path`: `step_XXXXXX.pt` and `last.pt` in
+        `checkpoint_dir`, pruned to `config.keep_checkpoints`. Returns the path written."""
+        if not self.is_main:
+            return None
+        if path is not None:
+            return save_checkpoint(self.state_dict(), path)
+        return self.checkpoints.save(self.state_dict(), self.step)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | Path, train_set: Iterable[Mapping[str, Any]] = (),
+                        device: str = "auto") -> Trainer:
+        """A trainer holding a checkpoint's config and weights (for evaluation and prediction).
+
+        Raises:
+            CheckpointError: the file is not a checkpoint or holds more than tensors and plain
+                data (refused without running anything).
+        """
+        state = load_checkpoint(path)
+        cfg = _config_from(state, path, resume=False, progress=False, device=device)
+        trainer = cls(cfg, train_set)
+        trainer.load_state_dict(state)
+        return trainer
+
+    def load_checkpoint(self, path: str | Path, restore_logs: bool = True) -> None:
+        """Restore a checkpoint written by `save_checkpoint` (exact resume); with
+        `restore_logs` the CSV logs are cut back to the checkpoint's step.
+
+        Raises:
+            CheckpointError: the file is not a checkpoint or holds more than tensors and plain
+                data (refused without running anything).
+        """
+        self.load_state_dict(load_checkpoint(path, map_location=self.device))
         if self.is_main and restore_logs:
-            for name in ("train_log.csv", "val_log.csv"):
-                self._truncate_csv(self.config.out_dir / name, self.step)
+            self.log.truncate(self.step)
+
+
+def _config_from(state: Mapping[str, Any], path: str | Path, **changes: Any) -> TrainConfig:
+    """The `TrainConfig` of a loaded checkpoint, with `changes`; a bad one is a
+    `CheckpointError` naming the file."""
+    try:
+        return TrainConfig.from_dict({**state["config"], **changes})
+    except (TypeError, ValueError) as error:
+        raise CheckpointError(f"checkpoint {path} holds an invalid config: {error}") from None
 
 
 def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module,
                                                                                      TrainConfig]:
-    """The trained network (in eval mode) and its config from a checkpoint file."""
-    state = torch.load(checkpoint, map_location=device, weights_only=False)
-    cfg = TrainConfig.from_dict(state["config"])
+    """The trained network (in eval mode) and its config from a checkpoint file.
+
+    Raises:
+        CheckpointError: the file is not a checkpoint or holds more than tensors and plain data
+            (refused without running anything).
+    """
+    state = load_checkpoint(checkpoint, map_location=device)
+    cfg = _config_from(state, checkpoint)
     model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
                           cfg.width)
     model.load_state_dict(state["model"])
     return model.to(device).eval(), cfg
 
 
-__all__ = ["METRIC_NAMES", "TrainConfig", "Trainer", "load_model", "to_device"]
+__all__ = ["METRIC_NAMES", "CheckpointError", "TrainConfig", "Trainer", "load_model",
+           "to_device"]
