@@ -5,7 +5,9 @@
 // over |p - q|_inf <= half, q and p inside the image. Arrays are contiguous (B, C, H, W), sigma and
 // norm (B, 1, H, W). The per-source table t_q(0..half) is built by the recurrence
 // t(d+1) = t(d) * e^(2d+1), e = exp(-1 / (2 s^2)): one exp per source pixel.
-// Plain C ABI (loaded with ctypes): no PyTorch headers, so it compiles in a second or two.
+// Also the clamped-distance profiles of the disk and the polygons (below).
+// Plain C ABI (loaded with ctypes, wrapped as torch.library custom ops by optics/_render_ops.py):
+// no PyTorch headers, so it compiles in a few seconds.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -286,6 +288,226 @@ void window_sums(const T* sigma, T* line, T* moment, int64_t n, int64_t half, in
   }
 }
 
+
+// ---------------------------------------------------------------------------------------------
+// Clamped-distance profiles (the disk and the polygons, optics.Disk and its subclasses):
+//
+//   w_q(u) = clamp(rho_q - D(u), 0, 1),   rho_q = edge_radius(c_q) + 1/2,  D(u) >= 0, D(0) = 0
+//
+// D is the aperture's distance function tabulated on the K x K window (row-major, u = (dy, dx) =
+// output - source), independent of the CoC. Forward: y_c(p) = sum_q norm_q w_q(p - q) x_c(q).
+template <typename T>
+inline V<T> clamp01(V<T> t) {
+  const V<T> zero = V<T>{} , one = zero + T(1);
+  t = t < zero ? zero : t;
+  return t > one ? one : t;
+}
+
+template <typename T, int G>
+void clamp_forward_group(const T* const* xn_rows, const T* const* rho_rows, const T* dist,
+                         int64_t half, int64_t x0, T* out, int64_t out_stride, int64_t n_out,
+                         int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
+    const T* rho = rho_rows[k];
+    if (rho == nullptr) continue;
+    const T* const* xr = xn_rows + k * G;
+    const T* drow = dist + k * K + half;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = x0 - dx + half;
+      const V<T> d = V<T>{} + drow[dx];
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = clamp01<T>(load(rho + base + j * L) - d);
+        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    T tmp[kVectors * L];
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
+    std::copy(tmp, tmp + n_out, out + g * out_stride);
+  }
+}
+
+template <typename T>
+void clamp_forward(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B,
+                   int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 4;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, 1 + C);  // each slot: the rho row, then C rows of x * norm
+    std::vector<const T*> rho_rows(K), xn_rows(K * G);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; ++oy) {
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t sy = oy - (k - half);
+          if (sy < 0 || sy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          if (fresh) {
+            const T* rrow = rho + b * plane + sy * W;
+            std::copy(rrow, rrow + W, slot + half);
+            const T* nrow = norm + b * plane + sy * W;
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + sy * W;
+              T* dst = slot + (1 + c) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * nrow[s];
+            }
+          }
+          slots[k] = slot;
+        }
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k) {
+            rho_rows[k] = slots[k];
+            for (int64_t g = 0; g < G; ++g)
+              xn_rows[k * G + g] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+          }
+          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>()) {
+            clamp_forward_group<T, G>(xn_rows.data(), rho_rows.data(), dist, half, x0,
+                                      y + (b * C + c0) * plane + oy * W + x0, plane,
+                                      std::min(block_lanes<T>(), W - x0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// dx_raw_c(q) = sum_u w_q(u) g_c(q+u);  m(q) = sum_c x_c(q) sum_u [0 <= rho_q - D(u) <= 1] g_c(q+u)
+// (m is d/d rho_q of sum_c x_c(q) sum_u w_q(u) g_c(q+u); the bounds are inclusive like clamp's).
+template <typename T, int G>
+void clamp_backward_group(const T* rho_row, const T* const* g_rows, const T* dist, int64_t half,
+                          int64_t s0, const T* x_row, int64_t x_stride, T* dx_row, T* m_row,
+                          int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
+  V<T> rho[kVectors];
+  for (int j = 0; j < kVectors; ++j) rho[j] = load(rho_row + j * L);
+  const V<T> zero = V<T>{}, one = zero + T(1);
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
+    const T* const* gr = g_rows + k * G;
+    if (gr[0] == nullptr) continue;
+    const T* drow = dist + k * K + half;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const V<T> d = zero + drow[dx];
+      const int64_t base = half + s0 + dx;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> t = rho[j] - d;
+        const V<T> w = clamp01<T>(t);
+        const V<T> ind = (t >= zero) & (t <= one) ? one : zero;
+        for (int g = 0; g < G; ++g) {
+          const V<T> gv = load(gr[g] + base + j * L);
+          acc_d[g][j] += w * gv;
+          acc_f[g][j] += ind * gv;
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    const T* xr = x_row + g * x_stride;
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) {
+        const int64_t i = j * L + l;
+        if (i >= n_out) break;
+        dx_row[g * x_stride + i] = acc_d[g][j][l];
+        m_row[i] += xr[i] * acc_f[g][j][l];
+      }
+  }
+}
+
+template <typename T>
+void clamp_backward(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,
+                    int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 2;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, C);  // padded gradient rows
+    std::vector<T> own(W + kPadRight, T(0));  // the source row's rho (padded on the right)
+    std::vector<const T*> g_rows(K * G);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; ++sy) {
+        const T* rrow = rho + b * plane + sy * W;
+        std::copy(rrow, rrow + W, own.begin());
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t oy = sy + (k - half);
+          if (oy < 0 || oy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh)
+            for (int64_t c = 0; c < C; ++c) {
+              const T* grow = g + (b * C + c) * plane + oy * W;
+              std::copy(grow, grow + W, slot + c * ring.padded + half);
+            }
+          slots[k] = slot;
+        }
+        T* mrow = m + b * plane + sy * W;
+        std::fill(mrow, mrow + W, T(0));
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k)
+            for (int64_t gi = 0; gi < G; ++gi)
+              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>()) {
+            const int64_t offset = (b * C + c0) * plane + sy * W + s0;
+            clamp_backward_group<T, G>(own.data() + s0, g_rows.data(), dist, half, s0, x + offset,
+                                       plane, dx_raw + offset, mrow + s0,
+                                       std::min(block_lanes<T>(), W - s0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// Z(q) = sum_j count_j clamp(rho_q - d_j, 0, 1) and dZ/drho = sum_j count_j [0 <= rho_q - d_j <= 1]
+// over the window's distinct distances d_j (with multiplicities count_j).
+template <typename T>
+void clamp_window_sums(const T* rho, const T* dists, const T* counts, int64_t n_dists, T* total,
+                       T* slope, int64_t n, int nthreads) {
+  const int threads = n > (int64_t(1) << 20) ? nthreads : 1;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t i = 0; i < n; ++i) {
+    const T r = rho[i];
+    T z = T(0), s = T(0);
+    for (int64_t j = 0; j < n_dists; ++j) {
+      const T t = r - dists[j];
+      z += counts[j] * std::min(std::max(t, T(0)), T(1));
+      s += (t >= T(0) && t <= T(1)) ? counts[j] : T(0);
+    }
+    total[i] = z;
+    slope[i] = s;
+  }
+}
+
 }  // namespace
 
 extern "C" {
@@ -314,4 +536,20 @@ void gs_backward_f64(const double* g, const double* x, const double* sigma, doub
                      int nthreads) {
   backward(g, x, sigma, dx_raw, m1, B, C, H, W, half, nthreads);
 }
+
+#define DEFOCUS_CLAMP_ABI(T, S)                                                                 \
+  void cl_forward_##S(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B, \
+                      int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {           \
+    clamp_forward(x, rho, norm, dist, y, B, C, H, W, half, nthreads);                          \
+  }                                                                                            \
+  void cl_backward_##S(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,   \
+                       int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) { \
+    clamp_backward(g, x, rho, dist, dx_raw, m, B, C, H, W, half, nthreads);                    \
+  }                                                                                            \
+  void cl_window_sums_##S(const T* rho, const T* dists, const T* counts, int64_t n_dists,     \
+                          T* total, T* slope, int64_t n, int nthreads) {                       \
+    clamp_window_sums(rho, dists, counts, n_dists, total, slope, n, nthreads);                 \
+  }
+DEFOCUS_CLAMP_ABI(float, f32)
+DEFOCUS_CLAMP_ABI(double, f64)
 }
