@@ -222,6 +222,14 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
         getattr(lib, f"cl_window_sums_{suffix}").argtypes = (
             [ptr] * 3 + [i64] + [ptr] * 2 + [i64] + [i32]
         )
+        getattr(lib, f"gs_render_{suffix}").argtypes = [ptr] * 4 + [i64] * 5 + [i32]
+        getattr(lib, f"gs_render_backward_{suffix}").argtypes = [ptr] * 7 + [i64] * 5 + [i32]
+        getattr(lib, f"cl_render_{suffix}").argtypes = (
+            [ptr] * 5 + [i64] + [ptr] * 2 + [i64] * 5 + [i32]
+        )
+        getattr(lib, f"cl_render_backward_{suffix}").argtypes = (
+            [ptr] * 8 + [i64] + [ptr] * 2 + [i64] * 5 + [i32]
+        )
     return lib
 
 
@@ -316,3 +324,55 @@ def clamp_window_sums(rho: Tensor, dists: Tensor, counts: Tensor) -> tuple[Tenso
         slope.data_ptr(), rho.numel(), torch.get_num_threads(),
     )
     return total, slope
+
+
+def gaussian_render(x: Tensor, sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
+    """Fused normalised Gaussian scatter: `(y, den)`, see `render_kernels.cpp`."""
+    b, c, h, w = x.shape
+    y, den = torch.empty_like(x), torch.empty_like(sigma)
+    getattr(library(), f"gs_render_{_suffix(x)}")(
+        x.data_ptr(), sigma.data_ptr(), y.data_ptr(), den.data_ptr(), b, c, h, w, half,
+        torch.get_num_threads(),
+    )
+    return y, den
+
+
+def gaussian_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, sigma: Tensor, half: int
+) -> tuple[Tensor, Tensor]:
+    """Backward of `gaussian_render`: `(grad_x, grad_sigma)`."""
+    b, c, h, w = x.shape
+    grad_x, grad_sigma = torch.empty_like(x), torch.empty_like(sigma)
+    getattr(library(), f"gs_render_backward_{_suffix(x)}")(
+        grad.data_ptr(), y.data_ptr(), den.data_ptr(), x.data_ptr(), sigma.data_ptr(),
+        grad_x.data_ptr(), grad_sigma.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
+    )
+    return grad_x, grad_sigma
+
+
+def clamp_render(
+    x: Tensor, rho: Tensor, dist: Tensor, dists: Tensor, counts: Tensor, half: int
+) -> tuple[Tensor, Tensor]:
+    """Fused normalised clamped-distance scatter: `(y, den)`."""
+    b, c, h, w = x.shape
+    y, den = torch.empty_like(x), torch.empty_like(rho)
+    getattr(library(), f"cl_render_{_suffix(x)}")(
+        x.data_ptr(), rho.data_ptr(), dist.data_ptr(), dists.data_ptr(), counts.data_ptr(),
+        dists.numel(), y.data_ptr(), den.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
+    )
+    return y, den
+
+
+def clamp_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, rho: Tensor, dist: Tensor, dists: Tensor,
+    counts: Tensor, half: int,
+) -> tuple[Tensor, Tensor]:
+    """Backward of `clamp_render`: `(grad_x, grad_rho)`."""
+    b, c, h, w = x.shape
+    grad_x, grad_rho = torch.empty_like(x), torch.empty_like(rho)
+    getattr(library(), f"cl_render_backward_{_suffix(x)}")(
+        grad.data_ptr(), y.data_ptr(), den.data_ptr(), x.data_ptr(), rho.data_ptr(),
+        dist.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), grad_x.data_ptr(),
+        grad_rho.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
+    )
+    return grad_x, grad_rho

@@ -255,6 +255,87 @@ def clamp_norm(rho: Tensor, dist: Tensor, half: Tensor) -> Tensor:
     return clamp_window_sums(rho, dist, half)[0].reciprocal()
 
 
+# Fused, normalised scatter: `y = s[:C] / s[C]` with `s` the scatter of `(x, 1)` at unit energy per
+# source, and `den = s[C]`, in one kernel each way (the renderer's "scatter" mode).
+
+
+def _ones_channel(x: Tensor) -> Tensor:
+    return torch.cat([x, torch.ones_like(x[:, :1])], 1)
+
+
+def _normalised(spread: Tensor) -> tuple[Tensor, Tensor]:
+    den = spread[:, -1:].contiguous()
+    return (spread[:, :-1] / den).contiguous(), den
+
+
+def _grad_of_spread(grad: Tensor, y: Tensor, den: Tensor) -> Tensor:
+    """`dL/ds` from `dL/dy` for `y = s[:C] / s[C]`."""
+    return torch.cat([grad / den, -(grad * y).sum(1, keepdim=True) / den], 1).contiguous()
+
+
+@torch.library.custom_op("defocus::gaussian_render", mutates_args=())
+def gaussian_render(x: Tensor, sigma: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """`(y, den)`: the normalised Gaussian scatter of `x` and the weight each output receives."""
+    x, sigma, k = x.contiguous(), sigma.contiguous(), int(half)
+    if _render_cpp.usable(x):
+        return _render_cpp.gaussian_render(x, sigma, k)
+    norm = gaussian_window_sums(sigma, half)[0].pow(-2)
+    return _normalised(_gaussian_scatter_forward_torch(_ones_channel(x), sigma, norm, k))
+
+
+@torch.library.custom_op("defocus::gaussian_render_backward", mutates_args=())
+def gaussian_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, sigma: Tensor, half: Tensor
+) -> tuple[Tensor, Tensor]:
+    """`(dL/dx, dL/dsigma)` of `gaussian_render` from `dL/dy`."""
+    grad, x, sigma, k = grad.contiguous(), x.contiguous(), sigma.contiguous(), int(half)
+    if _render_cpp.usable(x):
+        return _render_cpp.gaussian_render_backward(grad, y.contiguous(), den.contiguous(), x,
+                                                    sigma, k)
+    ones = _ones_channel(x)
+    dx_raw, m1 = _gaussian_scatter_backward_torch(_grad_of_spread(grad, y, den), ones, sigma, k)
+    line, moment = gaussian_window_sums(sigma, half)
+    norm = line.pow(-2)
+    dnorm = -2 * moment / (sigma**3 * line**3)
+    grad_sigma = norm * m1 / sigma**3 + (ones * dx_raw).sum(1, keepdim=True) * dnorm
+    return (dx_raw[:, :-1] * norm).contiguous(), grad_sigma
+
+
+def _distinct(table: Tensor) -> tuple[Tensor, Tensor]:
+    dists, counts = torch.unique(table, return_counts=True)
+    return dists.contiguous(), counts.to(table.dtype).contiguous()
+
+
+@torch.library.custom_op("defocus::clamp_render", mutates_args=())
+def clamp_render(x: Tensor, rho: Tensor, dist: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """`(y, den)`: the normalised clamped-distance scatter of `x` (disk, polygons)."""
+    k = int(half)
+    x, rho, table = x.contiguous(), rho.contiguous(), _window(dist, k).to(x.dtype)
+    if _render_cpp.usable(x):
+        return _render_cpp.clamp_render(x, rho, table, *_distinct(table), k)
+    norm = clamp_window_sums(rho, dist, half)[0].reciprocal()
+    return _normalised(_clamp_scatter_forward_torch(_ones_channel(x), rho, norm, table, k))
+
+
+@torch.library.custom_op("defocus::clamp_render_backward", mutates_args=())
+def clamp_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: Tensor
+) -> tuple[Tensor, Tensor]:
+    """`(dL/dx, dL/drho)` of `clamp_render` from `dL/dy`."""
+    k = int(half)
+    grad, x, rho, table = grad.contiguous(), x.contiguous(), rho.contiguous(), _window(dist, k)
+    table = table.to(x.dtype)
+    if _render_cpp.usable(x):
+        return _render_cpp.clamp_render_backward(grad, y.contiguous(), den.contiguous(), x, rho,
+                                                 table, *_distinct(table), k)
+    ones = _ones_channel(x)
+    dx_raw, m = _clamp_scatter_backward_torch(_grad_of_spread(grad, y, den), ones, rho, table, k)
+    total, slope = clamp_window_sums(rho, dist, half)
+    norm = total.reciprocal()
+    grad_rho = norm * m - (ones * dx_raw).sum(1, keepdim=True) * slope / (total * total)
+    return (dx_raw[:, :-1] * norm).contiguous(), grad_rho
+
+
 # ------------------------------------------------------------------ fake implementations
 
 
@@ -306,6 +387,26 @@ def _(rho, dist, half):
 @clamp_norm.register_fake
 def _(rho, dist, half):
     return torch.empty_like(rho)
+
+
+@gaussian_render.register_fake
+def _(x, sigma, half):
+    return torch.empty_like(x), torch.empty_like(sigma)
+
+
+@gaussian_render_backward.register_fake
+def _(grad, y, den, x, sigma, half):
+    return torch.empty_like(x), torch.empty_like(sigma)
+
+
+@clamp_render.register_fake
+def _(x, rho, dist, half):
+    return torch.empty_like(x), torch.empty_like(rho)
+
+
+@clamp_render_backward.register_fake
+def _(grad, y, den, x, rho, dist, half):
+    return torch.empty_like(x), torch.empty_like(rho)
 
 
 # ------------------------------------------------------------------ autograd
@@ -362,6 +463,27 @@ gaussian_norm.register_autograd(_gaussian_norm_vjp, setup_context=_save_all)
 clamp_scatter.register_autograd(_clamp_scatter_vjp, setup_context=_save_all)
 clamp_gather.register_autograd(_clamp_gather_vjp, setup_context=_save_all)
 clamp_norm.register_autograd(_clamp_norm_vjp, setup_context=_save_all)
+
+
+def _save_render(ctx, inputs, output) -> None:
+    ctx.save_for_backward(*inputs, *output)
+
+
+def _gaussian_render_vjp(ctx, grad_y, grad_den):
+    # `den` is an auxiliary output for the backward pass; its gradient is not propagated.
+    x, sigma, half, y, den = ctx.saved_tensors
+    grad_x, grad_sigma = gaussian_render_backward(grad_y, y, den, x, sigma, half)
+    return grad_x, grad_sigma, None
+
+
+def _clamp_render_vjp(ctx, grad_y, grad_den):
+    x, rho, dist, half, y, den = ctx.saved_tensors
+    grad_x, grad_rho = clamp_render_backward(grad_y, y, den, x, rho, dist, half)
+    return grad_x, grad_rho, None, None
+
+
+gaussian_render.register_autograd(_gaussian_render_vjp, setup_context=_save_render)
+clamp_render.register_autograd(_clamp_render_vjp, setup_context=_save_render)
 
 
 # ------------------------------------------------------------------ other apertures (pure PyTorch)

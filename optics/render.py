@@ -113,6 +113,13 @@ def render_defocus(
         if depth is None:
             raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
         return _render_layered(image, coc_px, psf, half, depth, n_layers, max_kernel_size // 2)
+    kind = _fast_kind(psf)
+    if mode == "scatter" and kind == "gaussian":  # fused: spread, normalisation, division
+        return ops.gaussian_render(image, psf.sigma_px(coc_px), _half_tensor(half))[0]
+    if mode == "scatter" and kind == "clamp":
+        rho = psf.edge_radius(coc_px) + 0.5  # profile = clamp(rho - distance, 0, 1)
+        dist = _distance_table(psf, half, max_kernel_size // 2, image)
+        return ops.clamp_render(image, rho, dist, _half_tensor(half))[0]
     ones = torch.ones_like(image[:, :1])
     spread = _linear_filter(
         torch.cat([image, ones], 1), coc_px, psf, half, mode == "scatter", max_kernel_size // 2

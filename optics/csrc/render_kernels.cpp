@@ -508,6 +508,342 @@ void clamp_window_sums(const T* rho, const T* dists, const T* counts, int64_t n_
   }
 }
 
+
+// ---------------------------------------------------------------------------------------------
+// Fused, normalised scatter (the renderer's "scatter" mode in one pass each way).
+//
+//   s_c(p) = sum_q norm_q w_q(p - q) X_c(q),  X = (x_0 .. x_{C-1}, 1),  norm_q = 1 / Z_q
+//   y_c(p) = s_c(p) / s_C(p),  den(p) = s_C(p)
+//
+// The per-source parameter a_q (sigma for the Gaussian, rho for the clamped distance) gives the
+// weights w_q and Z_q. Backward, from g = dL/dy:
+//   G_c = g_c / den (c < C),  G_C = -sum_c g_c y_c / den      (dL/ds)
+//   D_c(q) = sum_u w_q(u) G_c(q+u),  F_c(q) = sum_u dw_q(u)/da G_c(q+u)
+//   dL/dx_c(q) = norm_q D_c(q)
+//   dL/da_q = norm_q sum_c X_c F_c + (sum_c X_c D_c) dnorm/da
+// A policy gives the weights: its weight rows live in each ring slot, ahead of the channels.
+
+// Gaussian: weight rows t(d), d = 0..half; w = t(|dy|) t(|dx|); dw/dsigma = w |u|^2 / sigma^3.
+template <typename T>
+struct GaussPolicy {
+  int64_t half;
+  int64_t rows() const { return half + 1; }
+  // rows[d * padded + s] = t_s(d); norm[s] = 1 / line_s^2; dnorm[s] = d norm / d sigma.
+  void fill(const T* sigma, int64_t W, T* rows, int64_t padded, T* norm, T* dnorm, T* scratch) const {
+    T* q = scratch;
+    T* e2 = scratch + W;
+    T* line = scratch + 2 * W;
+    T* moment = scratch + 3 * W;
+    for (int64_t s = 0; s < W; ++s) {
+      const T e = std::exp(T(-0.5) / (sigma[s] * sigma[s]));
+      q[s] = e;
+      e2[s] = e * e;
+      rows[s] = T(1);
+      line[s] = T(1);
+      moment[s] = T(0);
+    }
+    for (int64_t d = 1; d <= half; ++d) {
+      const T* prev = rows + (d - 1) * padded;
+      T* cur = rows + d * padded;
+      const T dd = T(2 * d * d);
+      for (int64_t s = 0; s < W; ++s) {
+        const T t = prev[s] * q[s];
+        q[s] *= e2[s];
+        cur[s] = t;
+        line[s] += T(2) * t;
+        moment[s] += dd * t;
+      }
+    }
+    for (int64_t s = 0; s < W; ++s) {
+      const T inv = T(1) / line[s];
+      norm[s] = inv * inv;
+      if (dnorm != nullptr) {
+        const T sg = sigma[s];
+        dnorm[s] = T(-2) * moment[s] * inv * inv * inv / (sg * sg * sg);
+      }
+    }
+  }
+  V<T> weight(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx) const {
+    return load(rows + std::abs(dy) * padded + idx) * load(rows + std::abs(dx) * padded + idx);
+  }
+  // w and dw/da without the per-source factor (1 / sigma^3, applied by scale()).
+  void weights(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx, V<T>* w,
+               V<T>* dw) const {
+    *w = weight(rows, padded, dy, dx, idx);
+    *dw = *w * T(dy * dy + dx * dx);
+  }
+  T scale(T sigma) const { return T(1) / (sigma * sigma * sigma); }
+};
+
+// Clamped distance: one weight row, rho; w = clamp(rho - D(u), 0, 1), dw/drho = [0 <= . <= 1].
+template <typename T>
+struct ClampPolicy {
+  int64_t half;
+  const T* dist;    // K x K, row-major, u = (dy, dx)
+  const T* dists;   // the window's distinct distances
+  const T* counts;  // and their multiplicities
+  int64_t n_dists;
+  int64_t rows() const { return 1; }
+  void fill(const T* rho, int64_t W, T* rows, int64_t, T* norm, T* dnorm, T*) const {
+    for (int64_t s = 0; s < W; ++s) {
+      const T r = rho[s];
+      T z = T(0), sl = T(0);
+      for (int64_t j = 0; j < n_dists; ++j) {
+        const T t = r - dists[j];
+        z += counts[j] * std::min(std::max(t, T(0)), T(1));
+        sl += (t >= T(0) && t <= T(1)) ? counts[j] : T(0);
+      }
+      rows[s] = r;
+      norm[s] = T(1) / z;
+      if (dnorm != nullptr) dnorm[s] = -sl / (z * z);
+    }
+  }
+  V<T> weight(const T* rows, int64_t, int64_t dy, int64_t dx, int64_t idx) const {
+    const int64_t K = 2 * half + 1;
+    return clamp01<T>(load(rows + idx) - dist[(dy + half) * K + dx + half]);
+  }
+  void weights(const T* rows, int64_t, int64_t dy, int64_t dx, int64_t idx, V<T>* w,
+               V<T>* dw) const {
+    const int64_t K = 2 * half + 1;
+    const V<T> zero = V<T>{}, one = zero + T(1);
+    const V<T> t = load(rows + idx) - dist[(dy + half) * K + dx + half];
+    *w = clamp01<T>(t);
+    *dw = (t >= zero) & (t <= one) ? one : zero;
+  }
+  T scale(T) const { return T(1); }
+};
+
+template <typename T, int G, class P>
+void fused_forward_group(const P& pol, const T* const* ch_rows, const T* const* w_rows,
+                         int64_t padded, int64_t x0, T* const* out, int64_t n_out,
+                         int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  const int64_t half = pol.half;
+  V<T> acc[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
+    const T* wr = w_rows[k];
+    if (wr == nullptr) continue;
+    const int64_t dy = k - half;
+    const T* const* xr = ch_rows + k * G;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = x0 - dx + half;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = pol.weight(wr, padded, dy, dx, base + j * L);
+        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    T tmp[kVectors * L];
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
+    std::copy(tmp, tmp + n_out, out[g] + x0);
+  }
+}
+
+template <typename T, class P>
+void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64_t B, int64_t C,
+                   int64_t H, int64_t W, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  constexpr int G = 4;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, nw + C1);  // each slot: weight rows, C rows of x * norm, norm
+    std::vector<const T*> w_rows(K), ch_rows(K * G);
+    std::vector<T*> out_rows(G);
+    std::vector<T> scratch(4 * W + 1);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; ++oy) {
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t sy = oy - (k - half);
+          if (sy < 0 || sy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          if (fresh) {
+            T* norm = slot + (nw + C) * ring.padded + half;
+            pol.fill(param + b * plane + sy * W, W, slot + half, ring.padded, norm, nullptr,
+                     scratch.data());
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + sy * W;
+              T* dst = slot + (nw + c) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * norm[s];
+            }
+          }
+          slots[k] = slot;
+        }
+        T* den_row = den + b * plane + oy * W;
+        for (int64_t c0 = 0; c0 < C1; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+          for (int64_t k = 0; k < K; ++k) {
+            w_rows[k] = slots[k];
+            for (int64_t g = 0; g < G; ++g)
+              ch_rows[k * G + g] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (nw + c0 + std::min(g, gsize - 1)) * ring.padded;
+          }
+          for (int64_t g = 0; g < gsize; ++g) {
+            const int64_t c = c0 + g;
+            out_rows[g] = c < C ? y + (b * C + c) * plane + oy * W : den_row;
+          }
+          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>())
+            fused_forward_group<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                         out_rows.data(), std::min(block_lanes<T>(), W - x0),
+                                         gsize);
+        }
+        for (int64_t c = 0; c < C; ++c) {
+          T* yr = y + (b * C + c) * plane + oy * W;
+          for (int64_t s = 0; s < W; ++s) yr[s] /= den_row[s];
+        }
+      }
+    }
+  }
+}
+
+template <typename T, int G, class P>
+void fused_backward_group(const P& pol, const T* w_row, int64_t w_padded,
+                          const T* const* g_rows, int64_t s0, const T* const* x_rows,
+                          T* const* d_rows, T* m_row, int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  const int64_t half = pol.half;
+  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
+    const T* const* gr = g_rows + k * G;
+    if (gr[0] == nullptr) continue;
+    const int64_t dy = k - half;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = half + s0 + dx;
+      for (int j = 0; j < kVectors; ++j) {
+        V<T> w, dw;
+        pol.weights(w_row, w_padded, dy, dx, half + s0 + j * L, &w, &dw);
+        for (int g = 0; g < G; ++g) {
+          const V<T> gv = load(gr[g] + base + j * L);
+          acc_d[g][j] += w * gv;
+          acc_f[g][j] += dw * gv;
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    const T* xr = x_rows[g] + s0;
+    T* dr = d_rows[g] + s0;
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) {
+        const int64_t i = j * L + l;
+        if (i >= n_out) break;
+        dr[i] = acc_d[g][j][l];
+        m_row[i] += xr[i] * acc_f[g][j][l];
+      }
+  }
+}
+
+template <typename T, class P>
+void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T* x,
+                    const T* param, T* grad_x, T* grad_param, int64_t B, int64_t C, int64_t H,
+                    int64_t W, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  constexpr int G = 2;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, C1);       // padded rows of G = dL/ds
+    RowRing<T> own(1, half, W, nw + 2);    // the source row's weight rows, norm, dnorm
+    std::vector<T> ones(W + kPadRight, T(1));
+    std::vector<T> dbuf(C1 * (W + kPadRight));  // D_c of the source row
+    std::vector<T> mrow(W + kPadRight);
+    std::vector<T> scratch(4 * W + 1);
+    std::vector<const T*> g_rows(K * G), x_rows(G);
+    std::vector<T*> d_rows(G);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; ++sy) {
+        bool fresh;
+        T* wslot = own.slot(0, &fresh);
+        T* norm = wslot + nw * own.padded + half;
+        T* dnorm = wslot + (nw + 1) * own.padded + half;
+        const T* prow = param + b * plane + sy * W;
+        pol.fill(prow, W, wslot + half, own.padded, norm, dnorm, scratch.data());
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t oy = sy + (k - half);
+          if (oy < 0 || oy >= H) continue;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh) {
+            const T* drow = den + b * plane + oy * W;
+            T* last = slot + C * ring.padded + half;
+            std::fill(last, last + W, T(0));
+            for (int64_t c = 0; c < C; ++c) {
+              const T* grow = g + (b * C + c) * plane + oy * W;
+              const T* yrow = y + (b * C + c) * plane + oy * W;
+              T* dst = slot + c * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) {
+                const T gd = grow[s] / drow[s];
+                dst[s] = gd;
+                last[s] -= gd * yrow[s];
+              }
+            }
+          }
+          slots[k] = slot;
+        }
+        std::fill(mrow.begin(), mrow.end(), T(0));
+        for (int64_t c0 = 0; c0 < C1; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+          for (int64_t k = 0; k < K; ++k)
+            for (int64_t gi = 0; gi < G; ++gi)
+              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+          for (int64_t gi = 0; gi < gsize; ++gi) {
+            const int64_t c = c0 + gi;
+            x_rows[gi] = c < C ? x + (b * C + c) * plane + sy * W : ones.data();
+            d_rows[gi] = dbuf.data() + c * (W + kPadRight);
+          }
+          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>())
+            fused_backward_group<T, G, P>(pol, wslot, own.padded, g_rows.data(), s0,
+                                          x_rows.data(), d_rows.data(), mrow.data() + s0,
+                                          std::min(block_lanes<T>(), W - s0), gsize);
+        }
+        T* gp = grad_param + b * plane + sy * W;
+        const T* dlast = dbuf.data() + C * (W + kPadRight);
+        for (int64_t s = 0; s < W; ++s) gp[s] = dlast[s];  // sum_c X_c D_c, X_C = 1
+        for (int64_t c = 0; c < C; ++c) {
+          const T* xrow = x + (b * C + c) * plane + sy * W;
+          const T* dc = dbuf.data() + c * (W + kPadRight);
+          T* gx = grad_x + (b * C + c) * plane + sy * W;
+          for (int64_t s = 0; s < W; ++s) {
+            gx[s] = norm[s] * dc[s];
+            gp[s] += xrow[s] * dc[s];
+          }
+        }
+        for (int64_t s = 0; s < W; ++s)
+          gp[s] = norm[s] * mrow[s] * pol.scale(prow[s]) + gp[s] * dnorm[s];
+      }
+    }
+  }
+}
+
 }  // namespace
 
 extern "C" {
@@ -552,4 +888,31 @@ void gs_backward_f64(const double* g, const double* x, const double* sigma, doub
   }
 DEFOCUS_CLAMP_ABI(float, f32)
 DEFOCUS_CLAMP_ABI(double, f64)
+
+#define DEFOCUS_FUSED_ABI(T, S)                                                                \
+  void gs_render_##S(const T* x, const T* sigma, T* y, T* den, int64_t B, int64_t C, int64_t H, \
+                     int64_t W, int64_t half, int nthreads) {                                   \
+    fused_forward(GaussPolicy<T>{half}, x, sigma, y, den, B, C, H, W, nthreads);              \
+  }                                                                                           \
+  void gs_render_backward_##S(const T* g, const T* y, const T* den, const T* x,               \
+                              const T* sigma, T* grad_x, T* grad_sigma, int64_t B, int64_t C, \
+                              int64_t H, int64_t W, int64_t half, int nthreads) {             \
+    fused_backward(GaussPolicy<T>{half}, g, y, den, x, sigma, grad_x, grad_sigma, B, C, H, W,   \
+                   nthreads);                                                                 \
+  }                                                                                           \
+  void cl_render_##S(const T* x, const T* rho, const T* dist, const T* dists, const T* counts, \
+                     int64_t n_dists, T* y, T* den, int64_t B, int64_t C, int64_t H, int64_t W, \
+                     int64_t half, int nthreads) {                                              \
+    fused_forward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, x, rho, y, den, B, C, H, \
+                  W, nthreads);                                                                \
+  }                                                                                            \
+  void cl_render_backward_##S(const T* g, const T* y, const T* den, const T* x, const T* rho,   \
+                              const T* dist, const T* dists, const T* counts, int64_t n_dists,  \
+                              T* grad_x, T* grad_rho, int64_t B, int64_t C, int64_t H,          \
+                              int64_t W, int64_t half, int nthreads) {                          \
+    fused_backward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, g, y, den, x, rho,       \
+                   grad_x, grad_rho, B, C, H, W, nthreads);                                     \
+  }
+DEFOCUS_FUSED_ABI(float, f32)
+DEFOCUS_FUSED_ABI(double, f64)
 }
