@@ -51,6 +51,7 @@ template <typename T>
 constexpr int64_t block_lanes() {
   return kVectors * Vec<T>::lanes;
 }
+constexpr int64_t kRowVectors = 1;     // vectors per row in the two-row register blocks
 constexpr int64_t kPadRight = 16;      // >= block_lanes<T>() for float and double
 constexpr int64_t kRowsPerBlock = 16;  // rows per task: the ring of source rows is reused
 
@@ -566,6 +567,13 @@ struct GaussPolicy {
   V<T> weight(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx) const {
     return load(rows + std::abs(dy) * padded + idx) * load(rows + std::abs(dx) * padded + idx);
   }
+  // Weights at (dy, dx) and (dy + 1, dx), sharing the load of t(|dx|).
+  void weight2(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx, V<T>* w0,
+               V<T>* w1) const {
+    const V<T> tx = load(rows + std::abs(dx) * padded + idx);
+    *w0 = load(rows + std::abs(dy) * padded + idx) * tx;
+    *w1 = load(rows + std::abs(dy + 1) * padded + idx) * tx;
+  }
   // w and dw/da without the per-source factor (1 / sigma^3, applied by scale()).
   void weights(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx, V<T>* w,
                V<T>* dw) const {
@@ -602,6 +610,13 @@ struct ClampPolicy {
     const int64_t K = 2 * half + 1;
     return clamp01<T>(load(rows + idx) - dist[(dy + half) * K + dx + half]);
   }
+  void weight2(const T* rows, int64_t, int64_t dy, int64_t dx, int64_t idx, V<T>* w0,
+               V<T>* w1) const {
+    const int64_t K = 2 * half + 1;
+    const V<T> r = load(rows + idx);
+    *w0 = clamp01<T>(r - dist[(dy + half) * K + dx + half]);
+    *w1 = clamp01<T>(r - dist[(dy + 1 + half) * K + dx + half]);
+  }
   void weights(const T* rows, int64_t, int64_t dy, int64_t dx, int64_t idx, V<T>* w,
                V<T>* dw) const {
     const int64_t K = 2 * half + 1;
@@ -613,34 +628,67 @@ struct ClampPolicy {
   T scale(T) const { return T(1); }
 };
 
+// Two output rows (oy, oy + 1) of G channels at once, one register block from output pixel x0:
+// each source row and weight loaded serves both rows (they share K of their K + 1 source rows).
+// Source row r of the K + 1 is sy = oy + 1 + half - r: offsets dy0 = oy - sy = r - half - 1 to row
+// oy and dy0 + 1 to row oy + 1 (r = 0 reaches row oy + 1 only, r = K row oy only).
 template <typename T, int G, class P>
-void fused_forward_group(const P& pol, const T* const* ch_rows, const T* const* w_rows,
-                         int64_t padded, int64_t x0, T* const* out, int64_t n_out,
-                         int64_t n_groups) {
+void fused_forward_rows(const P& pol, const T* const* ch_rows, const T* const* w_rows,
+                        int64_t padded, int64_t x0, T* const* out0, T* const* out1,
+                        int64_t n_out, int64_t n_groups) {
   constexpr int64_t L = Vec<T>::lanes;
+  constexpr int J = kRowVectors;
   const int64_t half = pol.half;
-  V<T> acc[G][kVectors];
+  V<T> acc0[G][J], acc1[G][J];
   for (int g = 0; g < G; ++g)
-    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{};
+    for (int j = 0; j < J; ++j) acc0[g][j] = acc1[g][j] = V<T>{};
   const int64_t K = 2 * half + 1;
-  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
-    const T* wr = w_rows[k];
+  for (int64_t r = 0; r <= K; ++r) {
+    const T* wr = w_rows[r];
     if (wr == nullptr) continue;
-    const int64_t dy = k - half;
-    const T* const* xr = ch_rows + k * G;
-    for (int64_t dx = -half; dx <= half; ++dx) {
-      const int64_t base = x0 - dx + half;
-      for (int j = 0; j < kVectors; ++j) {
-        const V<T> w = pol.weight(wr, padded, dy, dx, base + j * L);
-        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
+    const int64_t dy0 = r - half - 1;
+    const T* const* xr = ch_rows + r * G;
+    const bool both = r >= 1 && r < K;
+    if (both) {
+      for (int64_t dx = -half; dx <= half; ++dx) {
+        const int64_t base = x0 - dx + half;
+        for (int j = 0; j < J; ++j) {
+          V<T> w0, w1;
+          pol.weight2(wr, padded, dy0, dx, base + j * L, &w0, &w1);
+          for (int g = 0; g < G; ++g) {
+            const V<T> v = load(xr[g] + base + j * L);
+            acc0[g][j] += w0 * v;
+            acc1[g][j] += w1 * v;
+          }
+        }
+      }
+    } else {
+      const bool first = r == K;
+      const int64_t dy = first ? dy0 : dy0 + 1;
+      for (int64_t dx = -half; dx <= half; ++dx) {
+        const int64_t base = x0 - dx + half;
+        for (int j = 0; j < J; ++j) {
+          const V<T> w = pol.weight(wr, padded, dy, dx, base + j * L);
+          for (int g = 0; g < G; ++g) {
+            const V<T> v = load(xr[g] + base + j * L);
+            if (first)
+              acc0[g][j] += w * v;
+            else
+              acc1[g][j] += w * v;
+          }
+        }
       }
     }
   }
   for (int64_t g = 0; g < n_groups; ++g) {
-    T tmp[kVectors * L];
-    for (int j = 0; j < kVectors; ++j)
-      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
-    std::copy(tmp, tmp + n_out, out[g] + x0);
+    T tmp[J * L];
+    for (int j = 0; j < J; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc0[g][j][l];
+    std::copy(tmp, tmp + n_out, out0[g] + x0);
+    if (out1[g] == nullptr) continue;
+    for (int j = 0; j < J; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc1[g][j][l];
+    std::copy(tmp, tmp + n_out, out1[g] + x0);
   }
 }
 
@@ -654,23 +702,27 @@ void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
   constexpr int G = 4;
+  constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
 #pragma omp parallel num_threads(nthreads)
   {
-    RowRing<T> ring(K, half, W, nw + C1);  // each slot: weight rows, C rows of x * norm, norm
-    std::vector<const T*> w_rows(K), ch_rows(K * G);
-    std::vector<T*> out_rows(G);
+    // each slot: weight rows, C rows of x * norm, the norm row; K + 1 source rows are live
+    RowRing<T> ring(K + 1, half, W, nw + C1);
+    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
+    std::vector<T*> out0(G), out1(G);
     std::vector<T> scratch(4 * W + 1);
+    std::vector<T*> slots(K + 1);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
       const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
       const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
       ring.reset();
-      for (int64_t oy = y0; oy < y1; ++oy) {
-        std::vector<T*> slots(K, nullptr);
-        for (int64_t k = 0; k < K; ++k) {
-          const int64_t sy = oy - (k - half);
-          if (sy < 0 || sy >= H) continue;
+      for (int64_t oy = y0; oy < y1; oy += 2) {
+        const bool pair = oy + 1 < y1;
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t sy = oy + 1 + half - r;  // see fused_forward_rows
+          slots[r] = nullptr;
+          if (sy < 0 || sy >= H || (!pair && r == 0)) continue;
           bool fresh;
           T* slot = ring.slot(sy, &fresh);
           if (fresh) {
@@ -683,29 +735,32 @@ void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64
               for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * norm[s];
             }
           }
-          slots[k] = slot;
+          slots[r] = slot;
         }
-        T* den_row = den + b * plane + oy * W;
+        T* den0 = den + b * plane + oy * W;
+        T* den1 = pair ? den0 + W : nullptr;
         for (int64_t c0 = 0; c0 < C1; c0 += G) {
           const int64_t gsize = std::min<int64_t>(G, C1 - c0);
-          for (int64_t k = 0; k < K; ++k) {
-            w_rows[k] = slots[k];
+          for (int64_t r = 0; r <= K; ++r) {
+            w_rows[r] = slots[r];
             for (int64_t g = 0; g < G; ++g)
-              ch_rows[k * G + g] = slots[k] == nullptr ? nullptr
-                  : slots[k] + (nw + c0 + std::min(g, gsize - 1)) * ring.padded;
+              ch_rows[r * G + g] = slots[r] == nullptr ? nullptr
+                  : slots[r] + (nw + c0 + std::min(g, gsize - 1)) * ring.padded;
           }
           for (int64_t g = 0; g < gsize; ++g) {
             const int64_t c = c0 + g;
-            out_rows[g] = c < C ? y + (b * C + c) * plane + oy * W : den_row;
+            out0[g] = c < C ? y + (b * C + c) * plane + oy * W : den0;
+            out1[g] = !pair ? nullptr : c < C ? out0[g] + W : den1;
           }
-          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>())
-            fused_forward_group<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
-                                         out_rows.data(), std::min(block_lanes<T>(), W - x0),
-                                         gsize);
+          for (int64_t x0 = 0; x0 < W; x0 += lanes)
+            fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                        out0.data(), out1.data(), std::min(lanes, W - x0), gsize);
         }
         for (int64_t c = 0; c < C; ++c) {
           T* yr = y + (b * C + c) * plane + oy * W;
-          for (int64_t s = 0; s < W; ++s) yr[s] /= den_row[s];
+          for (int64_t s = 0; s < W; ++s) yr[s] /= den0[s];
+          if (pair)
+            for (int64_t s = 0; s < W; ++s) yr[W + s] /= den1[s];
         }
       }
     }
@@ -762,7 +817,7 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
-  constexpr int G = 2;
+  constexpr int G = 4;
 #pragma omp parallel num_threads(nthreads)
   {
     RowRing<T> ring(K, half, W, C1);       // padded rows of G = dL/ds
