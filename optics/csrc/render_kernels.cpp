@@ -767,43 +767,60 @@ void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64
   }
 }
 
+// Two source rows (sy, sy + 1) of G channels at once, one register block from source pixel s0:
+// each gradient load serves both rows (they share K of their K + 1 output rows). Output row r of
+// the K + 1 is oy = sy - half + r: offsets dy0 = r - half from row sy, dy0 - 1 from row sy + 1.
 template <typename T, int G, class P>
-void fused_backward_group(const P& pol, const T* w_row, int64_t w_padded,
-                          const T* const* g_rows, int64_t s0, const T* const* x_rows,
-                          T* const* d_rows, T* m_row, int64_t n_out, int64_t n_groups) {
-  constexpr int64_t L = Vec<T>::lanes;
+void fused_backward_rows(const P& pol, const T* w0_row, const T* w1_row, int64_t w_padded,
+                         const T* const* g_rows, int64_t s0, const T* const* x_rows,
+                         T* const* d0_rows, T* const* d1_rows, T* m0_row, T* m1_row,
+                         int64_t n_out, int64_t n_groups) {
   const int64_t half = pol.half;
-  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
-  for (int g = 0; g < G; ++g)
-    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
+  V<T> d0[G], f0[G], d1[G], f1[G];
+  for (int g = 0; g < G; ++g) d0[g] = f0[g] = d1[g] = f1[g] = V<T>{};
   const int64_t K = 2 * half + 1;
-  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
-    const T* const* gr = g_rows + k * G;
+  const int64_t idx = half + s0;
+  for (int64_t r = 0; r <= K; ++r) {
+    const T* const* gr = g_rows + r * G;
     if (gr[0] == nullptr) continue;
-    const int64_t dy = k - half;
+    const int64_t dy0 = r - half;
+    const bool first = r < K, second = r > 0 && w1_row != nullptr;
     for (int64_t dx = -half; dx <= half; ++dx) {
-      const int64_t base = half + s0 + dx;
-      for (int j = 0; j < kVectors; ++j) {
+      const int64_t base = idx + dx;
+      V<T> gv[G];
+      for (int g = 0; g < G; ++g) gv[g] = load(gr[g] + base);
+      if (first) {
         V<T> w, dw;
-        pol.weights(w_row, w_padded, dy, dx, half + s0 + j * L, &w, &dw);
+        pol.weights(w0_row, w_padded, dy0, dx, idx, &w, &dw);
         for (int g = 0; g < G; ++g) {
-          const V<T> gv = load(gr[g] + base + j * L);
-          acc_d[g][j] += w * gv;
-          acc_f[g][j] += dw * gv;
+          d0[g] += w * gv[g];
+          f0[g] += dw * gv[g];
+        }
+      }
+      if (second) {
+        V<T> w, dw;
+        pol.weights(w1_row, w_padded, dy0 - 1, dx, idx, &w, &dw);
+        for (int g = 0; g < G; ++g) {
+          d1[g] += w * gv[g];
+          f1[g] += dw * gv[g];
         }
       }
     }
   }
   for (int64_t g = 0; g < n_groups; ++g) {
-    const T* xr = x_rows[g] + s0;
-    T* dr = d_rows[g] + s0;
-    for (int j = 0; j < kVectors; ++j)
-      for (int64_t l = 0; l < L; ++l) {
-        const int64_t i = j * L + l;
-        if (i >= n_out) break;
-        dr[i] = acc_d[g][j][l];
-        m_row[i] += xr[i] * acc_f[g][j][l];
-      }
+    const T* xr0 = x_rows[g] + s0;
+    T* dr0 = d0_rows[g] + s0;
+    for (int64_t i = 0; i < n_out; ++i) {
+      dr0[i] = d0[g][i];
+      m0_row[i] += xr0[i] * f0[g][i];
+    }
+    if (w1_row == nullptr) continue;
+    const T* xr1 = x_rows[G + g] + s0;
+    T* dr1 = d1_rows[g] + s0;
+    for (int64_t i = 0; i < n_out; ++i) {
+      dr1[i] = d1[g][i];
+      m1_row[i] += xr1[i] * f1[g][i];
+    }
   }
 }
 
@@ -817,34 +834,41 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
+  const int64_t stride = W + kPadRight;
   constexpr int G = 4;
+  constexpr int64_t lanes = Vec<T>::lanes;
 #pragma omp parallel num_threads(nthreads)
   {
-    RowRing<T> ring(K, half, W, C1);       // padded rows of G = dL/ds
-    RowRing<T> own(1, half, W, nw + 2);    // the source row's weight rows, norm, dnorm
-    std::vector<T> ones(W + kPadRight, T(1));
-    std::vector<T> dbuf(C1 * (W + kPadRight));  // D_c of the source row
-    std::vector<T> mrow(W + kPadRight);
+    RowRing<T> ring(K + 1, half, W, C1);  // padded rows of G = dL/ds
+    RowRing<T> own(2, half, W, nw + 2);   // the two source rows' weight rows, norm, dnorm
+    std::vector<T> ones(stride, T(1));
+    std::vector<T> dbuf(2 * C1 * stride);  // D_c of the two source rows
+    std::vector<T> mrow(2 * stride);
     std::vector<T> scratch(4 * W + 1);
-    std::vector<const T*> g_rows(K * G), x_rows(G);
-    std::vector<T*> d_rows(G);
+    std::vector<const T*> g_rows((K + 1) * G), x_rows(2 * G);
+    std::vector<T*> d0_rows(G), d1_rows(G);
+    std::vector<T*> slots(K + 1);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
       const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
       const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
       ring.reset();
-      for (int64_t sy = y0; sy < y1; ++sy) {
-        bool fresh;
-        T* wslot = own.slot(0, &fresh);
-        T* norm = wslot + nw * own.padded + half;
-        T* dnorm = wslot + (nw + 1) * own.padded + half;
-        const T* prow = param + b * plane + sy * W;
-        pol.fill(prow, W, wslot + half, own.padded, norm, dnorm, scratch.data());
-        std::vector<T*> slots(K, nullptr);
-        for (int64_t k = 0; k < K; ++k) {
-          const int64_t oy = sy + (k - half);
-          if (oy < 0 || oy >= H) continue;
+      for (int64_t sy = y0; sy < y1; sy += 2) {
+        const bool pair = sy + 1 < y1;
+        T* wslot[2];
+        for (int64_t i = 0; i < (pair ? 2 : 1); ++i) {
+          bool fresh;
+          wslot[i] = own.slot(i, &fresh);
+          pol.fill(param + b * plane + (sy + i) * W, W, wslot[i] + half, own.padded,
+                   wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
+                   scratch.data());
+        }
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t oy = sy - half + r;
+          slots[r] = nullptr;
+          if (oy < 0 || oy >= H || (!pair && r == K)) continue;
+          bool fresh;
           T* slot = ring.slot(oy, &fresh);
           if (fresh) {
             const T* drow = den + b * plane + oy * W;
@@ -861,39 +885,51 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
               }
             }
           }
-          slots[k] = slot;
+          slots[r] = slot;
         }
         std::fill(mrow.begin(), mrow.end(), T(0));
         for (int64_t c0 = 0; c0 < C1; c0 += G) {
           const int64_t gsize = std::min<int64_t>(G, C1 - c0);
-          for (int64_t k = 0; k < K; ++k)
+          for (int64_t r = 0; r <= K; ++r)
             for (int64_t gi = 0; gi < G; ++gi)
-              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
-                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+              g_rows[r * G + gi] = slots[r] == nullptr ? nullptr
+                  : slots[r] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
           for (int64_t gi = 0; gi < gsize; ++gi) {
             const int64_t c = c0 + gi;
-            x_rows[gi] = c < C ? x + (b * C + c) * plane + sy * W : ones.data();
-            d_rows[gi] = dbuf.data() + c * (W + kPadRight);
+            for (int64_t i = 0; i < 2; ++i)
+              x_rows[i * G + gi] = c < C ? x + (b * C + c) * plane + (sy + i) * W : ones.data();
+            d0_rows[gi] = dbuf.data() + c * stride;
+            d1_rows[gi] = dbuf.data() + (C1 + c) * stride;
           }
-          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>())
-            fused_backward_group<T, G, P>(pol, wslot, own.padded, g_rows.data(), s0,
-                                          x_rows.data(), d_rows.data(), mrow.data() + s0,
-                                          std::min(block_lanes<T>(), W - s0), gsize);
+          for (int64_t s0 = 0; s0 < W; s0 += lanes)
+            fused_backward_rows<T, G, P>(pol, wslot[0], pair ? wslot[1] : nullptr, own.padded,
+                                         g_rows.data(), s0, x_rows.data(), d0_rows.data(),
+                                         d1_rows.data(), mrow.data() + s0,
+                                         mrow.data() + stride + s0, std::min(lanes, W - s0),
+                                         gsize);
         }
-        T* gp = grad_param + b * plane + sy * W;
-        const T* dlast = dbuf.data() + C * (W + kPadRight);
-        for (int64_t s = 0; s < W; ++s) gp[s] = dlast[s];  // sum_c X_c D_c, X_C = 1
-        for (int64_t c = 0; c < C; ++c) {
-          const T* xrow = x + (b * C + c) * plane + sy * W;
-          const T* dc = dbuf.data() + c * (W + kPadRight);
-          T* gx = grad_x + (b * C + c) * plane + sy * W;
-          for (int64_t s = 0; s < W; ++s) {
-            gx[s] = norm[s] * dc[s];
-            gp[s] += xrow[s] * dc[s];
+        for (int64_t i = 0; i < (pair ? 2 : 1); ++i) {
+          const int64_t row = sy + i;
+          const T* norm = wslot[i] + nw * own.padded + half;
+          const T* dnorm = wslot[i] + (nw + 1) * own.padded + half;
+          const T* d = dbuf.data() + i * C1 * stride;
+          const T* m = mrow.data() + i * stride;
+          const T* prow = param + b * plane + row * W;
+          T* gp = grad_param + b * plane + row * W;
+          const T* dlast = d + C * stride;
+          for (int64_t s = 0; s < W; ++s) gp[s] = dlast[s];  // sum_c X_c D_c, X_C = 1
+          for (int64_t c = 0; c < C; ++c) {
+            const T* xrow = x + (b * C + c) * plane + row * W;
+            const T* dc = d + c * stride;
+            T* gx = grad_x + (b * C + c) * plane + row * W;
+            for (int64_t s = 0; s < W; ++s) {
+              gx[s] = norm[s] * dc[s];
+              gp[s] += xrow[s] * dc[s];
+            }
           }
+          for (int64_t s = 0; s < W; ++s)
+            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + gp[s] * dnorm[s];
         }
-        for (int64_t s = 0; s < W; ++s)
-          gp[s] = norm[s] * mrow[s] * pol.scale(prow[s]) + gp[s] * dnorm[s];
       }
     }
   }
