@@ -230,6 +230,14 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
         getattr(lib, f"cl_render_backward_{suffix}").argtypes = (
             [ptr] * 8 + [i64] + [ptr] * 2 + [i64] * 5 + [i32]
         )
+        getattr(lib, f"gs_layered_{suffix}").argtypes = [ptr] * 5 + [i64] * 6 + [i32]
+        getattr(lib, f"gs_layered_backward_{suffix}").argtypes = [ptr] * 9 + [i64] * 6 + [i32]
+        getattr(lib, f"cl_layered_{suffix}").argtypes = (
+            [ptr] * 6 + [i64] + [ptr] * 2 + [i64] * 6 + [i32]
+        )
+        getattr(lib, f"cl_layered_backward_{suffix}").argtypes = (
+            [ptr] * 9 + [i64] + [ptr] * 3 + [i64] * 6 + [i32]
+        )
     return lib
 
 
@@ -376,3 +384,48 @@ def clamp_render_backward(
         grad_rho.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
     )
     return grad_x, grad_rho
+
+
+def layered_render(
+    x: Tensor, pos: Tensor, param: Tensor, half: int, n_layers: int,
+    clamp: tuple[Tensor, Tensor, Tensor] | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Fused layered mode: `(out, spread)`; `clamp = (dist, dists, counts)` for the disk family."""
+    b, c, h, w = x.shape
+    out = torch.empty_like(x)
+    spread = torch.empty(b, n_layers, c + 1, h, w, dtype=x.dtype)
+    tail = (b, c, h, w, half, n_layers, torch.get_num_threads())
+    if clamp is None:
+        getattr(library(), f"gs_layered_{_suffix(x)}")(
+            x.data_ptr(), pos.data_ptr(), param.data_ptr(), spread.data_ptr(), out.data_ptr(),
+            *tail,
+        )
+    else:
+        dist, dists, counts = clamp
+        getattr(library(), f"cl_layered_{_suffix(x)}")(
+            x.data_ptr(), pos.data_ptr(), param.data_ptr(), dist.data_ptr(), dists.data_ptr(),
+            counts.data_ptr(), dists.numel(), spread.data_ptr(), out.data_ptr(), *tail,
+        )
+    return out, spread
+
+
+def layered_render_backward(
+    grad: Tensor, out: Tensor, spread: Tensor, x: Tensor, pos: Tensor, param: Tensor, half: int,
+    n_layers: int, clamp: tuple[Tensor, Tensor, Tensor] | None = None,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Backward of `layered_render`: `(grad_x, grad_pos, grad_param)`."""
+    b, c, h, w = x.shape
+    grad_x, grad_pos, grad_param = torch.empty_like(x), torch.empty_like(pos), torch.empty_like(pos)
+    head = (grad.data_ptr(), out.data_ptr(), spread.data_ptr(), x.data_ptr(), pos.data_ptr(),
+            param.data_ptr())
+    outs = (grad_x.data_ptr(), grad_pos.data_ptr(), grad_param.data_ptr())
+    tail = (b, c, h, w, half, n_layers, torch.get_num_threads())
+    if clamp is None:
+        getattr(library(), f"gs_layered_backward_{_suffix(x)}")(*head, *outs, *tail)
+    else:
+        dist, dists, counts = clamp
+        getattr(library(), f"cl_layered_backward_{_suffix(x)}")(
+            *head, dist.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), *outs,
+            *tail,
+        )
+    return grad_x, grad_pos, grad_param

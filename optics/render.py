@@ -35,6 +35,7 @@ import warnings
 import torch
 from torch import Tensor, nn
 
+from . import _render_cpp
 from . import _render_ops as ops
 from .aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
 from .checks import check_depth, check_shape
@@ -272,13 +273,18 @@ def layer_weights(depth: Tensor, n_layers: int) -> Tensor:
         tensor([[1.0000, 0.3333, 0.0000],
                 [0.0000, 0.6667, 1.0000]])
     """
+    position = _layer_position(depth, n_layers)
+    centres = torch.arange(n_layers, device=depth.device, dtype=depth.dtype).view(1, -1, 1, 1)
+    return (1 - (position - centres).abs()).clamp_min(0)
+
+
+def _layer_position(depth: Tensor, n_layers: int) -> Tensor:
+    """Continuous layer index in `[0, n_layers - 1]` per pixel, `(B, 1, H, W)`: 0 is the nearest."""
     inverse = 1.0 / depth
     near = inverse.amax(dim=(1, 2, 3), keepdim=True)
     far = inverse.amin(dim=(1, 2, 3), keepdim=True)
     step = ((near - far) / max(n_layers - 1, 1)).clamp_min(torch.finfo(depth.dtype).tiny)
-    position = ((near - inverse) / step).clamp(0, n_layers - 1)
-    centres = torch.arange(n_layers, device=depth.device, dtype=depth.dtype).view(1, -1, 1, 1)
-    return (1 - (position - centres).abs()).clamp_min(0)
+    return ((near - inverse) / step).clamp(0, n_layers - 1)
 
 
 def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
@@ -292,6 +298,16 @@ def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
         raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
     b, c, h, w = image.shape
     depth = depth.to(image.dtype).expand(b, 1, h, w)
+    kind = _fast_kind(psf)
+    if kind is not None and n_layers <= 32 and _render_cpp.usable(image):
+        # One fused pass each way: layers present nowhere near a pixel cost nothing there.
+        pos = _layer_position(depth, n_layers)
+        half_t = _half_tensor(half)
+        if kind == "gaussian":
+            param, dist = psf.sigma_px(coc_px), image.new_zeros(1, 1)
+        else:
+            param, dist = psf.edge_radius(coc_px) + 0.5, _distance_table(psf, half, cap, image)
+        return ops.layered_render(image, pos, param, dist, half_t, n_layers, kind)[0]
     alpha = layer_weights(depth, n_layers)  # (B, L, H, W), front first
     layers = torch.cat([alpha.unsqueeze(2) * image.unsqueeze(1), alpha.unsqueeze(2)], 2)
     spread = _linear_filter(layers.reshape(b, -1, h, w), coc_px, psf, half, True, cap)

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <vector>
 
 namespace {
@@ -935,6 +936,352 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
   }
 }
 
+
+// ---------------------------------------------------------------------------------------------
+// Layered (occlusion-aware) mode in one pass each way. Layer weights from the continuous layer
+// position pos_q in [0, L-1]: alpha_l(q) = max(0, 1 - |pos_q - l|) (two layers per pixel at most).
+//
+//   S_{l,c}(p) = sum_q norm_q w_q(p - q) alpha_l(q) X_c(q),  X = (x_0 .. x_{C-1}, 1)
+//   T_0 = 1, T_{l+1} = T_l (1 - min(S_{l,C}, 1)),  out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny)
+//
+// Work is skipped where it is exactly zero: a layer absent from every source of a register
+// block's window (forward), or whose weight has a zero derivative at every source of the block
+// (backward: |pos_q - l| > 1), so the cost follows the number of layers present locally.
+template <typename T>
+inline T layer_alpha(T p, int64_t l) {
+  const T a = T(1) - std::abs(p - T(l));
+  return a > T(0) ? a : T(0);
+}
+
+template <typename T>
+inline uint32_t layer_bits(T p, int64_t n_layers, bool inclusive) {
+  // Layers l with alpha_l(p) != 0 (|p - l| < 1), or with |p - l| <= 1 when inclusive.
+  uint32_t bits = 0;
+  const int64_t lo = std::max<int64_t>(0, static_cast<int64_t>(std::floor(p)) - 1);
+  const int64_t hi = std::min<int64_t>(n_layers - 1, static_cast<int64_t>(std::floor(p)) + 2);
+  for (int64_t l = lo; l <= hi; ++l) {
+    const T d = std::abs(p - T(l));
+    if (inclusive ? d <= T(1) : d < T(1)) bits |= uint32_t(1) << l;
+  }
+  return bits;
+}
+
+template <typename T>
+void composite_row(const T* S, const T* const* unused, T* out, int64_t C, int64_t NL,
+                   int64_t plane, int64_t W, int64_t b, int64_t row) {
+  (void)unused;
+  const int64_t C1 = C + 1;
+  const T tiny = std::numeric_limits<T>::min();
+  std::vector<T> colour(C);
+  for (int64_t s = 0; s < W; ++s) {
+    const int64_t at = row * W + s;
+    std::fill(colour.begin(), colour.end(), T(0));
+    T cov = T(0), t = T(1);
+    for (int64_t l = 0; l < NL; ++l) {
+      const T* sl = S + (b * NL + l) * C1 * plane + at;
+      const T a = sl[C * plane];
+      for (int64_t c = 0; c < C; ++c) colour[c] = colour[c] + t * sl[c * plane];
+      cov = cov + t * a;
+      t = t * (T(1) - std::min(a, T(1)));
+    }
+    const T denom = std::max(cov, tiny);
+    for (int64_t c = 0; c < C; ++c) out[(b * C + c) * plane + at] = colour[c] / denom;
+  }
+}
+
+template <typename T, class P>
+void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* S, T* out,
+                     int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  const int64_t LC = NL * C1;
+  constexpr int G = 4;
+  constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
+  const int64_t ntiles = (W + lanes - 1) / lanes;
+#pragma omp parallel num_threads(nthreads)
+  {
+    // each slot: weight rows, L (C + 1) rows of alpha_l X_c norm, the norm row
+    RowRing<T> ring(K + 1, half, W, nw + LC + 1);
+    std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1);
+    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
+    std::vector<T*> out0(G), out1(G);
+    std::vector<T> scratch(4 * W + 1);
+    std::vector<T*> slots(K + 1);
+    std::vector<int64_t> slot_index(K + 1);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; oy += 2) {
+        const bool pair = oy + 1 < y1;
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t sy = oy + 1 + half - r;  // as in fused_forward_rows
+          slots[r] = nullptr;
+          if (sy < 0 || sy >= H || (!pair && r == 0)) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          const int64_t k = sy % (K + 1);
+          slot_index[r] = k;
+          if (fresh) {
+            T* norm = slot + (nw + LC) * ring.padded + half;
+            pol.fill(param + b * plane + sy * W, W, slot + half, ring.padded, norm, nullptr,
+                     scratch.data());
+            const T* prow = pos + b * plane + sy * W;
+            uint32_t rm = 0;
+            for (int64_t t = 0; t < ntiles; ++t) {
+              uint32_t m = 0;
+              for (int64_t s = t * lanes; s < std::min(W, (t + 1) * lanes); ++s)
+                m |= layer_bits(prow[s], NL, false);
+              tile_mask[k * ntiles + t] = m;
+              rm |= m;
+            }
+            row_mask[k] = rm;
+            for (int64_t l = 0; l < NL; ++l) {
+              if (!((rm >> l) & 1u)) continue;  // never read: the row pointer is null then
+              T* last = slot + (nw + l * C1 + C) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l) * norm[s];
+              for (int64_t c = 0; c < C; ++c) {
+                const T* xrow = x + (b * C + c) * plane + sy * W;
+                T* dst = slot + (nw + l * C1 + c) * ring.padded + half;
+                for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
+              }
+            }
+          }
+          slots[r] = slot;
+        }
+        for (int64_t x0 = 0; x0 < W; x0 += lanes) {
+          const int64_t n_out = std::min(lanes, W - x0);
+          const int64_t t0 = std::max<int64_t>(0, x0 - half) / lanes;
+          const int64_t t1 = std::min(ntiles - 1, (x0 + lanes - 1 + half) / lanes);
+          uint32_t bm = 0;
+          for (int64_t r = 0; r <= K; ++r) {
+            if (slots[r] == nullptr) continue;
+            const uint32_t* tm = tile_mask.data() + slot_index[r] * ntiles;
+            for (int64_t t = t0; t <= t1; ++t) bm |= tm[t];
+          }
+          for (int64_t l = 0; l < NL; ++l) {
+            if (!((bm >> l) & 1u)) {
+              for (int64_t c = 0; c < C1; ++c) {
+                T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
+                std::fill(o, o + n_out, T(0));
+                if (pair) std::fill(o + W, o + W + n_out, T(0));
+              }
+              continue;
+            }
+            for (int64_t c0 = 0; c0 < C1; c0 += G) {
+              const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+              for (int64_t r = 0; r <= K; ++r) {
+                const bool has = slots[r] != nullptr && ((row_mask[slot_index[r]] >> l) & 1u);
+                w_rows[r] = has ? slots[r] : nullptr;
+                for (int64_t g = 0; g < G; ++g)
+                  ch_rows[r * G + g] = !has ? nullptr
+                      : slots[r] + (nw + l * C1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+              }
+              for (int64_t g = 0; g < gsize; ++g) {
+                out0[g] = S + ((b * NL + l) * C1 + c0 + g) * plane + oy * W;
+                out1[g] = pair ? out0[g] + W : nullptr;
+              }
+              fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                          out0.data(), out1.data(), n_out, gsize);
+            }
+          }
+        }
+        composite_row<T>(S, nullptr, out, C, NL, plane, W, b, oy);
+        if (pair) composite_row<T>(S, nullptr, out, C, NL, plane, W, b, oy + 1);
+      }
+    }
+  }
+}
+
+// dL/dS of the compositing at one output row, written into the ring slot's L (C + 1) rows.
+template <typename T>
+void composite_backward_row(const T* g, const T* out, const T* S, T* slot, int64_t padded,
+                            int64_t half, int64_t C, int64_t NL, int64_t plane, int64_t W,
+                            int64_t b, int64_t row, T* tl) {
+  const int64_t C1 = C + 1;
+  const T tiny = std::numeric_limits<T>::min();
+  for (int64_t s = 0; s < W; ++s) {
+    const int64_t at = row * W + s;
+    T t = T(1), cov = T(0);
+    for (int64_t l = 0; l < NL; ++l) {
+      const T a = S[((b * NL + l) * C1 + C) * plane + at];
+      tl[l] = t;
+      cov = cov + t * a;
+      t = t * (T(1) - std::min(a, T(1)));
+    }
+    const T denom = std::max(cov, tiny);
+    T dcov = T(0);
+    for (int64_t c = 0; c < C; ++c)
+      dcov -= g[(b * C + c) * plane + at] * out[(b * C + c) * plane + at];
+    dcov = cov >= tiny ? dcov / denom : T(0);
+    T dt_next = T(0);
+    for (int64_t l = NL - 1; l >= 0; --l) {
+      const T* sl = S + (b * NL + l) * C1 * plane + at;
+      const T a = sl[C * plane];
+      T dt = a * dcov + dt_next * (T(1) - std::min(a, T(1)));
+      for (int64_t c = 0; c < C; ++c) {
+        const T dcol = g[(b * C + c) * plane + at] / denom;
+        slot[(l * C1 + c) * padded + half + s] = tl[l] * dcol;
+        dt += sl[c * plane] * dcol;
+      }
+      slot[(l * C1 + C) * padded + half + s] =
+          tl[l] * dcov - (a <= T(1) ? dt_next * tl[l] : T(0));
+      dt_next = dt;
+    }
+  }
+}
+
+template <typename T, class P>
+void layered_backward(const P& pol, const T* g, const T* out, const T* S, const T* x,
+                      const T* pos, const T* param, T* grad_x, T* grad_pos, T* grad_param,
+                      int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  const int64_t LC = NL * C1;
+  const int64_t stride = W + kPadRight;
+  constexpr int G = 4;
+  constexpr int64_t lanes = Vec<T>::lanes;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K + 1, half, W, LC);  // padded rows of dL/dS
+    RowRing<T> own(2, half, W, nw + 2);   // the two source rows' weight rows, norm, dnorm
+    std::vector<T> xl(2 * LC * stride, T(0));  // alpha_l X_c of the two source rows
+    std::vector<T> dbuf(2 * LC * stride), mrow(2 * stride), tl(NL);
+    std::vector<T> scratch(4 * W + 1);
+    std::vector<const T*> g_rows((K + 1) * G), x_rows(2 * G);
+    std::vector<T*> d0_rows(G), d1_rows(G);
+    std::vector<T*> slots(K + 1);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; sy += 2) {
+        const bool pair = sy + 1 < y1;
+        const int64_t rows = pair ? 2 : 1;
+        T* wslot[2];
+        for (int64_t i = 0; i < rows; ++i) {
+          bool fresh;
+          wslot[i] = own.slot(i, &fresh);
+          pol.fill(param + b * plane + (sy + i) * W, W, wslot[i] + half, own.padded,
+                   wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
+                   scratch.data());
+          const T* prow = pos + b * plane + (sy + i) * W;
+          for (int64_t l = 0; l < NL; ++l) {
+            T* last = xl.data() + (i * LC + l * C1 + C) * stride;
+            for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l);
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + (sy + i) * W;
+              T* dst = xl.data() + (i * LC + l * C1 + c) * stride;
+              for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
+            }
+          }
+        }
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t oy = sy - half + r;
+          slots[r] = nullptr;
+          if (oy < 0 || oy >= H || (!pair && r == K)) continue;
+          bool fresh;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh)
+            composite_backward_row<T>(g, out, S, slot, ring.padded, half, C, NL, plane, W, b, oy,
+                                      tl.data());
+          slots[r] = slot;
+        }
+        std::fill(mrow.begin(), mrow.end(), T(0));
+        for (int64_t s0 = 0; s0 < W; s0 += lanes) {
+          const int64_t n_out = std::min(lanes, W - s0);
+          uint32_t support = 0;
+          for (int64_t i = 0; i < rows; ++i) {
+            const T* prow = pos + b * plane + (sy + i) * W;
+            for (int64_t s = s0; s < s0 + n_out; ++s) support |= layer_bits(prow[s], NL, true);
+          }
+          for (int64_t l = 0; l < NL; ++l) {
+            if (!((support >> l) & 1u)) {
+              for (int64_t i = 0; i < 2 * LC; i += LC)
+                for (int64_t c = 0; c < C1; ++c) {
+                  T* d = dbuf.data() + (i + l * C1 + c) * stride + s0;
+                  std::fill(d, d + n_out, T(0));
+                }
+              continue;
+            }
+            for (int64_t c0 = 0; c0 < C1; c0 += G) {
+              const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+              for (int64_t r = 0; r <= K; ++r)
+                for (int64_t gi = 0; gi < G; ++gi)
+                  g_rows[r * G + gi] = slots[r] == nullptr ? nullptr
+                      : slots[r] + (l * C1 + c0 + std::min(gi, gsize - 1)) * ring.padded;
+              for (int64_t gi = 0; gi < gsize; ++gi) {
+                const int64_t c = l * C1 + c0 + gi;
+                x_rows[gi] = xl.data() + c * stride;
+                x_rows[G + gi] = xl.data() + (LC + c) * stride;
+                d0_rows[gi] = dbuf.data() + c * stride;
+                d1_rows[gi] = dbuf.data() + (LC + c) * stride;
+              }
+              fused_backward_rows<T, G, P>(pol, wslot[0], pair ? wslot[1] : nullptr, own.padded,
+                                           g_rows.data(), s0, x_rows.data(), d0_rows.data(),
+                                           d1_rows.data(), mrow.data() + s0,
+                                           mrow.data() + stride + s0, n_out, gsize);
+            }
+          }
+        }
+        for (int64_t i = 0; i < rows; ++i) {
+          const int64_t row = sy + i;
+          const T* norm = wslot[i] + nw * own.padded + half;
+          const T* dnorm = wslot[i] + (nw + 1) * own.padded + half;
+          const T* d = dbuf.data() + i * LC * stride;
+          const T* xs = xl.data() + i * LC * stride;
+          const T* m = mrow.data() + i * stride;
+          const T* prow = param + b * plane + row * W;
+          const T* qrow = pos + b * plane + row * W;
+          T* gp = grad_param + b * plane + row * W;
+          T* gq = grad_pos + b * plane + row * W;
+          for (int64_t s = 0; s < W; ++s) {
+            const T p = qrow[s];
+            T sum_xd = T(0), dpos = T(0);
+            for (int64_t l = 0; l < NL; ++l) {
+              const T dist = std::abs(p - T(l));
+              T dalpha_raw = d[(l * C1 + C) * stride + s];  // sum_c x_c D_{l,c} + D_{l,C}
+              sum_xd += xs[(l * C1 + C) * stride + s] * d[(l * C1 + C) * stride + s];
+              for (int64_t c = 0; c < C; ++c) {
+                const T dlc = d[(l * C1 + c) * stride + s];
+                sum_xd += xs[(l * C1 + c) * stride + s] * dlc;
+                dalpha_raw += x[(b * C + c) * plane + row * W + s] * dlc;
+              }
+              if (T(1) - dist >= T(0)) {
+                const T sign = p > T(l) ? T(1) : (p < T(l) ? T(-1) : T(0));
+                dpos -= norm[s] * dalpha_raw * sign;
+              }
+            }
+            gq[s] = dpos;
+            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + sum_xd * dnorm[s];
+          }
+          for (int64_t c = 0; c < C; ++c) {
+            T* gx = grad_x + (b * C + c) * plane + row * W;
+            for (int64_t s = 0; s < W; ++s) {
+              T acc = T(0);
+              for (int64_t l = 0; l < NL; ++l)
+                acc += xs[(l * C1 + C) * stride + s] * d[(l * C1 + c) * stride + s];
+              gx[s] = norm[s] * acc;
+            }
+          }
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 
 extern "C" {
@@ -1006,4 +1353,33 @@ DEFOCUS_CLAMP_ABI(double, f64)
   }
 DEFOCUS_FUSED_ABI(float, f32)
 DEFOCUS_FUSED_ABI(double, f64)
+
+#define DEFOCUS_LAYERED_ABI(T, S)                                                              \
+  void gs_layered_##S(const T* x, const T* pos, const T* sigma, T* spread, T* out, int64_t B,  \
+                      int64_t C, int64_t H, int64_t W, int64_t half, int64_t NL, int nthreads) { \
+    layered_forward(GaussPolicy<T>{half}, x, pos, sigma, spread, out, B, C, H, W, NL, nthreads); \
+  }                                                                                            \
+  void gs_layered_backward_##S(const T* g, const T* out, const T* spread, const T* x,          \
+                               const T* pos, const T* sigma, T* grad_x, T* grad_pos,           \
+                               T* grad_sigma, int64_t B, int64_t C, int64_t H, int64_t W,      \
+                               int64_t half, int64_t NL, int nthreads) {                       \
+    layered_backward(GaussPolicy<T>{half}, g, out, spread, x, pos, sigma, grad_x, grad_pos,    \
+                     grad_sigma, B, C, H, W, NL, nthreads);                                    \
+  }                                                                                            \
+  void cl_layered_##S(const T* x, const T* pos, const T* rho, const T* dist, const T* dists,   \
+                      const T* counts, int64_t n_dists, T* spread, T* out, int64_t B,          \
+                      int64_t C, int64_t H, int64_t W, int64_t half, int64_t NL, int nthreads) { \
+    layered_forward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, x, pos, rho, spread,   \
+                    out, B, C, H, W, NL, nthreads);                                            \
+  }                                                                                            \
+  void cl_layered_backward_##S(const T* g, const T* out, const T* spread, const T* x,          \
+                               const T* pos, const T* rho, const T* dist, const T* dists,      \
+                               const T* counts, int64_t n_dists, T* grad_x, T* grad_pos,       \
+                               T* grad_rho, int64_t B, int64_t C, int64_t H, int64_t W,        \
+                               int64_t half, int64_t NL, int nthreads) {                       \
+    layered_backward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, g, out, spread, x,    \
+                     pos, rho, grad_x, grad_pos, grad_rho, B, C, H, W, NL, nthreads);          \
+  }
+DEFOCUS_LAYERED_ABI(float, f32)
+DEFOCUS_LAYERED_ABI(double, f64)
 }
