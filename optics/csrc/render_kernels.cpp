@@ -966,26 +966,35 @@ inline uint32_t layer_bits(T p, int64_t n_layers, bool inclusive) {
   return bits;
 }
 
+// out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny) along one row (work: rows of W values).
 template <typename T>
-void composite_row(const T* S, const T* const* unused, T* out, int64_t C, int64_t NL,
-                   int64_t plane, int64_t W, int64_t b, int64_t row) {
-  (void)unused;
+void composite_row(const T* S, T* out, int64_t C, int64_t NL, int64_t plane, int64_t W, int64_t b,
+                   int64_t row, T* work) {
   const int64_t C1 = C + 1;
   const T tiny = std::numeric_limits<T>::min();
-  std::vector<T> colour(C);
-  for (int64_t s = 0; s < W; ++s) {
-    const int64_t at = row * W + s;
-    std::fill(colour.begin(), colour.end(), T(0));
-    T cov = T(0), t = T(1);
-    for (int64_t l = 0; l < NL; ++l) {
-      const T* sl = S + (b * NL + l) * C1 * plane + at;
-      const T a = sl[C * plane];
-      for (int64_t c = 0; c < C; ++c) colour[c] = colour[c] + t * sl[c * plane];
-      cov = cov + t * a;
-      t = t * (T(1) - std::min(a, T(1)));
+  T* t = work;
+  T* cov = work + W;
+  T* colour = work + 2 * W;
+  std::fill(t, t + W, T(1));
+  std::fill(cov, cov + W, T(0));
+  std::fill(colour, colour + C * W, T(0));
+  for (int64_t l = 0; l < NL; ++l) {
+    const T* a = S + ((b * NL + l) * C1 + C) * plane + row * W;
+    for (int64_t c = 0; c < C; ++c) {
+      const T* sc = S + ((b * NL + l) * C1 + c) * plane + row * W;
+      T* col = colour + c * W;
+      for (int64_t s = 0; s < W; ++s) col[s] = col[s] + t[s] * sc[s];
     }
-    const T denom = std::max(cov, tiny);
-    for (int64_t c = 0; c < C; ++c) out[(b * C + c) * plane + at] = colour[c] / denom;
+    for (int64_t s = 0; s < W; ++s) {
+      cov[s] = cov[s] + t[s] * a[s];
+      t[s] = t[s] * (T(1) - std::min(a[s], T(1)));
+    }
+  }
+  for (int64_t s = 0; s < W; ++s) cov[s] = std::max(cov[s], tiny);
+  for (int64_t c = 0; c < C; ++c) {
+    T* o = out + (b * C + c) * plane + row * W;
+    const T* col = colour + c * W;
+    for (int64_t s = 0; s < W; ++s) o[s] = col[s] / cov[s];
   }
 }
 
@@ -1012,6 +1021,7 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
     std::vector<T> scratch(4 * W + 1);
     std::vector<T*> slots(K + 1);
     std::vector<int64_t> slot_index(K + 1);
+    std::vector<T> work((C + 2) * W);
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
@@ -1092,48 +1102,68 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
             }
           }
         }
-        composite_row<T>(S, nullptr, out, C, NL, plane, W, b, oy);
-        if (pair) composite_row<T>(S, nullptr, out, C, NL, plane, W, b, oy + 1);
+        composite_row<T>(S, out, C, NL, plane, W, b, oy, work.data());
+        if (pair) composite_row<T>(S, out, C, NL, plane, W, b, oy + 1, work.data());
       }
     }
   }
 }
 
-// dL/dS of the compositing at one output row, written into the ring slot's L (C + 1) rows.
+// dL/dS of the compositing along one output row, written into the ring slot's L (C + 1) rows.
+// work: (NL + C + 4) rows of W values.
 template <typename T>
 void composite_backward_row(const T* g, const T* out, const T* S, T* slot, int64_t padded,
                             int64_t half, int64_t C, int64_t NL, int64_t plane, int64_t W,
-                            int64_t b, int64_t row, T* tl) {
+                            int64_t b, int64_t row, T* work) {
   const int64_t C1 = C + 1;
   const T tiny = std::numeric_limits<T>::min();
-  for (int64_t s = 0; s < W; ++s) {
-    const int64_t at = row * W + s;
-    T t = T(1), cov = T(0);
-    for (int64_t l = 0; l < NL; ++l) {
-      const T a = S[((b * NL + l) * C1 + C) * plane + at];
-      tl[l] = t;
-      cov = cov + t * a;
-      t = t * (T(1) - std::min(a, T(1)));
+  T* tl = work;                    // T_l, NL rows
+  T* cov = work + NL * W;
+  T* dcov = cov + W;
+  T* dt = dcov + W;                // dL/dT_{l+1} while going back
+  T* dtl = dt + W;
+  T* dcol = dtl + W;               // C rows: g_c / max(cov, tiny)
+  const int64_t at = row * W;
+  std::fill(tl, tl + W, T(1));
+  std::fill(cov, cov + W, T(0));
+  for (int64_t l = 0; l < NL; ++l) {
+    const T* a = S + ((b * NL + l) * C1 + C) * plane + at;
+    T* t = tl + l * W;
+    for (int64_t s = 0; s < W; ++s) cov[s] = cov[s] + t[s] * a[s];
+    if (l + 1 < NL)
+      for (int64_t s = 0; s < W; ++s) t[W + s] = t[s] * (T(1) - std::min(a[s], T(1)));
+  }
+  std::fill(dcov, dcov + W, T(0));
+  for (int64_t c = 0; c < C; ++c) {
+    const T* gc = g + (b * C + c) * plane + at;
+    const T* oc = out + (b * C + c) * plane + at;
+    T* dc = dcol + c * W;
+    for (int64_t s = 0; s < W; ++s) {
+      const T denom = std::max(cov[s], tiny);
+      dc[s] = gc[s] / denom;
+      dcov[s] -= gc[s] * oc[s];
     }
-    const T denom = std::max(cov, tiny);
-    T dcov = T(0);
-    for (int64_t c = 0; c < C; ++c)
-      dcov -= g[(b * C + c) * plane + at] * out[(b * C + c) * plane + at];
-    dcov = cov >= tiny ? dcov / denom : T(0);
-    T dt_next = T(0);
-    for (int64_t l = NL - 1; l >= 0; --l) {
-      const T* sl = S + (b * NL + l) * C1 * plane + at;
-      const T a = sl[C * plane];
-      T dt = a * dcov + dt_next * (T(1) - std::min(a, T(1)));
-      for (int64_t c = 0; c < C; ++c) {
-        const T dcol = g[(b * C + c) * plane + at] / denom;
-        slot[(l * C1 + c) * padded + half + s] = tl[l] * dcol;
-        dt += sl[c * plane] * dcol;
+  }
+  for (int64_t s = 0; s < W; ++s)
+    dcov[s] = cov[s] >= tiny ? dcov[s] / std::max(cov[s], tiny) : T(0);
+  std::fill(dt, dt + W, T(0));
+  for (int64_t l = NL - 1; l >= 0; --l) {
+    const T* a = S + ((b * NL + l) * C1 + C) * plane + at;
+    const T* t = tl + l * W;
+    for (int64_t s = 0; s < W; ++s) dtl[s] = a[s] * dcov[s] + dt[s] * (T(1) - std::min(a[s], T(1)));
+    for (int64_t c = 0; c < C; ++c) {
+      const T* sc = S + ((b * NL + l) * C1 + c) * plane + at;
+      const T* dc = dcol + c * W;
+      T* gs = slot + (l * C1 + c) * padded + half;
+      for (int64_t s = 0; s < W; ++s) {
+        gs[s] = t[s] * dc[s];
+        dtl[s] += sc[s] * dc[s];
       }
-      slot[(l * C1 + C) * padded + half + s] =
-          tl[l] * dcov - (a <= T(1) ? dt_next * tl[l] : T(0));
-      dt_next = dt;
     }
+    T* gs = slot + (l * C1 + C) * padded + half;
+    for (int64_t s = 0; s < W; ++s)
+      gs[s] = t[s] * dcov[s] - (a[s] <= T(1) ? dt[s] * t[s] : T(0));
+    std::copy(dtl, dtl + W, dt);
   }
 }
 
@@ -1156,7 +1186,9 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
     RowRing<T> ring(K + 1, half, W, LC);  // padded rows of dL/dS
     RowRing<T> own(2, half, W, nw + 2);   // the two source rows' weight rows, norm, dnorm
     std::vector<T> xl(2 * LC * stride, T(0));  // alpha_l X_c of the two source rows
-    std::vector<T> dbuf(2 * LC * stride), mrow(2 * stride), tl(NL);
+    std::vector<T> dbuf(2 * LC * stride), mrow(2 * stride), work((NL + C + 4) * W);
+    std::vector<T> acc(2 * W);
+    uint32_t row_support[2] = {0, 0};
     std::vector<T> scratch(4 * W + 1);
     std::vector<const T*> g_rows((K + 1) * G), x_rows(2 * G);
     std::vector<T*> d0_rows(G), d1_rows(G);
@@ -1178,7 +1210,16 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
                    wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
                    scratch.data());
           const T* prow = pos + b * plane + (sy + i) * W;
+          uint32_t support = 0;
+          for (int64_t s = 0; s < W; ++s) support |= layer_bits(prow[s], NL, true);
+          row_support[i] = support;
+        }
+        const uint32_t both_rows = row_support[0] | (pair ? row_support[1] : 0u);
+        for (int64_t i = 0; i < rows; ++i) {
+          const T* prow = pos + b * plane + (sy + i) * W;
           for (int64_t l = 0; l < NL; ++l) {
+            // the register blocks read both rows' X for the layers of either: fill the union
+            if (!((both_rows >> l) & 1u)) continue;
             T* last = xl.data() + (i * LC + l * C1 + C) * stride;
             for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l);
             for (int64_t c = 0; c < C; ++c) {
@@ -1196,7 +1237,7 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
           T* slot = ring.slot(oy, &fresh);
           if (fresh)
             composite_backward_row<T>(g, out, S, slot, ring.padded, half, C, NL, plane, W, b, oy,
-                                      tl.data());
+                                      work.data());
           slots[r] = slot;
         }
         std::fill(mrow.begin(), mrow.end(), T(0));
@@ -1247,35 +1288,46 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
           const T* qrow = pos + b * plane + row * W;
           T* gp = grad_param + b * plane + row * W;
           T* gq = grad_pos + b * plane + row * W;
-          for (int64_t s = 0; s < W; ++s) {
-            const T p = qrow[s];
-            T sum_xd = T(0), dpos = T(0);
-            for (int64_t l = 0; l < NL; ++l) {
-              const T dist = std::abs(p - T(l));
-              T dalpha_raw = d[(l * C1 + C) * stride + s];  // sum_c x_c D_{l,c} + D_{l,C}
-              sum_xd += xs[(l * C1 + C) * stride + s] * d[(l * C1 + C) * stride + s];
-              for (int64_t c = 0; c < C; ++c) {
-                const T dlc = d[(l * C1 + c) * stride + s];
-                sum_xd += xs[(l * C1 + c) * stride + s] * dlc;
-                dalpha_raw += x[(b * C + c) * plane + row * W + s] * dlc;
-              }
-              if (T(1) - dist >= T(0)) {
-                const T sign = p > T(l) ? T(1) : (p < T(l) ? T(-1) : T(0));
-                dpos -= norm[s] * dalpha_raw * sign;
+          T* sum_xd = acc.data();
+          T* dalpha = acc.data() + W;
+          std::fill(sum_xd, sum_xd + W, T(0));
+          std::fill(gq, gq + W, T(0));
+          for (int64_t c = 0; c < C; ++c) {
+            T* gx = grad_x + (b * C + c) * plane + row * W;
+            std::fill(gx, gx + W, T(0));
+          }
+          for (int64_t l = 0; l < NL; ++l) {
+            if (!((row_support[i] >> l) & 1u)) continue;  // D = 0 and d alpha / d pos = 0
+            const T* al = xs + (l * C1 + C) * stride;     // alpha_l
+            const T* dl = d + (l * C1 + C) * stride;
+            for (int64_t s = 0; s < W; ++s) {
+              dalpha[s] = dl[s];                            // sum_c x_c D_{l,c} + D_{l,C}
+              sum_xd[s] += al[s] * dl[s];
+            }
+            for (int64_t c = 0; c < C; ++c) {
+              const T* dc = d + (l * C1 + c) * stride;
+              const T* xc = x + (b * C + c) * plane + row * W;
+              const T* xlc = xs + (l * C1 + c) * stride;
+              T* gx = grad_x + (b * C + c) * plane + row * W;
+              for (int64_t s = 0; s < W; ++s) {
+                dalpha[s] += xc[s] * dc[s];
+                sum_xd[s] += xlc[s] * dc[s];
+                gx[s] += al[s] * dc[s];
               }
             }
-            gq[s] = dpos;
-            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + sum_xd * dnorm[s];
+            const T lf = T(l);
+            for (int64_t s = 0; s < W; ++s) {
+              const T diff = qrow[s] - lf;
+              const T sign = diff > T(0) ? T(1) : (diff < T(0) ? T(-1) : T(0));
+              gq[s] -= (T(1) - std::abs(diff) >= T(0)) ? norm[s] * dalpha[s] * sign : T(0);
+            }
           }
           for (int64_t c = 0; c < C; ++c) {
             T* gx = grad_x + (b * C + c) * plane + row * W;
-            for (int64_t s = 0; s < W; ++s) {
-              T acc = T(0);
-              for (int64_t l = 0; l < NL; ++l)
-                acc += xs[(l * C1 + C) * stride + s] * d[(l * C1 + c) * stride + s];
-              gx[s] = norm[s] * acc;
-            }
+            for (int64_t s = 0; s < W; ++s) gx[s] *= norm[s];
           }
+          for (int64_t s = 0; s < W; ++s)
+            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + sum_xd[s] * dnorm[s];
         }
       }
     }
