@@ -1,29 +1,43 @@
-"""Speed and memory of the per-pixel PSF renderer against two baselines measured in the same run.
+"""Speed and memory of the per-pixel PSF renderer: every aperture x mode against two baselines.
 
-For each image shape and window size ``K`` it times ``render_defocus`` in each mode (Gaussian PSF,
-a spatially varying CoC map whose largest CoC needs exactly ``K``), a naive ``unfold``
-implementation of the same scatter op, and ``kornia.filters.gaussian_blur2d`` with the same ``K``
-(the spatially invariant floor): forward, forward + backward (gradients for the image and, for the
-renderer and unfold, the CoC map), the median of ``--runs`` runs, and the peak extra memory.
+Timings and memory are taken apart:
 
-Memory on CPU is the peak resident set size above the level before the call (Linux ``VmHWM``
-reset through ``/proc/self/clear_refs``; large blocks are returned to the system on free so that
-reuse does not hide them); on CUDA it is ``torch.cuda.max_memory_allocated`` above the inputs.
+- **Time** is measured in this process, never under an allocator setting: the methods of one
+  configuration run round-robin (one run of each per round) and every ratio is the median over
+  rounds of the per-round ratio, so a machine whose load changes during the run still gives fair
+  ratios. The baselines are `kornia.filters.gaussian_blur2d` with the same `K` (the spatially
+  invariant floor) and the renderer's Gaussian scatter at the same window.
+- **Memory** is read in a fresh subprocess per entry (`--memory-probe`), which sets glibc's
+  `M_MMAP_THRESHOLD` to 128 KiB so that large blocks go back to the system on free and the peak
+  resident set size (Linux `VmHWM`, reset through `/proc/self/clear_refs`) above the level
+  before the call is the call's own peak. That setting slows large allocations a lot, which is
+  why no timing ever runs under it. On CUDA the memory is `torch.cuda.max_memory_allocated`.
 
-Usage::
+Each aperture gets a spatially varying CoC map (uniform in `[0, c_max]`, one pixel at `c_max`)
+whose largest CoC needs exactly the `K`-pixel window: `c_max = 2 (K // 2) / 3` for the Gaussian
+(`sigma = CoC / 2`, half-width `ceil(3 sigma)`), `K - 0.01` for the disk and hexagon, `K - 2.01`
+for the mask. The layered mode (8 layers) runs on two depth maps: `random` (depth `1 + CoC`, per
+pixel: every layer is present everywhere, the worst case) and `scene` (a smooth scene: a tilted
+plane with two discs in front, the CoC following the depth as a camera would make it).
 
-    python benchmarks/render.py                  # full table and goals, 1 and 2 threads, CPU
-    python benchmarks/render.py --quick          # only the goals (paired runs, 1 thread)
-    python benchmarks/render.py --device cuda    # the same on a GPU
+Usage:
+
+    python benchmarks/render.py                 # goals, then the table (1 thread, 1x3x512x512)
+    python benchmarks/render.py --quick         # only the goals
+    python benchmarks/render.py --kernels 7 15 31 --threads 1 2 --no-memory
+    python benchmarks/render.py --device cuda   # the same on a GPU (pure PyTorch path)
 """
 
 from __future__ import annotations
 
 import argparse
 import ctypes
-import functools
 import gc
+import json
+import math
+import os
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -34,19 +48,58 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import kornia  # noqa: E402
 
-from optics import Gaussian, _render_cpp, render_defocus  # noqa: E402
+from optics import Disk, Gaussian, Mask, Polygon, _render_cpp, render_defocus  # noqa: E402
 
-SHAPES = [(1, 3, 256, 256), (4, 3, 256, 256), (1, 3, 512, 512)]
-KERNELS = [7, 15, 31]
-METHODS = ["scatter", "gather", "layered", "unfold", "kornia"]
+APERTURES = ["gaussian", "disk", "hexagon", "mask"]
+MODES = ["scatter", "gather", "layered", "layered-scene"]
+SHAPE = (1, 3, 512, 512)
 #: Skip the unfold baseline when its K^2 copies would need more than this many bytes.
 UNFOLD_LIMIT_BYTES = 2.5e9
-#: A run slower than this is not repeated (its time is still reported).
-SLOW_RUN_S = 5.0
+#: A method whose first run takes longer than this is timed once per configuration.
+SLOW_RUN_S = 3.0
+
+
+def _mask() -> Mask:
+    yy, xx = torch.meshgrid(torch.linspace(-1, 1, 33), torch.linspace(-1, 1, 33), indexing="ij")
+    r = (xx**2 + yy**2).sqrt()
+    return Mask(((r < 1) & (r > 0.4)).float() + 0.3 * (r <= 0.4).float())
+
+
+def make_psf(name: str):
+    return {"gaussian": Gaussian, "disk": Disk, "hexagon": lambda: Polygon(6), "mask": _mask}[
+        name
+    ]()
+
+
+def coc_max_for(name: str, k: int) -> float:
+    """Largest CoC whose window is exactly `k` pixels for aperture `name`."""
+    half = k // 2
+    return {"gaussian": 2 * half / 3, "mask": k - 2.01}.get(name, k - 0.01)
+
+
+def make_inputs(name: str, shape, k: int, device, scene: bool = False, seed: int = 0):
+    """Image, CoC map (its largest CoC needs exactly a `k`-pixel window) and depth map."""
+    gen = torch.Generator().manual_seed(seed)
+    b, c, h, w = shape
+    image = torch.rand(shape, generator=gen)
+    c_max = coc_max_for(name, k)
+    if scene:  # smooth: a tilted plane (far) with two discs in front; CoC ~ |1/d - 1/d_focus|
+        yy, xx = torch.meshgrid(torch.linspace(0, 1, h), torch.linspace(0, 1, w), indexing="ij")
+        depth = 2.0 + 6.0 * yy
+        for cy, cx, radius, d in ((0.35, 0.3, 0.18, 1.0), (0.6, 0.7, 0.22, 1.4)):
+            depth = torch.where((yy - cy) ** 2 + (xx - cx) ** 2 < radius**2, torch.tensor(d), depth)
+        blur = (1 / depth - 1 / 2.5).abs()
+        coc = (blur / blur.max() * c_max).expand(b, 1, h, w).clone()
+        depth = depth.expand(b, 1, h, w).clone()
+    else:
+        coc = torch.rand(b, 1, h, w, generator=gen) * c_max
+        coc[:, :, 0, 0] = c_max
+        depth = 1.0 + coc  # any positive depth map: per pixel, every layer is present everywhere
+    return image.to(device), coc.to(device), depth.to(device)
 
 
 def unfold_scatter(image: torch.Tensor, coc: torch.Tensor, k: int) -> torch.Tensor:
-    """Naive scatter: ``unfold`` the image and the per-source sigma into K*K copies."""
+    """Naive Gaussian scatter: `unfold` the image and the per-source sigma into K*K copies."""
     b, c, h, w = image.shape
     half = k // 2
     sigma = (0.5 * coc).clamp_min(1e-2)
@@ -57,7 +110,6 @@ def unfold_scatter(image: torch.Tensor, coc: torch.Tensor, k: int) -> torch.Tens
     src_sigma = torch.nn.functional.unfold(sigma, k, padding=half).view(b, 1, k * k, h * w)
     src_norm = torch.nn.functional.unfold(norm, k, padding=half).view(b, 1, k * k, h * w)
     valid = torch.nn.functional.unfold(torch.ones_like(sigma), k, padding=half)
-    # Patch entry (i, j) is the source at output + (i - half, j - half): offset output - source.
     dy, dx = torch.meshgrid(-d, -d, indexing="ij")
     r2 = (dy * dy + dx * dx).reshape(1, 1, k * k, 1)
     weight = src_norm * torch.exp(-r2 / (2 * src_sigma**2)) * valid.view(b, 1, k * k, h * w)
@@ -65,169 +117,37 @@ def unfold_scatter(image: torch.Tensor, coc: torch.Tensor, k: int) -> torch.Tens
     return out.view(b, c, h, w)
 
 
-def make_inputs(shape, k, device, dtype=torch.float32, seed=0):
-    """Image, CoC map (largest CoC needs exactly a K-pixel Gaussian window) and depth."""
-    gen = torch.Generator().manual_seed(seed)
-    b, c, h, w = shape
-    image = torch.rand(shape, generator=gen, dtype=dtype)
-    coc_max = 2 * (k // 2) / 3  # sigma = CoC / 2, half-width ceil(3 sigma) = K // 2
-    coc = torch.rand(b, 1, h, w, generator=gen, dtype=dtype) * coc_max
-    coc[:, :, 0, 0] = coc_max
-    depth = 1.0 + coc  # any positive depth map: orders the layers of the layered mode
-    return image.to(device), coc.to(device), depth.to(device), coc_max
+class Job:
+    """One method on one configuration: `run(backward)` renders once."""
+
+    def __init__(self, method: str, k: int, device, shape=SHAPE):
+        self.method, self.k = method, k
+        if method in ("kornia", "unfold"):
+            self.psf, mode = None, method
+            self.inputs = make_inputs("gaussian", shape, k, device)
+        else:
+            name, mode = method.split("/")
+            self.psf = make_psf(name).to(device)
+            self.inputs = make_inputs(name, shape, k, device, scene=mode == "layered-scene")
+        self.mode = mode
+
+    def run(self, backward: bool) -> None:
+        image, coc, depth = self.inputs
+        image = image.detach().requires_grad_(backward)
+        coc = coc.detach().requires_grad_(backward and self.mode != "kornia")
+        if self.mode == "kornia":
+            sigma = coc_max_for("gaussian", self.k) / 2
+            out = kornia.filters.gaussian_blur2d(image, (self.k, self.k), (sigma, sigma))
+        elif self.mode == "unfold":
+            out = unfold_scatter(image, coc, self.k)
+        else:
+            mode = "layered" if self.mode.startswith("layered") else self.mode
+            out = render_defocus(image, coc, self.psf, mode, depth=depth, n_layers=8)
+        if backward:
+            out.backward(torch.ones_like(out))
 
 
-def run_method(method, image, coc, depth, k, coc_max, backward):
-    image = image.detach().requires_grad_(backward)
-    coc = coc.detach().requires_grad_(backward)
-    if method == "kornia":
-        out = kornia.filters.gaussian_blur2d(image, (k, k), (coc_max / 2, coc_max / 2))
-    elif method == "unfold":
-        out = unfold_scatter(image, coc, k)
-    else:
-        out = render_defocus(image, coc, Gaussian(), method, depth=depth)
-    if backward:
-        out.backward(torch.ones_like(out))
-    return out
-
-
-class PeakMemory:
-    """Peak extra memory of a block: CUDA allocator stats, or Linux peak RSS (VmHWM)."""
-
-    def __init__(self, device: torch.device):
-        self.device = device
-        if device.type == "cpu":
-            try:  # return large blocks to the system on free (M_MMAP_THRESHOLD = -3)
-                ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)
-            except OSError:
-                pass
-
-    @staticmethod
-    def _status(key: str) -> int:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith(key):
-                return int(line.split()[1]) * 1024
-        raise OSError(key)
-
-    def measure(self, fn) -> float:
-        gc.collect()
-        if self.device.type == "cuda":
-            torch.cuda.synchronize()
-            torch.cuda.reset_peak_memory_stats()
-            base = torch.cuda.memory_allocated()
-            fn()
-            torch.cuda.synchronize()
-            return torch.cuda.max_memory_allocated() - base
-        try:
-            Path("/proc/self/clear_refs").write_text("5")
-            base = self._status("VmRSS")
-            fn()
-            return self._status("VmHWM") - base
-        except OSError:
-            return float("nan")
-
-
-def timed(fn, runs: int, device: torch.device, memory: PeakMemory) -> tuple[float, float]:
-    """``(median time in s, peak extra bytes)``; the memory is taken on a first, untimed run."""
-
-    start = time.perf_counter()
-    peak = memory.measure(fn)
-    if time.perf_counter() - start > SLOW_RUN_S:  # too slow to repeat: one timed run
-        return _once(fn, device), peak
-    return statistics.median(_once(fn, device) for _ in range(runs)), peak
-
-
-def benchmark(shapes, kernels, methods, threads, runs, device):
-    rows = []
-    memory = PeakMemory(device)
-    image, coc, depth, coc_max = make_inputs((1, 3, 32, 32), 7, device)
-    for method in methods:  # warm-up: one-time allocations (thread pools, ...) are not the op's
-        run_method(method, image, coc, depth, 7, coc_max, True)
-    for n_threads in threads:
-        torch.set_num_threads(n_threads)
-        for shape in shapes:
-            for k in kernels:
-                image, coc, depth, coc_max = make_inputs(shape, k, device)
-                for method in methods:
-                    unfold_bytes = shape[0] * (shape[1] + 2) * k * k * shape[2] * shape[3] * 4
-                    if method == "unfold" and unfold_bytes > UNFOLD_LIMIT_BYTES:
-                        rows.append((n_threads, shape, k, method, None, None, None, None))
-                        continue
-                    result = [n_threads, shape, k, method]
-                    for backward in (False, True):
-                        fn = functools.partial(
-                            run_method, method, image, coc, depth, k, coc_max, backward
-                        )
-                        result.extend(timed(fn, runs, device, memory))
-                    rows.append(tuple(result))
-                    print(format_row(rows[-1]), flush=True)
-    return rows
-
-
-def format_row(row) -> str:
-    n_threads, shape, k, method, fwd, fwd_mem, both, both_mem = row
-    shape_text = "x".join(map(str, shape))
-    if fwd is None:
-        return f"| {n_threads} | {shape_text} | {k} | {method} | skipped (K^2 copies) | | | |"
-    return (
-        f"| {n_threads} | {shape_text} | {k} | {method} | {fwd * 1e3:.1f} | {fwd_mem / 2**20:.1f} "
-        f"| {both * 1e3:.1f} | {both_mem / 2**20:.1f} |"
-    )
-
-
-HEADER = (
-    "| threads | shape | K | method | forward (ms) | forward peak (MiB) | forward+backward (ms) "
-    "| forward+backward peak (MiB) |\n|---|---|---|---|---|---|---|---|"
-)
-
-
-def goals(device: torch.device, runs: int) -> str:
-    """The issue's goals: exact scatter Gaussian, 1x3x512x512, K=15, forward+backward, 1 thread.
-
-    Ours and ``gaussian_blur2d`` run alternately and the ratio is taken per pair (then the
-    median), so that a machine whose load changes during the run still gives a fair ratio; the
-    slow unfold baseline runs three times.
-    """
-    torch.set_num_threads(1)
-    k = 15
-    image, coc, depth, coc_max = make_inputs((1, 3, 512, 512), k, device)
-    memory = PeakMemory(device)
-
-    def job(method):
-        return functools.partial(run_method, method, image, coc, depth, k, coc_max, True)
-
-    for method in ("scatter", "kornia"):  # warm-up: one-time allocations are not the op's
-        job(method)()
-    peak = {m: memory.measure(job(m)) for m in ("scatter", "kornia", "unfold")}
-    pairs = [(_once(job("scatter"), device), _once(job("kornia"), device)) for _ in range(runs)]
-    ours = statistics.median(p[0] for p in pairs)
-    floor = statistics.median(p[1] for p in pairs)
-    to_kornia = statistics.median(p[0] / p[1] for p in pairs)
-    unfold = statistics.median(_once(job("unfold"), device) for _ in range(3))
-    checks = [
-        ("speed-up over unfold", unfold / ours, ">= 25", unfold / ours >= 25),
-        ("time / gaussian_blur2d (median of paired ratios)", to_kornia, "<= 4", to_kornia <= 4),
-        ("peak memory / gaussian_blur2d", peak["scatter"] / peak["kornia"], "<= 2",
-         peak["scatter"] / peak["kornia"] <= 2),
-        ("unfold peak memory / ours", peak["unfold"] / peak["scatter"], ">= 10",
-         peak["unfold"] / peak["scatter"] >= 10),
-    ]
-    lines = [
-        f"goal configuration, forward+backward, 1 thread: scatter {ours * 1e3:.1f} ms "
-        f"({peak['scatter'] / 2**20:.1f} MiB), gaussian_blur2d {floor * 1e3:.1f} ms "
-        f"({peak['kornia'] / 2**20:.1f} MiB), unfold {unfold * 1e3:.0f} ms "
-        f"({peak['unfold'] / 2**20:.0f} MiB)",
-        "",
-        "| goal (exact scatter Gaussian, 1x3x512x512, K=15, fwd+bwd, 1 thread) | measured "
-        "| target | met |",
-        "|---|---|---|---|",
-    ]
-    lines += [f"| {name} | {value:.2f} | {target} | {'yes' if ok else 'no'} |"
-              for name, value, target, ok in checks]
-    return "\n".join(lines)
-
-
-def _once(fn, device: torch.device) -> float:
+def _once(fn, device) -> float:
     if device.type == "cuda":
         torch.cuda.synchronize()
     start = time.perf_counter()
@@ -237,22 +157,207 @@ def _once(fn, device: torch.device) -> float:
     return time.perf_counter() - start
 
 
+def round_robin(jobs: dict[str, Job], backward: bool, rounds: int, device) -> dict[str, list]:
+    """Times per method, interleaved: round `r` runs every method once (slow ones only in round 0)."""
+    times: dict[str, list[float]] = {name: [] for name in jobs}
+    for job in jobs.values():  # warm-up (thread pools, kernel build, first allocations)
+        if job.method != "unfold":
+            job.run(backward)
+    slow: set[str] = set()
+    for r in range(rounds):
+        for name, job in jobs.items():
+            if name in slow:
+                continue
+            times[name].append(_once(lambda job=job: job.run(backward), device))
+            if r == 0 and times[name][0] > SLOW_RUN_S:
+                slow.add(name)
+    return times
+
+
+def paired_ratio(times: dict[str, list], name: str, reference: str) -> float:
+    pairs = list(zip(times[name], times[reference], strict=False))
+    return statistics.median(a / b for a, b in pairs)
+
+
+# ------------------------------------------------------------------ memory, in a subprocess
+
+
+def _probe(spec: dict) -> float:
+    """Peak extra bytes of one forward(+backward) run (run inside a fresh process)."""
+    device = torch.device(spec["device"])
+    torch.set_num_threads(spec["threads"])
+    job = Job(spec["method"], spec["k"], device)
+    small = Job(spec["method"], 7, device, shape=(1, 3, 32, 32))
+    small.run(spec["backward"])  # warm-up: one-time allocations are not the op's
+    gc.collect()
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+        torch.cuda.reset_peak_memory_stats()
+        base = torch.cuda.memory_allocated()
+        job.run(spec["backward"])
+        torch.cuda.synchronize()
+        return torch.cuda.max_memory_allocated() - base
+    try:  # return large blocks to the system on free (M_MMAP_THRESHOLD = -3): memory only
+        ctypes.CDLL("libc.so.6").mallopt(-3, 128 * 1024)
+    except OSError:
+        return float("nan")
+
+    def status(key: str) -> int:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(key):
+                return int(line.split()[1]) * 1024
+        raise OSError(key)
+
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        base = status("VmRSS")
+        job.run(spec["backward"])
+        return status("VmHWM") - base
+    except OSError:
+        return float("nan")
+
+
+def peak_memory(method: str, k: int, device, backward: bool = True, threads: int = 1) -> float:
+    """Peak extra bytes of `method`, read in a fresh Python process."""
+    spec = {"method": method, "k": k, "device": str(device), "backward": backward,
+            "threads": threads}
+    result = subprocess.run([sys.executable, __file__, "--memory-probe", json.dumps(spec)],
+                            capture_output=True, text=True, check=False)
+    try:
+        return float(result.stdout.strip().splitlines()[-1])
+    except (IndexError, ValueError):
+        return float("nan")
+
+
+# ------------------------------------------------------------------ goals and table
+
+
+def goals(device, rounds: int, memory: bool) -> list[tuple[str, float | str, str, bool]]:
+    """The issue's goals: one thread, 1x3x512x512, K = 15, forward+backward, paired ratios."""
+    torch.set_num_threads(1)
+    k = 15
+    names = ["kornia", "gaussian/scatter", "disk/scatter", "hexagon/scatter",
+             "gaussian/layered", "disk/layered", "gaussian/layered-scene", "disk/layered-scene"]
+    jobs = {name: Job(name, k, device) for name in names}
+    times = round_robin(jobs, True, rounds, device)
+    gauss = "gaussian/scatter"
+    rows = [
+        ("Gaussian scatter / gaussian_blur2d", paired_ratio(times, gauss, "kornia"), "<= 1.5"),
+        ("disk scatter / Gaussian scatter", paired_ratio(times, "disk/scatter", gauss), "<= 1.5"),
+        ("hexagon scatter / Gaussian scatter", paired_ratio(times, "hexagon/scatter", gauss),
+         "<= 1.5"),
+        ("Gaussian layered (8, scene) / Gaussian scatter",
+         paired_ratio(times, "gaussian/layered-scene", gauss), "<= 2.5"),
+        ("disk layered (8, scene) / disk scatter",
+         paired_ratio(times, "disk/layered-scene", "disk/scatter"), "<= 2.5"),
+        ("Gaussian layered (8, random depth) / Gaussian scatter",
+         paired_ratio(times, "gaussian/layered", gauss), "<= 2.5"),
+        ("disk layered (8, random depth) / disk scatter",
+         paired_ratio(times, "disk/layered", "disk/scatter"), "<= 2.5"),
+    ]
+    result = [(name, value, target, value <= float(target.split()[-1]))
+              for name, value, target in rows]
+    ok, detail = compile_check(device)
+    result.append(("torch.compile(fullgraph=True), Disk, fwd+bwd matches eager", detail, "yes", ok))
+    if memory:
+        peaks = {kk: peak_memory("gaussian/scatter", kk, device) for kk in (7, 15, 31)}
+        spread = max(peaks.values()) / min(peaks.values())
+        result.append((
+            "scatter peak memory K=31 / K=7 (" + ", ".join(
+                f"K={kk}: {v / 2**20:.1f} MiB" for kk, v in peaks.items()) + ")",
+            spread, "<= 1.25", spread <= 1.25))
+    medians = {name: statistics.median(t) * 1e3 for name, t in times.items()}
+    print("goal configuration (1 thread, 1x3x512x512, K=15, fwd+bwd, medians, ms): " + ", ".join(
+        f"{name} {value:.1f}" for name, value in medians.items()))
+    return result
+
+
+def compile_check(device) -> tuple[bool, str]:
+    """`torch.compile(render_defocus, fullgraph=True)` with a Disk against eager, forward+backward."""
+    image, coc, depth = make_inputs("disk", (1, 3, 64, 64), 15, device)
+    psf = Disk().to(device)
+
+    def render(i, c):
+        return render_defocus(i, c, psf, "scatter")
+
+    try:
+        compiled = torch.compile(render, fullgraph=True)
+        results = []
+        for fn in (compiled, render):
+            i, c = image.clone().requires_grad_(), coc.clone().requires_grad_()
+            out = fn(i, c)
+            results.append((out, *torch.autograd.grad(out.square().sum(), (i, c))))
+        error = max(float((a - b).detach().abs().max()) for a, b in zip(*results, strict=True))
+    except Exception as exc:  # report, do not crash the benchmark
+        return False, f"failed: {type(exc).__name__}"
+    return error < 1e-4, f"max |compiled - eager| = {error:.1e}"
+
+
+def table(kernels, threads, rounds, device, memory: bool, methods) -> list[str]:
+    lines = [
+        "| threads | K | aperture | mode | fwd ms | fwd+bwd ms | / Gaussian scatter | "
+        "/ gaussian_blur2d | fwd+bwd peak MiB |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    print("\n".join(lines), flush=True)
+    for n_threads in threads:
+        torch.set_num_threads(n_threads)
+        for k in kernels:
+            names = ["kornia", "gaussian/scatter"]
+            names += [m for m in methods if m not in names]
+            unfold_bytes = SHAPE[0] * (SHAPE[1] + 2) * k * k * SHAPE[2] * SHAPE[3] * 4
+            if "unfold" in names and unfold_bytes > UNFOLD_LIMIT_BYTES:
+                names.remove("unfold")
+            jobs = {name: Job(name, k, device) for name in names}
+            forward = round_robin(jobs, False, rounds, device)
+            both = round_robin(jobs, True, rounds, device)
+            for name in names:
+                peak = peak_memory(name, k, device, True, n_threads) if memory else math.nan
+                aperture, _, mode = name.partition("/")
+                if name in ("kornia", "unfold"):
+                    aperture, mode = ("gaussian_blur2d", "-") if name == "kornia" else (
+                        "unfold", "scatter")
+                lines.append(
+                    f"| {n_threads} | {k} | {aperture} | {mode} | "
+                    f"{statistics.median(forward[name]) * 1e3:.1f} | "
+                    f"{statistics.median(both[name]) * 1e3:.1f} | "
+                    f"{paired_ratio(both, name, 'gaussian/scatter'):.2f} | "
+                    f"{paired_ratio(both, name, 'kornia'):.2f} | {peak / 2**20:.1f} |"
+                )
+                print(lines[-1], flush=True)
+    return lines
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--device", default="cpu", help="cpu or cuda")
-    parser.add_argument("--runs", type=int, default=5, help="timed runs per entry (median)")
-    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--rounds", type=int, default=9, help="round-robin rounds (medians)")
+    parser.add_argument("--threads", type=int, nargs="+", default=[1])
+    parser.add_argument("--kernels", type=int, nargs="+", default=[15])
     parser.add_argument("--quick", action="store_true", help="only the goals, not the table")
-    parser.add_argument("--methods", nargs="+", default=METHODS, choices=METHODS)
+    parser.add_argument("--no-memory", action="store_true", help="skip the memory subprocesses")
+    parser.add_argument("--methods", nargs="+", default=None,
+                        help="aperture/mode entries of the table (default: all, plus unfold)")
+    parser.add_argument("--memory-probe", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
+    if args.memory_probe:
+        print(_probe(json.loads(args.memory_probe)))
+        return 0
     device = torch.device(args.device)
     compiled = device.type == "cpu" and _render_cpp.library() is not None
-    print(f"torch {torch.__version__}, device {device}, compiled CPU kernel: {compiled}")
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else math.nan
+    print(f"torch {torch.__version__}, device {device}, compiled CPU kernels: {compiled}, "
+          f"{os.cpu_count()} CPUs, load average {load:.2f}")
+    print("\n| goal (1 thread, 1x3x512x512, K=15, fwd+bwd, median of paired ratios) | measured "
+          "| target | met |\n|---|---|---|---|")
+    for name, value, target, ok in goals(device, args.rounds, not args.no_memory):
+        shown = f"{value:.2f}" if isinstance(value, float) else value
+        print(f"| {name} | {shown} | {target} | {'met' if ok else 'unmet'} |")
     if not args.quick:
-        print(HEADER)
-        benchmark(SHAPES, KERNELS, args.methods, args.threads, args.runs, device)
+        methods = args.methods or [f"{a}/{m}" for a in APERTURES for m in MODES] + ["unfold"]
         print()
-    print(goals(device, max(args.runs, 9)))
+        table(args.kernels, args.threads, max(3, args.rounds // 2), device, not args.no_memory,
+              methods)
     return 0
 
 

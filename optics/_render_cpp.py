@@ -1,15 +1,28 @@
-"""Optional compiled CPU kernel of the Gaussian scatter filter, ``optics/csrc/gaussian_scatter.cpp``.
+"""Optional compiled CPU kernels of the renderer, `optics/csrc/render_kernels.cpp`.
 
-The kernel is plain C++ with OpenMP and a C ABI, loaded with :mod:`ctypes`: it needs no PyTorch
-headers, so it builds in a couple of seconds on first use, with the system's C++ compiler
-(``$CXX``, else ``c++``/``g++``/``clang++``). The shared library is cached under
-``build/defocus_cpp/`` next to the package (or ``$DEFOCUS_BUILD_DIR``; the temp directory when
-neither is writable), keyed by a hash of the source and the flags, so editing the source rebuilds.
+The kernels are plain C++ with OpenMP and a C ABI, loaded with `ctypes`: they need no PyTorch
+headers, so they build in a few seconds on first use with the system's C++ compiler (`$CXX`,
+else `c++`/`g++`/`clang++`). `optics._render_ops` wraps them as `torch.library` custom operators
+(with fake implementations and registered autograd), which is what lets `torch.compile` trace the
+renderer without graph breaks; the ctypes call itself stays inside the operator.
 
-When no compiler is found or the build fails, :func:`usable` returns ``False`` and the renderer
-uses its pure PyTorch loop (same results, tested against each other). Set ``DEFOCUS_NO_CPP=1`` to
-force the PyTorch path. Build ahead of time with
-``python -c "import optics._render_cpp as k; print(k.library())"``.
+Where the library lives and when it is trusted:
+
+- It is built into the per-user cache, `user_cache_dir("kernels")` of `optics.cache`
+  (`$DEFOCUS_CACHE_DIR/kernels`, else `$XDG_CACHE_HOME/defocus/kernels`, else
+  `~/.cache/defocus/kernels`): never the working directory, the package folder or the shared
+  temporary folder. The file name is keyed by a hash of the source, the compiler, the flags and the
+  CPU, so editing the source rebuilds.
+- It is loaded only when that folder and its parents up to the cache root, and the file itself,
+  are owned by the current user and not writable by group or others; otherwise a warning (once)
+  names the path and the renderer uses its pure PyTorch path.
+- The library's sha256 is written next to it (`<name>.sha256`, atomically) when it is built and
+  checked before every load; on a mismatch it is rebuilt (with a warning), and when that fails
+  the pure path is used.
+
+When no compiler is found or the build fails, `usable` returns `False` and the renderer uses its
+pure PyTorch loops (same results, tested against each other). `DEFOCUS_NO_CPP=1` forces the
+PyTorch path. Build ahead of time with `python -c "import optics._render_cpp as k; k.library()"`.
 """
 
 from __future__ import annotations
@@ -19,23 +32,48 @@ import hashlib
 import os
 import platform
 import shutil
+import stat
 import subprocess
 import tempfile
 import threading
+import warnings
 from pathlib import Path
 
 import torch
 from torch import Tensor
 
-SOURCE = Path(__file__).with_name("csrc") / "gaussian_scatter.cpp"
+from .cache import cache_root, is_private_dir, user_cache_dir
+
+SOURCE = Path(__file__).with_name("csrc") / "render_kernels.cpp"
 FLAG_SETS = (
     ["-O3", "-march=native", "-fopenmp", "-shared", "-fPIC", "-std=c++17"],
     ["-O3", "-fopenmp", "-shared", "-fPIC", "-std=c++17"],
     ["-O3", "-shared", "-fPIC", "-std=c++17"],
 )
+#: Name of the kernels' folder inside the per-user cache.
+KERNEL_SUBDIR = "kernels"
 
-_lock = threading.Lock()
+_lock = threading.RLock()
 _state: dict[str, object] = {}
+_warned: set[str] = set()
+
+
+def _warn_once(message: str) -> None:
+    if message not in _warned:
+        _warned.add(message)
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+
+
+def reset() -> None:
+    """Forget the loaded library (and the warnings given), so that the next call looks again."""
+    with _lock:
+        _state.clear()
+        _warned.clear()
+
+
+def kernel_dir() -> Path:
+    """Folder of the compiled kernels: `user_cache_dir("kernels")`."""
+    return user_cache_dir(KERNEL_SUBDIR)
 
 
 def _compiler() -> str | None:
@@ -45,17 +83,8 @@ def _compiler() -> str | None:
     return None
 
 
-def _build_dirs() -> list[Path]:
-    dirs = []
-    if os.environ.get("DEFOCUS_BUILD_DIR"):
-        dirs.append(Path(os.environ["DEFOCUS_BUILD_DIR"]))
-    dirs.append(Path(__file__).resolve().parents[1] / "build" / "defocus_cpp")
-    dirs.append(Path(tempfile.gettempdir()) / "defocus_cpp")
-    return dirs
-
-
 def _cpu_signature() -> str:
-    """The CPU's model and features: a library built with ``-march=native`` is tied to them."""
+    """The CPU's model and features: a library built with `-march=native` is tied to them."""
     try:
         info = Path("/proc/cpuinfo").read_text().splitlines()
     except OSError:
@@ -64,31 +93,121 @@ def _cpu_signature() -> str:
     return platform.machine() + "".join(keep)
 
 
+def _make_private_dirs(folder: Path, root: Path) -> None:
+    """Create `root` .. `folder` with mode 0o700 where missing (existing ones are left alone)."""
+    missing = [p for p in [folder, *folder.parents] if p == root or root in p.parents]
+    for path in reversed(missing):
+        if not path.exists():
+            path.mkdir(mode=0o700, exist_ok=True)
+
+
+def _file_problem(path: Path) -> str | None:
+    """Why `path` must not be trusted (not a regular file of ours, or writable by others)."""
+    try:
+        info = path.lstat()
+    except OSError as error:
+        return f"cannot stat {path}: {error}"
+    if not stat.S_ISREG(info.st_mode):
+        return f"{path} is not a regular file"
+    if hasattr(os, "getuid") and info.st_uid != os.getuid():
+        return f"{path} is owned by uid {info.st_uid}, not the current user ({os.getuid()})"
+    if info.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return f"{path} is writable by group or others (mode {oct(info.st_mode & 0o777)})"
+    return None
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    handle, partial = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "wb") as stream:
+            stream.write(data)
+        os.chmod(partial, 0o600)
+        os.replace(partial, path)
+    except BaseException:
+        Path(partial).unlink(missing_ok=True)
+        raise
+
+
+def _compile(compiler: str, flags: list[str], library: Path) -> bool:
+    """Build `library` (atomically) and record its sha256 next to it; `False` on failure."""
+    handle, partial = tempfile.mkstemp(dir=library.parent, prefix=f".{library.name}.", suffix=".tmp")
+    os.close(handle)
+    try:
+        subprocess.run([compiler, *flags, str(SOURCE), "-o", partial], check=True,
+                       capture_output=True, timeout=300)
+        os.chmod(partial, 0o700)
+        digest = _sha256(Path(partial))
+        _write_atomic(_sidecar(library), digest.encode())
+        os.replace(partial, library)  # atomic: concurrent builds never see a half-written file
+        return True
+    except (OSError, subprocess.SubprocessError):
+        return False
+    finally:
+        Path(partial).unlink(missing_ok=True)
+
+
+def _sidecar(library: Path) -> Path:
+    return library.with_name(library.name + ".sha256")
+
+
+def _verified(library: Path) -> tuple[bool, str]:
+    """Whether `library` is ours, private and matches its recorded sha256."""
+    for path in (library, _sidecar(library)):
+        problem = _file_problem(path)
+        if problem is not None:
+            return False, problem
+    recorded = _sidecar(library).read_text().strip()
+    actual = _sha256(library)
+    if recorded != actual:
+        return False, f"{library} has sha256 {actual[:16]}..., recorded {recorded[:16]}..."
+    return True, ""
+
+
 def _build() -> ctypes.CDLL | None:
     compiler = _compiler()
     if compiler is None or not SOURCE.exists():
+        return None
+    root, folder = cache_root(), kernel_dir()
+    try:
+        _make_private_dirs(folder, root)
+    except OSError as error:
+        _warn_once(f"defocus: cannot create the kernel cache {folder} ({error}); using the pure "
+                   "PyTorch renderer")
+        return None
+    private, why = is_private_dir(folder, root)
+    if not private:
+        _warn_once(f"defocus: not loading compiled kernels from {folder}: {why}; using the pure "
+                   "PyTorch renderer (fix the permissions, e.g. chmod go-w, or set "
+                   "DEFOCUS_CACHE_DIR)")
         return None
     source = SOURCE.read_bytes()
     for flags in FLAG_SETS:
         signature = " ".join([compiler, *flags, _cpu_signature()])
         key = hashlib.sha256(source + signature.encode()).hexdigest()[:16]
-        for folder in _build_dirs():
-            library = folder / f"gaussian_scatter_{key}.so"
-            if not library.exists():
-                try:
-                    folder.mkdir(parents=True, exist_ok=True)
-                    partial = folder / f".{library.name}.{os.getpid()}.tmp"
-                    subprocess.run(
-                        [compiler, *flags, str(SOURCE), "-o", str(partial)],
-                        check=True, capture_output=True, timeout=120,
-                    )
-                    os.replace(partial, library)  # atomic: concurrent builds never see a half file
-                except (OSError, subprocess.SubprocessError):
-                    continue
-            try:
-                return _bind(ctypes.CDLL(str(library)))
-            except OSError:
-                continue
+        library = folder / f"render_kernels_{key}.so"
+        if library.exists() or _sidecar(library).exists():
+            ok, why = _verified(library)
+            if not ok:
+                _warn_once(f"defocus: not loading the compiled kernel library: {why}; rebuilding it")
+                if not _compile(compiler, flags, library):
+                    _warn_once(f"defocus: rebuilding {library} failed; using the pure PyTorch "
+                               "renderer")
+                    return None
+        elif not _compile(compiler, flags, library):
+            continue
+        ok, why = _verified(library)  # checked again right before loading
+        if not ok:
+            _warn_once(f"defocus: not loading the compiled kernel library: {why}; using the pure "
+                       "PyTorch renderer")
+            return None
+        try:
+            return _bind(ctypes.CDLL(str(library)))
+        except (OSError, AttributeError):
+            continue
     return None
 
 
@@ -98,11 +217,32 @@ def _bind(lib: ctypes.CDLL) -> ctypes.CDLL:
         getattr(lib, f"gs_forward_{suffix}").argtypes = [ptr] * 4 + [i64] * 5 + [i32]
         getattr(lib, f"gs_backward_{suffix}").argtypes = [ptr] * 5 + [i64] * 5 + [i32]
         getattr(lib, f"gs_window_sums_{suffix}").argtypes = [ptr] * 3 + [i64] * 2 + [i32]
+        getattr(lib, f"cl_forward_{suffix}").argtypes = [ptr] * 5 + [i64] * 5 + [i32]
+        getattr(lib, f"cl_backward_{suffix}").argtypes = [ptr] * 6 + [i64] * 5 + [i32]
+        getattr(lib, f"cl_window_sums_{suffix}").argtypes = (
+            [ptr] * 3 + [i64] + [ptr] * 2 + [i64] + [i32]
+        )
+        getattr(lib, f"gs_render_{suffix}").argtypes = [ptr] * 4 + [i64] * 5 + [i32]
+        getattr(lib, f"gs_render_backward_{suffix}").argtypes = [ptr] * 7 + [i64] * 5 + [i32]
+        getattr(lib, f"cl_render_{suffix}").argtypes = (
+            [ptr] * 5 + [i64] + [ptr] * 2 + [i64] * 5 + [i32]
+        )
+        getattr(lib, f"cl_render_backward_{suffix}").argtypes = (
+            [ptr] * 8 + [i64] + [ptr] * 2 + [i64] * 5 + [i32]
+        )
+        getattr(lib, f"gs_layered_{suffix}").argtypes = [ptr] * 5 + [i64] * 6 + [i32]
+        getattr(lib, f"gs_layered_backward_{suffix}").argtypes = [ptr] * 9 + [i64] * 6 + [i32]
+        getattr(lib, f"cl_layered_{suffix}").argtypes = (
+            [ptr] * 6 + [i64] + [ptr] * 2 + [i64] * 6 + [i32]
+        )
+        getattr(lib, f"cl_layered_backward_{suffix}").argtypes = (
+            [ptr] * 9 + [i64] + [ptr] * 3 + [i64] * 6 + [i32]
+        )
     return lib
 
 
 def library() -> ctypes.CDLL | None:
-    """The loaded kernel library, building it on first call; ``None`` if it cannot be built."""
+    """The loaded kernel library, building it on first call; `None` if it cannot be used."""
     if "lib" not in _state:
         with _lock:
             if "lib" not in _state:
@@ -112,7 +252,7 @@ def library() -> ctypes.CDLL | None:
 
 
 def usable(x: Tensor) -> bool:
-    """Whether the compiled kernel can process ``x`` (CPU float32/float64, library built)."""
+    """Whether the compiled kernels can process `x` (CPU float32/float64, library loaded)."""
     return (
         x.device.type == "cpu"
         and x.dtype in (torch.float32, torch.float64)
@@ -125,7 +265,7 @@ def _suffix(x: Tensor) -> str:
 
 
 def gaussian_scatter_forward(x: Tensor, sigma: Tensor, norm: Tensor, half: int) -> Tensor:
-    """Compiled twin of ``_gaussian_scatter_forward_torch`` (contiguous CPU tensors)."""
+    """Compiled twin of `_gaussian_scatter_forward_torch` (contiguous CPU tensors)."""
     out = torch.empty_like(x)
     b, c, h, w = x.shape
     getattr(library(), f"gs_forward_{_suffix(x)}")(
@@ -136,7 +276,7 @@ def gaussian_scatter_forward(x: Tensor, sigma: Tensor, norm: Tensor, half: int) 
 
 
 def window_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
-    """Compiled twin of ``_render_ops._window_line_sums`` (contiguous CPU tensor)."""
+    """Compiled twin of `_render_ops._window_line_sums` (contiguous CPU tensor)."""
     line, moment = torch.empty_like(sigma), torch.empty_like(sigma)
     getattr(library(), f"gs_window_sums_{_suffix(sigma)}")(
         sigma.data_ptr(), line.data_ptr(), moment.data_ptr(), sigma.numel(), half,
@@ -148,7 +288,7 @@ def window_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
 def gaussian_scatter_backward(
     grad: Tensor, x: Tensor, sigma: Tensor, half: int
 ) -> tuple[Tensor, Tensor]:
-    """Compiled twin of ``_gaussian_scatter_backward_torch``: ``(dx_raw, m1)``."""
+    """Compiled twin of `_gaussian_scatter_backward_torch`: `(dx_raw, m1)`."""
     dx_raw = torch.empty_like(x)
     m1 = torch.empty_like(sigma)
     b, c, h, w = x.shape
@@ -159,3 +299,133 @@ def gaussian_scatter_backward(
     return dx_raw, m1
 
 
+def clamp_scatter_forward(x: Tensor, rho: Tensor, norm: Tensor, dist: Tensor, half: int) -> Tensor:
+    """Compiled twin of `_clamp_scatter_forward_torch` (contiguous CPU tensors, `dist` K x K)."""
+    out = torch.empty_like(x)
+    b, c, h, w = x.shape
+    getattr(library(), f"cl_forward_{_suffix(x)}")(
+        x.data_ptr(), rho.data_ptr(), norm.data_ptr(), dist.data_ptr(), out.data_ptr(),
+        b, c, h, w, half, torch.get_num_threads(),
+    )
+    return out
+
+
+def clamp_scatter_backward(
+    grad: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: int
+) -> tuple[Tensor, Tensor]:
+    """Compiled twin of `_clamp_scatter_backward_torch`: `(dx_raw, m)`."""
+    dx_raw = torch.empty_like(x)
+    m = torch.empty_like(rho)
+    b, c, h, w = x.shape
+    getattr(library(), f"cl_backward_{_suffix(x)}")(
+        grad.data_ptr(), x.data_ptr(), rho.data_ptr(), dist.data_ptr(), dx_raw.data_ptr(),
+        m.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
+    )
+    return dx_raw, m
+
+
+def clamp_window_sums(rho: Tensor, dists: Tensor, counts: Tensor) -> tuple[Tensor, Tensor]:
+    """Compiled twin of `_clamp_window_sums_torch`: `(Z, dZ/drho)` per pixel."""
+    total, slope = torch.empty_like(rho), torch.empty_like(rho)
+    getattr(library(), f"cl_window_sums_{_suffix(rho)}")(
+        rho.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), total.data_ptr(),
+        slope.data_ptr(), rho.numel(), torch.get_num_threads(),
+    )
+    return total, slope
+
+
+def gaussian_render(x: Tensor, sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
+    """Fused normalised Gaussian scatter: `(y, den)`, see `render_kernels.cpp`."""
+    b, c, h, w = x.shape
+    y, den = torch.empty_like(x), torch.empty_like(sigma)
+    getattr(library(), f"gs_render_{_suffix(x)}")(
+        x.data_ptr(), sigma.data_ptr(), y.data_ptr(), den.data_ptr(), b, c, h, w, half,
+        torch.get_num_threads(),
+    )
+    return y, den
+
+
+def gaussian_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, sigma: Tensor, half: int
+) -> tuple[Tensor, Tensor]:
+    """Backward of `gaussian_render`: `(grad_x, grad_sigma)`."""
+    b, c, h, w = x.shape
+    grad_x, grad_sigma = torch.empty_like(x), torch.empty_like(sigma)
+    getattr(library(), f"gs_render_backward_{_suffix(x)}")(
+        grad.data_ptr(), y.data_ptr(), den.data_ptr(), x.data_ptr(), sigma.data_ptr(),
+        grad_x.data_ptr(), grad_sigma.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
+    )
+    return grad_x, grad_sigma
+
+
+def clamp_render(
+    x: Tensor, rho: Tensor, dist: Tensor, dists: Tensor, counts: Tensor, half: int
+) -> tuple[Tensor, Tensor]:
+    """Fused normalised clamped-distance scatter: `(y, den)`."""
+    b, c, h, w = x.shape
+    y, den = torch.empty_like(x), torch.empty_like(rho)
+    getattr(library(), f"cl_render_{_suffix(x)}")(
+        x.data_ptr(), rho.data_ptr(), dist.data_ptr(), dists.data_ptr(), counts.data_ptr(),
+        dists.numel(), y.data_ptr(), den.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
+    )
+    return y, den
+
+
+def clamp_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, rho: Tensor, dist: Tensor, dists: Tensor,
+    counts: Tensor, half: int,
+) -> tuple[Tensor, Tensor]:
+    """Backward of `clamp_render`: `(grad_x, grad_rho)`."""
+    b, c, h, w = x.shape
+    grad_x, grad_rho = torch.empty_like(x), torch.empty_like(rho)
+    getattr(library(), f"cl_render_backward_{_suffix(x)}")(
+        grad.data_ptr(), y.data_ptr(), den.data_ptr(), x.data_ptr(), rho.data_ptr(),
+        dist.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), grad_x.data_ptr(),
+        grad_rho.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
+    )
+    return grad_x, grad_rho
+
+
+def layered_render(
+    x: Tensor, pos: Tensor, param: Tensor, half: int, n_layers: int,
+    clamp: tuple[Tensor, Tensor, Tensor] | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Fused layered mode: `(out, spread)`; `clamp = (dist, dists, counts)` for the disk family."""
+    b, c, h, w = x.shape
+    out = torch.empty_like(x)
+    spread = torch.empty(b, n_layers, c + 1, h, w, dtype=x.dtype)
+    tail = (b, c, h, w, half, n_layers, torch.get_num_threads())
+    if clamp is None:
+        getattr(library(), f"gs_layered_{_suffix(x)}")(
+            x.data_ptr(), pos.data_ptr(), param.data_ptr(), spread.data_ptr(), out.data_ptr(),
+            *tail,
+        )
+    else:
+        dist, dists, counts = clamp
+        getattr(library(), f"cl_layered_{_suffix(x)}")(
+            x.data_ptr(), pos.data_ptr(), param.data_ptr(), dist.data_ptr(), dists.data_ptr(),
+            counts.data_ptr(), dists.numel(), spread.data_ptr(), out.data_ptr(), *tail,
+        )
+    return out, spread
+
+
+def layered_render_backward(
+    grad: Tensor, out: Tensor, spread: Tensor, x: Tensor, pos: Tensor, param: Tensor, half: int,
+    n_layers: int, clamp: tuple[Tensor, Tensor, Tensor] | None = None,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Backward of `layered_render`: `(grad_x, grad_pos, grad_param)`."""
+    b, c, h, w = x.shape
+    grad_x, grad_pos, grad_param = torch.empty_like(x), torch.empty_like(pos), torch.empty_like(pos)
+    head = (grad.data_ptr(), out.data_ptr(), spread.data_ptr(), x.data_ptr(), pos.data_ptr(),
+            param.data_ptr())
+    outs = (grad_x.data_ptr(), grad_pos.data_ptr(), grad_param.data_ptr())
+    tail = (b, c, h, w, half, n_layers, torch.get_num_threads())
+    if clamp is None:
+        getattr(library(), f"gs_layered_backward_{_suffix(x)}")(*head, *outs, *tail)
+    else:
+        dist, dists, counts = clamp
+        getattr(library(), f"cl_layered_backward_{_suffix(x)}")(
+            *head, dist.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), *outs,
+            *tail,
+        )
+    return grad_x, grad_pos, grad_param

@@ -1,19 +1,28 @@
-"""Memory-lean spatially varying filters behind :func:`optics.render_defocus`.
+"""Memory-lean spatially varying filters behind `optics.render_defocus`, as PyTorch operators.
 
-Both filters are *linear* in the image ``x`` ``(B,C,H,W)``; the renderer builds its normalised and
-layered semantics on top of them with ordinary autograd. Neither stores per-offset weights: the
-forward loops over the ``K*K`` window offsets accumulating in place, and a custom backward
-recomputes the weights, so the extra memory is a few ``(B,C,H,W)`` maps whatever ``K`` is.
+The filters are *linear* in the image `x` `(B,C,H,W)`; the renderer builds its normalised and
+layered semantics on top of them with ordinary autograd. None stores per-offset weights: the
+forward loops over the `K*K` window offsets accumulating in place, and the backward recomputes
+the weights, so the extra memory is a few `(B,C,H,W)` maps whatever `K` is.
 
-- :class:`GaussianScatter`: each *source* pixel ``q`` spreads ``norm_q * exp(-|p-q|^2 / (2
-  sigma_q^2)) * x_q`` to every output ``p`` in its window. The weight factorises per source,
-  ``t_q(dy) t_q(dx)``, so a per-source table of ``K/2 + 1`` values replaces an ``exp`` per tap.
-  A compiled C++ kernel (:mod:`optics._render_cpp`) runs it on CPU when it builds; otherwise (and on
-  other devices) the PyTorch loop below does.
-- :class:`GaussianGather`: the same with the output pixel's Gaussian (its transpose).
-- :class:`ProfileFilter`: any :class:`~optics.Aperture` through its ``profile``; weights indexed by
-  the source pixel (scatter, each source normalised to unit energy over its discrete window) or by
-  the output pixel (gather). Gradients reach the CoC map and the aperture's parameters.
+- Gaussian (`gaussian_scatter`, `gaussian_gather`, `gaussian_norm`): each *source* pixel `q`
+  spreads `norm_q * exp(-|p-q|^2 / (2 sigma_q^2)) * x_q` to every output `p` in its window. The
+  weight factorises per source, `t_q(dy) t_q(dx)`, so a per-source table of `K/2 + 1` values
+  replaces an `exp` per tap.
+- Clamped distance (`clamp_scatter`, `clamp_gather`, `clamp_norm`): the disk and the polygons,
+  `w_q(u) = clamp(rho_q - D(u), 0, 1)` with `rho_q = edge_radius(c_q) + 1/2` and `D` the
+  aperture's distance function tabulated once per call on the window (it does not depend on the
+  CoC). This is exactly `Disk.profile`; the gradient reaches the CoC and the aperture's
+  parameters through `rho` with ordinary autograd.
+- `ProfileFilter`: any other `Aperture` (e.g. `Mask`) through its `profile`, evaluated per
+  window offset in PyTorch; not a custom operator, so `torch.compile` breaks the graph there.
+
+The Gaussian and clamped-distance filters are `torch.library` custom operators in the `defocus`
+namespace, with fake (meta) implementations and registered autograd, so `torch.compile` traces
+them, forward and backward, without graph breaks. Each runs the compiled C++ kernel
+(`optics._render_cpp`) on CPU when it is available and the PyTorch loop below otherwise (other
+devices included). The window half-width is passed as a 0-d integer tensor: under `torch.compile`
+it is computed from the CoC map inside the graph.
 
 Taps whose source or output falls outside the image are skipped.
 """
@@ -28,9 +37,9 @@ from . import _render_cpp
 
 
 def axis_slices(shift: int, size: int) -> tuple[slice, slice] | None:
-    """Slices ``(source, output)`` along an axis of ``size`` pixels for ``output = source + shift``.
+    """Slices `(source, output)` along an axis of `size` pixels for `output = source + shift`.
 
-    ``None`` when no pixel pair is inside the image.
+    `None` when no pixel pair is inside the image.
     """
     if abs(shift) >= size:
         return None
@@ -40,7 +49,7 @@ def axis_slices(shift: int, size: int) -> tuple[slice, slice] | None:
 
 
 def window_taps(half: int, height: int, width: int):
-    """Yield ``(dy, dx, source_index, output_index)`` for every in-image offset of the window."""
+    """Yield `(dy, dx, source_index, output_index)` for every in-image offset of the window."""
     for dy in range(-half, half + 1):
         rows = axis_slices(dy, height)
         if rows is None:
@@ -53,7 +62,7 @@ def window_taps(half: int, height: int, width: int):
 
 
 def gaussian_table(sigma: Tensor, half: int) -> Tensor:
-    """``exp(-d^2 / (2 sigma^2))`` for ``d = 0..half``, stacked: ``(half+1, *sigma.shape)``."""
+    """`exp(-d^2 / (2 sigma^2))` for `d = 0..half`, stacked: `(half+1, *sigma.shape)`."""
     d = torch.arange(half + 1, device=sigma.device, dtype=sigma.dtype)
     d = d.view(-1, *([1] * sigma.ndim))
     return torch.exp(-(d * d) / (2 * sigma * sigma))
@@ -74,7 +83,7 @@ def _gaussian_scatter_forward_torch(x: Tensor, sigma: Tensor, norm: Tensor, half
 def _gaussian_scatter_backward_torch(
     grad: Tensor, x: Tensor, sigma: Tensor, half: int
 ) -> tuple[Tensor, Tensor]:
-    """``(sum_u t(u) g(q+u), sum_c x_c(q) sum_u t(u) |u|^2 g_c(q+u))`` with unit-norm weights."""
+    """`(sum_u t(u) g(q+u), sum_c x_c(q) sum_u t(u) |u|^2 g_c(q+u))` with unit-norm weights."""
     table = gaussian_table(sigma, half)
     dx_raw = torch.zeros_like(x)
     f_raw = torch.zeros_like(x)
@@ -87,113 +96,471 @@ def _gaussian_scatter_backward_torch(
     return dx_raw, (f_raw * x).sum(1, keepdim=True)
 
 
-class GaussianScatter(torch.autograd.Function):
-    """``y(p) = sum_q norm_q exp(-|p-q|^2 / (2 sigma_q^2)) x(q)`` over ``|p-q|_inf <= half``.
 
-    Inputs: ``x`` ``(B,C,H,W)``, ``sigma`` and ``norm`` ``(B,1,H,W)`` (pixels, and any per-source
-    factor), ``half`` (int). Differentiable in ``x``, ``sigma`` and ``norm``.
+
+def _clamp_scatter_forward_torch(
+    x: Tensor, rho: Tensor, norm: Tensor, dist: Tensor, half: int
+) -> Tensor:
+    """`y(p) = sum_q norm_q clamp(rho_q - D(p-q), 0, 1) x(q)`; `dist` is the `K x K` table of D."""
+    table = dist.tolist()
+    xn = x * norm
+    out = torch.zeros_like(x)
+    weight = torch.empty_like(rho)
+    _, _, h, w = x.shape
+    for dy, dx, src, dst in window_taps(half, h, w):
+        torch.sub(rho, table[dy + half][dx + half], out=weight).clamp_(0.0, 1.0)
+        out[dst].addcmul_(weight[src], xn[src])
+    return out
+
+
+def _clamp_scatter_backward_torch(
+    grad: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: int
+) -> tuple[Tensor, Tensor]:
+    """`(sum_u w(u) g(q+u), sum_c x_c(q) sum_u [0 <= rho_q - D(u) <= 1] g_c(q+u))`."""
+    table = dist.tolist()
+    dx_raw = torch.zeros_like(x)
+    f_raw = torch.zeros_like(x)
+    t = torch.empty_like(rho)
+    _, _, h, w = x.shape
+    for dy, dx, src, dst in window_taps(half, h, w):
+        torch.sub(rho, table[dy + half][dx + half], out=t)
+        inside = ((t >= 0) & (t <= 1)).to(t.dtype)
+        dx_raw[src].addcmul_(t.clamp(0.0, 1.0)[src], grad[dst])
+        f_raw[src].addcmul_(inside[src], grad[dst])
+    return dx_raw, (f_raw * x).sum(1, keepdim=True)
+
+
+def _clamp_window_sums_torch(rho: Tensor, dists: Tensor, counts: Tensor) -> tuple[Tensor, Tensor]:
+    """`Z = sum_j n_j clamp(rho - d_j, 0, 1)` and `dZ/drho` over distinct window distances `d_j`."""
+    total = torch.zeros_like(rho)
+    slope = torch.zeros_like(rho)
+    for d, n in zip(dists.tolist(), counts.tolist(), strict=True):
+        t = rho - d
+        total.add_(t.clamp(0.0, 1.0), alpha=n)
+        slope.add_(((t >= 0) & (t <= 1)).to(t.dtype), alpha=n)
+    return total, slope
+
+
+def _window(dist: Tensor, half: int) -> Tensor:
+    """The centre `(2 half + 1)^2` of a square distance table, on the CPU, contiguous."""
+    m = (dist.shape[-1] - 1) // 2
+    if half > m:
+        raise ValueError(f"the distance table covers half-width {m}, the window needs {half}")
+    return dist[m - half : m + half + 1, m - half : m + half + 1].detach().cpu().contiguous()
+
+
+# ------------------------------------------------------------------ custom operators
+# Every operator takes the window half-width as a 0-d integer tensor `half`.
+
+
+@torch.library.custom_op("defocus::gaussian_scatter", mutates_args=())
+def gaussian_scatter(x: Tensor, sigma: Tensor, norm: Tensor, half: Tensor) -> Tensor:
+    """`y(p) = sum_q norm_q exp(-|p-q|^2 / (2 sigma_q^2)) x(q)` over `|p-q|_inf <= half`.
+
+    Inputs: `x` `(B,C,H,W)`, `sigma` and `norm` `(B,1,H,W)` (pixels, and any per-source
+    factor). Differentiable in `x`, `sigma` and `norm`.
     """
-
-    @staticmethod
-    def forward(ctx, x: Tensor, sigma: Tensor, norm: Tensor, half: int) -> Tensor:
-        x, sigma, norm = x.contiguous(), sigma.contiguous(), norm.contiguous()
-        ctx.save_for_backward(x, sigma, norm)
-        ctx.half = half
-        return _scatter_forward(x, sigma, norm, half)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad: Tensor):
-        x, sigma, norm = ctx.saved_tensors
-        grad = grad.contiguous()
-        dx_raw, m1 = _scatter_backward(grad, x, sigma, ctx.half)
-        grad_x = dx_raw * norm if ctx.needs_input_grad[0] else None
-        grad_sigma = norm * m1 / sigma**3 if ctx.needs_input_grad[1] else None
-        grad_norm = (x * dx_raw).sum(1, keepdim=True) if ctx.needs_input_grad[2] else None
-        return grad_x, grad_sigma, grad_norm, None
-
-
-class GaussianGather(torch.autograd.Function):
-    """``y(p) = sum_q exp(-|p-q|^2 / (2 sigma_p^2)) x(q)``: the Gaussian of the *output* pixel.
-
-    The transpose of :class:`GaussianScatter`, so it reuses its two kernels: the forward is the
-    scatter backward's ``dx_raw`` (with ``x`` as the gradient), the backward a scatter forward.
-    """
-
-    @staticmethod
-    def forward(ctx, x: Tensor, sigma: Tensor, half: int) -> Tensor:
-        x, sigma = x.contiguous(), sigma.contiguous()
-        ctx.save_for_backward(x, sigma)
-        ctx.half = half
-        return _scatter_backward(x, x, sigma, half)[0]
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad: Tensor):
-        x, sigma = ctx.saved_tensors
-        grad = grad.contiguous()
-        grad_x = grad_sigma = None
-        if ctx.needs_input_grad[0]:
-            grad_x = _scatter_forward(grad, sigma, torch.ones_like(sigma), ctx.half)
-        if ctx.needs_input_grad[1]:
-            # d y_c(p) / d sigma_p = sum_q |p-q|^2 / sigma_p^3 t_p(p-q) x_c(q)
-            grad_sigma = _scatter_backward(x, grad, sigma, ctx.half)[1] / sigma**3
-        return grad_x, grad_sigma, None
-
-
-def _scatter_forward(x: Tensor, sigma: Tensor, norm: Tensor, half: int) -> Tensor:
+    x, sigma, norm, k = x.contiguous(), sigma.contiguous(), norm.contiguous(), int(half)
     if _render_cpp.usable(x):
-        return _render_cpp.gaussian_scatter_forward(x, sigma, norm, half)
-    return _gaussian_scatter_forward_torch(x, sigma, norm, half)
+        return _render_cpp.gaussian_scatter_forward(x, sigma, norm, k)
+    return _gaussian_scatter_forward_torch(x, sigma, norm, k)
 
 
-def _scatter_backward(grad: Tensor, x: Tensor, sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
+@torch.library.custom_op("defocus::gaussian_scatter_backward", mutates_args=())
+def gaussian_scatter_backward(
+    grad: Tensor, x: Tensor, sigma: Tensor, half: Tensor
+) -> tuple[Tensor, Tensor]:
+    """`(dx_raw, m1)`: `sum_u t(u) g(q+u)` and `sum_c x_c(q) sum_u t(u) |u|^2 g_c(q+u)`."""
+    grad, x, sigma, k = grad.contiguous(), x.contiguous(), sigma.contiguous(), int(half)
     if _render_cpp.usable(x):
-        return _render_cpp.gaussian_scatter_backward(grad, x, sigma, half)
-    return _gaussian_scatter_backward_torch(grad, x, sigma, half)
+        return _render_cpp.gaussian_scatter_backward(grad, x, sigma, k)
+    return _gaussian_scatter_backward_torch(grad, x, sigma, k)
 
 
-class InverseWindowSum(torch.autograd.Function):
-    """``1 / Z`` with ``Z = (sum_{d=-half..half} exp(-d^2 / (2 sigma^2)))^2`` per pixel.
-
-    The discrete total of a separable Gaussian window: dividing by it makes each source spread
-    unit energy over its window. A custom backward keeps the memory at one map whatever ``half``.
-    """
-
-    @staticmethod
-    def forward(ctx, sigma: Tensor, half: int) -> Tensor:
-        ctx.save_for_backward(sigma)
-        ctx.half = half
-        line, _ = _window_line_sums(sigma, half)
-        return line.pow_(-2)
-
-    @staticmethod
-    @once_differentiable
-    def backward(ctx, grad: Tensor):
-        (sigma,) = ctx.saved_tensors
-        line, moment = _window_line_sums(sigma, ctx.half)
-        # d(S^-2)/d sigma = -2 S^-3 dS/d sigma, dS/d sigma = sum_d t(d) d^2 / sigma^3
-        return grad * (-2) * moment / (sigma**3 * line**3), None
+@torch.library.custom_op("defocus::gaussian_gather", mutates_args=())
+def gaussian_gather(x: Tensor, sigma: Tensor, half: Tensor) -> Tensor:
+    """`y(p) = sum_q exp(-|p-q|^2 / (2 sigma_p^2)) x(q)`: the Gaussian of the *output* pixel."""
+    return gaussian_scatter_backward(x, x, sigma, half)[0].clone()
 
 
-def _window_line_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
-    """``sum_d t(d)`` and ``sum_d t(d) d^2`` over ``d = -half..half``, in place (no autograd)."""
-    sigma = sigma.contiguous()
+@torch.library.custom_op("defocus::gaussian_window_sums", mutates_args=())
+def gaussian_window_sums(sigma: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """`sum_d t(d)` and `sum_d t(d) d^2` over `d = -half..half` per pixel."""
+    sigma, k = sigma.contiguous(), int(half)
     if _render_cpp.usable(sigma):
-        return _render_cpp.window_sums(sigma, half)
+        return _render_cpp.window_sums(sigma, k)
     line = torch.ones_like(sigma)
     moment = torch.zeros_like(sigma)
     scale = -0.5 / (sigma * sigma)
     term = torch.empty_like(sigma)
-    for d in range(1, half + 1):
+    for d in range(1, k + 1):
         torch.mul(scale, float(d * d), out=term).exp_().mul_(2)
         line += term
         moment.add_(term, alpha=float(d * d))
     return line, moment
 
 
+@torch.library.custom_op("defocus::gaussian_norm", mutates_args=())
+def gaussian_norm(sigma: Tensor, half: Tensor) -> Tensor:
+    """`1 / Z`, `Z = (sum_{d=-half..half} exp(-d^2 / (2 sigma^2)))^2`: unit energy per source."""
+    return gaussian_window_sums(sigma, half)[0].pow(-2)
+
+
+@torch.library.custom_op("defocus::clamp_scatter", mutates_args=())
+def clamp_scatter(x: Tensor, rho: Tensor, norm: Tensor, dist: Tensor, half: Tensor) -> Tensor:
+    """`y(p) = sum_q norm_q clamp(rho_q - D(p-q), 0, 1) x(q)` over `|p-q|_inf <= half`.
+
+    `dist` is D on a square window at least as wide as `2 half + 1` (its centre is used).
+    Differentiable in `x`, `rho` and `norm`.
+    """
+    k = int(half)
+    x, rho, norm, table = x.contiguous(), rho.contiguous(), norm.contiguous(), _window(dist, k)
+    if _render_cpp.usable(x):
+        return _render_cpp.clamp_scatter_forward(x, rho, norm, table.to(x.dtype), k)
+    return _clamp_scatter_forward_torch(x, rho, norm, table, k)
+
+
+@torch.library.custom_op("defocus::clamp_scatter_backward", mutates_args=())
+def clamp_scatter_backward(
+    grad: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: Tensor
+) -> tuple[Tensor, Tensor]:
+    """`(dx_raw, m)`: the image and `rho` parts of the clamp scatter's vector-Jacobian product."""
+    k = int(half)
+    grad, x, rho, table = grad.contiguous(), x.contiguous(), rho.contiguous(), _window(dist, k)
+    if _render_cpp.usable(x):
+        return _render_cpp.clamp_scatter_backward(grad, x, rho, table.to(x.dtype), k)
+    return _clamp_scatter_backward_torch(grad, x, rho, table, k)
+
+
+@torch.library.custom_op("defocus::clamp_gather", mutates_args=())
+def clamp_gather(x: Tensor, rho: Tensor, dist: Tensor, half: Tensor) -> Tensor:
+    """`y(p) = sum_q clamp(rho_p - D(p-q), 0, 1) x(q)`: the profile of the *output* pixel."""
+    return clamp_scatter_backward(x, x, rho, dist.flip(-2, -1), half)[0].clone()
+
+
+@torch.library.custom_op("defocus::clamp_window_sums", mutates_args=())
+def clamp_window_sums(rho: Tensor, dist: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """`Z = sum_u clamp(rho - D(u), 0, 1)` over the window and `dZ/drho`, per pixel."""
+    rho = rho.contiguous()
+    dists, counts = torch.unique(_window(dist, int(half)), return_counts=True)
+    if _render_cpp.usable(rho):
+        dists = dists.to(rho.dtype).contiguous()
+        return _render_cpp.clamp_window_sums(rho, dists, counts.to(rho.dtype).contiguous())
+    return _clamp_window_sums_torch(rho, dists, counts)
+
+
+@torch.library.custom_op("defocus::clamp_norm", mutates_args=())
+def clamp_norm(rho: Tensor, dist: Tensor, half: Tensor) -> Tensor:
+    """`1 / Z`, `Z` the clamped profile's sum over the source's whole window."""
+    return clamp_window_sums(rho, dist, half)[0].reciprocal()
+
+
+# Fused, normalised scatter: `y = s[:C] / s[C]` with `s` the scatter of `(x, 1)` at unit energy per
+# source, and `den = s[C]`, in one kernel each way (the renderer's "scatter" mode).
+
+
+def _ones_channel(x: Tensor) -> Tensor:
+    return torch.cat([x, torch.ones_like(x[:, :1])], 1)
+
+
+def _normalised(spread: Tensor) -> tuple[Tensor, Tensor]:
+    den = spread[:, -1:].contiguous()
+    return (spread[:, :-1] / den).contiguous(), den
+
+
+def _grad_of_spread(grad: Tensor, y: Tensor, den: Tensor) -> Tensor:
+    """`dL/ds` from `dL/dy` for `y = s[:C] / s[C]`."""
+    return torch.cat([grad / den, -(grad * y).sum(1, keepdim=True) / den], 1).contiguous()
+
+
+@torch.library.custom_op("defocus::gaussian_render", mutates_args=())
+def gaussian_render(x: Tensor, sigma: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """`(y, den)`: the normalised Gaussian scatter of `x` and the weight each output receives."""
+    x, sigma, k = x.contiguous(), sigma.contiguous(), int(half)
+    if _render_cpp.usable(x):
+        return _render_cpp.gaussian_render(x, sigma, k)
+    norm = gaussian_window_sums(sigma, half)[0].pow(-2)
+    return _normalised(_gaussian_scatter_forward_torch(_ones_channel(x), sigma, norm, k))
+
+
+@torch.library.custom_op("defocus::gaussian_render_backward", mutates_args=())
+def gaussian_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, sigma: Tensor, half: Tensor
+) -> tuple[Tensor, Tensor]:
+    """`(dL/dx, dL/dsigma)` of `gaussian_render` from `dL/dy`."""
+    grad, x, sigma, k = grad.contiguous(), x.contiguous(), sigma.contiguous(), int(half)
+    if _render_cpp.usable(x):
+        return _render_cpp.gaussian_render_backward(grad, y.contiguous(), den.contiguous(), x,
+                                                    sigma, k)
+    ones = _ones_channel(x)
+    dx_raw, m1 = _gaussian_scatter_backward_torch(_grad_of_spread(grad, y, den), ones, sigma, k)
+    line, moment = gaussian_window_sums(sigma, half)
+    norm = line.pow(-2)
+    dnorm = -2 * moment / (sigma**3 * line**3)
+    grad_sigma = norm * m1 / sigma**3 + (ones * dx_raw).sum(1, keepdim=True) * dnorm
+    return (dx_raw[:, :-1] * norm).contiguous(), grad_sigma
+
+
+def _distinct(table: Tensor) -> tuple[Tensor, Tensor]:
+    dists, counts = torch.unique(table, return_counts=True)
+    return dists.contiguous(), counts.to(table.dtype).contiguous()
+
+
+@torch.library.custom_op("defocus::clamp_render", mutates_args=())
+def clamp_render(x: Tensor, rho: Tensor, dist: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
+    """`(y, den)`: the normalised clamped-distance scatter of `x` (disk, polygons)."""
+    k = int(half)
+    x, rho, table = x.contiguous(), rho.contiguous(), _window(dist, k).to(x.dtype)
+    if _render_cpp.usable(x):
+        return _render_cpp.clamp_render(x, rho, table, *_distinct(table), k)
+    norm = clamp_window_sums(rho, dist, half)[0].reciprocal()
+    return _normalised(_clamp_scatter_forward_torch(_ones_channel(x), rho, norm, table, k))
+
+
+@torch.library.custom_op("defocus::clamp_render_backward", mutates_args=())
+def clamp_render_backward(
+    grad: Tensor, y: Tensor, den: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: Tensor
+) -> tuple[Tensor, Tensor]:
+    """`(dL/dx, dL/drho)` of `clamp_render` from `dL/dy`."""
+    k = int(half)
+    grad, x, rho, table = grad.contiguous(), x.contiguous(), rho.contiguous(), _window(dist, k)
+    table = table.to(x.dtype)
+    if _render_cpp.usable(x):
+        return _render_cpp.clamp_render_backward(grad, y.contiguous(), den.contiguous(), x, rho,
+                                                 table, *_distinct(table), k)
+    ones = _ones_channel(x)
+    dx_raw, m = _clamp_scatter_backward_torch(_grad_of_spread(grad, y, den), ones, rho, table, k)
+    total, slope = clamp_window_sums(rho, dist, half)
+    norm = total.reciprocal()
+    grad_rho = norm * m - (ones * dx_raw).sum(1, keepdim=True) * slope / (total * total)
+    return (dx_raw[:, :-1] * norm).contiguous(), grad_rho
+
+
+# ------------------------------------------------------------------ fake implementations
+
+
+@gaussian_scatter.register_fake
+def _(x, sigma, norm, half):
+    return torch.empty_like(x)
+
+
+@gaussian_scatter_backward.register_fake
+def _(grad, x, sigma, half):
+    return torch.empty_like(x), torch.empty_like(sigma)
+
+
+@gaussian_gather.register_fake
+def _(x, sigma, half):
+    return torch.empty_like(x)
+
+
+@gaussian_window_sums.register_fake
+def _(sigma, half):
+    return torch.empty_like(sigma), torch.empty_like(sigma)
+
+
+@gaussian_norm.register_fake
+def _(sigma, half):
+    return torch.empty_like(sigma)
+
+
+@clamp_scatter.register_fake
+def _(x, rho, norm, dist, half):
+    return torch.empty_like(x)
+
+
+@clamp_scatter_backward.register_fake
+def _(grad, x, rho, dist, half):
+    return torch.empty_like(x), torch.empty_like(rho)
+
+
+@clamp_gather.register_fake
+def _(x, rho, dist, half):
+    return torch.empty_like(x)
+
+
+@clamp_window_sums.register_fake
+def _(rho, dist, half):
+    return torch.empty_like(rho), torch.empty_like(rho)
+
+
+@clamp_norm.register_fake
+def _(rho, dist, half):
+    return torch.empty_like(rho)
+
+
+@gaussian_render.register_fake
+def _(x, sigma, half):
+    return torch.empty_like(x), torch.empty_like(sigma)
+
+
+@gaussian_render_backward.register_fake
+def _(grad, y, den, x, sigma, half):
+    return torch.empty_like(x), torch.empty_like(sigma)
+
+
+@clamp_render.register_fake
+def _(x, rho, dist, half):
+    return torch.empty_like(x), torch.empty_like(rho)
+
+
+@clamp_render_backward.register_fake
+def _(grad, y, den, x, rho, dist, half):
+    return torch.empty_like(x), torch.empty_like(rho)
+
+
+# ------------------------------------------------------------------ autograd
+
+
+def _save_all(ctx, inputs, output) -> None:
+    ctx.save_for_backward(*inputs)
+
+
+def _gaussian_scatter_vjp(ctx, grad):
+    x, sigma, norm, half = ctx.saved_tensors
+    dx_raw, m1 = gaussian_scatter_backward(grad, x, sigma, half)
+    return dx_raw * norm, norm * m1 / sigma**3, (x * dx_raw).sum(1, keepdim=True), None
+
+
+def _gaussian_gather_vjp(ctx, grad):
+    x, sigma, half = ctx.saved_tensors
+    grad_x = gaussian_scatter(grad, sigma, torch.ones_like(sigma), half)
+    # d y_c(p) / d sigma_p = sum_q |p-q|^2 / sigma_p^3 t_p(p-q) x_c(q)
+    grad_sigma = gaussian_scatter_backward(x, grad, sigma, half)[1] / sigma**3
+    return grad_x, grad_sigma, None
+
+
+def _gaussian_norm_vjp(ctx, grad):
+    sigma, half = ctx.saved_tensors
+    line, moment = gaussian_window_sums(sigma, half)
+    # d(S^-2)/d sigma = -2 S^-3 dS/d sigma, dS/d sigma = sum_d t(d) d^2 / sigma^3
+    return grad * (-2) * moment / (sigma**3 * line**3), None
+
+
+def _clamp_scatter_vjp(ctx, grad):
+    x, rho, norm, dist, half = ctx.saved_tensors
+    dx_raw, m = clamp_scatter_backward(grad, x, rho, dist, half)
+    return dx_raw * norm, norm * m, (x * dx_raw).sum(1, keepdim=True), None, None
+
+
+def _clamp_gather_vjp(ctx, grad):
+    x, rho, dist, half = ctx.saved_tensors
+    flipped = dist.flip(-2, -1)
+    grad_x = clamp_scatter(grad, rho, torch.ones_like(rho), flipped, half)
+    grad_rho = clamp_scatter_backward(x, grad, rho, flipped, half)[1]
+    return grad_x, grad_rho, None, None
+
+
+def _clamp_norm_vjp(ctx, grad):
+    rho, dist, half = ctx.saved_tensors
+    total, slope = clamp_window_sums(rho, dist, half)
+    return -grad * slope / (total * total), None, None
+
+
+gaussian_scatter.register_autograd(_gaussian_scatter_vjp, setup_context=_save_all)
+gaussian_gather.register_autograd(_gaussian_gather_vjp, setup_context=_save_all)
+gaussian_norm.register_autograd(_gaussian_norm_vjp, setup_context=_save_all)
+clamp_scatter.register_autograd(_clamp_scatter_vjp, setup_context=_save_all)
+clamp_gather.register_autograd(_clamp_gather_vjp, setup_context=_save_all)
+clamp_norm.register_autograd(_clamp_norm_vjp, setup_context=_save_all)
+
+
+def _save_render(ctx, inputs, output) -> None:
+    ctx.save_for_backward(*inputs, *output)
+
+
+def _gaussian_render_vjp(ctx, grad_y, grad_den):
+    # `den` is an auxiliary output for the backward pass; its gradient is not propagated.
+    x, sigma, half, y, den = ctx.saved_tensors
+    grad_x, grad_sigma = gaussian_render_backward(grad_y, y, den, x, sigma, half)
+    return grad_x, grad_sigma, None
+
+
+def _clamp_render_vjp(ctx, grad_y, grad_den):
+    x, rho, dist, half, y, den = ctx.saved_tensors
+    grad_x, grad_rho = clamp_render_backward(grad_y, y, den, x, rho, dist, half)
+    return grad_x, grad_rho, None, None
+
+
+gaussian_render.register_autograd(_gaussian_render_vjp, setup_context=_save_render)
+clamp_render.register_autograd(_clamp_render_vjp, setup_context=_save_render)
+
+
+# Layered mode, fused (compiled kernels only; the renderer composes the operators above elsewhere).
+# `pos` is each pixel's continuous layer position in [0, L-1]; layer l weighs max(0, 1 - |pos - l|).
+
+
+def _clamp_tables(dist: Tensor, half: Tensor, like: Tensor):
+    table = _window(dist, int(half)).to(like.dtype)
+    return (table, *_distinct(table))
+
+
+def _need_library(x: Tensor) -> None:
+    if not _render_cpp.usable(x):
+        raise RuntimeError("defocus layered operators need the compiled CPU kernels; "
+                           "use render_defocus, which falls back to the PyTorch path")
+
+
+@torch.library.custom_op("defocus::layered_render", mutates_args=())
+def layered_render(
+    x: Tensor, pos: Tensor, param: Tensor, dist: Tensor, half: Tensor, n_layers: int, kind: str
+) -> tuple[Tensor, Tensor]:
+    """`(out, spread)` of the layered mode; `kind` is "gaussian" (`param` = sigma, `dist` unused)
+    or "clamp" (`param` = rho, `dist` the distance table)."""
+    _need_library(x)
+    x, pos, param = x.contiguous(), pos.contiguous(), param.contiguous()
+    clamp = _clamp_tables(dist, half, x) if kind == "clamp" else None
+    return _render_cpp.layered_render(x, pos, param, int(half), n_layers, clamp)
+
+
+@torch.library.custom_op("defocus::layered_render_backward", mutates_args=())
+def layered_render_backward(
+    grad: Tensor, out: Tensor, spread: Tensor, x: Tensor, pos: Tensor, param: Tensor,
+    dist: Tensor, half: Tensor, n_layers: int, kind: str,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """`(dL/dx, dL/dpos, dL/dparam)` of `layered_render` from `dL/dout`."""
+    _need_library(x)
+    clamp = _clamp_tables(dist, half, x) if kind == "clamp" else None
+    return _render_cpp.layered_render_backward(
+        grad.contiguous(), out.contiguous(), spread.contiguous(), x.contiguous(),
+        pos.contiguous(), param.contiguous(), int(half), n_layers, clamp,
+    )
+
+
+@layered_render.register_fake
+def _(x, pos, param, dist, half, n_layers, kind):
+    b, c, h, w = x.shape
+    return torch.empty_like(x), x.new_empty(b, n_layers, c + 1, h, w)
+
+
+@layered_render_backward.register_fake
+def _(grad, out, spread, x, pos, param, dist, half, n_layers, kind):
+    return torch.empty_like(x), torch.empty_like(pos), torch.empty_like(pos)
+
+
+def _save_layered(ctx, inputs, output) -> None:
+    x, pos, param, dist, half, n_layers, kind = inputs
+    ctx.save_for_backward(x, pos, param, dist, half, *output)
+    ctx.n_layers, ctx.kind = n_layers, kind
+
+
+def _layered_vjp(ctx, grad_out, grad_spread):
+    # `spread` is an auxiliary output for the backward pass; its gradient is not propagated.
+    x, pos, param, dist, half, out, spread = ctx.saved_tensors
+    grad_x, grad_pos, grad_param = layered_render_backward(
+        grad_out, out, spread, x, pos, param, dist, half, ctx.n_layers, ctx.kind
+    )
+    return grad_x, grad_pos, grad_param, None, None, None, None
+
+
+layered_render.register_autograd(_layered_vjp, setup_context=_save_layered)
+
+
+# ------------------------------------------------------------------ other apertures (pure PyTorch)
+
+
 def _profile_normaliser(psf, coc: Tensor, half: int) -> Tensor:
-    """Discrete sum of a source's profile over its whole ``(2 half + 1)^2`` window."""
+    """Discrete sum of a source's profile over its whole `(2 half + 1)^2` window."""
     total = torch.zeros_like(coc)
     for dy in range(-half, half + 1):
         for dx in range(-half, half + 1):
@@ -206,11 +573,11 @@ def _scalar(value: int, like: Tensor) -> Tensor:
 
 
 class ProfileFilter(torch.autograd.Function):
-    """Linear filter with per-pixel weights ``psf.profile(u; coc)``.
+    """Linear filter with per-pixel weights `psf.profile(u; coc)`.
 
-    ``scatter=True``: ``y(p) = sum_q x(q) P(p-q; coc_q) / Z_q``, ``Z_q`` the profile's sum over the
-    source's full window (each source spreads unit energy). ``scatter=False`` (gather):
-    ``y(p) = sum_q x(q) P(p-q; coc_p)``, unnormalised. Extra inputs ``params`` are the aperture's
+    `scatter=True`: `y(p) = sum_q x(q) P(p-q; coc_q) / Z_q`, `Z_q` the profile's sum over the
+    source's full window (each source spreads unit energy). `scatter=False` (gather):
+    `y(p) = sum_q x(q) P(p-q; coc_p)`, unnormalised. Extra inputs `params` are the aperture's
     trainable parameters, so that gradients reach them.
     """
 
@@ -279,7 +646,7 @@ class ProfileFilter(torch.autograd.Function):
 
 
 def _accumulate_vjp(psf, dy, dx, coc, upstream, grad_coc, params, grad_params) -> None:
-    """Add ``upstream * d profile(dy, dx; coc) / d(coc, params)`` to the gradient accumulators."""
+    """Add `upstream * d profile(dy, dx; coc) / d(coc, params)` to the gradient accumulators."""
     with torch.enable_grad():
         leaf = coc.detach().requires_grad_(True)
         weight = psf.profile(_scalar(dy, coc), _scalar(dx, coc), leaf)

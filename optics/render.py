@@ -1,26 +1,30 @@
 r"""Per-pixel PSF rendering: blur an image with a point spread function that varies per pixel.
 
-Every pixel has its own circle of confusion (CoC, diameter in pixels, from
-:meth:`Camera.coc_px <optics.Camera.coc_px>`) and the aperture gives the PSF shape for it. Three
-semantics:
+Every pixel has its own circle of confusion (CoC, diameter in pixels, from `Camera.coc_px`) and
+the aperture gives the PSF shape for it. Three semantics:
 
-| mode | output pixel ``p`` | handles |
+| mode | output pixel `p` | handles |
 |---|---|---|
-| ``gather`` | ``sum_q I(q) k(p-q; c_p) / sum_q k(p-q; c_p)``: the output pixel's own PSF | spatial variation; sharp pixels never blur |
-| ``scatter`` | ``sum_q I(q) w_q(p-q) / sum_q w_q(p-q)``, ``w_q = k(.; c_q) / Z_q``: each source spreads its own PSF, normalised per output | spatial variation (the paper's layer); the default |
-| ``layered`` | depth layers (soft, in inverse depth) each scattered with its own CoCs and composited front to back with alpha | spatial variation and occlusion: no blurred background over a sharp foreground edge |
+| `gather` | `sum_q I(q) k(p-q; c_p) / sum_q k(p-q; c_p)`: the output pixel's own PSF | spatial variation; sharp pixels never blur |
+| `scatter` | `sum_q I(q) w_q(p-q) / sum_q w_q(p-q)`, `w_q = k(.; c_q) / Z_q`: each source spreads its own PSF, normalised per output | spatial variation (the paper's layer); the default |
+| `layered` | depth layers (soft, in inverse depth) each scattered with its own CoCs and composited front to back with alpha | spatial variation and occlusion: no blurred background over a sharp foreground edge |
 
-``Z_q`` is the discrete sum of the source's profile over its whole window, so each source spreads
+`Z_q` is the discrete sum of the source's profile over its whole window, so each source spreads
 unit energy over the pixel grid (not a continuous formula). Taps outside the image are skipped
 and every mode divides by the weight an output actually receives, so a constant image stays
 constant up to the borders.
 
-Cost: ``O(B C H W K^2)`` time and ``O(B C H W)`` extra memory (``L`` times that for ``L`` layers;
-no ``K^2`` copies of the image:
-the window offsets are visited in a loop and the weights recomputed in the backward pass).
-Gaussian PSFs use a separable per-pixel table and, on CPU, a compiled C++ kernel when a compiler
-is available (see :mod:`optics._render_cpp`); other apertures evaluate their ``profile`` per
-window offset in PyTorch.
+Cost: `O(B C H W K^2)` time and `O(B C H W)` extra memory (`L` times that for `L` layers; no
+`K^2` copies of the image: the window offsets are visited in a loop and the weights recomputed
+in the backward pass).
+
+Speed: the Gaussian (a separable per-source table) and the disk and polygons (a clamped distance,
+`clamp(edge_radius(c_q) + 1/2 - D(u), 0, 1)` with the distance `D` tabulated once per call) run
+as `torch.library` custom operators (`optics._render_ops`) backed, on CPU, by a compiled C++
+kernel when a compiler is available (`optics._render_cpp`), and by PyTorch loops elsewhere (GPUs
+included). `torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and
+backward without graph breaks. Other apertures (`Mask`, user subclasses with their own
+`profile`) evaluate their `profile` per window offset in PyTorch.
 """
 
 from __future__ import annotations
@@ -31,8 +35,9 @@ import warnings
 import torch
 from torch import Tensor, nn
 
-from ._render_ops import GaussianGather, GaussianScatter, InverseWindowSum, ProfileFilter
-from .aperture import Aperture, Gaussian
+from . import _render_cpp
+from . import _render_ops as ops
+from .aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
 from .checks import check_depth, check_shape
 
 MODES = ("gather", "scatter", "layered")
@@ -54,41 +59,44 @@ def render_defocus(
 ) -> Tensor:
     r"""Render defocus blur with a per-pixel PSF.
 
-    The window is ``K x K`` pixels with ``K = psf.kernel_size(max CoC)`` (``2 ceil(3 sigma) + 1``
-    for a Gaussian), capped at ``max_kernel_size``. **Beyond the cap the PSFs are truncated** to the
-    ``max_kernel_size`` window and renormalised over it (scatter: each source's weights sum to one
-    over the truncated window), so the blur is narrower than the optics say; a ``UserWarning``
+    The window is `K x K` pixels with `K = psf.kernel_size(max CoC)` (`2 ceil(3 sigma) + 1`
+    for a Gaussian), capped at `max_kernel_size`. **Beyond the cap the PSFs are truncated** to the
+    `max_kernel_size` window and renormalised over it (scatter: each source's weights sum to one
+    over the truncated window), so the blur is narrower than the optics say; a `UserWarning`
     says so.
 
     Args:
-        image: ``(B, C, H, W)`` image, linear intensity.
-        coc_px: ``(B, 1, H, W)`` (or ``(1, 1, H, W)``) CoC *diameter* in pixels, finite, >= 0. For the
-            Gaussian, ``sigma_px = psf.scale * coc_px`` (0.5 by default: sigma = CoC radius).
-        psf: aperture shape (:class:`~optics.Gaussian`, :class:`~optics.Disk`,
-            :class:`~optics.Polygon`, :class:`~optics.Mask`, ...); ``Gaussian()`` by default.
-        mode: ``"scatter"`` (default, the paper's), ``"gather"`` or ``"layered"`` (see the module
+        image: `(B, C, H, W)` image, linear intensity.
+        coc_px: `(B, 1, H, W)` (or `(1, 1, H, W)`) CoC *diameter* in pixels, finite, >= 0. For the
+            Gaussian, `sigma_px = psf.scale * coc_px` (0.5 by default: sigma = CoC radius).
+        psf: aperture shape (`Gaussian`, `Disk`, `Polygon`, `Mask`, ...); `Gaussian()` by default.
+        mode: `"scatter"` (default, the paper's), `"gather"` or `"layered"` (see the module
             table).
-        depth: ``(B, 1, H, W)`` depth in metres; needed by ``"layered"`` only (orders the layers).
+        depth: `(B, 1, H, W)` depth in metres; needed by `"layered"` only (orders the layers).
         max_kernel_size: largest window width in pixels, a positive odd integer.
-        preset: ``"gur_wolf_2019"`` reproduces the paper's layer exactly: Gaussian with sigma =
-            CoC/2, weight of source ``q`` on output ``p`` equal to ``c_q^-2 exp(-2 |p-q|^2 /
-            c_q^2)`` with ``c`` clamped to [1, 7] px, a 7x7 window, pixels with CoC <= 1 copied
+        preset: `"gur_wolf_2019"` reproduces the paper's layer exactly: Gaussian with sigma =
+            CoC/2, weight of source `q` on output `p` equal to `c_q^-2 exp(-2 |p-q|^2 /
+            c_q^2)` with `c` clamped to [1, 7] px, a 7x7 window, pixels with CoC <= 1 copied
             unchanged and left out of their neighbours' sums, out-of-image taps skipped, division
             by the total weight each output receives. It fixes the PSF, window and semantics, so
-            ``psf`` must be ``None`` or ``Gaussian(0.5)`` and ``mode`` ``"scatter"``.
-        n_layers: number of depth layers of the ``"layered"`` mode, spread evenly in inverse depth
+            `psf` must be `None` or `Gaussian(0.5)` and `mode` `"scatter"`.
+        n_layers: number of depth layers of the `"layered"` mode, spread evenly in inverse depth
             between the nearest and farthest pixel of each image; a pixel between two layer depths
             is shared between them linearly (so the result is differentiable in the depth).
 
     Returns:
-        ``(B, C, H, W)`` rendered image, dtype and device of ``image``. Differentiable in
-        ``image``, ``coc_px``, ``depth`` (layered) and the aperture's parameters.
+        `(B, C, H, W)` rendered image, dtype and device of `image`. Differentiable in
+        `image`, `coc_px`, `depth` (layered) and the aperture's parameters.
 
     Raises:
-        TypeError: if ``image``, ``coc_px`` or ``depth`` is not a floating-point tensor, or ``psf``
-            is not an :class:`~optics.Aperture`.
-        ValueError: on wrong shapes, a negative, NaN or infinite CoC, an unknown ``mode`` or ``preset``, an
-            invalid ``max_kernel_size`` or ``n_layers``, or ``"layered"`` without ``depth``.
+        TypeError: if `image`, `coc_px` or `depth` is not a floating-point tensor, or `psf`
+            is not an `Aperture`.
+        ValueError: on wrong shapes, a negative, NaN or infinite CoC, an unknown `mode` or
+            `preset`, an invalid `max_kernel_size` or `n_layers`, or `"layered"` without `depth`.
+
+    Under `torch.compile(render_defocus, fullgraph=True)` (Gaussian, disk and polygon PSFs) the
+    window is computed inside the graph, the truncation warning is not given and invalid CoC or
+    depth values fail in an in-graph assertion instead of a `ValueError`.
 
     Example:
         >>> image = torch.zeros(1, 1, 7, 7)
@@ -101,22 +109,68 @@ def render_defocus(
     if preset is not None:
         return _render_paper(image, coc_px)
     psf = Gaussian() if psf is None else psf
+    half = _window_half(psf, coc_px, max_kernel_size)
+    if mode == "layered":
+        if depth is None:
+            raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
+        return _render_layered(image, coc_px, psf, half, depth, n_layers, max_kernel_size // 2)
+    kind = _fast_kind(psf)
+    if mode == "scatter" and kind == "gaussian":  # fused: spread, normalisation, division
+        return ops.gaussian_render(image, psf.sigma_px(coc_px), _half_tensor(half))[0]
+    if mode == "scatter" and kind == "clamp":
+        rho = psf.edge_radius(coc_px) + 0.5  # profile = clamp(rho - distance, 0, 1)
+        dist = _distance_table(psf, half, max_kernel_size // 2, image)
+        return ops.clamp_render(image, rho, dist, _half_tensor(half))[0]
+    ones = torch.ones_like(image[:, :1])
+    spread = _linear_filter(
+        torch.cat([image, ones], 1), coc_px, psf, half, mode == "scatter", max_kernel_size // 2
+    )
+    return spread[:, :-1] / spread[:, -1:]
+
+
+def _compiling() -> bool:
+    return torch.compiler.is_compiling()
+
+
+def _fast_kind(psf: Aperture) -> str | None:
+    """Which custom operators render `psf`: "gaussian", "clamp" (disk, polygons) or None."""
+    if type(psf) is Gaussian:
+        return "gaussian"
+    if isinstance(psf, Disk) and type(psf).profile is Disk.profile:
+        return "clamp"
+    return None
+
+
+def _window_half(psf: Aperture, coc_px: Tensor, max_kernel_size: int) -> int | Tensor:
+    """Window half-width: a Python int, or under `torch.compile` a 0-d tensor computed in-graph.
+
+    The tensor form repeats `half_width` in float64, which is what the Python floats are, so both
+    give the same window.
+    """
+    cap = max_kernel_size // 2
+    kind = _fast_kind(psf)
+    if _compiling() and kind is not None and type(psf).half_width in (
+        Gaussian.half_width, Disk.half_width
+    ):
+        largest = coc_px.detach().amax().double()
+        if kind == "gaussian":
+            sigma = (psf.scale.detach().double() * largest).clamp_min(MIN_SIGMA_PX)
+            half = torch.where(
+                sigma > MIN_SIGMA_PX, torch.ceil(3 * sigma - 1e-9), torch.zeros_like(sigma)
+            )
+        else:
+            half = torch.ceil(largest / 2 - 0.5 - 1e-9)
+        return half.clamp(0, cap).to(torch.int64)
     max_coc = float(coc_px.detach().max()) if coc_px.numel() else 0.0
-    half = min(psf.half_width(max_coc), max_kernel_size // 2)
+    half = min(psf.half_width(max_coc), cap)
     if psf.half_width(max_coc) > half:
         warnings.warn(
             f"render_defocus: the largest CoC ({max_coc:.3g} px) needs a "
             f"{psf.kernel_size(max_coc)}-pixel window; PSFs are truncated to "
             f"max_kernel_size={max_kernel_size}",
-            stacklevel=2,
+            stacklevel=3,
         )
-    if mode == "layered":
-        if depth is None:
-            raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
-        return _render_layered(image, coc_px, psf, half, depth, n_layers)
-    ones = torch.ones_like(image[:, :1])
-    spread = _linear_filter(torch.cat([image, ones], 1), coc_px, psf, half, mode == "scatter")
-    return spread[:, :-1] / spread[:, -1:]
+    return half
 
 
 def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Tensor, Tensor]:
@@ -132,8 +186,12 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
             f"coc_px must have shape ({b} or 1, 1, {h}, {w}) to match image, "
             f"got {tuple(coc_px.shape)}"
         )
-    if not bool(torch.all(torch.isfinite(coc_px) & (coc_px >= 0))):
-        raise ValueError("coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)")
+    valid = torch.all(torch.isfinite(coc_px) & (coc_px >= 0))
+    message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
+    if _compiling():
+        torch._assert_async(valid, message)
+    elif not bool(valid):
+        raise ValueError(message)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if psf is not None and not isinstance(psf, Aperture):
@@ -157,15 +215,37 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
     return image, coc_px
 
 
-def _linear_filter(x: Tensor, coc_px: Tensor, psf: Aperture, half: int, scatter: bool) -> Tensor:
-    """Unnormalised spread of ``x`` (scatter: unit energy per source; gather: raw profile)."""
-    if type(psf) is Gaussian:
+def _half_tensor(half: int | Tensor) -> Tensor:
+    return half if isinstance(half, Tensor) else torch.tensor(half, dtype=torch.int64)
+
+
+def _distance_table(psf: Disk, half: int | Tensor, cap: int, like: Tensor) -> Tensor:
+    """The aperture's distance on a square window: `2 half + 1` wide, or `2 cap + 1` in a graph."""
+    size = cap if isinstance(half, Tensor) else half
+    offsets = torch.arange(-size, size + 1, device=like.device, dtype=like.dtype)
+    return psf.distance(offsets.view(-1, 1), offsets.view(1, -1)).detach()
+
+
+def _linear_filter(
+    x: Tensor, coc_px: Tensor, psf: Aperture, half: int | Tensor, scatter: bool, cap: int = 0
+) -> Tensor:
+    """Unnormalised spread of `x` (scatter: unit energy per source; gather: raw profile)."""
+    kind = _fast_kind(psf)
+    if kind == "gaussian":
         sigma = psf.sigma_px(coc_px)
+        half_t = _half_tensor(half)
         if not scatter:
-            return GaussianGather.apply(x, sigma, half)
-        return GaussianScatter.apply(x, sigma, InverseWindowSum.apply(sigma, half), half)
+            return ops.gaussian_gather(x, sigma, half_t)
+        return ops.gaussian_scatter(x, sigma, ops.gaussian_norm(sigma, half_t), half_t)
+    if kind == "clamp":
+        rho = psf.edge_radius(coc_px) + 0.5  # profile = clamp(rho - distance, 0, 1)
+        dist = _distance_table(psf, half, cap, x)
+        half_t = _half_tensor(half)
+        if not scatter:
+            return ops.clamp_gather(x, rho, dist, half_t)
+        return ops.clamp_scatter(x, rho, ops.clamp_norm(rho, dist, half_t), dist, half_t)
     params = [p for p in psf.parameters() if p.requires_grad]
-    return ProfileFilter.apply(x, coc_px, psf, scatter, half, *params)
+    return ops.ProfileFilter.apply(x, coc_px, psf, scatter, int(half), *params)
 
 
 def _render_paper(image: Tensor, coc_px: Tensor) -> Tensor:
@@ -174,16 +254,18 @@ def _render_paper(image: Tensor, coc_px: Tensor) -> Tensor:
     active = coc_px > low
     norm = torch.where(active, coc.pow(-2), torch.zeros_like(coc))
     ones = torch.ones_like(image[:, :1])
-    spread = GaussianScatter.apply(torch.cat([image, ones], 1), coc / 2, norm, PAPER_HALF_WIDTH)
+    spread = ops.gaussian_scatter(
+        torch.cat([image, ones], 1), coc / 2, norm, _half_tensor(PAPER_HALF_WIDTH)
+    )
     total = torch.where(active, spread[:, -1:], torch.ones_like(coc))
     return torch.where(active, spread[:, :-1] / total, image)
 
 
 def layer_weights(depth: Tensor, n_layers: int) -> Tensor:
-    """Soft assignment of each pixel to ``n_layers`` depth layers, front (nearest) first.
+    """Soft assignment of each pixel to `n_layers` depth layers, front (nearest) first.
 
     Layers sit evenly in inverse depth between each image's nearest and farthest pixel; a pixel
-    between two layers is split linearly between them. Returns ``(B, L, H, W)`` weights summing
+    between two layers is split linearly between them. Returns `(B, L, H, W)` weights summing
     to 1 per pixel.
 
     Example:
@@ -191,25 +273,44 @@ def layer_weights(depth: Tensor, n_layers: int) -> Tensor:
         tensor([[1.0000, 0.3333, 0.0000],
                 [0.0000, 0.6667, 1.0000]])
     """
-    inverse = 1.0 / depth
-    near = inverse.amax(dim=(1, 2, 3), keepdim=True)
-    far = inverse.amin(dim=(1, 2, 3), keepdim=True)
-    step = ((near - far) / max(n_layers - 1, 1)).clamp_min(torch.finfo(depth.dtype).tiny)
-    position = ((near - inverse) / step).clamp(0, n_layers - 1)
+    position = _layer_position(depth, n_layers)
     centres = torch.arange(n_layers, device=depth.device, dtype=depth.dtype).view(1, -1, 1, 1)
     return (1 - (position - centres).abs()).clamp_min(0)
 
 
-def _render_layered(image, coc_px, psf, half, depth, n_layers) -> Tensor:
+def _layer_position(depth: Tensor, n_layers: int) -> Tensor:
+    """Continuous layer index in `[0, n_layers - 1]` per pixel, `(B, 1, H, W)`: 0 is the nearest."""
+    inverse = 1.0 / depth
+    near = inverse.amax(dim=(1, 2, 3), keepdim=True)
+    far = inverse.amin(dim=(1, 2, 3), keepdim=True)
+    step = ((near - far) / max(n_layers - 1, 1)).clamp_min(torch.finfo(depth.dtype).tiny)
+    return ((near - inverse) / step).clamp(0, n_layers - 1)
+
+
+def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
     check_shape("depth", depth, ["B", "1", "H", "W"])
-    check_depth("depth", depth)
+    if _compiling():
+        torch._assert_async(torch.all(torch.isfinite(depth) & (depth > 0)),
+                            "depth must be finite and > 0 metres")
+    else:
+        check_depth("depth", depth)
     if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
         raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
     b, c, h, w = image.shape
     depth = depth.to(image.dtype).expand(b, 1, h, w)
+    kind = _fast_kind(psf)
+    if kind is not None and n_layers <= 32 and _render_cpp.usable(image):
+        # One fused pass each way: layers present nowhere near a pixel cost nothing there.
+        pos = _layer_position(depth, n_layers)
+        half_t = _half_tensor(half)
+        if kind == "gaussian":
+            param, dist = psf.sigma_px(coc_px), image.new_zeros(1, 1)
+        else:
+            param, dist = psf.edge_radius(coc_px) + 0.5, _distance_table(psf, half, cap, image)
+        return ops.layered_render(image, pos, param, dist, half_t, n_layers, kind)[0]
     alpha = layer_weights(depth, n_layers)  # (B, L, H, W), front first
     layers = torch.cat([alpha.unsqueeze(2) * image.unsqueeze(1), alpha.unsqueeze(2)], 2)
-    spread = _linear_filter(layers.reshape(b, -1, h, w), coc_px, psf, half, scatter=True)
+    spread = _linear_filter(layers.reshape(b, -1, h, w), coc_px, psf, half, True, cap)
     spread = spread.view(b, n_layers, c + 1, h, w)
     colour = torch.zeros_like(image)
     coverage = torch.zeros_like(image[:, :1])
@@ -223,13 +324,13 @@ def _render_layered(image, coc_px, psf, half, depth, n_layers) -> Tensor:
 
 
 class DefocusRenderer(nn.Module):
-    """Module form of :func:`render_defocus`: stores the PSF and the options.
+    """Module form of `render_defocus`: stores the PSF and the options.
 
     Args:
-        psf: aperture shape, ``Gaussian()`` by default.
-        mode: ``"scatter"``, ``"gather"`` or ``"layered"``.
+        psf: aperture shape, `Gaussian()` by default.
+        mode: `"scatter"`, `"gather"` or `"layered"`.
         max_kernel_size: largest window width in pixels (odd).
-        preset: ``None`` or ``"gur_wolf_2019"``.
+        preset: `None` or `"gur_wolf_2019"`.
         n_layers: depth layers of the layered mode.
 
     Example:

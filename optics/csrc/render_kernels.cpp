@@ -1,0 +1,1437 @@
+// Gaussian scatter filter on CPU (see optics/_render_ops.py for the maths and the PyTorch twin).
+//
+//   y_c(p) = sum_q norm_q * t_q(py - qy) * t_q(px - qx) * x_c(q),  t_q(d) = exp(-d^2 / (2 s_q^2))
+//
+// over |p - q|_inf <= half, q and p inside the image. Arrays are contiguous (B, C, H, W), sigma and
+// norm (B, 1, H, W). The per-source table t_q(0..half) is built by the recurrence
+// t(d+1) = t(d) * e^(2d+1), e = exp(-1 / (2 s^2)): one exp per source pixel.
+// Also the clamped-distance profiles of the disk and the polygons (below).
+// Plain C ABI (loaded with ctypes, wrapped as torch.library custom ops by optics/_render_ops.py):
+// no PyTorch headers, so it compiles in a few seconds.
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+namespace {
+
+template <typename T>
+void fill_table(const T* sigma_row, int64_t width, int64_t half, T* table) {
+  // table[d * width + s] = exp(-d^2 / (2 sigma_s^2)), d = 0..half
+  for (int64_t s = 0; s < width; ++s) table[s] = T(1);
+  if (half == 0) return;
+  for (int64_t s = 0; s < width; ++s) {
+    const T sg = sigma_row[s];
+    const T e = std::exp(T(-0.5) / (sg * sg));
+    const T e2 = e * e;
+    T t = T(1), q = e;
+    for (int64_t d = 1; d <= half; ++d) {
+      t *= q;
+      q *= e2;
+      table[d * width + s] = t;
+    }
+  }
+}
+
+// Register blocks of two 32-byte vectors (GCC/Clang vector extensions; without AVX the compiler
+// splits them into SSE halves): 16 float or 8 double output pixels per block.
+template <typename T>
+struct Vec {
+  typedef T type __attribute__((vector_size(32), aligned(sizeof(T))));
+  static constexpr int64_t lanes = 32 / sizeof(T);
+};
+template <typename T>
+using V = typename Vec<T>::type;
+template <typename T>
+inline V<T> load(const T* p) {
+  return *reinterpret_cast<const V<T>*>(p);
+}
+constexpr int64_t kVectors = 2;
+template <typename T>
+constexpr int64_t block_lanes() {
+  return kVectors * Vec<T>::lanes;
+}
+constexpr int64_t kRowVectors = 1;     // vectors per row in the two-row register blocks
+constexpr int64_t kPadRight = 16;      // >= block_lanes<T>() for float and double
+constexpr int64_t kRowsPerBlock = 16;  // rows per task: the ring of source rows is reused
+
+// Ring of per-row buffers, padded by `half` on the left and half + kPadRight on the right with
+// zeros, so that the register blocks need no bounds checks (zero weight, finite values).
+template <typename T>
+struct RowRing {
+  int64_t half, width, padded, rows_per_slot;
+  std::vector<T> data;
+  std::vector<int64_t> row_of_slot;
+  RowRing(int64_t K, int64_t half_, int64_t width_, int64_t rows)
+      : half(half_), width(width_), padded(width_ + 2 * half_ + kPadRight), rows_per_slot(rows),
+        data(K * rows * padded, T(0)), row_of_slot(K, -1) {}
+  void reset() { std::fill(row_of_slot.begin(), row_of_slot.end(), int64_t(-1)); }
+  // Buffer of the slot holding image row y; index half + s of each of its rows is pixel s.
+  T* slot(int64_t y, bool* fresh) {
+    const int64_t k = y % static_cast<int64_t>(row_of_slot.size());
+    *fresh = row_of_slot[k] != y;
+    row_of_slot[k] = y;
+    return data.data() + k * rows_per_slot * padded;
+  }
+};
+
+// Forward for G channels of one output row, one register block starting at output pixel x0.
+template <typename T, int G>
+void forward_group(const T* const* xn_rows, const T* const* tab_rows, int64_t half, int64_t padded,
+                   int64_t x0, T* out, int64_t out_stride, int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{} ;
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
+    const T* tab = tab_rows[k];
+    if (tab == nullptr) continue;
+    const T* ty = tab + std::abs(k - half) * padded;
+    const T* const* xr = xn_rows + k * G;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = x0 - dx + half;
+      const T* tx = tab + std::abs(dx) * padded + base;
+      const T* tyb = ty + base;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = load(tyb + j * L) * load(tx + j * L);
+        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    T tmp[kVectors * L];
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
+    std::copy(tmp, tmp + n_out, out + g * out_stride);
+  }
+}
+
+template <typename T>
+void forward(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t C, int64_t H,
+             int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 4;
+#pragma omp parallel num_threads(nthreads)
+  {
+    // Each slot: half+1 table rows, then C rows of x * norm.
+    RowRing<T> ring(K, half, W, half + 1 + C);
+    std::vector<const T*> tab_rows(K), xn_rows(K * G);
+    std::vector<T> table(half + 1 == 0 ? 1 : (half + 1) * W);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; ++oy) {
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t sy = oy - (k - half);
+          if (sy < 0 || sy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          if (fresh) {
+            fill_table(sigma + b * plane + sy * W, W, half, table.data());
+            for (int64_t d = 0; d <= half; ++d)
+              std::copy(table.begin() + d * W, table.begin() + (d + 1) * W,
+                        slot + d * ring.padded + half);
+            const T* nrow = norm + b * plane + sy * W;
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + sy * W;
+              T* dst = slot + (half + 1 + c) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * nrow[s];
+            }
+          }
+          slots[k] = slot;
+        }
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k) {
+            tab_rows[k] = slots[k];
+            for (int64_t g = 0; g < G; ++g)  // unused lanes of a short group read channel c0
+              xn_rows[k * G + g] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (half + 1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+          }
+          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>()) {
+            forward_group<T, G>(xn_rows.data(), tab_rows.data(), half, ring.padded, x0,
+                                y + (b * C + c0) * plane + oy * W + x0, plane,
+                                std::min(block_lanes<T>(), W - x0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// Backward for G channels of one source row, one register block starting at source pixel s0.
+template <typename T, int G>
+void backward_group(const T* tab, const T* const* g_rows, int64_t half, int64_t padded,
+                    int64_t s0, const T* x_row, int64_t x_stride, T* dx_row, T* m_row,
+                    int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
+    const T* const* gr = g_rows + k * G;
+    if (gr[0] == nullptr) continue;
+    const int64_t dy = k - half;
+    const T* ty = tab + std::abs(dy) * padded + half + s0;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const T* tx = tab + std::abs(dx) * padded + half + s0;
+      const T r2 = T(dy * dy + dx * dx);
+      const int64_t base = half + s0 + dx;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = load(ty + j * L) * load(tx + j * L);
+        const V<T> w2 = w * r2;
+        for (int g = 0; g < G; ++g) {
+          const V<T> gv = load(gr[g] + base + j * L);
+          acc_d[g][j] += w * gv;
+          acc_f[g][j] += w2 * gv;
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    const T* xr = x_row + g * x_stride;
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) {
+        const int64_t i = j * L + l;
+        if (i >= n_out) break;
+        dx_row[g * x_stride + i] = acc_d[g][j][l];
+        m_row[i] += xr[i] * acc_f[g][j][l];
+      }
+  }
+}
+
+// dx_raw_c(q) = sum_u t_q(u) g_c(q+u);  m1(q) = sum_c x_c(q) sum_u t_q(u) |u|^2 g_c(q+u)
+template <typename T>
+void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t B, int64_t C,
+              int64_t H, int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 2;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, C);  // padded gradient rows
+    RowRing<T> own(1, half, W, half + 1);  // the source row's table
+    std::vector<const T*> g_rows(K * G);
+    std::vector<T> table((half + 1) * W);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; ++sy) {
+        bool fresh;
+        T* tab = own.slot(0, &fresh);
+        fill_table(sigma + b * plane + sy * W, W, half, table.data());
+        for (int64_t d = 0; d <= half; ++d)
+          std::copy(table.begin() + d * W, table.begin() + (d + 1) * W, tab + d * own.padded + half);
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t oy = sy + (k - half);
+          if (oy < 0 || oy >= H) continue;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh)
+            for (int64_t c = 0; c < C; ++c) {
+              const T* grow = g + (b * C + c) * plane + oy * W;
+              std::copy(grow, grow + W, slot + c * ring.padded + half);
+            }
+          slots[k] = slot;
+        }
+        T* mrow = m1 + b * plane + sy * W;
+        std::fill(mrow, mrow + W, T(0));
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k)
+            for (int64_t gi = 0; gi < G; ++gi)
+              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>()) {
+            const int64_t offset = (b * C + c0) * plane + sy * W + s0;
+            backward_group<T, G>(tab, g_rows.data(), half, ring.padded, s0, x + offset, plane,
+                                 dx_raw + offset, mrow + s0, std::min(block_lanes<T>(), W - s0),
+                                 gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// line(q) = sum_{d=-half..half} t_q(d), moment(q) = sum_d d^2 t_q(d): the separable window's total
+// (its square normalises a source to unit energy) and its sigma-derivative times sigma^3.
+template <typename T>
+void window_sums(const T* sigma, T* line, T* moment, int64_t n, int64_t half, int nthreads) {
+  // A few flops per pixel: threads only pay off on large maps (waking them costs more).
+  const int threads = n > (int64_t(1) << 20) ? nthreads : 1;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t i = 0; i < n; ++i) {
+    const T sg = sigma[i];
+    const T e = std::exp(T(-0.5) / (sg * sg));
+    const T e2 = e * e;
+    T t = T(1), q = e, l = T(1), m = T(0);
+    for (int64_t d = 1; d <= half; ++d) {
+      t *= q;
+      q *= e2;
+      l += T(2) * t;
+      m += T(2 * d * d) * t;
+    }
+    line[i] = l;
+    moment[i] = m;
+  }
+}
+
+
+// ---------------------------------------------------------------------------------------------
+// Clamped-distance profiles (the disk and the polygons, optics.Disk and its subclasses):
+//
+//   w_q(u) = clamp(rho_q - D(u), 0, 1),   rho_q = edge_radius(c_q) + 1/2,  D(u) >= 0, D(0) = 0
+//
+// D is the aperture's distance function tabulated on the K x K window (row-major, u = (dy, dx) =
+// output - source), independent of the CoC. Forward: y_c(p) = sum_q norm_q w_q(p - q) x_c(q).
+template <typename T>
+inline V<T> clamp01(V<T> t) {
+  const V<T> zero = V<T>{} , one = zero + T(1);
+  t = t < zero ? zero : t;
+  return t > one ? one : t;
+}
+
+template <typename T, int G>
+void clamp_forward_group(const T* const* xn_rows, const T* const* rho_rows, const T* dist,
+                         int64_t half, int64_t x0, T* out, int64_t out_stride, int64_t n_out,
+                         int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
+    const T* rho = rho_rows[k];
+    if (rho == nullptr) continue;
+    const T* const* xr = xn_rows + k * G;
+    const T* drow = dist + k * K + half;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = x0 - dx + half;
+      const V<T> d = V<T>{} + drow[dx];
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = clamp01<T>(load(rho + base + j * L) - d);
+        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    T tmp[kVectors * L];
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
+    std::copy(tmp, tmp + n_out, out + g * out_stride);
+  }
+}
+
+template <typename T>
+void clamp_forward(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B,
+                   int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 4;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, 1 + C);  // each slot: the rho row, then C rows of x * norm
+    std::vector<const T*> rho_rows(K), xn_rows(K * G);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; ++oy) {
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t sy = oy - (k - half);
+          if (sy < 0 || sy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          if (fresh) {
+            const T* rrow = rho + b * plane + sy * W;
+            std::copy(rrow, rrow + W, slot + half);
+            const T* nrow = norm + b * plane + sy * W;
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + sy * W;
+              T* dst = slot + (1 + c) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * nrow[s];
+            }
+          }
+          slots[k] = slot;
+        }
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k) {
+            rho_rows[k] = slots[k];
+            for (int64_t g = 0; g < G; ++g)
+              xn_rows[k * G + g] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+          }
+          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>()) {
+            clamp_forward_group<T, G>(xn_rows.data(), rho_rows.data(), dist, half, x0,
+                                      y + (b * C + c0) * plane + oy * W + x0, plane,
+                                      std::min(block_lanes<T>(), W - x0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// dx_raw_c(q) = sum_u w_q(u) g_c(q+u);  m(q) = sum_c x_c(q) sum_u [0 <= rho_q - D(u) <= 1] g_c(q+u)
+// (m is d/d rho_q of sum_c x_c(q) sum_u w_q(u) g_c(q+u); the bounds are inclusive like clamp's).
+template <typename T, int G>
+void clamp_backward_group(const T* rho_row, const T* const* g_rows, const T* dist, int64_t half,
+                          int64_t s0, const T* x_row, int64_t x_stride, T* dx_row, T* m_row,
+                          int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
+  V<T> rho[kVectors];
+  for (int j = 0; j < kVectors; ++j) rho[j] = load(rho_row + j * L);
+  const V<T> zero = V<T>{}, one = zero + T(1);
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
+    const T* const* gr = g_rows + k * G;
+    if (gr[0] == nullptr) continue;
+    const T* drow = dist + k * K + half;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const V<T> d = zero + drow[dx];
+      const int64_t base = half + s0 + dx;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> t = rho[j] - d;
+        const V<T> w = clamp01<T>(t);
+        const V<T> ind = (t >= zero) & (t <= one) ? one : zero;
+        for (int g = 0; g < G; ++g) {
+          const V<T> gv = load(gr[g] + base + j * L);
+          acc_d[g][j] += w * gv;
+          acc_f[g][j] += ind * gv;
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    const T* xr = x_row + g * x_stride;
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) {
+        const int64_t i = j * L + l;
+        if (i >= n_out) break;
+        dx_row[g * x_stride + i] = acc_d[g][j][l];
+        m_row[i] += xr[i] * acc_f[g][j][l];
+      }
+  }
+}
+
+template <typename T>
+void clamp_backward(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,
+                    int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  constexpr int G = 2;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, C);  // padded gradient rows
+    std::vector<T> own(W + kPadRight, T(0));  // the source row's rho (padded on the right)
+    std::vector<const T*> g_rows(K * G);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; ++sy) {
+        const T* rrow = rho + b * plane + sy * W;
+        std::copy(rrow, rrow + W, own.begin());
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t oy = sy + (k - half);
+          if (oy < 0 || oy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh)
+            for (int64_t c = 0; c < C; ++c) {
+              const T* grow = g + (b * C + c) * plane + oy * W;
+              std::copy(grow, grow + W, slot + c * ring.padded + half);
+            }
+          slots[k] = slot;
+        }
+        T* mrow = m + b * plane + sy * W;
+        std::fill(mrow, mrow + W, T(0));
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k)
+            for (int64_t gi = 0; gi < G; ++gi)
+              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>()) {
+            const int64_t offset = (b * C + c0) * plane + sy * W + s0;
+            clamp_backward_group<T, G>(own.data() + s0, g_rows.data(), dist, half, s0, x + offset,
+                                       plane, dx_raw + offset, mrow + s0,
+                                       std::min(block_lanes<T>(), W - s0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// Z(q) = sum_j count_j clamp(rho_q - d_j, 0, 1) and dZ/drho = sum_j count_j [0 <= rho_q - d_j <= 1]
+// over the window's distinct distances d_j (with multiplicities count_j).
+template <typename T>
+void clamp_window_sums(const T* rho, const T* dists, const T* counts, int64_t n_dists, T* total,
+                       T* slope, int64_t n, int nthreads) {
+  const int threads = n > (int64_t(1) << 20) ? nthreads : 1;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t i = 0; i < n; ++i) {
+    const T r = rho[i];
+    T z = T(0), s = T(0);
+    for (int64_t j = 0; j < n_dists; ++j) {
+      const T t = r - dists[j];
+      z += counts[j] * std::min(std::max(t, T(0)), T(1));
+      s += (t >= T(0) && t <= T(1)) ? counts[j] : T(0);
+    }
+    total[i] = z;
+    slope[i] = s;
+  }
+}
+
+
+// ---------------------------------------------------------------------------------------------
+// Fused, normalised scatter (the renderer's "scatter" mode in one pass each way).
+//
+//   s_c(p) = sum_q norm_q w_q(p - q) X_c(q),  X = (x_0 .. x_{C-1}, 1),  norm_q = 1 / Z_q
+//   y_c(p) = s_c(p) / s_C(p),  den(p) = s_C(p)
+//
+// The per-source parameter a_q (sigma for the Gaussian, rho for the clamped distance) gives the
+// weights w_q and Z_q. Backward, from g = dL/dy:
+//   G_c = g_c / den (c < C),  G_C = -sum_c g_c y_c / den      (dL/ds)
+//   D_c(q) = sum_u w_q(u) G_c(q+u),  F_c(q) = sum_u dw_q(u)/da G_c(q+u)
+//   dL/dx_c(q) = norm_q D_c(q)
+//   dL/da_q = norm_q sum_c X_c F_c + (sum_c X_c D_c) dnorm/da
+// A policy gives the weights: its weight rows live in each ring slot, ahead of the channels.
+
+// Gaussian: weight rows t(d), d = 0..half; w = t(|dy|) t(|dx|); dw/dsigma = w |u|^2 / sigma^3.
+template <typename T>
+struct GaussPolicy {
+  int64_t half;
+  int64_t rows() const { return half + 1; }
+  // rows[d * padded + s] = t_s(d); norm[s] = 1 / line_s^2; dnorm[s] = d norm / d sigma.
+  void fill(const T* sigma, int64_t W, T* rows, int64_t padded, T* norm, T* dnorm, T* scratch) const {
+    T* q = scratch;
+    T* e2 = scratch + W;
+    T* line = scratch + 2 * W;
+    T* moment = scratch + 3 * W;
+    for (int64_t s = 0; s < W; ++s) {
+      const T e = std::exp(T(-0.5) / (sigma[s] * sigma[s]));
+      q[s] = e;
+      e2[s] = e * e;
+      rows[s] = T(1);
+      line[s] = T(1);
+      moment[s] = T(0);
+    }
+    for (int64_t d = 1; d <= half; ++d) {
+      const T* prev = rows + (d - 1) * padded;
+      T* cur = rows + d * padded;
+      const T dd = T(2 * d * d);
+      for (int64_t s = 0; s < W; ++s) {
+        const T t = prev[s] * q[s];
+        q[s] *= e2[s];
+        cur[s] = t;
+        line[s] += T(2) * t;
+        moment[s] += dd * t;
+      }
+    }
+    for (int64_t s = 0; s < W; ++s) {
+      const T inv = T(1) / line[s];
+      norm[s] = inv * inv;
+      if (dnorm != nullptr) {
+        const T sg = sigma[s];
+        dnorm[s] = T(-2) * moment[s] * inv * inv * inv / (sg * sg * sg);
+      }
+    }
+  }
+  V<T> weight(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx) const {
+    return load(rows + std::abs(dy) * padded + idx) * load(rows + std::abs(dx) * padded + idx);
+  }
+  // Weights at (dy, dx) and (dy + 1, dx), sharing the load of t(|dx|).
+  void weight2(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx, V<T>* w0,
+               V<T>* w1) const {
+    const V<T> tx = load(rows + std::abs(dx) * padded + idx);
+    *w0 = load(rows + std::abs(dy) * padded + idx) * tx;
+    *w1 = load(rows + std::abs(dy + 1) * padded + idx) * tx;
+  }
+  // w and dw/da without the per-source factor (1 / sigma^3, applied by scale()).
+  void weights(const T* rows, int64_t padded, int64_t dy, int64_t dx, int64_t idx, V<T>* w,
+               V<T>* dw) const {
+    *w = weight(rows, padded, dy, dx, idx);
+    *dw = *w * T(dy * dy + dx * dx);
+  }
+  T scale(T sigma) const { return T(1) / (sigma * sigma * sigma); }
+};
+
+// Clamped distance: one weight row, rho; w = clamp(rho - D(u), 0, 1), dw/drho = [0 <= . <= 1].
+template <typename T>
+struct ClampPolicy {
+  int64_t half;
+  const T* dist;    // K x K, row-major, u = (dy, dx)
+  const T* dists;   // the window's distinct distances
+  const T* counts;  // and their multiplicities
+  int64_t n_dists;
+  int64_t rows() const { return 1; }
+  void fill(const T* rho, int64_t W, T* rows, int64_t, T* norm, T* dnorm, T*) const {
+    for (int64_t s = 0; s < W; ++s) {
+      const T r = rho[s];
+      T z = T(0), sl = T(0);
+      for (int64_t j = 0; j < n_dists; ++j) {
+        const T t = r - dists[j];
+        z += counts[j] * std::min(std::max(t, T(0)), T(1));
+        sl += (t >= T(0) && t <= T(1)) ? counts[j] : T(0);
+      }
+      rows[s] = r;
+      norm[s] = T(1) / z;
+      if (dnorm != nullptr) dnorm[s] = -sl / (z * z);
+    }
+  }
+  V<T> weight(const T* rows, int64_t, int64_t dy, int64_t dx, int64_t idx) const {
+    const int64_t K = 2 * half + 1;
+    return clamp01<T>(load(rows + idx) - dist[(dy + half) * K + dx + half]);
+  }
+  void weight2(const T* rows, int64_t, int64_t dy, int64_t dx, int64_t idx, V<T>* w0,
+               V<T>* w1) const {
+    const int64_t K = 2 * half + 1;
+    const V<T> r = load(rows + idx);
+    *w0 = clamp01<T>(r - dist[(dy + half) * K + dx + half]);
+    *w1 = clamp01<T>(r - dist[(dy + 1 + half) * K + dx + half]);
+  }
+  void weights(const T* rows, int64_t, int64_t dy, int64_t dx, int64_t idx, V<T>* w,
+               V<T>* dw) const {
+    const int64_t K = 2 * half + 1;
+    const V<T> zero = V<T>{}, one = zero + T(1);
+    const V<T> t = load(rows + idx) - dist[(dy + half) * K + dx + half];
+    *w = clamp01<T>(t);
+    *dw = (t >= zero) & (t <= one) ? one : zero;
+  }
+  T scale(T) const { return T(1); }
+};
+
+// Two output rows (oy, oy + 1) of G channels at once, one register block from output pixel x0:
+// each source row and weight loaded serves both rows (they share K of their K + 1 source rows).
+// Source row r of the K + 1 is sy = oy + 1 + half - r: offsets dy0 = oy - sy = r - half - 1 to row
+// oy and dy0 + 1 to row oy + 1 (r = 0 reaches row oy + 1 only, r = K row oy only).
+template <typename T, int G, class P>
+void fused_forward_rows(const P& pol, const T* const* ch_rows, const T* const* w_rows,
+                        int64_t padded, int64_t x0, T* const* out0, T* const* out1,
+                        int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  constexpr int J = kRowVectors;
+  const int64_t half = pol.half;
+  V<T> acc0[G][J], acc1[G][J];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < J; ++j) acc0[g][j] = acc1[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t r = 0; r <= K; ++r) {
+    const T* wr = w_rows[r];
+    if (wr == nullptr) continue;
+    const int64_t dy0 = r - half - 1;
+    const T* const* xr = ch_rows + r * G;
+    const bool both = r >= 1 && r < K;
+    if (both) {
+      for (int64_t dx = -half; dx <= half; ++dx) {
+        const int64_t base = x0 - dx + half;
+        for (int j = 0; j < J; ++j) {
+          V<T> w0, w1;
+          pol.weight2(wr, padded, dy0, dx, base + j * L, &w0, &w1);
+          for (int g = 0; g < G; ++g) {
+            const V<T> v = load(xr[g] + base + j * L);
+            acc0[g][j] += w0 * v;
+            acc1[g][j] += w1 * v;
+          }
+        }
+      }
+    } else {
+      const bool first = r == K;
+      const int64_t dy = first ? dy0 : dy0 + 1;
+      for (int64_t dx = -half; dx <= half; ++dx) {
+        const int64_t base = x0 - dx + half;
+        for (int j = 0; j < J; ++j) {
+          const V<T> w = pol.weight(wr, padded, dy, dx, base + j * L);
+          for (int g = 0; g < G; ++g) {
+            const V<T> v = load(xr[g] + base + j * L);
+            if (first)
+              acc0[g][j] += w * v;
+            else
+              acc1[g][j] += w * v;
+          }
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    T tmp[J * L];
+    for (int j = 0; j < J; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc0[g][j][l];
+    std::copy(tmp, tmp + n_out, out0[g] + x0);
+    if (out1[g] == nullptr) continue;
+    for (int j = 0; j < J; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc1[g][j][l];
+    std::copy(tmp, tmp + n_out, out1[g] + x0);
+  }
+}
+
+template <typename T, class P>
+void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64_t B, int64_t C,
+                   int64_t H, int64_t W, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  constexpr int G = 4;
+  constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
+#pragma omp parallel num_threads(nthreads)
+  {
+    // each slot: weight rows, C rows of x * norm, the norm row; K + 1 source rows are live
+    RowRing<T> ring(K + 1, half, W, nw + C1);
+    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
+    std::vector<T*> out0(G), out1(G);
+    std::vector<T> scratch(4 * W + 1);
+    std::vector<T*> slots(K + 1);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; oy += 2) {
+        const bool pair = oy + 1 < y1;
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t sy = oy + 1 + half - r;  // see fused_forward_rows
+          slots[r] = nullptr;
+          if (sy < 0 || sy >= H || (!pair && r == 0)) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          if (fresh) {
+            T* norm = slot + (nw + C) * ring.padded + half;
+            pol.fill(param + b * plane + sy * W, W, slot + half, ring.padded, norm, nullptr,
+                     scratch.data());
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + sy * W;
+              T* dst = slot + (nw + c) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * norm[s];
+            }
+          }
+          slots[r] = slot;
+        }
+        T* den0 = den + b * plane + oy * W;
+        T* den1 = pair ? den0 + W : nullptr;
+        for (int64_t c0 = 0; c0 < C1; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+          for (int64_t r = 0; r <= K; ++r) {
+            w_rows[r] = slots[r];
+            for (int64_t g = 0; g < G; ++g)
+              ch_rows[r * G + g] = slots[r] == nullptr ? nullptr
+                  : slots[r] + (nw + c0 + std::min(g, gsize - 1)) * ring.padded;
+          }
+          for (int64_t g = 0; g < gsize; ++g) {
+            const int64_t c = c0 + g;
+            out0[g] = c < C ? y + (b * C + c) * plane + oy * W : den0;
+            out1[g] = !pair ? nullptr : c < C ? out0[g] + W : den1;
+          }
+          for (int64_t x0 = 0; x0 < W; x0 += lanes)
+            fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                        out0.data(), out1.data(), std::min(lanes, W - x0), gsize);
+        }
+        for (int64_t c = 0; c < C; ++c) {
+          T* yr = y + (b * C + c) * plane + oy * W;
+          for (int64_t s = 0; s < W; ++s) yr[s] /= den0[s];
+          if (pair)
+            for (int64_t s = 0; s < W; ++s) yr[W + s] /= den1[s];
+        }
+      }
+    }
+  }
+}
+
+// Two source rows (sy, sy + 1) of G channels at once, one register block from source pixel s0:
+// each gradient load serves both rows (they share K of their K + 1 output rows). Output row r of
+// the K + 1 is oy = sy - half + r: offsets dy0 = r - half from row sy, dy0 - 1 from row sy + 1.
+template <typename T, int G, class P>
+void fused_backward_rows(const P& pol, const T* w0_row, const T* w1_row, int64_t w_padded,
+                         const T* const* g_rows, int64_t s0, const T* const* x_rows,
+                         T* const* d0_rows, T* const* d1_rows, T* m0_row, T* m1_row,
+                         int64_t n_out, int64_t n_groups) {
+  const int64_t half = pol.half;
+  V<T> d0[G], f0[G], d1[G], f1[G];
+  for (int g = 0; g < G; ++g) d0[g] = f0[g] = d1[g] = f1[g] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  const int64_t idx = half + s0;
+  for (int64_t r = 0; r <= K; ++r) {
+    const T* const* gr = g_rows + r * G;
+    if (gr[0] == nullptr) continue;
+    const int64_t dy0 = r - half;
+    const bool first = r < K, second = r > 0 && w1_row != nullptr;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = idx + dx;
+      V<T> gv[G];
+      for (int g = 0; g < G; ++g) gv[g] = load(gr[g] + base);
+      if (first) {
+        V<T> w, dw;
+        pol.weights(w0_row, w_padded, dy0, dx, idx, &w, &dw);
+        for (int g = 0; g < G; ++g) {
+          d0[g] += w * gv[g];
+          f0[g] += dw * gv[g];
+        }
+      }
+      if (second) {
+        V<T> w, dw;
+        pol.weights(w1_row, w_padded, dy0 - 1, dx, idx, &w, &dw);
+        for (int g = 0; g < G; ++g) {
+          d1[g] += w * gv[g];
+          f1[g] += dw * gv[g];
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    const T* xr0 = x_rows[g] + s0;
+    T* dr0 = d0_rows[g] + s0;
+    for (int64_t i = 0; i < n_out; ++i) {
+      dr0[i] = d0[g][i];
+      m0_row[i] += xr0[i] * f0[g][i];
+    }
+    if (w1_row == nullptr) continue;
+    const T* xr1 = x_rows[G + g] + s0;
+    T* dr1 = d1_rows[g] + s0;
+    for (int64_t i = 0; i < n_out; ++i) {
+      dr1[i] = d1[g][i];
+      m1_row[i] += xr1[i] * f1[g][i];
+    }
+  }
+}
+
+template <typename T, class P>
+void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T* x,
+                    const T* param, T* grad_x, T* grad_param, int64_t B, int64_t C, int64_t H,
+                    int64_t W, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  const int64_t stride = W + kPadRight;
+  constexpr int G = 4;
+  constexpr int64_t lanes = Vec<T>::lanes;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K + 1, half, W, C1);  // padded rows of G = dL/ds
+    RowRing<T> own(2, half, W, nw + 2);   // the two source rows' weight rows, norm, dnorm
+    std::vector<T> ones(stride, T(1));
+    std::vector<T> dbuf(2 * C1 * stride);  // D_c of the two source rows
+    std::vector<T> mrow(2 * stride);
+    std::vector<T> scratch(4 * W + 1);
+    std::vector<const T*> g_rows((K + 1) * G), x_rows(2 * G);
+    std::vector<T*> d0_rows(G), d1_rows(G);
+    std::vector<T*> slots(K + 1);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; sy += 2) {
+        const bool pair = sy + 1 < y1;
+        T* wslot[2];
+        for (int64_t i = 0; i < (pair ? 2 : 1); ++i) {
+          bool fresh;
+          wslot[i] = own.slot(i, &fresh);
+          pol.fill(param + b * plane + (sy + i) * W, W, wslot[i] + half, own.padded,
+                   wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
+                   scratch.data());
+        }
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t oy = sy - half + r;
+          slots[r] = nullptr;
+          if (oy < 0 || oy >= H || (!pair && r == K)) continue;
+          bool fresh;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh) {
+            const T* drow = den + b * plane + oy * W;
+            T* last = slot + C * ring.padded + half;
+            std::fill(last, last + W, T(0));
+            for (int64_t c = 0; c < C; ++c) {
+              const T* grow = g + (b * C + c) * plane + oy * W;
+              const T* yrow = y + (b * C + c) * plane + oy * W;
+              T* dst = slot + c * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) {
+                const T gd = grow[s] / drow[s];
+                dst[s] = gd;
+                last[s] -= gd * yrow[s];
+              }
+            }
+          }
+          slots[r] = slot;
+        }
+        std::fill(mrow.begin(), mrow.end(), T(0));
+        for (int64_t c0 = 0; c0 < C1; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+          for (int64_t r = 0; r <= K; ++r)
+            for (int64_t gi = 0; gi < G; ++gi)
+              g_rows[r * G + gi] = slots[r] == nullptr ? nullptr
+                  : slots[r] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+          for (int64_t gi = 0; gi < gsize; ++gi) {
+            const int64_t c = c0 + gi;
+            for (int64_t i = 0; i < 2; ++i)
+              x_rows[i * G + gi] = c < C ? x + (b * C + c) * plane + (sy + i) * W : ones.data();
+            d0_rows[gi] = dbuf.data() + c * stride;
+            d1_rows[gi] = dbuf.data() + (C1 + c) * stride;
+          }
+          for (int64_t s0 = 0; s0 < W; s0 += lanes)
+            fused_backward_rows<T, G, P>(pol, wslot[0], pair ? wslot[1] : nullptr, own.padded,
+                                         g_rows.data(), s0, x_rows.data(), d0_rows.data(),
+                                         d1_rows.data(), mrow.data() + s0,
+                                         mrow.data() + stride + s0, std::min(lanes, W - s0),
+                                         gsize);
+        }
+        for (int64_t i = 0; i < (pair ? 2 : 1); ++i) {
+          const int64_t row = sy + i;
+          const T* norm = wslot[i] + nw * own.padded + half;
+          const T* dnorm = wslot[i] + (nw + 1) * own.padded + half;
+          const T* d = dbuf.data() + i * C1 * stride;
+          const T* m = mrow.data() + i * stride;
+          const T* prow = param + b * plane + row * W;
+          T* gp = grad_param + b * plane + row * W;
+          const T* dlast = d + C * stride;
+          for (int64_t s = 0; s < W; ++s) gp[s] = dlast[s];  // sum_c X_c D_c, X_C = 1
+          for (int64_t c = 0; c < C; ++c) {
+            const T* xrow = x + (b * C + c) * plane + row * W;
+            const T* dc = d + c * stride;
+            T* gx = grad_x + (b * C + c) * plane + row * W;
+            for (int64_t s = 0; s < W; ++s) {
+              gx[s] = norm[s] * dc[s];
+              gp[s] += xrow[s] * dc[s];
+            }
+          }
+          for (int64_t s = 0; s < W; ++s)
+            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + gp[s] * dnorm[s];
+        }
+      }
+    }
+  }
+}
+
+
+// ---------------------------------------------------------------------------------------------
+// Layered (occlusion-aware) mode in one pass each way. Layer weights from the continuous layer
+// position pos_q in [0, L-1]: alpha_l(q) = max(0, 1 - |pos_q - l|) (two layers per pixel at most).
+//
+//   S_{l,c}(p) = sum_q norm_q w_q(p - q) alpha_l(q) X_c(q),  X = (x_0 .. x_{C-1}, 1)
+//   T_0 = 1, T_{l+1} = T_l (1 - min(S_{l,C}, 1)),  out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny)
+//
+// Work is skipped where it is exactly zero: a layer absent from every source of a register
+// block's window (forward), or whose weight has a zero derivative at every source of the block
+// (backward: |pos_q - l| > 1), so the cost follows the number of layers present locally.
+template <typename T>
+inline T layer_alpha(T p, int64_t l) {
+  const T a = T(1) - std::abs(p - T(l));
+  return a > T(0) ? a : T(0);
+}
+
+template <typename T>
+inline uint32_t layer_bits(T p, int64_t n_layers, bool inclusive) {
+  // Layers l with alpha_l(p) != 0 (|p - l| < 1), or with |p - l| <= 1 when inclusive.
+  uint32_t bits = 0;
+  const int64_t lo = std::max<int64_t>(0, static_cast<int64_t>(std::floor(p)) - 1);
+  const int64_t hi = std::min<int64_t>(n_layers - 1, static_cast<int64_t>(std::floor(p)) + 2);
+  for (int64_t l = lo; l <= hi; ++l) {
+    const T d = std::abs(p - T(l));
+    if (inclusive ? d <= T(1) : d < T(1)) bits |= uint32_t(1) << l;
+  }
+  return bits;
+}
+
+// out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny) along one row (work: rows of W values).
+template <typename T>
+void composite_row(const T* S, T* out, int64_t C, int64_t NL, int64_t plane, int64_t W, int64_t b,
+                   int64_t row, T* work) {
+  const int64_t C1 = C + 1;
+  const T tiny = std::numeric_limits<T>::min();
+  T* t = work;
+  T* cov = work + W;
+  T* colour = work + 2 * W;
+  std::fill(t, t + W, T(1));
+  std::fill(cov, cov + W, T(0));
+  std::fill(colour, colour + C * W, T(0));
+  for (int64_t l = 0; l < NL; ++l) {
+    const T* a = S + ((b * NL + l) * C1 + C) * plane + row * W;
+    for (int64_t c = 0; c < C; ++c) {
+      const T* sc = S + ((b * NL + l) * C1 + c) * plane + row * W;
+      T* col = colour + c * W;
+      for (int64_t s = 0; s < W; ++s) col[s] = col[s] + t[s] * sc[s];
+    }
+    for (int64_t s = 0; s < W; ++s) {
+      cov[s] = cov[s] + t[s] * a[s];
+      t[s] = t[s] * (T(1) - std::min(a[s], T(1)));
+    }
+  }
+  for (int64_t s = 0; s < W; ++s) cov[s] = std::max(cov[s], tiny);
+  for (int64_t c = 0; c < C; ++c) {
+    T* o = out + (b * C + c) * plane + row * W;
+    const T* col = colour + c * W;
+    for (int64_t s = 0; s < W; ++s) o[s] = col[s] / cov[s];
+  }
+}
+
+template <typename T, class P>
+void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* S, T* out,
+                     int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  const int64_t LC = NL * C1;
+  constexpr int G = 4;
+  constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
+  const int64_t ntiles = (W + lanes - 1) / lanes;
+#pragma omp parallel num_threads(nthreads)
+  {
+    // each slot: weight rows, L (C + 1) rows of alpha_l X_c norm, the norm row
+    RowRing<T> ring(K + 1, half, W, nw + LC + 1);
+    std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1);
+    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
+    std::vector<T*> out0(G), out1(G);
+    std::vector<T> scratch(4 * W + 1);
+    std::vector<T*> slots(K + 1);
+    std::vector<int64_t> slot_index(K + 1);
+    std::vector<T> work((C + 2) * W);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; oy += 2) {
+        const bool pair = oy + 1 < y1;
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t sy = oy + 1 + half - r;  // as in fused_forward_rows
+          slots[r] = nullptr;
+          if (sy < 0 || sy >= H || (!pair && r == 0)) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          const int64_t k = sy % (K + 1);
+          slot_index[r] = k;
+          if (fresh) {
+            T* norm = slot + (nw + LC) * ring.padded + half;
+            pol.fill(param + b * plane + sy * W, W, slot + half, ring.padded, norm, nullptr,
+                     scratch.data());
+            const T* prow = pos + b * plane + sy * W;
+            uint32_t rm = 0;
+            for (int64_t t = 0; t < ntiles; ++t) {
+              uint32_t m = 0;
+              for (int64_t s = t * lanes; s < std::min(W, (t + 1) * lanes); ++s)
+                m |= layer_bits(prow[s], NL, false);
+              tile_mask[k * ntiles + t] = m;
+              rm |= m;
+            }
+            row_mask[k] = rm;
+            for (int64_t l = 0; l < NL; ++l) {
+              if (!((rm >> l) & 1u)) continue;  // never read: the row pointer is null then
+              T* last = slot + (nw + l * C1 + C) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l) * norm[s];
+              for (int64_t c = 0; c < C; ++c) {
+                const T* xrow = x + (b * C + c) * plane + sy * W;
+                T* dst = slot + (nw + l * C1 + c) * ring.padded + half;
+                for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
+              }
+            }
+          }
+          slots[r] = slot;
+        }
+        for (int64_t x0 = 0; x0 < W; x0 += lanes) {
+          const int64_t n_out = std::min(lanes, W - x0);
+          const int64_t t0 = std::max<int64_t>(0, x0 - half) / lanes;
+          const int64_t t1 = std::min(ntiles - 1, (x0 + lanes - 1 + half) / lanes);
+          uint32_t bm = 0;
+          for (int64_t r = 0; r <= K; ++r) {
+            if (slots[r] == nullptr) continue;
+            const uint32_t* tm = tile_mask.data() + slot_index[r] * ntiles;
+            for (int64_t t = t0; t <= t1; ++t) bm |= tm[t];
+          }
+          for (int64_t l = 0; l < NL; ++l) {
+            if (!((bm >> l) & 1u)) {
+              for (int64_t c = 0; c < C1; ++c) {
+                T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
+                std::fill(o, o + n_out, T(0));
+                if (pair) std::fill(o + W, o + W + n_out, T(0));
+              }
+              continue;
+            }
+            for (int64_t c0 = 0; c0 < C1; c0 += G) {
+              const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+              for (int64_t r = 0; r <= K; ++r) {
+                const bool has = slots[r] != nullptr && ((row_mask[slot_index[r]] >> l) & 1u);
+                w_rows[r] = has ? slots[r] : nullptr;
+                for (int64_t g = 0; g < G; ++g)
+                  ch_rows[r * G + g] = !has ? nullptr
+                      : slots[r] + (nw + l * C1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+              }
+              for (int64_t g = 0; g < gsize; ++g) {
+                out0[g] = S + ((b * NL + l) * C1 + c0 + g) * plane + oy * W;
+                out1[g] = pair ? out0[g] + W : nullptr;
+              }
+              fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                          out0.data(), out1.data(), n_out, gsize);
+            }
+          }
+        }
+        composite_row<T>(S, out, C, NL, plane, W, b, oy, work.data());
+        if (pair) composite_row<T>(S, out, C, NL, plane, W, b, oy + 1, work.data());
+      }
+    }
+  }
+}
+
+// dL/dS of the compositing along one output row, written into the ring slot's L (C + 1) rows.
+// work: (NL + C + 4) rows of W values.
+template <typename T>
+void composite_backward_row(const T* g, const T* out, const T* S, T* slot, int64_t padded,
+                            int64_t half, int64_t C, int64_t NL, int64_t plane, int64_t W,
+                            int64_t b, int64_t row, T* work) {
+  const int64_t C1 = C + 1;
+  const T tiny = std::numeric_limits<T>::min();
+  T* tl = work;                    // T_l, NL rows
+  T* cov = work + NL * W;
+  T* dcov = cov + W;
+  T* dt = dcov + W;                // dL/dT_{l+1} while going back
+  T* dtl = dt + W;
+  T* dcol = dtl + W;               // C rows: g_c / max(cov, tiny)
+  const int64_t at = row * W;
+  std::fill(tl, tl + W, T(1));
+  std::fill(cov, cov + W, T(0));
+  for (int64_t l = 0; l < NL; ++l) {
+    const T* a = S + ((b * NL + l) * C1 + C) * plane + at;
+    T* t = tl + l * W;
+    for (int64_t s = 0; s < W; ++s) cov[s] = cov[s] + t[s] * a[s];
+    if (l + 1 < NL)
+      for (int64_t s = 0; s < W; ++s) t[W + s] = t[s] * (T(1) - std::min(a[s], T(1)));
+  }
+  std::fill(dcov, dcov + W, T(0));
+  for (int64_t c = 0; c < C; ++c) {
+    const T* gc = g + (b * C + c) * plane + at;
+    const T* oc = out + (b * C + c) * plane + at;
+    T* dc = dcol + c * W;
+    for (int64_t s = 0; s < W; ++s) {
+      const T denom = std::max(cov[s], tiny);
+      dc[s] = gc[s] / denom;
+      dcov[s] -= gc[s] * oc[s];
+    }
+  }
+  for (int64_t s = 0; s < W; ++s)
+    dcov[s] = cov[s] >= tiny ? dcov[s] / std::max(cov[s], tiny) : T(0);
+  std::fill(dt, dt + W, T(0));
+  for (int64_t l = NL - 1; l >= 0; --l) {
+    const T* a = S + ((b * NL + l) * C1 + C) * plane + at;
+    const T* t = tl + l * W;
+    for (int64_t s = 0; s < W; ++s) dtl[s] = a[s] * dcov[s] + dt[s] * (T(1) - std::min(a[s], T(1)));
+    for (int64_t c = 0; c < C; ++c) {
+      const T* sc = S + ((b * NL + l) * C1 + c) * plane + at;
+      const T* dc = dcol + c * W;
+      T* gs = slot + (l * C1 + c) * padded + half;
+      for (int64_t s = 0; s < W; ++s) {
+        gs[s] = t[s] * dc[s];
+        dtl[s] += sc[s] * dc[s];
+      }
+    }
+    T* gs = slot + (l * C1 + C) * padded + half;
+    for (int64_t s = 0; s < W; ++s)
+      gs[s] = t[s] * dcov[s] - (a[s] <= T(1) ? dt[s] * t[s] : T(0));
+    std::copy(dtl, dtl + W, dt);
+  }
+}
+
+template <typename T, class P>
+void layered_backward(const P& pol, const T* g, const T* out, const T* S, const T* x,
+                      const T* pos, const T* param, T* grad_x, T* grad_pos, T* grad_param,
+                      int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  const int64_t C1 = C + 1;
+  const int64_t LC = NL * C1;
+  const int64_t stride = W + kPadRight;
+  constexpr int G = 4;
+  constexpr int64_t lanes = Vec<T>::lanes;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K + 1, half, W, LC);  // padded rows of dL/dS
+    RowRing<T> own(2, half, W, nw + 2);   // the two source rows' weight rows, norm, dnorm
+    std::vector<T> xl(2 * LC * stride, T(0));  // alpha_l X_c of the two source rows
+    std::vector<T> dbuf(2 * LC * stride), mrow(2 * stride), work((NL + C + 4) * W);
+    std::vector<T> acc(2 * W);
+    uint32_t row_support[2] = {0, 0};
+    std::vector<T> scratch(4 * W + 1);
+    std::vector<const T*> g_rows((K + 1) * G), x_rows(2 * G);
+    std::vector<T*> d0_rows(G), d1_rows(G);
+    std::vector<T*> slots(K + 1);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
+      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; sy += 2) {
+        const bool pair = sy + 1 < y1;
+        const int64_t rows = pair ? 2 : 1;
+        T* wslot[2];
+        for (int64_t i = 0; i < rows; ++i) {
+          bool fresh;
+          wslot[i] = own.slot(i, &fresh);
+          pol.fill(param + b * plane + (sy + i) * W, W, wslot[i] + half, own.padded,
+                   wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
+                   scratch.data());
+          const T* prow = pos + b * plane + (sy + i) * W;
+          uint32_t support = 0;
+          for (int64_t s = 0; s < W; ++s) support |= layer_bits(prow[s], NL, true);
+          row_support[i] = support;
+        }
+        const uint32_t both_rows = row_support[0] | (pair ? row_support[1] : 0u);
+        for (int64_t i = 0; i < rows; ++i) {
+          const T* prow = pos + b * plane + (sy + i) * W;
+          for (int64_t l = 0; l < NL; ++l) {
+            // the register blocks read both rows' X for the layers of either: fill the union
+            if (!((both_rows >> l) & 1u)) continue;
+            T* last = xl.data() + (i * LC + l * C1 + C) * stride;
+            for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l);
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + (sy + i) * W;
+              T* dst = xl.data() + (i * LC + l * C1 + c) * stride;
+              for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
+            }
+          }
+        }
+        for (int64_t r = 0; r <= K; ++r) {
+          const int64_t oy = sy - half + r;
+          slots[r] = nullptr;
+          if (oy < 0 || oy >= H || (!pair && r == K)) continue;
+          bool fresh;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh)
+            composite_backward_row<T>(g, out, S, slot, ring.padded, half, C, NL, plane, W, b, oy,
+                                      work.data());
+          slots[r] = slot;
+        }
+        std::fill(mrow.begin(), mrow.end(), T(0));
+        for (int64_t s0 = 0; s0 < W; s0 += lanes) {
+          const int64_t n_out = std::min(lanes, W - s0);
+          uint32_t support = 0;
+          for (int64_t i = 0; i < rows; ++i) {
+            const T* prow = pos + b * plane + (sy + i) * W;
+            for (int64_t s = s0; s < s0 + n_out; ++s) support |= layer_bits(prow[s], NL, true);
+          }
+          for (int64_t l = 0; l < NL; ++l) {
+            if (!((support >> l) & 1u)) {
+              for (int64_t i = 0; i < 2 * LC; i += LC)
+                for (int64_t c = 0; c < C1; ++c) {
+                  T* d = dbuf.data() + (i + l * C1 + c) * stride + s0;
+                  std::fill(d, d + n_out, T(0));
+                }
+              continue;
+            }
+            for (int64_t c0 = 0; c0 < C1; c0 += G) {
+              const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+              for (int64_t r = 0; r <= K; ++r)
+                for (int64_t gi = 0; gi < G; ++gi)
+                  g_rows[r * G + gi] = slots[r] == nullptr ? nullptr
+                      : slots[r] + (l * C1 + c0 + std::min(gi, gsize - 1)) * ring.padded;
+              for (int64_t gi = 0; gi < gsize; ++gi) {
+                const int64_t c = l * C1 + c0 + gi;
+                x_rows[gi] = xl.data() + c * stride;
+                x_rows[G + gi] = xl.data() + (LC + c) * stride;
+                d0_rows[gi] = dbuf.data() + c * stride;
+                d1_rows[gi] = dbuf.data() + (LC + c) * stride;
+              }
+              fused_backward_rows<T, G, P>(pol, wslot[0], pair ? wslot[1] : nullptr, own.padded,
+                                           g_rows.data(), s0, x_rows.data(), d0_rows.data(),
+                                           d1_rows.data(), mrow.data() + s0,
+                                           mrow.data() + stride + s0, n_out, gsize);
+            }
+          }
+        }
+        for (int64_t i = 0; i < rows; ++i) {
+          const int64_t row = sy + i;
+          const T* norm = wslot[i] + nw * own.padded + half;
+          const T* dnorm = wslot[i] + (nw + 1) * own.padded + half;
+          const T* d = dbuf.data() + i * LC * stride;
+          const T* xs = xl.data() + i * LC * stride;
+          const T* m = mrow.data() + i * stride;
+          const T* prow = param + b * plane + row * W;
+          const T* qrow = pos + b * plane + row * W;
+          T* gp = grad_param + b * plane + row * W;
+          T* gq = grad_pos + b * plane + row * W;
+          T* sum_xd = acc.data();
+          T* dalpha = acc.data() + W;
+          std::fill(sum_xd, sum_xd + W, T(0));
+          std::fill(gq, gq + W, T(0));
+          for (int64_t c = 0; c < C; ++c) {
+            T* gx = grad_x + (b * C + c) * plane + row * W;
+            std::fill(gx, gx + W, T(0));
+          }
+          for (int64_t l = 0; l < NL; ++l) {
+            if (!((row_support[i] >> l) & 1u)) continue;  // D = 0 and d alpha / d pos = 0
+            const T* al = xs + (l * C1 + C) * stride;     // alpha_l
+            const T* dl = d + (l * C1 + C) * stride;
+            for (int64_t s = 0; s < W; ++s) {
+              dalpha[s] = dl[s];                            // sum_c x_c D_{l,c} + D_{l,C}
+              sum_xd[s] += al[s] * dl[s];
+            }
+            for (int64_t c = 0; c < C; ++c) {
+              const T* dc = d + (l * C1 + c) * stride;
+              const T* xc = x + (b * C + c) * plane + row * W;
+              const T* xlc = xs + (l * C1 + c) * stride;
+              T* gx = grad_x + (b * C + c) * plane + row * W;
+              for (int64_t s = 0; s < W; ++s) {
+                dalpha[s] += xc[s] * dc[s];
+                sum_xd[s] += xlc[s] * dc[s];
+                gx[s] += al[s] * dc[s];
+              }
+            }
+            const T lf = T(l);
+            for (int64_t s = 0; s < W; ++s) {
+              const T diff = qrow[s] - lf;
+              const T sign = diff > T(0) ? T(1) : (diff < T(0) ? T(-1) : T(0));
+              gq[s] -= (T(1) - std::abs(diff) >= T(0)) ? norm[s] * dalpha[s] * sign : T(0);
+            }
+          }
+          for (int64_t c = 0; c < C; ++c) {
+            T* gx = grad_x + (b * C + c) * plane + row * W;
+            for (int64_t s = 0; s < W; ++s) gx[s] *= norm[s];
+          }
+          for (int64_t s = 0; s < W; ++s)
+            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + sum_xd[s] * dnorm[s];
+        }
+      }
+    }
+  }
+}
+
+}  // namespace
+
+extern "C" {
+void gs_window_sums_f32(const float* sigma, float* line, float* moment, int64_t n, int64_t half,
+                        int nthreads) {
+  window_sums(sigma, line, moment, n, half, nthreads);
+}
+void gs_window_sums_f64(const double* sigma, double* line, double* moment, int64_t n,
+                        int64_t half, int nthreads) {
+  window_sums(sigma, line, moment, n, half, nthreads);
+}
+void gs_forward_f32(const float* x, const float* sigma, const float* norm, float* y, int64_t B,
+                    int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  forward(x, sigma, norm, y, B, C, H, W, half, nthreads);
+}
+void gs_forward_f64(const double* x, const double* sigma, const double* norm, double* y,
+                    int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  forward(x, sigma, norm, y, B, C, H, W, half, nthreads);
+}
+void gs_backward_f32(const float* g, const float* x, const float* sigma, float* dx_raw, float* m1,
+                     int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
+  backward(g, x, sigma, dx_raw, m1, B, C, H, W, half, nthreads);
+}
+void gs_backward_f64(const double* g, const double* x, const double* sigma, double* dx_raw,
+                     double* m1, int64_t B, int64_t C, int64_t H, int64_t W, int64_t half,
+                     int nthreads) {
+  backward(g, x, sigma, dx_raw, m1, B, C, H, W, half, nthreads);
+}
+
+#define DEFOCUS_CLAMP_ABI(T, S)                                                                 \
+  void cl_forward_##S(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B, \
+                      int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {           \
+    clamp_forward(x, rho, norm, dist, y, B, C, H, W, half, nthreads);                          \
+  }                                                                                            \
+  void cl_backward_##S(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,   \
+                       int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) { \
+    clamp_backward(g, x, rho, dist, dx_raw, m, B, C, H, W, half, nthreads);                    \
+  }                                                                                            \
+  void cl_window_sums_##S(const T* rho, const T* dists, const T* counts, int64_t n_dists,     \
+                          T* total, T* slope, int64_t n, int nthreads) {                       \
+    clamp_window_sums(rho, dists, counts, n_dists, total, slope, n, nthreads);                 \
+  }
+DEFOCUS_CLAMP_ABI(float, f32)
+DEFOCUS_CLAMP_ABI(double, f64)
+
+#define DEFOCUS_FUSED_ABI(T, S)                                                                \
+  void gs_render_##S(const T* x, const T* sigma, T* y, T* den, int64_t B, int64_t C, int64_t H, \
+                     int64_t W, int64_t half, int nthreads) {                                   \
+    fused_forward(GaussPolicy<T>{half}, x, sigma, y, den, B, C, H, W, nthreads);              \
+  }                                                                                           \
+  void gs_render_backward_##S(const T* g, const T* y, const T* den, const T* x,               \
+                              const T* sigma, T* grad_x, T* grad_sigma, int64_t B, int64_t C, \
+                              int64_t H, int64_t W, int64_t half, int nthreads) {             \
+    fused_backward(GaussPolicy<T>{half}, g, y, den, x, sigma, grad_x, grad_sigma, B, C, H, W,   \
+                   nthreads);                                                                 \
+  }                                                                                           \
+  void cl_render_##S(const T* x, const T* rho, const T* dist, const T* dists, const T* counts, \
+                     int64_t n_dists, T* y, T* den, int64_t B, int64_t C, int64_t H, int64_t W, \
+                     int64_t half, int nthreads) {                                              \
+    fused_forward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, x, rho, y, den, B, C, H, \
+                  W, nthreads);                                                                \
+  }                                                                                            \
+  void cl_render_backward_##S(const T* g, const T* y, const T* den, const T* x, const T* rho,   \
+                              const T* dist, const T* dists, const T* counts, int64_t n_dists,  \
+                              T* grad_x, T* grad_rho, int64_t B, int64_t C, int64_t H,          \
+                              int64_t W, int64_t half, int nthreads) {                          \
+    fused_backward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, g, y, den, x, rho,       \
+                   grad_x, grad_rho, B, C, H, W, nthreads);                                     \
+  }
+DEFOCUS_FUSED_ABI(float, f32)
+DEFOCUS_FUSED_ABI(double, f64)
+
+#define DEFOCUS_LAYERED_ABI(T, S)                                                              \
+  void gs_layered_##S(const T* x, const T* pos, const T* sigma, T* spread, T* out, int64_t B,  \
+                      int64_t C, int64_t H, int64_t W, int64_t half, int64_t NL, int nthreads) { \
+    layered_forward(GaussPolicy<T>{half}, x, pos, sigma, spread, out, B, C, H, W, NL, nthreads); \
+  }                                                                                            \
+  void gs_layered_backward_##S(const T* g, const T* out, const T* spread, const T* x,          \
+                               const T* pos, const T* sigma, T* grad_x, T* grad_pos,           \
+                               T* grad_sigma, int64_t B, int64_t C, int64_t H, int64_t W,      \
+                               int64_t half, int64_t NL, int nthreads) {                       \
+    layered_backward(GaussPolicy<T>{half}, g, out, spread, x, pos, sigma, grad_x, grad_pos,    \
+                     grad_sigma, B, C, H, W, NL, nthreads);                                    \
+  }                                                                                            \
+  void cl_layered_##S(const T* x, const T* pos, const T* rho, const T* dist, const T* dists,   \
+                      const T* counts, int64_t n_dists, T* spread, T* out, int64_t B,          \
+                      int64_t C, int64_t H, int64_t W, int64_t half, int64_t NL, int nthreads) { \
+    layered_forward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, x, pos, rho, spread,   \
+                    out, B, C, H, W, NL, nthreads);                                            \
+  }                                                                                            \
+  void cl_layered_backward_##S(const T* g, const T* out, const T* spread, const T* x,          \
+                               const T* pos, const T* rho, const T* dist, const T* dists,      \
+                               const T* counts, int64_t n_dists, T* grad_x, T* grad_pos,       \
+                               T* grad_rho, int64_t B, int64_t C, int64_t H, int64_t W,        \
+                               int64_t half, int64_t NL, int nthreads) {                       \
+    layered_backward(ClampPolicy<T>{half, dist, dists, counts, n_dists}, g, out, spread, x,    \
+                     pos, rho, grad_x, grad_pos, grad_rho, B, C, H, W, NL, nthreads);          \
+  }
+DEFOCUS_LAYERED_ABI(float, f32)
+DEFOCUS_LAYERED_ABI(double, f64)
+}

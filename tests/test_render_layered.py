@@ -1,0 +1,109 @@
+"""The layered mode's fused kernels against a slow reference of its semantics (values and gradients)."""
+
+import pytest
+import torch
+
+from optics import Disk, Gaussian, Polygon, _render_cpp, render_defocus
+from optics.render import layer_weights
+
+needs_library = pytest.mark.skipif(
+    _render_cpp.library() is None, reason="no C++ compiler (or DEFOCUS_NO_CPP set)"
+)
+
+
+def _shift(t, dy, dx):
+    """`out[..., y, x] = t[..., y - dy, x - dx]`, zero where that falls outside."""
+    h, w = t.shape[-2:]
+    out = torch.zeros_like(t)
+    if abs(dy) >= h or abs(dx) >= w:
+        return out
+    ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
+    xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
+    out[..., yd, xd] = t[..., ys, xs]
+    return out
+
+
+def reference_layered(image, coc, psf, depth, n_layers):
+    """The layered semantics with plain autograd: per-source normalised profiles, front-to-back."""
+    b, c, h, w = image.shape
+    half = psf.half_width(float(coc.detach().max()))
+    offsets = [(dy, dx) for dy in range(-half, half + 1) for dx in range(-half, half + 1)]
+
+    def prof(dy, dx):
+        return psf.profile(torch.tensor(float(dy), dtype=coc.dtype),
+                           torch.tensor(float(dx), dtype=coc.dtype), coc)
+
+    total = sum(prof(dy, dx) for dy, dx in offsets)
+    alpha = layer_weights(depth, n_layers)
+    layers = torch.cat([alpha.unsqueeze(2) * image.unsqueeze(1), alpha.unsqueeze(2)], 2)
+    layers = layers.reshape(b, -1, h, w)
+    spread = sum(_shift(layers * (prof(dy, dx) / total), dy, dx) for dy, dx in offsets)
+    spread = spread.view(b, n_layers, c + 1, h, w)
+    colour = torch.zeros_like(image)
+    coverage = torch.zeros_like(image[:, :1])
+    transmittance = torch.ones_like(coverage)
+    for layer in range(n_layers):
+        layer_alpha = spread[:, layer, -1:]
+        colour = colour + transmittance * spread[:, layer, :-1]
+        coverage = coverage + transmittance * layer_alpha
+        transmittance = transmittance * (1 - layer_alpha.clamp(max=1.0))
+    return colour / coverage.clamp_min(torch.finfo(image.dtype).tiny)
+
+
+def _scene(h, w, dtype, seed, smooth):
+    gen = torch.Generator().manual_seed(seed)
+    image = torch.rand(2, 3, h, w, generator=gen, dtype=dtype)
+    if smooth:  # a slanted plane with a disc in front: few layers per neighbourhood
+        yy, xx = torch.meshgrid(torch.linspace(0, 1, h, dtype=dtype),
+                                torch.linspace(0, 1, w, dtype=dtype), indexing="ij")
+        depth = 2 + 5 * yy
+        depth = torch.where((yy - 0.4) ** 2 + (xx - 0.5) ** 2 < 0.06, torch.ones_like(depth), depth)
+        depth = depth.expand(2, 1, h, w).clone()
+    else:
+        depth = torch.rand(2, 1, h, w, generator=gen, dtype=dtype) * 4 + 1
+    coc = torch.rand(2, 1, h, w, generator=gen, dtype=dtype) * 3.5 + 0.2
+    return image, coc, depth
+
+
+PSFS = {"gaussian": Gaussian, "disk": Disk, "hexagon": lambda: Polygon(6, rotation=0.1)}
+
+
+@needs_library
+@pytest.mark.parametrize("smooth", [False, True], ids=["random-depth", "scene"])
+@pytest.mark.parametrize("name", list(PSFS))
+@pytest.mark.parametrize("n_layers", [1, 8])
+def test_fused_layered_matches_reference(name, smooth, n_layers, dtype):
+    image, coc, depth = _scene(17, 21, dtype, seed=4, smooth=smooth)
+    psf = PSFS[name]().to(dtype)
+    inputs = [t.clone().requires_grad_() for t in (image, coc, depth)]
+    weights = torch.randn(image.shape, generator=torch.Generator().manual_seed(5), dtype=dtype)
+    outs = []
+    for fn in (render_defocus, reference_layered):
+        i, c, d = (t.detach().clone().requires_grad_() for t in inputs)
+        if fn is render_defocus:
+            out = render_defocus(i, c, psf, "layered", depth=d, n_layers=n_layers)
+        else:
+            out = reference_layered(i, c, psf, d, n_layers)
+        outs.append((out, *torch.autograd.grad((out * weights).sum(), (i, c, d))))
+    tol = 2e-5 if dtype == torch.float32 else 1e-10
+    for got, want in zip(*outs, strict=True):
+        scale = max(float(want.detach().abs().max()), 1.0)
+        torch.testing.assert_close(got, want, rtol=0, atol=tol * scale)
+
+
+@needs_library
+def test_fused_layered_equals_pytorch_path_at_layer_centres(monkeypatch):
+    """Pixels exactly on a layer centre (the kinks of the layer weights) get the same gradients."""
+    image, coc, _ = _scene(17, 19, torch.float64, seed=6, smooth=False)
+    depth = 1.0 / torch.tensor([1.0, 0.75, 0.5, 0.25], dtype=torch.float64)[
+        torch.randint(0, 4, (2, 1, 17, 19), generator=torch.Generator().manual_seed(7))]
+    results = []
+    for usable in (True, False):
+        with monkeypatch.context() as patch:
+            if not usable:
+                patch.setattr(_render_cpp, "usable", lambda x: False)
+            i, c, d = (t.clone().requires_grad_() for t in (image, coc, depth))
+            out = render_defocus(i, c, Disk().double(), "layered", depth=d, n_layers=4)
+            results.append((out, *torch.autograd.grad(out.square().sum(), (i, c, d))))
+    for got, want in zip(*results, strict=True):
+        torch.testing.assert_close(got, want)
