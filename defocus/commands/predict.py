@@ -1,4 +1,9 @@
-"""`defocus predict`: depth of your own photos with a trained checkpoint."""
+"""`defocus predict`: depth of your own photos, with the shipped model or a trained checkpoint.
+
+Without a checkpoint the shipped camera-general model (`models.load_pretrained`) reads the blur
+of each focused photo and solves the thin lens of your camera; camera values not given are read
+from `--camera fit.json` (written by `defocus calibrate`) or from the photos' EXIF.
+"""
 
 from __future__ import annotations
 
@@ -7,56 +12,111 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("checkpoint", type=Path, help="checkpoint file (.pt) written by training")
+    parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
+                        help="checkpoint (.pt) written by `defocus train`; default: the shipped "
+                             "camera-general model")
     parser.add_argument("--image", type=Path, required=True,
-                        help="all-in-focus photo (sRGB PNG/JPEG; small aperture, e.g. f/8)")
+                        help="all-in-focus photo (sRGB JPEG/PNG; small aperture, e.g. f/11)")
     parser.add_argument("--focused", type=Path, nargs="*", default=[],
-                        help="focused photos of the same view (needed by 'aif+focused' networks)")
+                        help="focused photos of the same view (2-5, each focused elsewhere)")
     parser.add_argument("--focus-distance", type=float, nargs="*", default=[],
                         help="focus distance of each focused photo, metres")
     parser.add_argument("--f-number", type=float, nargs="*", default=[],
-                        help="f-number of each focused photo (one value is repeated)")
+                        help="f-number of each focused photo (one value is repeated; "
+                             "default: --camera, else EXIF)")
     parser.add_argument("--focal-length", type=float, default=None,
-                        help="focal length, metres (e.g. 0.05 for 50 mm)")
+                        help="focal length, metres, e.g. 0.05 for 50 mm (default: --camera, "
+                             "else EXIF)")
     parser.add_argument("--pixel-pitch", type=float, default=None,
-                        help="effective pixel pitch of the photos as given, metres (sensor pitch "
-                             "times the downscaling from sensor to photo)")
+                        help="effective pixel pitch of the photos as stored, metres (sensor "
+                             "pitch times the downscaling; default: --camera, else EXIF)")
+    parser.add_argument("--camera", type=Path, default=None,
+                        help="camera settings JSON written by `defocus calibrate`")
+    parser.add_argument("--depth-range", type=float, nargs=2, default=None,
+                        metavar=("NEAR", "FAR"),
+                        help="nearest and farthest depth of the scene, metres (shipped model)")
     parser.add_argument("--out", type=Path, default=Path("runs/predict"),
-                        help="output folder: depth.npy (metres) and depth.png")
+                        help="output folder: depth.npy (metres), depth_mm.png (16-bit "
+                             "millimetres), confidence.png, figure.png")
 
 
 def run(args: argparse.Namespace) -> int:
+    import warnings
+
     import numpy as np
     import torch
+    from PIL import Image
 
-    from datasets.io import read_rgb
+    from datasets.photos import photo_settings, read_photo
     from defocus.cli import CommandError
     from models.plotting import plot_prediction
-    from models.training import Trainer
     from optics import CameraSettings
 
-    trainer = Trainer.from_checkpoint(args.checkpoint)
-    image = read_rgb(args.image)[None]
-    focused = settings = None
-    if trainer.config.input_mode == "aif+focused":
-        n = len(args.focused)
-        if n != trainer.config.n_focus:
-            raise CommandError(f"this network needs {trainer.config.n_focus} --focused photos, "
-                             f"got {n}")
-        if len(args.focus_distance) != n or len(args.f_number) not in (1, n) \
-                or args.focal_length is None or args.pixel_pitch is None:
-            raise CommandError("give --focus-distance (one per focused photo), --f-number, "
-                             "--focal-length and --pixel-pitch")
-        focused = torch.stack([read_rgb(p) for p in args.focused])[None]
-        f_numbers = args.f_number * n if len(args.f_number) == 1 else args.f_number
-        settings = CameraSettings(args.focal_length, f_numbers, args.focus_distance,
-                                  args.pixel_pitch).to(torch.float32)
-    depth = trainer.predict(image, focused, settings)[0].cpu()
+    image, _ = read_photo(args.image)
+    photos = [read_photo(path) for path in args.focused]
+    for path, (photo, _) in zip(args.focused, photos, strict=True):
+        if photo.shape != image.shape:
+            raise CommandError(f"{path} is {tuple(photo.shape[-2:])} pixels but {args.image} is "
+                               f"{tuple(image.shape[-2:])}; all photos must have one size")
+        if torch.equal(photo, image):
+            warnings.warn(f"{path} is identical to {args.image}: there is no defocus to read",
+                          stacklevel=1)
+    focused = torch.stack([p for p, _ in photos]) if photos else None
+    calibration = CameraSettings.from_json(args.camera) if args.camera else None
+    settings = photo_settings([info for _, info in photos], args.focus_distance,
+                              args.f_number, args.focal_length, args.pixel_pitch,
+                              calibration) if photos else None
+    if args.checkpoint is None:
+        depth, confidence, depth_range = _pretrained(args, image, focused, settings)
+    else:
+        depth, confidence, depth_range = _checkpoint(args, image, focused, settings)
+    if not bool(torch.isfinite(depth).all()):
+        raise CommandError("the prediction is not finite; nothing written")
     args.out.mkdir(parents=True, exist_ok=True)
-    np.save(args.out / "depth.npy", depth[0].numpy())
-    plot_prediction(args.out / "depth.png", image[0], depth,
-                    None if focused is None else focused[0], title=str(args.image.name),
-                    depth_range=(trainer.config.depth_min, trainer.config.depth_max))
+    np.save(args.out / "depth.npy", depth[0].numpy().astype(np.float32))
+    millimetres = np.clip(np.round(depth[0].numpy() * 1000), 0, 65535).astype(np.uint16)
+    Image.fromarray(millimetres).save(args.out / "depth_mm.png")
+    written = ["depth.npy", "depth_mm.png"]
+    if confidence is not None:
+        Image.fromarray((confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(
+            args.out / "confidence.png")
+        written.append("confidence.png")
+    plot_prediction(args.out / "figure.png", image, depth,
+                    None if focused is None else focused, title=str(args.image.name),
+                    depth_range=depth_range)
     print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m; wrote "
-          f"{args.out / 'depth.npy'} and {args.out / 'depth.png'}")
+          f"{', '.join(written)} and figure.png under {args.out}")
     return 0
+
+
+def _pretrained(args, image, focused, settings):
+    from defocus.cli import CommandError
+    from models.blur import predict_depth
+    from models.pretrained import load_pretrained
+
+    if focused is None or len(focused) < 1:
+        raise CommandError("the shipped model needs --focused photos (2 or more, each focused "
+                           "at its own --focus-distance)")
+    if args.depth_range is None:
+        raise CommandError("give --depth-range NEAR FAR (metres): the thin lens has two depths "
+                           "for each blur, the range picks the right one")
+    near, far = args.depth_range
+    out = predict_depth(load_pretrained(), image, focused, settings.to(image.dtype), near, far)
+    print(f"working resolution {out['scale']:.3f} x the photos")
+    return out["depth"], out["confidence"], (near, far)
+
+
+def _checkpoint(args, image, focused, settings):
+    from defocus.cli import CommandError
+    from models.training import Trainer
+
+    trainer = Trainer.from_checkpoint(args.checkpoint)
+    config = trainer.config
+    if config.input_mode == "aif+focused":
+        n = 0 if focused is None else len(focused)
+        if n != config.n_focus:
+            raise CommandError(f"this network needs {config.n_focus} --focused photos, got {n}")
+        depth = trainer.predict(image[None], focused[None], settings.to(image.dtype))[0]
+    else:
+        depth = trainer.predict(image[None])[0]
+    return depth.cpu(), None, (config.depth_min, config.depth_max)

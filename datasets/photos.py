@@ -1,0 +1,164 @@
+"""Your own photos: read a JPEG/PNG upright, with the camera values its EXIF holds.
+
+`read_photo` applies the EXIF orientation (a portrait shot stored sideways comes out upright) and
+returns the focal length, f-number and pixel pitch where the file states them. The pixel pitch
+comes from the focal-plane resolution tags, scaled to the stored image size (a downscaled JPEG
+has a larger effective pitch than the sensor).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from kornia.color import rgb_to_linear_rgb
+from torch import Tensor
+
+from .io import DataFormatError, require_file
+
+#: EXIF tag numbers (the Exif IFD).
+_FOCAL_LENGTH, _F_NUMBER = 37386, 33437
+_FOCAL_PLANE_X_RES, _FOCAL_PLANE_UNIT = 41486, 41488
+_EXIF_IFD = 0x8769
+_METRES_PER_UNIT = {2: 0.0254, 3: 0.01, 4: 0.001, 5: 1e-6}
+
+
+@dataclass(frozen=True)
+class PhotoInfo:
+    """What a photo's EXIF says (None where it says nothing). Lengths in metres.
+
+    Args:
+        path: the file.
+        focal_length: metres.
+        f_number: dimensionless.
+        pixel_pitch: effective pixel pitch of the stored (upright) image, metres.
+        orientation: the EXIF orientation that was applied (1 = none).
+    """
+
+    path: Path
+    focal_length: float | None = None
+    f_number: float | None = None
+    pixel_pitch: float | None = None
+    orientation: int = 1
+
+
+def _positive(value) -> float | None:
+    try:
+        number = float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return number if np.isfinite(number) and number > 0 else None
+
+
+def _exif_info(path: Path, image) -> PhotoInfo:
+    exif = image.getexif()
+    detail = exif.get_ifd(_EXIF_IFD) if exif else {}
+    orientation = int(exif.get(274, 1)) if exif else 1
+    focal = _positive(detail.get(_FOCAL_LENGTH))
+    pitch = None
+    resolution = _positive(detail.get(_FOCAL_PLANE_X_RES))
+    if resolution is not None:
+        unit = _METRES_PER_UNIT.get(int(detail.get(_FOCAL_PLANE_UNIT, 2)), 0.0254)
+        pitch = unit / resolution  # at the sensor's full width...
+        sensor_width = detail.get(40962)  # PixelXDimension: the stored image's width
+        if _positive(sensor_width) is not None and image.width:
+            pitch *= float(sensor_width) / image.width
+    return PhotoInfo(path, None if focal is None else focal / 1000.0,
+                     _positive(detail.get(_F_NUMBER)), pitch, orientation)
+
+
+def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Tensor, PhotoInfo]:
+    """Read an 8- or 16-bit RGB photo upright as linear intensity `(3,H,W)` in [0, 1].
+
+    Args:
+        path: JPEG, PNG or TIFF file.
+        dtype: floating dtype of the result.
+
+    Returns:
+        `(image, info)`: the photo and its `PhotoInfo` (EXIF values, orientation applied).
+
+    Raises:
+        FileNotFoundError: `path` does not exist.
+        DataFormatError: the file cannot be read as an RGB photo.
+
+    Example:
+        >>> import tempfile, pathlib
+        >>> from PIL import Image
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "photo.png"
+        >>> Image.new("RGB", (4, 2), (255, 0, 0)).save(path)
+        >>> image, info = read_photo(path)
+        >>> image.shape, info.focal_length
+        (torch.Size([3, 2, 4]), None)
+    """
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
+    path = Path(path)
+    require_file(path, "a photo")
+    try:
+        with Image.open(path) as opened:
+            info = _exif_info(path, opened)
+            upright = ImageOps.exif_transpose(opened)
+            array = np.asarray(upright.convert("RGB") if upright.mode not in ("RGB", "I;16")
+                               else upright)
+    except (UnidentifiedImageError, OSError, ValueError) as error:
+        raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
+    if array.ndim == 2:
+        array = np.repeat(array[..., None], 3, axis=2)
+    scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
+    image = torch.from_numpy(np.ascontiguousarray(array[..., :3])).to(dtype).permute(2, 0, 1)
+    return rgb_to_linear_rgb(image / scale), info
+
+
+def photo_settings(
+    infos: list[PhotoInfo], focus_distances: list[float], f_numbers: list[float] | None = None,
+    focal_length: float | None = None, pixel_pitch: float | None = None,
+    calibration=None, aperture: str = "disk",
+):
+    """The `(F,)` `CameraSettings` of focused photos, from what the user gave, else the
+    calibration, else the photos' EXIF.
+
+    Args:
+        infos: the `PhotoInfo` of each focused photo (`read_photo`).
+        focus_distances: one per photo, metres (cameras rarely record it; `--focus-distance`).
+        f_numbers: one per photo or one for all (else the calibration, else EXIF).
+        focal_length: metres (else the calibration, else EXIF).
+        pixel_pitch: effective pitch of the photos as stored, metres (else the calibration, else
+            EXIF focal-plane resolution).
+        calibration: a `CameraSettings` from `defocus calibrate` (`CameraSettings.from_json`).
+        aperture: PSF spec when no calibration gives one.
+
+    Raises:
+        ValueError: naming every value that is missing and how to give it.
+    """
+    from optics import CameraSettings
+
+    n = len(infos)
+    if len(focus_distances) == 0 and calibration is not None and calibration.n_shots == n:
+        focus_distances = calibration.focus_distance.tolist()
+    if len(focus_distances) != n:
+        raise ValueError(f"give --focus-distance with one value per focused photo ({n}), "
+                         f"got {len(focus_distances)}")
+
+    def pick(name: str, given, unit: str):
+        if given is not None:
+            return given
+        if calibration is not None:
+            return getattr(calibration, name).reshape(-1)[0].item()
+        values = [getattr(info, name) for info in infos]
+        if all(v is not None for v in values):
+            return values
+        missing = [str(info.path) for info, v in zip(infos, values, strict=True) if v is None]
+        raise ValueError(f"{name} is unknown: {', '.join(missing)} do(es) not state it in EXIF; "
+                         f"give --{name.replace('_', '-')} ({unit}) or --camera fit.json")
+
+    if f_numbers is not None and len(f_numbers) not in (0, 1, n):
+        raise ValueError(f"give --f-number once or once per focused photo ({n}), got "
+                         f"{len(f_numbers)}")
+    f_number = pick("f_number", (f_numbers[0] if len(f_numbers) == 1 else f_numbers)
+                    if f_numbers else None, "dimensionless")
+    focal = pick("focal_length", focal_length, "metres, e.g. 0.05 for 50 mm")
+    pitch = pick("pixel_pitch", pixel_pitch, "metres, e.g. 4e-6")
+    spec = calibration.aperture if calibration is not None else aperture
+    return CameraSettings(focal, f_number, list(focus_distances), pitch, aperture=spec)

@@ -1,0 +1,371 @@
+"""Depth from defocus for any camera: read blur in pixels, leave the metres to the thin lens.
+
+For a thin lens the signed CoC diameter in pixels is linear in inverse depth,
+`c_i(D) = A_i (1 - D_f,i / D)`, with `A_i` the CoC of a point at infinity (see
+`CameraSettings.coc_at_infinity_px`). What the photos show is blur in pixels; the camera only maps
+blur to metres. So the model has two parts:
+
+1. `BlurNet` reads, for one focused photo and the all-in-focus photo, the CoC diameter `|c|` in
+   pixels at every pixel. It never sees a camera, so it does not depend on one. It is trained
+   without depth labels: the all-in-focus photo rendered with the predicted blur must reproduce
+   the focused photo (the paper's self-supervision through the renderer, in blur space).
+2. `solve_depth` finds, per pixel, the depth in `[near, far]` whose thin-lens blurs best explain
+   the `F` measured blurs (two or more shots resolve the sign ambiguity around each focus plane),
+   aggregating the costs over windows weighted by how much texture there is: where a photo holds
+   no texture (or is saturated) defocus says nothing; the confidence says so and larger windows
+   fill in.
+
+`DepthFromDefocus` puts them together, with tiling for large photos.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import kornia
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from optics import CameraSettings, Disk, render_defocus
+from optics.checks import check_shape
+
+from .losses import edge_aware_smoothness, photometric_loss
+
+#: Scales (pixels) of the band-pass energies in `blur_features`.
+FEATURE_SCALES = (0.0, 1.0, 2.0, 4.0)
+
+
+def match_exposure(image: Tensor, focused: Tensor) -> Tensor:
+    """`focused` `(B,3,H,W)` scaled per channel to the mean of `image` (exposure and white
+    balance differences between shots removed)."""
+    gain = image.mean((-2, -1), keepdim=True) / focused.mean((-2, -1), keepdim=True).clamp_min(1e-6)
+    return focused * gain
+
+
+def _band_energy(gray: Tensor, scale: float, window: int = 7) -> Tensor:
+    if scale > 0:
+        k = 2 * math.ceil(3 * scale) + 1
+        gray = kornia.filters.gaussian_blur2d(gray, (k, k), (scale, scale), border_type="reflect")
+    energy = kornia.filters.laplacian(gray, 3, border_type="reflect") ** 2
+    return kornia.filters.box_blur(energy, (window, window), border_type="reflect")
+
+
+def blur_features(image: Tensor, focused: Tensor) -> Tensor:
+    """The `BlurNet` input for one shot: `(B, 3 + 2 * len(FEATURE_SCALES), H, W)`.
+
+    Channels: the all-in-focus and the (exposure-matched) focused grey images, their difference,
+    and per scale of `FEATURE_SCALES` the log ratio of the focused photo's band-pass energy to the
+    all-in-focus photo's (about `-k sigma^2` for a blur of `sigma` pixels) and the all-in-focus
+    log energy (how much there is to read).
+    """
+    a = image.mean(1, keepdim=True)
+    b = match_exposure(image, focused).mean(1, keepdim=True)
+    channels = [a, b, b - a]
+    for scale in FEATURE_SCALES:
+        ea, eb = _band_energy(a, scale), _band_energy(b, scale)
+        eps = 1e-7 + 1e-3 * ea.mean((-2, -1), keepdim=True)
+        channels += [torch.log(eb + eps) - torch.log(ea + eps), torch.log(ea + eps) / 10]
+    return torch.cat(channels, 1)
+
+
+def _block(cin: int, cout: int, stride: int = 1, dilation: int = 1) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(cin, cout, 3, stride, dilation, dilation), nn.LeakyReLU(0.1, inplace=True),
+        nn.Conv2d(cout, cout, 3, 1, 1), nn.LeakyReLU(0.1, inplace=True),
+    )
+
+
+class BlurNet(nn.Module):
+    """Per-pixel CoC diameter (pixels) of a focused photo, from it and the all-in-focus photo.
+
+    A four-scale encoder-decoder without normalisation layers (so tiles of a large photo give the
+    same result as the whole), receptive field about 90 pixels: blurs up to about 16 pixels.
+
+    Args:
+        width: channels of the first scale.
+
+    Example:
+        >>> net = BlurNet(width=8)
+        >>> image = torch.rand(1, 3, 32, 32)
+        >>> net(image, image).shape
+        torch.Size([1, 1, 32, 32])
+    """
+
+    def __init__(self, width: int = 24):
+        super().__init__()
+        w = int(width)
+        if w < 1:
+            raise ValueError(f"width must be >= 1, got {width!r}")
+        self.width = w
+        cin = 3 + 2 * len(FEATURE_SCALES)
+        self.enc1 = _block(cin, w)
+        self.enc2 = _block(w, 2 * w, stride=2)
+        self.enc3 = _block(2 * w, 2 * w, stride=2)
+        self.enc4 = _block(2 * w, 4 * w, stride=2, dilation=2)
+        self.dec3 = _block(4 * w + 2 * w, 2 * w)
+        self.dec2 = _block(2 * w + 2 * w, 2 * w)
+        self.dec1 = _block(2 * w + w, w)
+        self.out = nn.Conv2d(w, 1, 3, padding=1)
+
+    def forward(self, image: Tensor, focused: Tensor) -> Tensor:
+        """CoC diameter `(B,1,H,W)` in pixels (>= 0) of `focused` `(B,3,H,W)` relative to the
+        all-in-focus `image` `(B,3,H,W)`, both linear intensity."""
+        check_shape("image", image, ["B", "3", "H", "W"])
+        check_shape("focused", focused, ["B", "3", "H", "W"])
+        x = blur_features(image, focused)
+        h, w = x.shape[-2:]
+        x = F.pad(x, (0, (-w) % 8, 0, (-h) % 8), mode="replicate")
+        e1 = self.enc1(x)
+        e2 = self.enc2(e1)
+        e3 = self.enc3(e2)
+        e4 = self.enc4(e3)
+        d3 = self.dec3(torch.cat([_up(e4, e3), e3], 1))
+        d2 = self.dec2(torch.cat([_up(d3, e2), e2], 1))
+        d1 = self.dec1(torch.cat([_up(d2, e1), e1], 1))
+        return F.softplus(self.out(d1)[..., :h, :w])
+
+
+def _up(x: Tensor, like: Tensor) -> Tensor:
+    return F.interpolate(x, size=like.shape[-2:], mode="bilinear", align_corners=False)
+
+
+def texture_weight(image: Tensor, window: int = 7) -> Tensor:
+    """How much defocus can be read at each pixel, in [0, 1] `(B,1,H,W)`: local band-pass
+    energy of the all-in-focus photo against a floor, zero where a channel is saturated."""
+    energy = _band_energy(image.mean(1, keepdim=True), 0.0, window)
+    floor = 1e-5 + 0.05 * energy.mean((-2, -1), keepdim=True)
+    weight = energy / (energy + floor)
+    saturated = (image.amax(1, keepdim=True) > 0.98).to(image.dtype)
+    saturated = F.max_pool2d(saturated, 5, 1, 2)
+    return weight * (1 - saturated)
+
+
+def _box(x: Tensor, size: int) -> Tensor:
+    return kornia.filters.box_blur(x, (size, size), border_type="reflect")
+
+
+def solve_depth(
+    blur: Tensor, weight: Tensor, settings: CameraSettings, near: float, far: float,
+    n_candidates: int = 96, windows: Mapping[int, float] | None = None,
+) -> tuple[Tensor, Tensor]:
+    """Depth `(B,1,H,W)` metres from per-shot blur maps and the thin lens of each shot.
+
+    For candidate inverse depths `x` evenly spaced in `[1/far, 1/near]`, the cost of a pixel is
+    `sum_i |b_i - |A_i (1 - D_f,i x)|| / (0.3 + 0.15 b_i)` (blur errors grow with blur),
+    aggregated over square windows weighted by `weight` (fine windows dominate where there is
+    texture, coarse ones fill in where there is none); the best candidate is refined by a
+    parabola through its neighbours.
+
+    Args:
+        blur: `(B,F,H,W)` measured CoC diameters in pixels (>= 0).
+        weight: `(B,1,H,W)` or `(B,F,H,W)` texture weights in [0, 1] (`texture_weight`).
+        settings: the `(B,F)` or `(F,)` camera settings of the shots (at this resolution).
+        near: nearest depth, metres.
+        far: farthest depth, metres.
+        n_candidates: candidate depths.
+        windows: window size (pixels) -> weight of its aggregated cost.
+
+    Returns:
+        `(depth, confidence)`, both `(B,1,H,W)`; confidence in [0, 1].
+    """
+    if not 0 < near < far:
+        raise ValueError(f"need 0 < near < far metres, got near={near!r}, far={far!r}")
+    windows = windows or {5: 1.0, 17: 0.3, 49: 0.1}
+    b, n, h, w = blur.shape
+    settings = settings.batched(b).to(device=blur.device, dtype=blur.dtype)
+    if settings.n_shots != n:
+        raise ValueError(f"blur holds {n} shots but settings {settings.n_shots}")
+    a = settings.coc_at_infinity_px().abs()[..., None]  # (B,F,1)
+    focus = settings.focus_distance[..., None]
+    x = torch.linspace(1 / far, 1 / near, n_candidates, dtype=blur.dtype, device=blur.device)
+    predicted = (a * (1 - focus * x)).abs()  # (B,F,K)
+    weight = weight.expand(b, n, h, w)
+    cost = torch.zeros(b, n_candidates, h, w, dtype=blur.dtype, device=blur.device)
+    for i in range(n):
+        scale = 1 / (0.3 + 0.15 * blur[:, i:i + 1])
+        cost += weight[:, i:i + 1] * (blur[:, i:i + 1] - predicted[:, i, :, None, None]).abs() * scale
+    total_weight = weight.mean(1, keepdim=True)
+    num = sum(s * _box(cost, k) for k, s in windows.items())
+    den = sum(s * _box(total_weight, k) for k, s in windows.items()) + 1e-6
+    aggregated = num / den
+    best = aggregated.argmin(1, keepdim=True)
+    lo = aggregated.gather(1, (best - 1).clamp(0, n_candidates - 1))
+    mid = aggregated.gather(1, best)
+    hi = aggregated.gather(1, (best + 1).clamp(0, n_candidates - 1))
+    curvature = (lo + hi - 2 * mid).clamp_min(1e-9)
+    offset = (0.5 * (lo - hi) / curvature).clamp(-0.5, 0.5)
+    inside = (best > 0) & (best < n_candidates - 1)
+    index = best.to(blur.dtype) + torch.where(inside, offset, torch.zeros_like(offset))
+    inverse = 1 / far + index * (1 / near - 1 / far) / (n_candidates - 1)
+    confidence = _box(total_weight, 5).clamp(0, 1)
+    return (1 / inverse).clamp(near, far), confidence
+
+
+class DepthFromDefocus(nn.Module):
+    """Metric depth from an all-in-focus photo and `F >= 2` focused photos of any camera.
+
+    Args:
+        blur_net: the per-shot blur reader (a new `BlurNet()` by default).
+        tile: largest tile side in pixels for the blur network (large photos are processed in
+            overlapping tiles within a bounded memory).
+
+    Example:
+        >>> model = DepthFromDefocus(BlurNet(width=4))
+        >>> settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+        >>> out = model(torch.rand(1, 3, 24, 24), torch.rand(1, 2, 3, 24, 24), settings, 1.0, 10.0)
+        >>> out["depth"].shape, out["confidence"].shape, out["blur"].shape
+        (torch.Size([1, 1, 24, 24]), torch.Size([1, 1, 24, 24]), torch.Size([1, 2, 24, 24]))
+    """
+
+    def __init__(self, blur_net: BlurNet | None = None, tile: int = 512, overlap: int = 48):
+        super().__init__()
+        self.blur_net = blur_net or BlurNet()
+        self.tile, self.overlap = int(tile), int(overlap)
+
+    def read_blur(self, image: Tensor, focused: Tensor) -> Tensor:
+        """`(B,F,H,W)` CoC diameters in pixels of each focused photo `(B,F,3,H,W)`."""
+        check_shape("focused", focused, ["B", "F", "3", "H", "W"])
+        return torch.cat([self._tiled(image, focused[:, i]) for i in range(focused.shape[1])], 1)
+
+    def _tiled(self, image: Tensor, focused: Tensor) -> Tensor:
+        h, w = image.shape[-2:]
+        if max(h, w) <= self.tile:
+            return self.blur_net(image, focused)
+        out = image.new_zeros(image.shape[0], 1, h, w)
+        step, margin = self.tile - 2 * self.overlap, self.overlap
+        for top in range(0, h, step):
+            for left in range(0, w, step):
+                t0, l0 = max(0, top - margin), max(0, left - margin)
+                t1, l1 = min(h, top + step + margin), min(w, left + step + margin)
+                part = self.blur_net(image[..., t0:t1, l0:l1], focused[..., t0:t1, l0:l1])
+                bottom, right = min(h, top + step), min(w, left + step)
+                out[..., top:bottom, left:right] = part[..., top - t0:bottom - t0,
+                                                        left - l0:right - l0]
+        return out
+
+    def forward(self, image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
+                far: float) -> dict[str, Tensor]:
+        """Depth, confidence and blur maps (see `solve_depth`) of a batch at this resolution."""
+        blur = self.read_blur(image, focused)
+        depth, confidence = solve_depth(blur, texture_weight(image), settings, near, far)
+        return {"depth": depth, "confidence": confidence, "blur": blur}
+
+
+def blur_loss(net: BlurNet, image: Tensor, focused: Tensor, supervision: str = "self",
+              target_coc: Tensor | None = None, smoothness: float = 0.01) -> Tensor:
+    """Training loss of `BlurNet` on pairs `(B,3,H,W)`.
+
+    `"self"`: the all-in-focus photo rendered with the predicted blur (disk PSF, scatter) must
+    reproduce the exposure-matched focused photo (SSIM + L1), plus edge-aware smoothness of the
+    blur; no depth and no camera are used. `"depth"` (the supervised twin): L1 to the true
+    `|target_coc|` `(B,1,H,W)`, relative to `0.5 + |target|`.
+    """
+    blur = net(image, focused)
+    if supervision == "depth":
+        if target_coc is None:
+            raise ValueError("supervision 'depth' needs target_coc")
+        target = target_coc.abs()
+        return ((blur - target).abs() / (0.5 + target)).mean()
+    if supervision != "self":
+        raise ValueError(f"supervision must be 'self' or 'depth', got {supervision!r}")
+    rendered = render_defocus(image, blur, psf=Disk(), max_kernel_size=41)
+    target = match_exposure(image, focused)
+    return photometric_loss(rendered, target) + smoothness * edge_aware_smoothness(blur + 0.5, image)
+
+
+def train_blur_net(
+    net: BlurNet, samples: Iterable[Mapping[str, Any]], steps: int, batch_size: int = 8,
+    lr: float = 1e-3, supervision: str = "self", progress: bool = True,
+    log: list[dict[str, float]] | None = None,
+) -> BlurNet:
+    """Train `net` on samples with `image`, `focused` `(F,3,H,W)` and, for `"depth"`
+    supervision, `coc_px` `(F,1,H,W)`; every shot is one training pair. Adam, cosine schedule,
+    gradient clipping; stops with an error at the first non-finite loss."""
+    from tqdm.auto import tqdm
+
+    optimizer = torch.optim.Adam(net.parameters(), lr=lr)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, steps) / steps)))
+    stream = iter(samples)
+    net.train()
+    bar = tqdm(range(int(steps)), desc=f"blur net ({supervision})", disable=not progress)
+    for step in bar:
+        pairs = [next(stream) for _ in range(batch_size)]
+        image = torch.cat([p["image"][None].expand(len(p["focused"]), -1, -1, -1) for p in pairs])
+        focused = torch.cat([p["focused"] for p in pairs])
+        target = torch.cat([p["coc_px"] for p in pairs]) if supervision == "depth" else None
+        loss = blur_loss(net, image, focused, supervision, target)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite blur-net loss at step {step}")
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        optimizer.step()
+        schedule.step()
+        if log is not None:
+            log.append({"step": step + 1, "loss": float(loss), "lr": schedule.get_last_lr()[0]})
+        bar.set_postfix(loss=f"{float(loss):.4f}")
+    net.eval()
+    return net
+
+
+def working_scale(settings: CameraSettings, near: float, far: float, shape: tuple[int, int],
+                  max_coc_px: float = 12.0, max_pixels: int = 1_500_000) -> float:
+    """The downscale factor (<= 1) of the photos for `DepthFromDefocus`: the largest CoC over
+    `[near, far]` at most `max_coc_px` pixels (what `BlurNet` reads well) and at most
+    `max_pixels` pixels (time and memory).
+
+    Example:
+        >>> s = CameraSettings(0.05, 1.4, [2.0, 6.0], 6e-6)  # 50 mm f/1.4, 6 um pixels
+        >>> round(working_scale(s, 1.0, 10.0, (3000, 4000)), 3)
+        0.072
+    """
+    a = settings.coc_at_infinity_px().abs().reshape(-1)
+    df = settings.focus_distance.reshape(-1)
+    largest = float((a * torch.stack([(1 - df / near).abs(), (1 - df / far).abs()])).max())
+    scale = min(1.0, max_coc_px / max(largest, 1e-9), math.sqrt(max_pixels / (shape[0] * shape[1])))
+    return scale
+
+
+def predict_depth(
+    model: DepthFromDefocus, image: Tensor, focused: Tensor, settings: CameraSettings,
+    near: float, far: float, max_coc_px: float = 12.0, max_pixels: int = 1_500_000,
+) -> dict[str, Tensor | float]:
+    """Depth of one scene at the photos' resolution, computed at the working resolution.
+
+    Args:
+        model: the depth-from-defocus model.
+        image: all-in-focus photo `(3,H,W)`, linear.
+        focused: `(F,3,H,W)` focused photos, linear, `F >= 2` (1 works but stays ambiguous
+            around the focus plane).
+        settings: their `(F,)` settings at the photos' resolution (effective pixel pitch).
+        near: nearest depth of the scene, metres.
+        far: farthest depth, metres.
+        max_coc_px: see `working_scale`.
+        max_pixels: see `working_scale`.
+
+    Returns:
+        dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
+        resolution, and `scale` (working / photo resolution).
+    """
+    check_shape("image", image, ["3", "H", "W"])
+    check_shape("focused", focused, ["F", "3", "H", "W"])
+    if focused.shape[-2:] != image.shape[-2:]:
+        raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
+                         f"all-in-focus photo is {tuple(image.shape[-2:])}")
+    h, w = image.shape[-2:]
+    scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
+    size = (max(8, round(h * scale)), max(8, round(w * scale)))
+    small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \
+        if scale < 1 else torch.cat([image[None], focused])
+    effective = settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
+    with torch.no_grad():
+        out = model(small[:1], small[1:][None], effective.to(small.dtype), near, far)
+    depth = F.interpolate(out["depth"], size=(h, w), mode="bilinear", align_corners=False)
+    confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",
+                               align_corners=False)
+    return {"depth": depth[0], "confidence": confidence[0], "blur": out["blur"][0],
+            "scale": size[1] / w}
