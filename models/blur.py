@@ -144,7 +144,8 @@ def texture_weight(image: Tensor, window: int = 7) -> Tensor:
 
 
 def _box(x: Tensor, size: int) -> Tensor:
-    return kornia.filters.box_blur(x, (size, size), border_type="reflect")
+    # replicate: valid for windows larger than the image, unlike reflect
+    return kornia.filters.box_blur(x, (size, size), border_type="replicate")
 
 
 def solve_depth(
@@ -307,7 +308,7 @@ def train_blur_net(
         schedule.step()
         if log is not None:
             log.append({"step": step + 1, "loss": float(loss), "lr": schedule.get_last_lr()[0]})
-        bar.set_postfix(loss=f"{float(loss):.4f}")
+        bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
     net.eval()
     return net
 
@@ -369,3 +370,20 @@ def predict_depth(
                                align_corners=False)
     return {"depth": depth[0], "confidence": confidence[0], "blur": out["blur"][0],
             "scale": size[1] / w}
+
+
+def evaluate_on_sample(model: DepthFromDefocus, sample: Mapping[str, Any], near: float,
+                       far: float) -> tuple[dict[str, float], Tensor, float]:
+    """Metrics, depth `(1,H,W)` and seconds of `model` on one sample (with `image`,
+    `focused`, `camera`, `depth`, `mask`), through `predict_depth`."""
+    import time
+
+    from .metrics import depth_metrics
+
+    started = time.perf_counter()
+    out = predict_depth(model, sample["image"], sample["focused"],
+                        sample["camera"].to(sample["image"].dtype), near, far)
+    seconds = time.perf_counter() - started
+    metrics = depth_metrics(pred=out["depth"][None], target=sample["depth"][None],
+                            mask=sample["mask"][None])
+    return metrics, out["depth"], seconds

@@ -1,8 +1,9 @@
 """Pretrained weights that ship in the package, loaded safely.
 
-| name | model | trained on | how to reproduce |
-|---|---|---|---|
-| `dfd-general` | `DepthFromDefocus(BlurNet(width))`, camera-general | procedural scenes under random cameras (`datasets.capture`), no depth labels | `defocus pretrain --config models/weights/dfd_general.yaml` |
+No weights ship yet: `defocus pretrain --config models/weights/dfd_general.yaml` trains the
+camera-general `DepthFromDefocus(BlurNet(width))` (procedural scenes under random cameras,
+`datasets.capture`, no depth labels) and writes a weights file that `load_weights` and
+`defocus predict WEIGHTS.pt` read. Shipped weights will be listed in `PRETRAINED`.
 
 A weights file holds tensors and plain numbers only; it is checked against its recorded sha256
 before loading and read with `torch.load(..., weights_only=True)`, so opening it runs no code.
@@ -19,9 +20,7 @@ from .blur import BlurNet, DepthFromDefocus
 
 WEIGHTS_DIR = Path(__file__).with_name("weights")
 #: name -> (file under `WEIGHTS_DIR`, sha256 of the file)
-PRETRAINED: dict[str, tuple[str, str]] = {
-    "dfd-general": ("dfd_general.pt", "UNSET"),
-}
+PRETRAINED: dict[str, tuple[str, str]] = {}
 
 
 def sha256(path: str | Path) -> str:
@@ -41,6 +40,15 @@ def save_weights(model: DepthFromDefocus, path: str | Path, **metadata: float | 
              "metadata": dict(metadata)}
     torch.save(state, path)
     return sha256(path)
+
+
+def is_weights_file(path: str | Path) -> bool:
+    """Whether `path` holds `save_weights` output (read safely; False for anything else)."""
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception:  # not a weights file: the caller tries other formats
+        return False
+    return isinstance(state, dict) and state.get("kind") == "DepthFromDefocus"
 
 
 def load_weights(path: str | Path, expected_sha256: str | None = None) -> DepthFromDefocus:
@@ -72,6 +80,7 @@ def load_pretrained(name: str = "dfd-general") -> DepthFromDefocus:
         >>> model = load_pretrained()  # doctest: +SKIP
     """
     if name not in PRETRAINED:
-        raise ValueError(f"unknown pretrained model {name!r}; available: {sorted(PRETRAINED)}")
+        raise ValueError(f"no shipped weights named {name!r} (available: {sorted(PRETRAINED)}); "
+                         "train them with `defocus pretrain` and load the file with load_weights")
     file, digest = PRETRAINED[name]
     return load_weights(WEIGHTS_DIR / file, digest)

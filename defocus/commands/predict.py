@@ -1,8 +1,9 @@
-"""`defocus predict`: depth of your own photos, with the shipped model or a trained checkpoint.
+"""`defocus predict`: depth of your own photos with a trained model.
 
-Without a checkpoint the shipped camera-general model (`models.load_pretrained`) reads the blur
-of each focused photo and solves the thin lens of your camera; camera values not given are read
-from `--camera fit.json` (written by `defocus calibrate`) or from the photos' EXIF.
+The model is a checkpoint of `defocus train` (a network for the camera it was trained with) or
+the weights of `defocus pretrain` (the camera-general model: it reads the blur of each focused
+photo in pixels and solves the thin lens of your camera). Camera values not given are read from
+`--camera fit.json` (written by `defocus calibrate`) or from the photos' EXIF.
 """
 
 from __future__ import annotations
@@ -12,9 +13,9 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
-                        help="checkpoint (.pt) written by `defocus train`; default: the shipped "
-                             "camera-general model")
+    parser.add_argument("checkpoint", type=Path,
+                        help="model file: a checkpoint of `defocus train` or the weights of "
+                             "`defocus pretrain` (camera-general)")
     parser.add_argument("--image", type=Path, required=True,
                         help="all-in-focus photo (sRGB JPEG/PNG; small aperture, e.g. f/11)")
     parser.add_argument("--focused", type=Path, nargs="*", default=[],
@@ -34,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="camera settings JSON written by `defocus calibrate`")
     parser.add_argument("--depth-range", type=float, nargs=2, default=None,
                         metavar=("NEAR", "FAR"),
-                        help="nearest and farthest depth of the scene, metres (shipped model)")
+                        help="nearest and farthest depth of the scene, metres (camera-general "
+                             "model)")
     parser.add_argument("--out", type=Path, default=Path("runs/predict"),
                         help="output folder: depth.npy (metres), depth_mm.png (16-bit "
                              "millimetres), confidence.png, figure.png")
@@ -50,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     from datasets.photos import photo_settings, read_photo
     from defocus.cli import CommandError
     from models.plotting import plot_prediction
+    from models.pretrained import is_weights_file
     from optics import CameraSettings
 
     image, _ = read_photo(args.image)
@@ -66,8 +69,8 @@ def run(args: argparse.Namespace) -> int:
     settings = photo_settings([info for _, info in photos], args.focus_distance,
                               args.f_number, args.focal_length, args.pixel_pitch,
                               calibration) if photos else None
-    if args.checkpoint is None:
-        depth, confidence, depth_range = _pretrained(args, image, focused, settings)
+    if is_weights_file(args.checkpoint):
+        depth, confidence, depth_range = _camera_general(args, image, focused, settings)
     else:
         depth, confidence, depth_range = _checkpoint(args, image, focused, settings)
     if not bool(torch.isfinite(depth).all()):
@@ -89,19 +92,20 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _pretrained(args, image, focused, settings):
+def _camera_general(args, image, focused, settings):
     from defocus.cli import CommandError
     from models.blur import predict_depth
-    from models.pretrained import load_pretrained
+    from models.pretrained import load_weights
 
     if focused is None or len(focused) < 1:
-        raise CommandError("the shipped model needs --focused photos (2 or more, each focused "
-                           "at its own --focus-distance)")
+        raise CommandError("the camera-general model needs --focused photos (2 or more, each "
+                           "focused at its own --focus-distance)")
     if args.depth_range is None:
         raise CommandError("give --depth-range NEAR FAR (metres): the thin lens has two depths "
                            "for each blur, the range picks the right one")
     near, far = args.depth_range
-    out = predict_depth(load_pretrained(), image, focused, settings.to(image.dtype), near, far)
+    out = predict_depth(load_weights(args.checkpoint), image, focused, settings.to(image.dtype),
+                        near, far)
     print(f"working resolution {out['scale']:.3f} x the photos")
     return out["depth"], out["confidence"], (near, far)
 

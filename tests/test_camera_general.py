@@ -1,0 +1,200 @@
+"""The camera-general pipeline: random cameras and realistic photos, the thin-lens solve, safe
+weights, and `defocus predict` on real-format photos (EXIF orientation, calibration JSON)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from datasets.capture import CaptureNoise, RandomCameraScenes, capture, largest_coc_px, random_camera
+from datasets.photos import read_photo
+from datasets.synthetic import generate_scene
+from defocus.cli import main
+from models.blur import BlurNet, DepthFromDefocus, solve_depth, texture_weight, working_scale
+from models.pretrained import is_weights_file, load_weights, save_weights, sha256
+from optics import CameraSettings
+
+
+def test_random_cameras_hit_their_blur_target():
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        s = random_camera(rng, 2.0, 9.0, n_shots=3, max_coc_px=(2.0, 6.0))
+        assert s.n_shots == 3 and 2.0 - 1e-6 <= largest_coc_px(s, 2.0, 9.0) <= 6.0 + 1e-6
+        assert bool((s.focal_length >= 0.018).all() and (s.focal_length <= 0.2).all())
+
+
+def test_samples_hold_the_true_coc_of_their_camera():
+    data = RandomCameraScenes(pool_size=2, scene_size=(40, 40), crop=(32, 32), seed=1)
+    sample = data.sample(np.random.default_rng(3))
+    assert sample["image"].shape == (3, 32, 32) and sample["focused"].shape == (2, 3, 32, 32)
+    expected = sample["camera"].camera().signed_coc_px(sample["depth"][None].expand(2, 1, 32, 32))
+    torch.testing.assert_close(sample["coc_px"], expected, rtol=1e-4, atol=1e-4)
+
+
+def test_capture_without_imperfections_is_the_render():
+    rng = np.random.default_rng(0)
+    image, depth = generate_scene((24, 24), rng, (1.5, 6.0))
+    s = CameraSettings(0.05, 2.0, [2.0, 5.0], 1e-4, "disk")
+    aif, focused = capture(image, depth, s, rng, CaptureNoise.none(), mode="scatter")
+    torch.testing.assert_close(aif, image)
+    expected = s.shot(1).render(image[None].double(), depth[None].double())[0].float()
+    torch.testing.assert_close(focused[1], expected, atol=1e-5, rtol=0)
+
+
+@pytest.mark.parametrize("depth_value", [1.3, 2.5, 4.0, 7.5])
+def test_solve_recovers_depth_from_exact_blurs(depth_value):
+    s = CameraSettings(0.05, 1.4, [2.0, 6.0], 1e-4)
+    depth = torch.full((1, 1, 16, 16), depth_value, dtype=torch.float64)
+    blur = s.to(torch.float64).camera().coc_px(depth.expand(2, 1, 16, 16)).reshape(1, 2, 16, 16)
+    solved, confidence = solve_depth(blur, torch.ones(1, 1, 16, 16, dtype=torch.float64), s,
+                                     1.0, 10.0, n_candidates=256)
+    torch.testing.assert_close(solved, depth, rtol=0.01, atol=0)
+    assert bool((confidence > 0.9).all())
+
+
+def test_confidence_is_lower_where_there_is_no_texture():
+    g = torch.Generator().manual_seed(0)
+    image = torch.rand(1, 3, 64, 64, generator=g) * 0.8
+    image[..., :, :32] = 0.4  # the left half is flat
+    _, confidence = solve_depth(torch.ones(1, 2, 64, 64), texture_weight(image),
+                                CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4), 1.0, 10.0)
+    flat, textured = confidence[..., 8:-8, 4:20].mean(), confidence[..., 8:-8, 44:60].mean()
+    assert float(flat) < 0.5 * float(textured)
+
+
+def test_working_scale_bounds_the_blur_and_the_pixels():
+    s = CameraSettings(0.05, 1.4, [2.0, 6.0], 6e-6)  # 50 mm f/1.4, 6 um pixels
+    scale = working_scale(s, 1.0, 10.0, (3000, 4000), max_coc_px=12.0)
+    small = s.replace(pixel_pitch=s.pixel_pitch / scale)
+    assert largest_coc_px(small, 1.0, 10.0) == pytest.approx(12.0, rel=1e-6)
+    assert working_scale(s.replace(pixel_pitch=1e-3), 1.0, 10.0, (3000, 4000)) \
+        == pytest.approx((1.5e6 / 12e6) ** 0.5)
+
+
+def test_weights_round_trip_and_hash(tmp_path):
+    torch.manual_seed(0)
+    model = DepthFromDefocus(BlurNet(width=4))
+    digest = save_weights(model, tmp_path / "w.pt", steps=1)
+    assert digest == sha256(tmp_path / "w.pt") and is_weights_file(tmp_path / "w.pt")
+    again = load_weights(tmp_path / "w.pt", digest)
+    x = torch.rand(1, 3, 16, 16)
+    torch.testing.assert_close(again.blur_net(x, x), model.blur_net(x, x))
+    (tmp_path / "bad.pt").write_bytes((tmp_path / "w.pt").read_bytes() + b"\0")
+    with pytest.raises(ValueError, match="sha256"):
+        load_weights(tmp_path / "bad.pt", digest)
+    (tmp_path / "photo.png").write_bytes(b"\x89PNG not really")
+    assert not is_weights_file(tmp_path / "photo.png")
+
+
+def _write_jpeg(path, array, orientation=1, focal_mm=None, f_number=None):
+    exif = Image.Exif()
+    exif[274] = orientation
+    detail = {}
+    if focal_mm is not None:
+        detail[37386] = float(focal_mm)
+    if f_number is not None:
+        detail[33437] = float(f_number)
+    if detail:
+        exif[0x8769] = detail
+    Image.fromarray(array).save(path, quality=95, exif=exif.tobytes())
+
+
+def test_read_photo_applies_exif_orientation_and_values(tmp_path):
+    stored = np.zeros((20, 30, 3), np.uint8)
+    stored[:5] = 255  # the top rows are white as stored
+    _write_jpeg(tmp_path / "p.jpg", stored, orientation=6, focal_mm=50, f_number=2.8)
+    image, info = read_photo(tmp_path / "p.jpg")
+    assert image.shape == (3, 30, 20)  # orientation 6: turned 90 degrees clockwise to view
+    assert float(image[:, :, -5:].mean()) > 0.8 and float(image[:, :, :5].mean()) < 0.1
+    assert info.orientation == 6
+    assert info.focal_length == pytest.approx(0.05) and info.f_number == pytest.approx(2.8)
+
+
+@pytest.fixture()
+def photos(tmp_path):
+    """A scene photographed through a 50 mm f/1.4 camera, as JPEGs, and a weights file."""
+    def make(orientation=1):
+        rng = np.random.default_rng(0)
+        image, depth = generate_scene((48, 64), rng, (1.5, 6.0))
+        settings = CameraSettings(0.05, 1.4, [2.0, 6.0], 180e-6, "disk")
+        aif, focused = capture(image, depth, settings, rng, CaptureNoise())
+        from kornia.color import linear_rgb_to_rgb
+
+        paths = []
+        for i, linear in enumerate([aif, *focused]):
+            srgb = (linear_rgb_to_rgb(linear.clamp(0, 1)).permute(1, 2, 0).numpy() * 255).round()
+            path = tmp_path / f"shot{i}_{orientation}.jpg"
+            _write_jpeg(path, srgb.astype(np.uint8), orientation, focal_mm=50, f_number=1.4)
+            paths.append(str(path))
+        torch.manual_seed(0)
+        save_weights(DepthFromDefocus(BlurNet(width=4)), tmp_path / "w.pt")
+        return [str(tmp_path / "w.pt"), "--image", paths[0], "--focused", *paths[1:]]
+    return make
+
+
+def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path):
+    args = photos()
+    assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
+                 "--depth-range", "1", "8", "--out", str(tmp_path / "a")]) == 0
+    a = np.load(tmp_path / "a" / "depth.npy")
+    assert a.shape == (48, 64) and np.isfinite(a).all() and 1 <= a.min() and a.max() <= 8
+    mm = np.asarray(Image.open(tmp_path / "a" / "depth_mm.png"))
+    assert mm.dtype == np.uint16 and abs(int(mm[10, 10]) - round(float(a[10, 10]) * 1000)) <= 1
+    assert (tmp_path / "a" / "confidence.png").is_file() and (tmp_path / "a" / "figure.png").is_file()
+    # the same camera from a calibration JSON (focal length, f-number, pitch, focus distances)
+    CameraSettings(0.05, 1.4, [2.0, 6.0], 180e-6, "disk").to_json(tmp_path / "fit.json")
+    assert main(["predict", *args, "--camera", str(tmp_path / "fit.json"),
+                 "--depth-range", "1", "8", "--out", str(tmp_path / "b")]) == 0
+    np.testing.assert_allclose(np.load(tmp_path / "b" / "depth.npy"), a, rtol=1e-5)
+
+
+def test_predict_rotated_photos_come_out_upright(photos, tmp_path):
+    args = photos(orientation=6)
+    assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
+                 "--depth-range", "1", "8", "--out", str(tmp_path / "r")]) == 0
+    assert np.load(tmp_path / "r" / "depth.npy").shape == (64, 48)
+
+
+def test_predict_says_which_camera_value_is_missing(photos, tmp_path, capsys):
+    args = photos()
+    assert main(["predict", *args, "--focus-distance", "2", "6", "--depth-range", "1", "8",
+                 "--out", str(tmp_path / "c")]) == 2
+    err = capsys.readouterr().err
+    assert "pixel_pitch is unknown" in err and "--pixel-pitch" in err
+
+
+@pytest.mark.slow
+def test_predict_12_megapixels_within_3_gb(tmp_path):
+    """A 3000x4000 photo set runs within 3 GB resident memory (working resolution and tiles)."""
+    script = f"""
+import resource, sys, numpy as np, torch
+from PIL import Image
+from defocus.cli import main
+from models.blur import BlurNet, DepthFromDefocus
+from models.pretrained import save_weights
+torch.manual_seed(0)
+save_weights(DepthFromDefocus(BlurNet(width=8)), r"{tmp_path}/w.pt")
+rng = np.random.default_rng(0)
+paths = []
+for i in range(3):
+    array = (rng.random((3000, 4000, 3)) * 255).astype(np.uint8)
+    Image.fromarray(array).save(r"{tmp_path}/p%d.png" % i)
+    paths.append(r"{tmp_path}/p%d.png" % i)
+del array
+code = main(["predict", r"{tmp_path}/w.pt", "--image", paths[0], "--focused", *paths[1:],
+             "--focus-distance", "1.5", "4", "--f-number", "1.8", "--focal-length", "0.035",
+             "--pixel-pitch", "1.5e-6", "--depth-range", "0.8", "10", "--out", r"{tmp_path}/o"])
+print("peak_mib", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "code", code)
+"""
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                         timeout=900)
+    assert out.returncode == 0, out.stderr[-2000:]
+    peak = float(out.stdout.split("peak_mib")[1].split()[0])
+    print(f"12 MP predict: peak resident memory {peak:.0f} MiB")
+    assert " code 0" in out.stdout and peak < 3 * 1024
+    assert np.load(tmp_path / "o" / "depth.npy").shape == (3000, 4000)
