@@ -6,8 +6,9 @@ the occlusion-aware layered renderer, shot and read noise, 8-bit sRGB, small exp
 white-balance differences and up to a pixel of misalignment between shots. None of these cameras
 was used to choose the model's settings. For each camera it prints abs rel and delta1 of
 
-- `pretrained`: `models.load_pretrained("dfd-general")` through `models.blur.predict_depth`
-  (the working resolution chosen from the camera and the depth range), and
+- `pretrained`: the camera-general weights of `defocus pretrain` (`--weights`) through
+  `models.blur.predict_depth` (the working resolution chosen from the camera and the depth
+  range), and
 - `direct`: `models.direct.fit_depth_direct` through the renderer at the same resolution, told
   the camera and the PSF (no network; slow),
 
@@ -17,9 +18,8 @@ seconds each took (one thread). Goal: pretrained abs rel <= 0.3x the constant's 
 
 Usage:
 
-    python benchmarks/cameras.py                 # the table (a few minutes: the direct fits)
-    python benchmarks/cameras.py --no-direct     # only the shipped model (seconds)
-    python benchmarks/cameras.py --weights W.pt  # another weights file (e.g. a rerun)
+    python benchmarks/cameras.py --weights runs/pretrain/dfd_general.pt   # the table
+    python benchmarks/cameras.py --weights W.pt --no-direct   # only the model (seconds)
 """
 
 from __future__ import annotations
@@ -98,15 +98,16 @@ def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--weights", type=Path, default=None, help="weights file (default: shipped)")
+    parser.add_argument("--weights", type=Path, required=True,
+                        help="camera-general weights written by `defocus pretrain`")
     parser.add_argument("--no-direct", action="store_true", help="skip the direct fits")
     parser.add_argument("--direct-steps", type=int, default=150, help="Adam steps of a direct fit")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photo imperfections")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    from models.pretrained import load_pretrained, load_weights
+    from models.pretrained import load_weights
 
-    model = load_weights(args.weights) if args.weights else load_pretrained()
+    model = load_weights(args.weights)
     print("| camera | PSF | constant abs rel | pretrained abs rel | ratio | d1 | s | "
           "direct abs rel | ratio | s |")
     print("|---|---|---|---|---|---|---|---|---|---|")
