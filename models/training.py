@@ -703,7 +703,7 @@ class Trainer:
             norm = torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in params]))
         if not bool(torch.isfinite(norm)):
             raise FloatingPointError(
-                f"gradient is not finite at step {step} (loss {float(terms['loss']):.4g}); "
+                f"gradient is not finite at step {step} (loss {float(terms['loss'].detach()):.4g}); "
                 f"training stopped before changing the weights (lr is {self.config.lr}: try a "
                 "smaller one, or grad_clip)")
         self._in_update = True  # until the step is counted: no checkpoint of a half step
