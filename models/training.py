@@ -14,8 +14,23 @@ gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the 
 after each step, and only rank 0 writes files.
 
 Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
-seconds), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and `step_XXXXXX.pt`),
-`figures/step_XXXXXX.png`.
+seconds, `at_depth_limits`), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and the
+newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and `warnings.log` when a run ends with
+a warning.
+
+One folder holds one run. `TrainConfig.resume` says what happens when `out_dir` already holds
+one: `"auto"` (default) continues it when its config is the same and otherwise refuses with
+the keys that differ; `"resume"` continues it, also to a larger `steps`; `"overwrite"` deletes
+its files (config, logs, checkpoints, figures; nothing else) when `fit` starts. A continued run
+starts from `checkpoints/last.pt` with its logs cut back to that step, so its logs and losses
+match those of an uninterrupted run.
+
+Failures are safe: every config field is checked when the config is built; `fit` checks the
+samples (`n_focus`, ground-truth depth > 0 where valid), saves checkpoints periodically (by
+steps and by minutes), when a step fails and on SIGINT/SIGTERM (then it raises
+`TrainingInterrupted`), stops at the first non-finite loss or gradient (`FloatingPointError`)
+without saving non-finite weights, and warns (`DepthCollapseWarning`) when most predicted pixels
+sit at `depth_min` or `depth_max`.
 
 The pieces: `models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint
 files that open without running code, `CheckpointStore`), `models.run_log` (CSV logs) and
@@ -158,7 +173,7 @@ class TrainConfig:
     #: `--overwrite`). true means "auto", false "overwrite". device, progress, out_dir and the
     #: checkpoint settings may always differ
     resume: str = "auto"
-    #: "auto" (CUDA when available), "cpu", "cuda", ...
+    #: "auto" (CUDA when available), "cpu", "cuda", ... (refused when this machine lacks it)
     device: str = "auto"
     #: tqdm progress bar
     progress: bool = True
@@ -579,6 +594,7 @@ class Trainer:
             _log.warning("deleted the previous run's %d files in %s (resume='overwrite')",
                          len(self._removals), cfg.out_dir)
             self._removals = []
+        self.checkpoints.remove_temporaries()
         if self._truncate_logs is not None:
             step = self._truncate_logs
             self.log.truncate(step)

@@ -284,3 +284,16 @@ def test_huge_lr_collapse_warns_in_the_log_and_the_summary(tmp_path, scenes, cap
                  "supervision=depth", "lr=1000"]) == 0
     out = capsys.readouterr().out
     assert "warning:" in out and "collapsed to its depth limits" in out
+
+
+def test_log_of_an_older_version_gains_the_new_columns(tmp_path):
+    from models.run_log import CsvLog
+
+    log = CsvLog(tmp_path / "train_log.csv")
+    log.append({"step": 1, "loss": 0.5})
+    log.append({"step": 2, "loss": 0.4, "at_depth_limits": 0.0})
+    log.append({"step": 3, "loss": 0.3, "at_depth_limits": 0.1})
+    assert log.path.read_text().splitlines() == [
+        "step,loss,at_depth_limits", "1,0.5,", "2,0.4,0.0", "3,0.3,0.1"]
+    log.truncate(2)
+    assert [r["step"] for r in log.rows()] == ["1", "2"] and not list(tmp_path.glob(".*"))

@@ -122,6 +122,8 @@ def run(args: argparse.Namespace) -> int:
     from models.metrics import format_table
     from models.training import COLLAPSE_FRACTION, DepthCollapseWarning, TrainConfig, Trainer
 
+    if args.config is not None and not args.config.is_file():
+        raise FileNotFoundError(f"--config {args.config} does not exist or is not a file")
     cfg = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
     overrides = list(args.overrides) + ([f"out_dir={args.out}"] if args.out else [])
     if args.resume or args.overwrite:
