@@ -297,3 +297,47 @@ def test_log_of_an_older_version_gains_the_new_columns(tmp_path):
         "step,loss,at_depth_limits", "1,0.5,", "2,0.4,0.0", "3,0.3,0.1"]
     log.truncate(2)
     assert [r["step"] for r in log.rows()] == ["1", "2"] and not list(tmp_path.glob(".*"))
+
+
+def test_sigterm_in_process_saves_and_raises(tmp_path, scenes):
+    from models.training import TrainingInterrupted
+
+    cfg = _tiny(tmp_path / "run", steps=4, checkpoint_minutes=0)
+
+    def terminate(trainer, step, losses):
+        if step == 2:
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    previous = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(TrainingInterrupted, match="stopped by SIGTERM after step 2") as info:
+        Trainer(cfg, scenes, step_callback=terminate).fit()
+    assert signal.getsignal(signal.SIGTERM) is previous  # handlers restored
+    assert info.value.signal == signal.SIGTERM and info.value.step == 2
+    assert load_checkpoint(info.value.checkpoint)["step"] == 2
+    assert _log_steps(cfg.out_dir) == [1, 2]
+
+
+def test_cli_reports_an_interrupted_run_in_one_line(capsys, monkeypatch):
+    import defocus.commands.train as train
+    from models.training import TrainingInterrupted
+
+    def interrupted(args):
+        raise TrainingInterrupted(signal.SIGTERM, 7, Path("R/checkpoints/last.pt"))
+
+    monkeypatch.delenv("DEFOCUS_DEBUG", raising=False)
+    monkeypatch.setattr(train, "run", interrupted)
+    assert main(["train"]) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("defocus train: interrupted: stopped by SIGTERM after step 7 (saved "
+                          "R/checkpoints/last.pt)") and "\n" not in err
+
+
+def test_non_finite_weights_are_never_saved(tmp_path, scenes):
+    trainer = Trainer(_tiny(tmp_path / "run"), scenes)
+    with torch.no_grad():
+        next(trainer.model.parameters()).fill_(float("nan"))
+    with pytest.raises(FloatingPointError, match="weights are not finite"):
+        trainer.save_checkpoint()
+    with pytest.raises(FloatingPointError):
+        trainer.save_checkpoint(tmp_path / "x.pt")
+    assert not (tmp_path / "run" / "checkpoints").exists() and not (tmp_path / "x.pt").exists()
