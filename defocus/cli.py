@@ -5,7 +5,10 @@ A subcommand module (`defocus.commands.NAME`) defines `add_arguments(parser)` an
 
 Errors: a bad value, a missing file or a refused input ends the command with one line on stderr,
 `defocus COMMAND: error: MESSAGE`, and exit code 2, as argparse does for bad options. The
-traceback is shown with `--debug` or the environment variable `DEFOCUS_DEBUG=1`.
+traceback is shown with `--debug` or the environment variable `DEFOCUS_DEBUG=1`. Any other
+exception is also one line (exit code 1) that says it is unexpected. Ctrl-C (SIGINT) or SIGTERM
+ends a command with one line and exit code 130 or 143 (`defocus train` saves a checkpoint
+first).
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import signal
 import sys
 
 from defocus import __version__
@@ -39,7 +43,7 @@ class CommandError(Exception):
 #: Exceptions reported in one line: the library raises these for bad input, with a message that
 #: names the argument, the value and what is allowed.
 USER_ERRORS = (CommandError, ValueError, TypeError, FileNotFoundError, IsADirectoryError,
-               PermissionError, NotADirectoryError)
+               PermissionError, NotADirectoryError, FileExistsError, FloatingPointError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -68,12 +72,30 @@ def main(argv: list[str] | None = None) -> int:
     debug = args.debug or os.environ.get("DEFOCUS_DEBUG", "") not in ("", "0")
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
+    except KeyboardInterrupt as error:  # also models.training.TrainingInterrupted
+        if debug:
+            raise
+        signum = getattr(error, "signal", signal.SIGINT)
+        print(f"defocus {args.command}: interrupted: {_one_line(error) or 'stopped'}",
+              file=sys.stderr)
+        return 128 + int(signum)
     except USER_ERRORS as error:
         if debug:
             raise
-        message = " ".join(str(error).split()) or repr(error)
+        message = _one_line(error) or repr(error)
         print(f"defocus {args.command}: error: {message}", file=sys.stderr)
         return 2
+    except Exception as error:
+        if debug:
+            raise
+        print(f"defocus {args.command}: error: unexpected {type(error).__name__}: "
+              f"{_one_line(error)} (rerun with --debug for the traceback)", file=sys.stderr)
+        return 1
+
+
+def _one_line(error: BaseException) -> str:
+    """The message of `error` on one line."""
+    return " ".join(str(error).split())
 
 
 if __name__ == "__main__":

@@ -285,6 +285,14 @@ class CheckpointStore:
         """Read `path` (default `last.pt`) safely, see `load_checkpoint`."""
         return load_checkpoint(self.last if path is None else path, map_location)
 
+    def remove_temporaries(self) -> list[Path]:
+        """Delete temporary files that an interrupted save left behind (call it only while
+        no save is under way); returns them."""
+        stray = sorted(self.directory.glob(".*.tmp")) if self.directory.is_dir() else []
+        for path in stray:
+            path.unlink(missing_ok=True)
+        return stray
+
     def list(self) -> list[Path]:
         """The step files, oldest first."""
         if not self.directory.is_dir():

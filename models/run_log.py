@@ -33,13 +33,35 @@ class CsvLog:
         self.path = Path(path)
 
     def append(self, row: Mapping[str, Any]) -> None:
-        """Append a row (with a header first when the file is new)."""
+        """Append a row (with a header first when the file is new). A row with columns that
+        the header lacks (a log of an older version) rewrites the file with all columns."""
         new = not self.path.exists()
+        if not new:
+            header = self._header()
+            if list(row) != header:
+                fields = header + [key for key in row if key not in header]
+                if fields != header:
+                    self._rewrite([*self.rows(), dict(row)], fields)
+                    return
+                row = {key: row.get(key, "") for key in header}
         with self.path.open("a", newline="") as handle:
             writer = csv.DictWriter(handle, fieldnames=list(row))
             if new:
                 writer.writeheader()
             writer.writerow(row)
+
+    def _header(self) -> list[str]:
+        with self.path.open(newline="") as handle:
+            return next(csv.reader(handle), [])
+
+    def _rewrite(self, rows: list[Mapping[str, Any]], fields: list[str]) -> None:
+        """Replace the file with `rows` under the header `fields` (atomically)."""
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        with tmp.open("w", newline="") as handle:
+            writer = csv.DictWriter(handle, fieldnames=fields, restval="")
+            writer.writeheader()
+            writer.writerows(rows)
+        tmp.replace(self.path)
 
     def rows(self) -> list[dict[str, str]]:
         """The rows read back (values as strings); empty when there is no file."""
@@ -52,10 +74,8 @@ class CsvLog:
         """Drop the rows whose `step` is after `step`."""
         if not self.path.exists():
             return
-        rows = [r for r in self.rows() if int(r["step"]) <= step]
-        self.path.unlink()
-        for row in rows:
-            self.append(row)
+        fields = self._header()
+        self._rewrite([r for r in self.rows() if int(r["step"]) <= step], fields)
 
 
 class RunLog:

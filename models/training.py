@@ -14,8 +14,23 @@ gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the 
 after each step, and only rank 0 writes files.
 
 Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
-seconds), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and `step_XXXXXX.pt`),
-`figures/step_XXXXXX.png`.
+seconds, `at_depth_limits`), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and the
+newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and `warnings.log` when a run ends with
+a warning.
+
+One folder holds one run. `TrainConfig.resume` says what happens when `out_dir` already holds
+one: `"auto"` (default) continues it when its config is the same and otherwise refuses with
+the keys that differ; `"resume"` continues it, also to a larger `steps`; `"overwrite"` deletes
+its files (config, logs, checkpoints, figures; nothing else) when `fit` starts. A continued run
+starts from `checkpoints/last.pt` with its logs cut back to that step, so its logs and losses
+match those of an uninterrupted run.
+
+Failures are safe: every config field is checked when the config is built; `fit` checks the
+samples (`n_focus`, ground-truth depth > 0 where valid), saves checkpoints periodically (by
+steps and by minutes), when a step fails and on SIGINT/SIGTERM (then it raises
+`TrainingInterrupted`), stops at the first non-finite loss or gradient (`FloatingPointError`)
+without saving non-finite weights, and warns (`DepthCollapseWarning`) when most predicted pixels
+sit at `depth_min` or `depth_max`.
 
 The pieces: `models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint
 files that open without running code, `CheckpointStore`), `models.run_log` (CSV logs) and
@@ -26,11 +41,16 @@ refused with `CheckpointError` (see `docs/security.md`).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import logging
 import math
 import os
+import signal
+import threading
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -42,6 +62,7 @@ from torch import Tensor, nn
 from torch.utils.data import default_collate
 
 from optics import CameraSettings, parse_aperture
+from optics.render import MODES as RENDER_MODES
 
 from .checkpoints import (
     CHECKPOINT_FORMAT,
@@ -59,6 +80,17 @@ from .run_log import RunLog
 from .sampling import StepSampler, random_flip
 
 SUPERVISIONS = ("self", "depth")
+_log = logging.getLogger(__name__)
+#: values of `TrainConfig.resume` (see its field comment)
+RESUME_MODES = ("auto", "resume", "overwrite")
+#: config keys that may differ between a run and its continuation (they do not change the
+#: numbers: where it runs, what it shows and how often it saves)
+RUN_CONTROL_KEYS = ("out_dir", "resume", "device", "progress", "checkpoint_every",
+                    "checkpoint_minutes", "keep_checkpoints")
+#: a prediction within this share of (depth_max - depth_min) of a limit counts as at the limit
+LIMIT_TOLERANCE = 1e-3
+#: warn when at least this share of the predicted pixels sits at depth_min or depth_max
+COLLAPSE_FRACTION = 0.9
 
 
 @dataclass
@@ -121,19 +153,27 @@ class TrainConfig:
     max_kernel_size: int = 63
     #: random horizontal flips of the training samples
     flip: bool = True
-    #: write a train_log.csv row every this many steps
+    #: write a train_log.csv row every this many steps (>= 1)
     log_every: int = 1
-    #: save a checkpoint every this many steps (0: only at the end)
+    #: save a checkpoint every this many steps (0: off; see checkpoint_minutes). Checkpoints are
+    #: also written at the end, on SIGINT/SIGTERM (then the run stops) and when a step fails
     checkpoint_every: int = 0
+    #: save a checkpoint when this many minutes passed since the last one (0: off)
+    checkpoint_minutes: float = 10.0
     #: keep only the newest this many step_XXXXXX.pt checkpoints (0: keep all; last.pt is kept)
-    keep_checkpoints: int = 0
+    keep_checkpoints: int = 3
     #: evaluate on the validation set every this many steps (0: only at the end)
     val_every: int = 0
     #: write a figure every this many steps (0: only at the end)
     figure_every: int = 0
-    #: continue from out_dir/checkpoints/last.pt when it exists
-    resume: bool = True
-    #: "auto" (CUDA when available), "cpu", "cuda", ...
+    #: what to do when out_dir already holds a run: "auto" (continue it when its config is the
+    #: same, else refuse and name the keys that differ), "resume" (continue it, also with a larger
+    #: steps; refused when anything else differs or there is no run; `defocus train --resume`) or
+    #: "overwrite" (delete its config, logs, checkpoints and figures, then start at step 0;
+    #: `--overwrite`). true means "auto", false "overwrite". device, progress, out_dir and the
+    #: checkpoint settings may always differ
+    resume: str = "auto"
+    #: "auto" (CUDA when available), "cpu", "cuda", ... (refused when this machine lacks it)
     device: str = "auto"
     #: tqdm progress bar
     progress: bool = True
@@ -142,21 +182,46 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
+        if isinstance(self.resume, bool):
+            self.resume = "auto" if self.resume else "overwrite"
+        for item in dataclasses.fields(self):
+            _check_type(item.name, getattr(self, item.name), item.type)
+        for name in ("lr", "depth_min", "depth_max", "weight_decay", "grad_clip", "ssim_weight",
+                     "sharpness_weight", "smoothness_weight", "checkpoint_minutes"):
+            setattr(self, name, float(getattr(self, name)))
         choices = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
-                   "supervision": SUPERVISIONS,
-                   "lr_schedule": ("cosine", "constant")}
+                   "supervision": SUPERVISIONS, "lr_schedule": ("cosine", "constant"),
+                   "render_mode": RENDER_MODES, "resume": RESUME_MODES}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
-        parse_aperture(self.aperture)
-        for name in ("steps", "batch_size"):
-            if int(getattr(self, name)) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
-        if not 0 < self.depth_min < self.depth_max:
+        try:
+            parse_aperture(self.aperture)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"aperture {self.aperture!r} is not a PSF spec: {error}") from None
+        for name, low in (("steps", 1), ("batch_size", 1), ("n_focus", 1), ("width", 1),
+                          ("log_every", 1), ("seed", 0), ("checkpoint_every", 0),
+                          ("keep_checkpoints", 0), ("val_every", 0), ("figure_every", 0)):
+            if getattr(self, name) < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {getattr(self, name)!r}")
+        for name in ("ssim_window", "max_kernel_size"):
+            value = getattr(self, name)
+            if value < 1 or value % 2 == 0:
+                raise ValueError(f"{name} must be a positive odd number of pixels, got {value!r}")
+        for name in ("lr", "depth_min", "depth_max"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {getattr(self, name)!r}")
+        if not self.depth_min < self.depth_max:
             raise ValueError(f"need 0 < depth_min < depth_max metres, got {self.depth_min!r} "
                              f"and {self.depth_max!r}")
-        if not self.lr > 0:
-            raise ValueError(f"lr must be > 0, got {self.lr!r}")
+        for name in ("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
+                     "checkpoint_minutes"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0 (0: off), got "
+                                 f"{getattr(self, name)!r}")
+        if not 0 <= self.ssim_weight <= 1:
+            raise ValueError(f"ssim_weight must be in [0, 1], got {self.ssim_weight!r}")
+        _check_device(self.device)
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)
@@ -193,11 +258,50 @@ class TrainConfig:
         return TrainConfig.from_dict(data)
 
 
+def _check_type(name: str, value: Any, kind: Any) -> None:
+    """Raise `ValueError` unless `value` has the field type `kind` (ints are floats too)."""
+    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
+    allowed = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,),
+               "Path": (Path,)}.get(kind)
+    if kind.startswith("dict"):
+        allowed = (dict,)
+    if allowed is None:
+        return
+    if isinstance(value, bool) and kind in ("int", "float"):
+        allowed = ()
+    if not isinstance(value, allowed):
+        raise ValueError(f"config key {name} must be of type {kind}, got {value!r}")
+
+
+def _check_device(name: str) -> None:
+    """Raise `ValueError` unless `name` is "auto" or a device this machine has."""
+    if name == "auto":
+        return
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError):
+        raise ValueError(f"device must be 'auto' or a torch device such as 'cpu' or 'cuda:0', "
+                         f"got {name!r}") from None
+    if device.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if (device.index or 0) >= count:
+            raise ValueError(f"device {name!r} is not available: this machine has {count} CUDA "
+                             "device(s); use 'auto' or 'cpu'")
+    elif device.type == "mps" and not torch.backends.mps.is_available():
+        raise ValueError(f"device {name!r} is not available here; use 'auto' or 'cpu'")
+    elif device.type not in ("cpu", "cuda", "mps", "xpu", "meta"):
+        raise ValueError(f"device must be 'auto', 'cpu', 'cuda[:N]' or 'mps', got {name!r}")
+
+
 def _coerce(cls: type, name: str, value: Any) -> Any:
     """Convert a YAML value to the type of field `name`."""
     kind = {f.name: f.type for f in dataclasses.fields(cls)}.get(name)
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
+    if name == "resume" and isinstance(value, bool):
+        return value  # true / false: mapped to "auto" / "overwrite"
     try:
+        if kind in ("int", "float") and isinstance(value, bool):
+            raise ValueError
         if kind == "int":
             if isinstance(value, float) and not value.is_integer():
                 raise ValueError
@@ -278,12 +382,73 @@ def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None
     return batch
 
 
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped on SIGINT or SIGTERM, after the step under way and a checkpoint.
+
+    Attributes:
+        signal: the signal number.
+        step: the last completed step (saved in `checkpoint`).
+        checkpoint: the path of `last.pt`, or `None` where nothing could be saved.
+    """
+
+    def __init__(self, signum: int, step: int, checkpoint: Path | None):
+        self.signal, self.step, self.checkpoint = signum, step, checkpoint
+        saved = f"saved {checkpoint}" if checkpoint else "no checkpoint saved"
+        super().__init__(f"stopped by {signal.Signals(signum).name} after step {step} ({saved}); "
+                         "continue with the same config (resume='auto') or `defocus train "
+                         "--resume`")
+
+
+class DepthCollapseWarning(UserWarning):
+    """Most predicted pixels sit at `depth_min` or `depth_max`: the network collapsed to its
+    depth limits (often a too large learning rate) and its metrics mean little."""
+
+
+#: the files of a run in `out_dir` besides `checkpoints/*.pt` and `figures/step_*.png`
+RUN_FILES = ("config.yaml", "train_log.csv", "val_log.csv", "warnings.log")
+
+
+def run_files(out_dir: str | Path) -> list[Path]:
+    """The files of a training run in `out_dir`: config, logs, checkpoints (and stray
+    temporaries) and figures; other files in the folder are not the run's."""
+    out_dir = Path(out_dir)
+    files = [out_dir / name for name in RUN_FILES if (out_dir / name).is_file()]
+    for folder, patterns in (("checkpoints", ("*.pt", ".*.tmp")), ("figures", ("step_*.png",))):
+        if (out_dir / folder).is_dir():
+            for pattern in patterns:
+                files += sorted((out_dir / folder).glob(pattern))
+    return files
+
+
+def _config_diff(old: TrainConfig, new: TrainConfig) -> dict[str, tuple[Any, Any]]:
+    """`{key: (old value, new value)}` for the keys (not in `RUN_CONTROL_KEYS`) that differ."""
+    a, b = to_plain(old.to_dict(), "config"), to_plain(new.to_dict(), "config")
+    return {key: (a[key], b[key]) for key in a
+            if key not in RUN_CONTROL_KEYS and a[key] != b[key]}
+
+
+def _describe(diff: Mapping[str, tuple[Any, Any]]) -> str:
+    return ", ".join(f"{key} (there {old!r}, here {new!r})" for key, (old, new) in diff.items())
+
+
 class Trainer:
     """Trains a depth network on samples in the sample format.
 
     The loop lives here; the batches of each step come from `models.sampling.StepSampler`,
     checkpoints go to a `models.checkpoints.CheckpointStore`, CSV logs to a
     `models.run_log.RunLog` and figures through `models.plotting.plot_prediction`.
+
+    One run per `out_dir`: what happens when the folder already holds a run follows
+    `config.resume` ("auto": continue the same run, refuse another; "resume": continue, also
+    with a larger `steps`; "overwrite": delete the old run's files when `fit` starts). A
+    resumed run continues from `checkpoints/last.pt` with its logs cut back to that step.
+
+    `fit` saves checkpoints every `checkpoint_every` steps and `checkpoint_minutes` minutes, at
+    the end, when a step fails (the last completed step) and on SIGINT or SIGTERM (after the
+    step under way; then it raises `TrainingInterrupted`). It stops with `FloatingPointError`
+    at the first non-finite loss or gradient, before the weights change, and never saves
+    non-finite weights. When most predicted pixels sit at `depth_min` or `depth_max` at the
+    end, it warns (`DepthCollapseWarning`, `Trainer.warnings`, `warnings.log`).
 
     Args:
         config: the `TrainConfig`.
@@ -293,8 +458,11 @@ class Trainer:
             tests).
 
     Raises:
-        CheckpointError: `out_dir/checkpoints/last.pt` exists (and `config.resume`) but is not
-            a checkpoint or holds more than tensors and plain data (it is not run).
+        ValueError: `out_dir` holds another run (the message names the config keys that
+            differ), `resume="resume"` without a run to continue, or samples that do not fit
+            the config (`n_focus`, missing keys).
+        CheckpointError: `out_dir/checkpoints/last.pt` is to be resumed but is not a checkpoint
+            or holds more than tensors and plain data (it is not run).
 
     Example:
         >>> samples = [{"image": torch.rand(3, 8, 8), "depth": torch.full((1, 8, 8), 2.0),
@@ -336,8 +504,20 @@ class Trainer:
         self.log = RunLog(cfg.out_dir)
         self.step = 0
         self.history: list[dict[str, float]] = []
-        if cfg.resume and self.checkpoints.exists():
-            self.load_checkpoint(self.checkpoints.last)
+        #: warnings of the last `fit` (also in `out_dir/warnings.log`)
+        self.warnings: list[str] = []
+        #: the checkpoint (or config.yaml) of the run this trainer continues, if any
+        self.resumed_from: Path | None = None
+        self.last_validation: dict[str, float] | None = None
+        self._removals: list[Path] = []  # the old run's files, deleted when fit starts
+        self._truncate_logs: int | None = None  # cut the logs back to this step when fit starts
+        self._stop_signal: int | None = None
+        self._in_update = False
+        self._rng_at_step: dict[str, Any] | None = None
+        self._saved_step: int | None = None
+        self._last_save = time.monotonic()
+        self._check_first_sample()
+        self._open_run()
 
     @property
     def checkpoint_dir(self) -> Path:
@@ -347,6 +527,135 @@ class Trainer:
     def _indices(self, step: int) -> list[int]:
         """Dataset indices of this process's part of the batch of `step` (0-based)."""
         return self.sampler.indices(step)
+
+    # -- the run folder and the data -----------------------------------------------------------
+    def _open_run(self) -> None:
+        """Apply `config.resume` to what `out_dir` holds: continue, refuse, or plan to delete."""
+        cfg = self.config
+        files = run_files(cfg.out_dir)
+        if cfg.resume == "overwrite":
+            self._removals = files
+            return
+        if not files:
+            if cfg.resume == "resume":
+                raise ValueError(f"resume='resume' (--resume) but out_dir {cfg.out_dir} holds no "
+                                 "run to continue; check the folder, or start a new run without "
+                                 "--resume")
+            return
+        state = None
+        if self.checkpoints.exists():
+            source: Path = self.checkpoints.last
+            state = load_checkpoint(source, map_location=self.device)
+            saved = _config_from(state, source, device="auto", resume="auto")
+        elif (cfg.out_dir / "config.yaml").is_file():
+            source = cfg.out_dir / "config.yaml"
+            try:
+                saved = TrainConfig.from_yaml(source)
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"{source} of the run in out_dir holds an invalid config "
+                                 f"({error}); start over with --overwrite (resume='overwrite') "
+                                 "or choose another out_dir") from None
+        else:
+            names = ", ".join(str(p.relative_to(cfg.out_dir)) for p in files[:3])
+            raise ValueError(f"out_dir {cfg.out_dir} holds files of a training run ({names}) "
+                             "without its config.yaml or checkpoints/last.pt; start over with "
+                             "--overwrite (resume='overwrite') or choose another out_dir")
+        step = int(state["step"]) if state is not None else 0
+        diff = _config_diff(saved, cfg)
+        if cfg.resume == "resume":
+            if "steps" in diff and cfg.steps >= saved.steps:
+                del diff["steps"]
+            if diff:
+                raise ValueError(
+                    f"cannot resume the run in {cfg.out_dir} (step {step}): its config differs "
+                    f"in {_describe(diff)}; only a larger steps may differ when resuming "
+                    "(besides device, progress and the checkpoint settings); start over with "
+                    "--overwrite (resume='overwrite') or choose another out_dir")
+        elif diff:
+            raise ValueError(
+                f"out_dir {cfg.out_dir} holds another run (step {step}) whose config differs in "
+                f"{_describe(diff)}; continue it with --resume (resume='resume'; only a larger "
+                "steps may differ), start over with --overwrite (resume='overwrite'), or choose "
+                "another out_dir")
+        if state is not None:
+            self.load_state_dict(state)
+            self._saved_step = self.step
+        self.resumed_from = source
+        self._truncate_logs = self.step
+        _log.info("continuing the run in %s from step %d", cfg.out_dir, self.step)
+
+    def _prepare_out_dir(self) -> None:
+        """At the start of `fit` (rank 0): delete an overwritten run's files or cut a resumed
+        run's logs, checkpoints and figures back to its step; write `config.yaml`."""
+        cfg = self.config
+        if self._removals:
+            for path in self._removals:
+                path.unlink(missing_ok=True)
+            _log.warning("deleted the previous run's %d files in %s (resume='overwrite')",
+                         len(self._removals), cfg.out_dir)
+            self._removals = []
+        self.checkpoints.remove_temporaries()
+        if self._truncate_logs is not None:
+            step = self._truncate_logs
+            self.log.truncate(step)
+            for path in self.checkpoints.list():
+                if int(path.stem.split("_")[1]) > step:
+                    path.unlink(missing_ok=True)
+            for path in (cfg.out_dir / "figures").glob("step_[0-9]*.png"):
+                if path.stem.split("_")[1].isdigit() and int(path.stem.split("_")[1]) > step:
+                    path.unlink(missing_ok=True)
+            self._truncate_logs = None
+        cfg.out_dir.mkdir(parents=True, exist_ok=True)
+        cfg.to_yaml(cfg.out_dir / "config.yaml")
+
+    def _needs(self) -> list[str]:
+        """The sample keys that training with this config reads."""
+        cfg = self.config
+        keys = ["image"]
+        if cfg.input_mode == "aif+focused" or cfg.supervision == "self":
+            keys += ["focused", "camera"]
+        if cfg.supervision == "depth":
+            keys.append("depth")
+        return keys
+
+    def _check_first_sample(self) -> None:
+        """Refuse a map-style train_set whose first sample does not fit the config."""
+        if not self.sampler.is_map_style() or len(self.train_set) == 0:
+            return
+        sample = self.train_set[0]
+        name = repr(sample.get("id", "#0")) if isinstance(sample, Mapping) else "#0"
+        if not isinstance(sample, Mapping):
+            raise TypeError(f"train_set[0] must be a sample mapping (image, focused, camera, "
+                            f"depth, mask), got a {type(sample).__name__}")
+        missing = [key for key in self._needs() if key not in sample]
+        if missing:
+            raise ValueError(f"sample {name} has no {missing}, which input_mode="
+                             f"{self.config.input_mode!r} with supervision="
+                             f"{self.config.supervision!r} needs; it has {sorted(sample)}")
+        focused = sample.get("focused")
+        if "focused" in self._needs() and isinstance(focused, Tensor):
+            n = focused.shape[0] if focused.ndim == 4 else -1
+            if n != self.config.n_focus:
+                raise ValueError(f"n_focus is {self.config.n_focus} but sample {name} holds "
+                                 f"focused images of shape {tuple(focused.shape)} (F, 3, H, W); "
+                                 f"set n_focus to its number of focused images")
+
+    def _check_depth(self, samples: Sequence[Mapping[str, Any]], step: int) -> None:
+        """Refuse ground-truth depth that is not finite and > 0 where the mask says valid."""
+        indices = self.sampler.indices(step) if self.sampler.is_map_style() else None
+        for i, sample in enumerate(samples):
+            depth = sample["depth"]
+            mask = sample.get("mask")
+            valid = torch.ones_like(depth, dtype=torch.bool) if mask is None else mask.bool()
+            bad = valid & ~(torch.isfinite(depth) & (depth > 0))
+            if bool(bad.any()):
+                where = f"train_set[{indices[i]}]" if indices is not None else "a train_set sample"
+                name = sample.get("id", where)
+                raise ValueError(
+                    f"sample {name!r} ({where}) has ground-truth depth that is not finite and > 0 "
+                    f"at {int(bad.sum())} of its valid pixels (e.g. {float(depth[bad][0])!r}); "
+                    "depth must be positive metres wherever its mask is valid: fix the data or "
+                    "mark those pixels invalid in its mask")
 
     # -- model -----------------------------------------------------------------------------
     def predict(self, image: Tensor, focused: Tensor | None = None,
@@ -364,86 +673,223 @@ class Trainer:
         self.model.train(was_training)
         return depth
 
-    def _forward(self, batch: Mapping[str, Any]) -> dict[str, Tensor]:
+    def at_depth_limits(self, depth: Tensor) -> Tensor:
+        """The share of the pixels of `depth` at `depth_min` or `depth_max` (within
+        `LIMIT_TOLERANCE` of the range), a 0-d tensor."""
+        cfg = self.config
+        tol = LIMIT_TOLERANCE * (cfg.depth_max - cfg.depth_min)
+        depth = depth.detach()
+        return ((depth <= cfg.depth_min + tol) | (depth >= cfg.depth_max - tol)).float().mean()
+
+    def _forward(self, batch: Mapping[str, Any]) -> tuple[Tensor, dict[str, Tensor]]:
         image = batch["image"]
         if self.config.input_mode == "aif":
             depth = self.ddp_model(image)
         else:
             depth = self.ddp_model(image, batch["focused"], batch["camera"])
         if self.config.supervision == "self":
-            return self.loss_fn(depth, image, batch["focused"], batch["camera"])
-        return {"loss": supervised_depth_loss(depth, batch["depth"], batch.get("mask"))}
+            return depth, self.loss_fn(depth, image, batch["focused"], batch["camera"])
+        target, mask = batch["depth"], batch.get("mask")
+        if mask is not None:  # masked-out labels may be anything (inf, nan): keep them out
+            target = torch.where(mask.bool(), target, torch.ones_like(target))
+        return depth, {"loss": supervised_depth_loss(depth, target, mask)}
 
     def train_step(self, batch: Mapping[str, Any]) -> dict[str, float]:
-        """One optimisation step on a collated batch; returns the losses (mean over processes)."""
+        """One optimisation step on a collated batch; returns the losses (mean over processes)
+        and `at_depth_limits` (the share of predicted pixels at a depth limit).
+
+        Raises:
+            FloatingPointError: the loss or the gradient is not finite (the weights are left
+                as they were).
+        """
         self.model.train()
-        terms = self._forward(batch)
+        depth, terms = self._forward(batch)
+        step = self.step + 1
         if not bool(torch.isfinite(terms["loss"])):
-            raise FloatingPointError(f"loss is not finite at step {self.step + 1}: "
-                                     f"{ {k: float(v.detach()) for k, v in terms.items()} }")
+            raise FloatingPointError(
+                f"loss is not finite at step {step}: "
+                f"{ {k: float(v.detach()) for k, v in terms.items()} }; training stopped "
+                f"before changing the weights (lr is {self.config.lr}: try a smaller one)")
         self.optimizer.zero_grad(set_to_none=True)
         terms["loss"].backward()
+        params = [p for p in self.model.parameters() if p.grad is not None]
         if self.config.grad_clip > 0:
-            nn.utils.clip_grad_norm_(self.model.parameters(), self.config.grad_clip)
+            norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
+        else:
+            norm = torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in params]))
+        if not bool(torch.isfinite(norm)):
+            raise FloatingPointError(
+                f"gradient is not finite at step {step} (loss {float(terms['loss'].detach()):.4g}); "
+                f"training stopped before changing the weights (lr is {self.config.lr}: try a "
+                "smaller one, or grad_clip)")
+        self._in_update = True  # until the step is counted: no checkpoint of a half step
         self.optimizer.step()
         self.scheduler.step()
-        values = torch.stack([v.detach() for v in terms.values()])
+        values = torch.stack([v.detach() for v in terms.values()] + [self.at_depth_limits(depth)])
         if self.world_size > 1:
             dist.all_reduce(values)
             values = values / self.world_size
-        return dict(zip(terms, values.tolist(), strict=True))
+        return dict(zip([*terms, "at_depth_limits"], values.tolist(), strict=True))
 
     # -- loop ------------------------------------------------------------------------------
     def fit(self, until: int | None = None) -> list[dict[str, float]]:
         """Train from the current step to `until` (default `config.steps`); returns the
-        history of logged losses (one dict per step of this run and of resumed runs)."""
+        history of logged losses (one dict per step of this run and of resumed runs).
+
+        Raises:
+            ValueError: `train_set` holds no samples, or a sample has ground-truth depth that
+                is not finite and > 0 where its mask is valid (named by its id).
+            FloatingPointError: a non-finite loss or gradient (the last good step is saved).
+            TrainingInterrupted: SIGINT or SIGTERM arrived (the last step is saved).
+        """
         from tqdm.auto import tqdm
 
         cfg = self.config
+        if self.sampler.is_map_style() and len(self.train_set) == 0:
+            raise ValueError("train_set holds no samples; give at least one sample")
         until = cfg.steps if until is None else min(int(until), cfg.steps)
+        self.warnings = []
         if self.is_main:
-            cfg.out_dir.mkdir(parents=True, exist_ok=True)
-            cfg.to_yaml(cfg.out_dir / "config.yaml")
+            self._prepare_out_dir()
         bar = tqdm(total=until, initial=self.step, desc="train", unit="step",
                    disable=not (cfg.progress and self.is_main))
         started = time.perf_counter()
-        while self.step < until:
-            losses = self._advance(until, started)
-            bar.set_postfix(loss=f"{losses['loss']:.4f}")
-            bar.update(1)
-            if self.step_callback is not None:
-                self.step_callback(self, self.step, losses)
-            self._periodic_tasks()
-        bar.close()
+        self._last_save = time.monotonic()
+        try:
+            with self._signals_caught():
+                while self.step < until:
+                    losses = self._advance(until, started)
+                    bar.set_postfix(loss=f"{losses['loss']:.4f}")
+                    bar.update(1)
+                    if self.step_callback is not None:
+                        self.step_callback(self, self.step, losses)
+                    self._periodic_tasks()
+                    signum = self._stop_requested()
+                    if signum:
+                        raise TrainingInterrupted(signum, self.step, self._save_once())
+        except TrainingInterrupted:
+            raise
+        except BaseException:
+            self._save_after_failure()
+            raise
+        finally:
+            bar.close()
         if self.val_set is not None and not (cfg.val_every and self.step % cfg.val_every == 0):
             self._validate()
         self.save_figure()
-        self.save_checkpoint()
+        self._save_once()
+        self._check_collapse()
         return self.history
 
     def _advance(self, until: int, started: float) -> dict[str, float]:
         """Train one step on this step's batch, record it in the history and the train log."""
-        batch = to_device(default_collate(self.sampler.samples(self.step)), self.device)
+        self._rng_at_step = rng_state()
+        samples = self.sampler.samples(self.step)
+        if self.config.supervision == "depth":
+            self._check_depth(samples, self.step)
+        batch = to_device(default_collate(samples), self.device)
         if self.config.flip:
             batch = random_flip(batch, self.config.seed, self.step, self.rank)
         losses = self.train_step(batch)
         self.step += 1
-        row = {"step": self.step, **losses, "lr": self.scheduler.get_last_lr()[0],
-               "seconds": time.perf_counter() - started}
+        terms = {k: v for k, v in losses.items() if k != "at_depth_limits"}
+        row = {"step": self.step, **terms, "lr": self.scheduler.get_last_lr()[0],
+               "seconds": time.perf_counter() - started,
+               "at_depth_limits": losses["at_depth_limits"]}
         self.history.append(row)
+        self._in_update = False
         if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
             self.log.train.append(row)
         return losses
 
     def _periodic_tasks(self) -> None:
-        """Validation, figure and checkpoint when the step is a multiple of their period."""
+        """Validation, figure and checkpoint when the step is a multiple of their period (or,
+        for checkpoints, `checkpoint_minutes` passed)."""
         cfg = self.config
         if self.val_set is not None and cfg.val_every and self.step % cfg.val_every == 0:
             self._validate()
         if cfg.figure_every and self.step % cfg.figure_every == 0:
             self.save_figure()
-        if cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0:
-            self.save_checkpoint()
+        due = cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0
+        late = cfg.checkpoint_minutes and (time.monotonic() - self._last_save
+                                           >= 60 * cfg.checkpoint_minutes)
+        if due or late:
+            self._save_once()
+
+    @contextlib.contextmanager
+    def _signals_caught(self) -> Iterator[None]:
+        """While training: SIGINT and SIGTERM ask the loop to save and stop after the step under
+        way (a second SIGINT stops at once). Only in the main thread; an ignored signal stays
+        ignored."""
+        self._stop_signal = None
+        if threading.current_thread() is not threading.main_thread():
+            yield
+            return
+
+        def handler(signum: int, frame: Any) -> None:
+            if self._stop_signal is not None and signum == signal.SIGINT:
+                raise KeyboardInterrupt
+            self._stop_signal = signum
+
+        previous = {}
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) is not signal.SIG_IGN:
+                previous[sig] = signal.signal(sig, handler)
+        try:
+            yield
+        finally:
+            for sig, old in previous.items():
+                signal.signal(sig, old)
+
+    def _stop_requested(self) -> int:
+        """The signal that asks to stop (0: none), agreed by all processes."""
+        signum = self._stop_signal or 0
+        if self.world_size > 1:
+            flag = torch.tensor([signum], device=self.device)
+            dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+            signum = int(flag.item())
+        return signum
+
+    def _save_once(self) -> Path | None:
+        """`save_checkpoint()` unless this step is saved already; returns `last.pt`."""
+        if self._saved_step == self.step and self.checkpoints.exists():
+            return self.checkpoints.last
+        return self.save_checkpoint()
+
+    def _save_after_failure(self) -> None:
+        """After an exception: save the last completed step (with the random state it started
+        the failed step with), unless it is saved, half-done or not finite."""
+        if not self.is_main or self._in_update or self.step == 0 or self._saved_step == self.step:
+            return
+        try:
+            state = self.state_dict()
+            if self._rng_at_step is not None:
+                state["rng"] = self._rng_at_step
+            self._write_checkpoint(state)
+        except Exception as error:  # never hide the original error
+            _log.warning("could not save a checkpoint after the failure: %s", error)
+
+    def _check_collapse(self) -> None:
+        """Warn when most predicted pixels sit at a depth limit (validation, else the last
+        training batch)."""
+        cfg = self.config
+        if self.last_validation is not None:
+            share, where = self.last_validation.get("at_depth_limits"), "the validation set"
+        elif self.history:
+            share, where = self.history[-1].get("at_depth_limits"), "the last training batch"
+        else:
+            return
+        if share is None or share < COLLAPSE_FRACTION:
+            return
+        message = (f"step {self.step}: {share:.0%} of the predicted pixels of {where} sit at "
+                   f"depth_min ({cfg.depth_min} m) or depth_max ({cfg.depth_max} m): the network "
+                   f"collapsed to its depth limits (often a too large lr, here {cfg.lr}); its "
+                   "metrics mean little")
+        self.warnings.append(message)
+        warnings.warn(message, DepthCollapseWarning, stacklevel=3)
+        if self.is_main:
+            with (cfg.out_dir / "warnings.log").open("a") as handle:
+                handle.write(message + "\n")
 
     # -- evaluation --------------------------------------------------------------------------
     def evaluate(self, test_set: Iterable[Mapping[str, Any]], depth_cap: float | None = None,
@@ -458,6 +904,10 @@ class Trainer:
             crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
             median_scaling: scale predictions by the median ratio (adds `median_scale`).
             min_depth: ignore ground truth at or below this (metres).
+
+        Returns:
+            the mean metrics, and `at_depth_limits`: the share of predicted pixels at
+            `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
         totals: dict[str, float] = {}
         count = 0
@@ -468,6 +918,7 @@ class Trainer:
                                     mask=batch.get("mask"), min_depth=min_depth,
                                     max_depth=depth_cap, crop=crop,
                                     median_scaling=median_scaling)
+            metrics["at_depth_limits"] = float(self.at_depth_limits(depth))
             for key, value in metrics.items():
                 totals[key] = totals.get(key, 0.0) + value
             count += 1
@@ -477,6 +928,7 @@ class Trainer:
 
     def _validate(self) -> None:
         metrics = self.evaluate(self.val_set)
+        self.last_validation = metrics
         if self.is_main:
             self.log.val.append({"step": self.step, **metrics})
 
@@ -526,8 +978,22 @@ class Trainer:
         if not self.is_main:
             return None
         if path is not None:
-            return save_checkpoint(self.state_dict(), path)
-        return self.checkpoints.save(self.state_dict(), self.step)
+            return save_checkpoint(self._finite(self.state_dict()), path)
+        return self._write_checkpoint(self.state_dict())
+
+    def _write_checkpoint(self, state: dict[str, Any]) -> Path:
+        """Write `state` as this step's checkpoint and `last.pt` (finite weights only)."""
+        path = self.checkpoints.save(self._finite(state), self.step)
+        self._saved_step, self._last_save = self.step, time.monotonic()
+        return path
+
+    def _finite(self, state: dict[str, Any]) -> dict[str, Any]:
+        """`state`, after checking that the model's weights are finite."""
+        tensors = [t for t in state["model"].values() if t.is_floating_point()]
+        if tensors and not bool(torch.stack([torch.isfinite(t).all() for t in tensors]).all()):
+            raise FloatingPointError(f"not saving a checkpoint of step {self.step}: the weights "
+                                     "are not finite")
+        return state
 
     @classmethod
     def from_checkpoint(cls, path: str | Path, train_set: Iterable[Mapping[str, Any]] = (),
@@ -539,9 +1005,10 @@ class Trainer:
                 data (refused without running anything).
         """
         state = load_checkpoint(path)
-        cfg = _config_from(state, path, resume=False, progress=False, device=device)
-        trainer = cls(cfg, train_set)
+        cfg = _config_from(state, path, resume="overwrite", progress=False, device=device)
+        trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
         trainer.load_state_dict(state)
+        trainer._removals, trainer._truncate_logs = [], trainer.step  # fit() would continue it
         return trainer
 
     def load_checkpoint(self, path: str | Path, restore_logs: bool = True) -> None:
@@ -575,12 +1042,13 @@ def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tu
             (refused without running anything).
     """
     state = load_checkpoint(checkpoint, map_location=device)
-    cfg = _config_from(state, checkpoint)
+    cfg = _config_from(state, checkpoint, device="auto")
     model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
                           cfg.width)
     model.load_state_dict(state["model"])
     return model.to(device).eval(), cfg
 
 
-__all__ = ["METRIC_NAMES", "CheckpointError", "TrainConfig", "Trainer", "load_model",
-           "to_device"]
+__all__ = ["COLLAPSE_FRACTION", "METRIC_NAMES", "RESUME_MODES", "CheckpointError",
+           "DepthCollapseWarning", "TrainConfig", "Trainer", "TrainingInterrupted", "load_model",
+           "run_files", "to_device"]

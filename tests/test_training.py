@@ -98,10 +98,11 @@ def test_iterable_and_monocular(tmp_path, scenes):
 
 def test_nan_loss_is_an_error(tmp_path, scenes):
     bad = dict(scenes[0])
-    bad["depth"] = torch.full_like(bad["depth"], float("nan"))
+    bad["image"] = torch.full_like(bad["image"], float("nan"))
     trainer = Trainer(_tiny(tmp_path / "nan", steps=1, batch_size=1, supervision="depth"), [bad])
-    with pytest.raises(FloatingPointError, match="not finite"):
+    with pytest.raises(FloatingPointError, match="loss is not finite at step 1"):
         trainer.fit()
+    assert not (tmp_path / "nan" / "checkpoints").exists()  # nothing completed, nothing saved
 
 
 DDP_SCRIPT = textwrap.dedent("""

@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from models.metrics import format_table
-    from models.training import Trainer
+    from models.training import COLLAPSE_FRACTION, Trainer
 
     trainer = Trainer.from_checkpoint(args.checkpoint)
     if args.data == "motorcycle":
@@ -40,6 +40,11 @@ def run(args: argparse.Namespace) -> int:
     metrics = trainer.evaluate(test_set, depth_cap=args.depth_cap, crop=args.crop,
                                median_scaling=args.median_scaling, min_depth=args.min_depth)
     print(format_table({args.checkpoint.parent.parent.name or "model": metrics}))
+    if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
+        config = trainer.config
+        print(f"warning: {metrics['at_depth_limits']:.0%} of the predicted pixels sit at "
+              f"depth_min ({config.depth_min} m) or depth_max ({config.depth_max} m): the "
+              "network collapsed to its depth limits; these metrics mean little")
     if args.json:
         args.json.write_text(json.dumps(metrics, indent=2))
     return 0

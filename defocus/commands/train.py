@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from pathlib import Path
 
 from datasets.registry import DATASET_NAMES
@@ -63,7 +64,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--out",
         type=Path,
         default=None,
-        help="output folder (logs, checkpoints, figures); overrides out_dir",
+        help="output folder (logs, checkpoints, figures); overrides out_dir. A folder that "
+        "holds another run (another config) is refused unless --resume or --overwrite",
+    )
+    existing = parser.add_mutually_exclusive_group()
+    existing.add_argument(
+        "--resume", action="store_true",
+        help="continue the run in the output folder (also to a larger steps); refused if its "
+        "config differs in anything else (resume=resume). Without --resume or --overwrite the "
+        "run continues only when the config is the same (resume=auto)",
+    )
+    existing.add_argument(
+        "--overwrite", action="store_true",
+        help="start over: delete the output folder's previous run (config, logs, checkpoints, "
+        "figures; other files stay) when training starts (resume=overwrite)",
     )
     add_data_arguments(parser)
 
@@ -106,20 +120,33 @@ def build_dataset(args: argparse.Namespace, split: str | None = None, seed_offse
 
 def run(args: argparse.Namespace) -> int:
     from models.metrics import format_table
-    from models.training import TrainConfig, Trainer
+    from models.training import COLLAPSE_FRACTION, DepthCollapseWarning, TrainConfig, Trainer
 
+    if args.config is not None and not args.config.is_file():
+        raise FileNotFoundError(f"--config {args.config} does not exist or is not a file")
     cfg = TrainConfig.from_yaml(args.config) if args.config else TrainConfig()
     overrides = list(args.overrides) + ([f"out_dir={args.out}"] if args.out else [])
+    if args.resume or args.overwrite:
+        overrides.append(f"resume={'resume' if args.resume else 'overwrite'}")
     cfg = cfg.override(overrides)
+    warnings.simplefilter("ignore", DepthCollapseWarning)  # printed in the summary instead
     trainer = Trainer(cfg, build_dataset(args))
+    if trainer.is_main and trainer.resumed_from is not None:
+        print(f"continuing the run in {cfg.out_dir} from step {trainer.step} of {cfg.steps}")
     trainer.fit()
     if trainer.is_main:
-        print(
-            f"trained {trainer.step} steps; last loss {trainer.history[-1]['loss']:.4f}; "
-            f"checkpoint {cfg.out_dir / 'checkpoints' / 'last.pt'}"
-        )
+        last = f"; last loss {trainer.history[-1]['loss']:.4f}" if trainer.history else ""
+        print(f"trained {trainer.step} steps{last}; checkpoint {trainer.checkpoints.last}")
         if args.data == "synthetic":
             val = build_dataset(args, seed_offset=1_000)
             val.num_scenes = min(len(val), 16)
-            print(format_table({"synthetic validation": trainer.evaluate(val)}))
+            metrics = trainer.evaluate(val)
+            print(format_table({"synthetic validation": metrics}))
+            if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
+                trainer.warnings.append(
+                    f"{metrics['at_depth_limits']:.0%} of the predicted validation pixels sit at "
+                    f"depth_min or depth_max: the network collapsed to its depth limits (often a "
+                    f"too large lr, here {cfg.lr})")
+        for message in dict.fromkeys(trainer.warnings):
+            print(f"warning: {message}")
     return 0
