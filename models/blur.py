@@ -322,7 +322,7 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
     Example:
         >>> s = CameraSettings(0.05, 1.4, [2.0, 6.0], 6e-6)  # 50 mm f/1.4, 6 um pixels
         >>> round(working_scale(s, 1.0, 10.0, (3000, 4000)), 3)
-        0.072
+        0.048
     """
     a = settings.coc_at_infinity_px().abs().reshape(-1)
     df = settings.focus_distance.reshape(-1)

@@ -52,9 +52,13 @@ def run(args: argparse.Namespace) -> int:
     from datasets.photos import photo_settings, read_photo
     from defocus.cli import CommandError
     from models.plotting import plot_prediction
-    from models.pretrained import is_weights_file
+    from models.pretrained import is_weights_file, load_weights
+    from models.training import Trainer
     from optics import CameraSettings
 
+    # the model first: a file that is no model is refused before any photo is read
+    general = is_weights_file(args.checkpoint)
+    model = load_weights(args.checkpoint) if general else Trainer.from_checkpoint(args.checkpoint)
     image, _ = read_photo(args.image)
     photos = [read_photo(path) for path in args.focused]
     for path, (photo, _) in zip(args.focused, photos, strict=True):
@@ -69,10 +73,10 @@ def run(args: argparse.Namespace) -> int:
     settings = photo_settings([info for _, info in photos], args.focus_distance,
                               args.f_number, args.focal_length, args.pixel_pitch,
                               calibration) if photos else None
-    if is_weights_file(args.checkpoint):
-        depth, confidence, depth_range = _camera_general(args, image, focused, settings)
+    if general:
+        depth, confidence, depth_range = _camera_general(args, model, image, focused, settings)
     else:
-        depth, confidence, depth_range = _checkpoint(args, image, focused, settings)
+        depth, confidence, depth_range = _checkpoint(model, image, focused, settings)
     if not bool(torch.isfinite(depth).all()):
         raise CommandError("the prediction is not finite; nothing written")
     args.out.mkdir(parents=True, exist_ok=True)
@@ -92,10 +96,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _camera_general(args, image, focused, settings):
+def _camera_general(args, model, image, focused, settings):
     from defocus.cli import CommandError
     from models.blur import predict_depth
-    from models.pretrained import load_weights
 
     if focused is None or len(focused) < 1:
         raise CommandError("the camera-general model needs --focused photos (2 or more, each "
@@ -104,17 +107,14 @@ def _camera_general(args, image, focused, settings):
         raise CommandError("give --depth-range NEAR FAR (metres): the thin lens has two depths "
                            "for each blur, the range picks the right one")
     near, far = args.depth_range
-    out = predict_depth(load_weights(args.checkpoint), image, focused, settings.to(image.dtype),
-                        near, far)
+    out = predict_depth(model, image, focused, settings.to(image.dtype), near, far)
     print(f"working resolution {out['scale']:.3f} x the photos")
     return out["depth"], out["confidence"], (near, far)
 
 
-def _checkpoint(args, image, focused, settings):
+def _checkpoint(trainer, image, focused, settings):
     from defocus.cli import CommandError
-    from models.training import Trainer
 
-    trainer = Trainer.from_checkpoint(args.checkpoint)
     config = trainer.config
     if config.input_mode == "aif+focused":
         n = 0 if focused is None else len(focused)
