@@ -6,8 +6,10 @@ received and what is allowed. Messages are only formatted on failure.
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -113,13 +115,25 @@ def check_finite(name: str, tensor: Tensor) -> None:
 
 #: Values above which a length looks like millimetres given for metres (`warn_unit`).
 UNIT_LIMITS = {"focal_length": 2.0, "pixel_pitch": 1e-3}
+_UNIT_WARNINGS = contextvars.ContextVar("optics_unit_warnings", default=True)
+
+
+@contextlib.contextmanager
+def no_unit_warnings() -> Iterator[None]:
+    """Turn `warn_unit` off inside the block (e.g. for the *effective* pitch of a heavily
+    downsampled image, which may legitimately exceed 1 mm)."""
+    token = _UNIT_WARNINGS.set(False)
+    try:
+        yield
+    finally:
+        _UNIT_WARNINGS.reset(token)
 
 
 def warn_unit(name: str, value: Tensor) -> None:
     """Warn (`UserWarning`) when a length is implausibly large for metres: a focal length over
     2 m or a pixel pitch over 1 mm ("did you give millimetres?"). Other names are not checked."""
     limit = UNIT_LIMITS.get(name)
-    if limit is None or is_tracing(value):
+    if limit is None or not _UNIT_WARNINGS.get() or is_tracing(value):
         return
     largest = float(value.detach().max())
     if largest > limit:

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 from torch import Tensor, nn
 
-from .checks import ParamLike, broadcast_to_batch, check_parameters, register_physical
+from .checks import (
+    ParamLike,
+    broadcast_to_batch,
+    check_parameters,
+    no_unit_warnings,
+    register_physical,
+)
 from .checks import format_param as _fmt
 
 _UNITS = {"pixel_pitch": "metres", "downsample": ""}
@@ -53,6 +59,19 @@ class Sensor(nn.Module):
             resolution = (int(resolution[0]), int(resolution[1]))
         self.resolution = resolution
         self.cfa = cfa
+
+    @classmethod
+    def from_effective_pitch(cls, pixel_pitch: ParamLike) -> Sensor:
+        """A sensor for images whose effective pitch (sensor pitch x downsampling) is
+        `pixel_pitch`, in metres. No "millimetres?" warning: a small image downsampled from a
+        large sensor may have a pitch over 1 mm.
+
+        Example:
+            >>> Sensor.from_effective_pitch(3e-3).to_pixels(torch.tensor(6e-3))
+            tensor(2.)
+        """
+        with no_unit_warnings():
+            return cls(pixel_pitch)
 
     def extra_repr(self) -> str:
         return (
