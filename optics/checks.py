@@ -145,19 +145,27 @@ def warn_unit(name: str, value: Tensor) -> None:
         )
 
 
-def check_parameters(module: nn.Module, units: dict[str, str]) -> None:
+def check_parameters(module: nn.Module, units: dict[str, str],
+                     also: Tensor | None = None) -> bool:
     """Re-check a module's physical parameters at use (an optimiser step may have moved an
     `nn.Parameter` out of range after construction): every value finite and > 0.
 
-    One reduction over all of them when all is well; the failing one is named otherwise.
-    Skipped while tracing.
+    One reduction over all of them (and the 0-d boolean `also`, a further condition of the
+    caller's) when all is well; the failing parameter is named otherwise. Skipped while tracing.
+
+    Returns:
+        whether `also` holds too (`True` while tracing); the caller raises its own error if not.
     """
     tensors = [getattr(module, name) for name in units]
     if is_tracing(*tensors):
-        return
-    flags = [torch.all(torch.isfinite(t.detach()) & (t.detach() > 0)) for t in tensors]
-    if len({t.device for t in tensors}) == 1 and bool(torch.stack(flags).all()):
-        return
+        return True
+    if len({t.device for t in tensors}) == 1:
+        values = torch.cat([t.detach().reshape(-1) for t in tensors])
+        ok = (values > 0).all() & (values < float("inf")).all()  # NaN fails both
+        if also is not None:
+            ok = ok & also.detach()
+        if bool(ok):
+            return True
     for (name, unit), tensor in zip(units.items(), tensors, strict=True):
         try:
             check_positive(f"{type(module).__name__}.{name}", tensor.detach(), unit)
@@ -166,6 +174,7 @@ def check_parameters(module: nn.Module, units: dict[str, str]) -> None:
                 f"{error} at use (it was valid when the {type(module).__name__} was built: was it "
                 "changed since, e.g. by an optimiser step? Fit it in log space or clamp it)"
             ) from None
+    return also is None or bool(also)
 
 
 def check_depth(name: str, depth: Tensor) -> None:

@@ -89,8 +89,9 @@ class ThinLens(nn.Module):
     def check(self) -> None:
         """Raise `ValueError` naming the parameter unless every value is finite and > 0 and the
         focus distance lies beyond the focal length (called at every use)."""
-        check_parameters(self, _UNITS)
-        self._check_focus()
+        beyond = torch.all(self.focus_distance.detach() > self.focal_length.detach())
+        if not check_parameters(self, _UNITS, also=beyond):
+            self._check_focus()
 
     def extra_repr(self) -> str:
         return (
