@@ -47,6 +47,8 @@ def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
     elif isinstance(value, int | float):
         tensor = torch.tensor(float(value), dtype=torch.float64)
     elif isinstance(value, Sequence):
+        if any(isinstance(v, str | bytes | bool) for v in value):
+            raise TypeError(f"{name} must hold numbers, got {value!r}; convert strings first")
         try:
             tensor = torch.tensor([float(v) for v in value], dtype=torch.float64)
         except (TypeError, ValueError):

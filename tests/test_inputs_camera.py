@@ -21,6 +21,10 @@ def test_case6_string_parameter_refused(position):
         ThinLens(*args)
     with pytest.raises(TypeError, match="pixel_pitch .*string"):
         Sensor("5.6e-6")
+    with pytest.raises(TypeError, match="focus_distance must hold numbers"):
+        ThinLens(0.05, 2.8, ["2", "5"])
+    with pytest.raises(TypeError, match="focus_distance must be a number"):
+        CameraSettings(0.05, 2.8, "25", 5.6e-6)
 
 
 def test_case6_empty_tensor_refused():
