@@ -143,7 +143,7 @@ def warn_unit(name: str, value: Tensor) -> None:
             f"{name} is {largest:.6g} m, more than {limit:g} m: did you give millimetres? "
             f"Lengths are in metres (e.g. {name}={largest * 1e-3:.6g} for {largest:.6g} mm)",
             UserWarning,
-            stacklevel=3,
+            stacklevel=4,  # the caller of ThinLens(...) or Sensor(...)
         )
 
 

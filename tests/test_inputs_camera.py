@@ -65,8 +65,9 @@ def test_case7_pitch_and_focus_checked_at_use():
 
 
 def test_unit_warnings_for_millimetres():
-    with pytest.warns(UserWarning, match="focal_length is 50 m.*did you give millimetres"):
+    with pytest.warns(UserWarning, match="focal_length is 50 m.*did you give millimetres") as w:
         ThinLens(50.0, 2.8, 2000.0)
+    assert w[0].filename == __file__  # points at the caller
     with pytest.warns(UserWarning, match="pixel_pitch is 0.0056 m.*did you give millimetres"):
         Sensor(5.6e-3)
 
