@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from .base import DepthDataset
-from .depth import fill_unknown, valid_depth_mask
+from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
 from .io import DataFormatError, read_depth_png, read_rgb, require_root
 from .presets import DSLR as DSLR_PRESET
@@ -109,5 +109,6 @@ class DSLR(DepthDataset):
             pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / image.shape[-1])
         )
         mask = valid_depth_mask(depth)
+        require_valid_depth(mask, repr(str(depth_path)))
         return {"image": image, "focused": focused[None], "camera": camera,
                 "depth": fill_unknown(depth, mask), "mask": mask}

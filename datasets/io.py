@@ -69,6 +69,39 @@ def read_image(path: Path, what: str = "an image") -> np.ndarray:
     return np.asarray(array)
 
 
+def to_unit_range(path: Path, name: str, array: np.ndarray) -> np.ndarray:
+    """An image array as float64 in [0, 1]: integers divided by their dtype's maximum, floats
+    kept as they are but required to be finite and within [0, 1].
+
+    Raises:
+        DataFormatError: naming `path` for a float image outside [0, 1] (e.g. 0-255 stored as
+            float) or with NaN/inf values, or an unsupported dtype (bool, complex, signed ints).
+    """
+    if np.issubdtype(array.dtype, np.unsignedinteger):
+        return array.astype(np.float64) / float(np.iinfo(array.dtype).max)
+    if not np.issubdtype(array.dtype, np.floating):
+        raise DataFormatError(
+            f"{str(path)!r}: {name} has dtype {array.dtype}; expected uint8, uint16 or a float "
+            "image in [0, 1]"
+        )
+    values = array.astype(np.float64)
+    finite = np.isfinite(values)
+    if not finite.all():
+        raise DataFormatError(
+            f"{str(path)!r}: {name} holds {int((~finite).sum())} NaN or infinite value(s); "
+            "images must be finite"
+        )
+    low, high = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
+    if low < 0 or high > 1:
+        hint = " (it looks like 0-255 stored as float: divide by 255)" if high <= 255 and high > 1 \
+            else ""
+        raise DataFormatError(
+            f"{str(path)!r}: {name} is a float image with values in [{low:.4g}, {high:.4g}]; "
+            f"float images must lie in [0, 1]{hint}"
+        )
+    return values
+
+
 def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32) -> Tensor:
     """Read an 8- or 16-bit RGB photo as a `(3,H,W)` tensor in [0, 1].
 
@@ -79,7 +112,8 @@ def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32
 
     Raises:
         FileNotFoundError: `path` does not exist.
-        DataFormatError: the file is unreadable or not an RGB(A) image.
+        DataFormatError: the file is unreadable, not an RGB(A) image, or a float image that is
+            not finite and within [0, 1].
     """
     array = read_image(path, "an RGB photo")
     if array.ndim == 2:
@@ -89,9 +123,8 @@ def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32
         raise DataFormatError(
             f"{str(path)!r}: expected an RGB photo with 3 (or 4) channels, got shape {array.shape}"
         )
-    scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
-    image = torch.from_numpy(np.ascontiguousarray(array[..., :3])).to(dtype).permute(2, 0, 1)
-    image = image / scale
+    values = to_unit_range(path, "the RGB photo", np.ascontiguousarray(array[..., :3]))
+    image = torch.from_numpy(values).to(dtype).permute(2, 0, 1)
     return rgb_to_linear_rgb(image) if linear else image
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from .base import DepthDataset
-from .depth import densify_nearest, fill_unknown, valid_depth_mask
+from .depth import densify_nearest, fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
 from .io import DataFormatError, read_depth_png, read_rgb, require_file, require_root
 from .presets import KITTI
@@ -150,7 +150,8 @@ class KITTI(DepthDataset):
                 f"{str(image_path)!r} is {tuple(image.shape[-2:])}"
             )
         mask = valid_depth_mask(depth)
-        if self.densify == "nearest" and bool(mask.any()):
+        require_valid_depth(mask, repr(str(depth_path)))
+        if self.densify == "nearest":
             depth = densify_nearest(depth, mask)
         else:
             depth = fill_unknown(depth, mask, self.preset.depth_cap)

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 
 from .base import DepthDataset
-from .depth import fill_unknown, valid_depth_mask
+from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
 from .io import DataFormatError, check_array_shape, load_mat, read_rgb, require_root
 from .presets import MAKE3D
@@ -91,4 +91,5 @@ class Make3D(DepthDataset):
         depth = torch.from_numpy(grid[..., 3].astype(np.float64)).to(self.dtype)[None, None]
         depth = F.interpolate(depth, size=image.shape[-2:], mode="nearest-exact")[0]
         mask = valid_depth_mask(depth)
+        require_valid_depth(mask, repr(str(depth_path)))
         return {"image": image, "depth": fill_unknown(depth, mask), "mask": mask}

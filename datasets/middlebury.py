@@ -18,6 +18,7 @@ so that the virtual lens keeps the scene's field of view.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -29,6 +30,7 @@ from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 
 from .base import DepthDataset
+from .depth import require_valid_depth
 from .focus import CameraPreset
 from .io import DataFormatError, read_pfm, read_rgb, require_file, require_root
 from .presets import MIDDLEBURY
@@ -197,21 +199,41 @@ def read_calib(path: Path) -> dict[str, float]:
         DataFormatError: `cam0`, `doffs` or `baseline` is missing or malformed.
     """
     require_file(path, "a Middlebury calib.txt (cam0=[f 0 cx; ...], doffs=, baseline=)")
-    entries = dict(
-        line.split("=", 1) for line in path.read_text().splitlines() if "=" in line
-    )
+    expected = "expected lines cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=<px> and baseline=<mm>"
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError as error:
+        raise DataFormatError(f"{str(path)!r}: not a text file ({error}); {expected}") from None
+    entries = {
+        key.strip(): value for key, value in
+        (line.split("=", 1) for line in text.splitlines() if "=" in line)
+    }
     try:
         cam0 = [float(v) for v in re.split(r"[\s;\[\]]+", entries["cam0"].strip()) if v]
-        return {
+        calib = {
             "focal_length_px": cam0[0],
             "baseline_m": float(entries["baseline"]) * 1e-3,
             "doffs_px": float(entries["doffs"]),
         }
     except (KeyError, ValueError, IndexError) as error:
         raise DataFormatError(
-            f"{str(path)!r}: expected lines cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=<px> and "
-            f"baseline=<mm>; could not read {error}"
+            f"{str(path)!r}: {expected}; could not read {error}"
         ) from error
+    if len(cam0) != 9:
+        raise DataFormatError(
+            f"{str(path)!r}: cam0 must hold the 9 entries of a 3x3 matrix, got {len(cam0)} "
+            f"({entries['cam0'].strip()!r}); {expected}"
+        )
+    for key, entry, low in (("cam0 focal length", "focal_length_px", 0.0),
+                            ("baseline", "baseline_m", 0.0)):
+        if not (math.isfinite(calib[entry]) and calib[entry] > low):
+            raw = entries["baseline"].strip() if key == "baseline" else cam0[0]
+            raise DataFormatError(f"{str(path)!r}: {key} must be finite and > 0, got {raw}; "
+                                  f"{expected}")
+    if not math.isfinite(calib["doffs_px"]):
+        raise DataFormatError(f"{str(path)!r}: doffs must be a finite number of pixels, got "
+                              f"{entries['doffs'].strip()}; {expected}")
+    return calib
 
 
 class Middlebury(DepthDataset):
@@ -285,6 +307,7 @@ class Middlebury(DepthDataset):
                     f"{str(scene / 'im0.png')!r} is {tuple(image.shape[-2:])}"
                 )
             depth, mask = disparity_to_depth(disparity, **calib)
+            require_valid_depth(mask, repr(str(scene / "disp0.pfm")))
             depth, mask = depth[None], mask[None]
         camera = self.preset.settings(self.dtype)
         camera = camera.replace(pixel_pitch=torch.full_like(

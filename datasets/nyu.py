@@ -14,6 +14,7 @@ with `datasets.presets.NYU` (35 mm, f/2.8, focus 2 m and 8 m, pitch 22.4 um at 6
 from __future__ import annotations
 
 import os
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -21,9 +22,16 @@ import numpy as np
 import torch
 
 from .base import DepthDataset
-from .depth import fill_unknown, valid_depth_mask
+from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, load_mat, open_mat73, require_file, require_root
+from .io import (
+    DataFormatError,
+    load_mat,
+    open_mat73,
+    require_file,
+    require_root,
+    to_unit_range,
+)
 from .presets import NYU
 
 LAYOUT = (
@@ -35,6 +43,10 @@ LAYOUT = (
 NYU_EIGEN_CROP = (45, 41, 426, 560)
 
 SPLITS = ("train", "test", "all")
+
+#: Largest plausible NYU depth in metres (the Kinect reaches about 10 m); float depths beyond it
+#: are refused as probably millimetres.
+MAX_DEPTH_M = 100.0
 
 
 class NYUv2(DepthDataset):
@@ -48,9 +60,17 @@ class NYUv2(DepthDataset):
         **kwargs: `size`, `crop`, `augment`, `cache_dir`, `aperture`,
             `render_kwargs`, `dtype` of `DepthDataset`.
 
+    Dtypes: `images` of uint8 (the official file) or uint16 are scaled by their maximum; float
+    images must lie in [0, 1] and are used as they are. `depths` in floating point are metres
+    (the official file); integer depths are read as millimetres, with a `UserWarning`. A frame
+    without any valid depth pixel is refused when loaded (its focused images would be rendered
+    from invented depth).
+
     Raises:
         FileNotFoundError: `root` or a file is missing.
-        DataFormatError: a file is truncated or holds arrays of the wrong shape.
+        DataFormatError: a file is truncated, holds arrays of the wrong shape or dtype, float
+            images outside [0, 1], float depths beyond 100 m (millimetres?), or a frame without
+            valid depth.
 
     Example:
         >>> NYUv2("/no/such/folder")  # doctest: +ELLIPSIS
@@ -80,12 +100,26 @@ class NYUv2(DepthDataset):
                         f"{str(self.mat_path)!r}: no {key!r} array; found {sorted(file.keys())}"
                     )
             images, depths = file["images"].shape, file["depths"].shape
+            image_dtype, depth_dtype = file["images"].dtype, file["depths"].dtype
         if len(images) != 4 or images[1] != 3 or len(depths) != 3 or depths != (
             images[0], images[2], images[3]
         ):
             raise DataFormatError(
                 f"{str(self.mat_path)!r}: expected images (N,3,W,H) and depths (N,W,H) as h5py "
                 f"reads MATLAB's HxWx3xN and HxWxN arrays, got {images} and {depths}"
+            )
+        for key, dtype in (("images", image_dtype), ("depths", depth_dtype)):
+            if not (np.issubdtype(dtype, np.unsignedinteger) or np.issubdtype(dtype, np.floating)):
+                raise DataFormatError(f"{str(self.mat_path)!r}: {key} has dtype {dtype}; expected "
+                                      "unsigned integers or floats")
+        #: Metres per stored depth unit: 1 for float metres, 1e-3 for integer millimetres.
+        self.depth_scale = 1.0
+        if np.issubdtype(depth_dtype, np.integer):
+            self.depth_scale = 1e-3
+            warnings.warn(
+                f"{str(self.mat_path)!r}: depths are stored as {depth_dtype} (the official file "
+                "holds float metres); reading them as millimetres",
+                UserWarning, stacklevel=2,
             )
         count = images[0]
         if split == "all":
@@ -130,7 +164,17 @@ class NYUv2(DepthDataset):
             ) from error
         from kornia.color import rgb_to_linear_rgb
 
-        image = rgb_to_linear_rgb(torch.from_numpy(np.ascontiguousarray(image)).to(self.dtype) / 255)
-        depth = torch.from_numpy(np.ascontiguousarray(depth, dtype=np.float64)).to(self.dtype)[None]
+        source = f"{str(self.mat_path)!r} frame {i + 1}"
+        image = to_unit_range(self.mat_path, f"frame {i + 1} of images", image)
+        image = rgb_to_linear_rgb(torch.from_numpy(np.ascontiguousarray(image)).to(self.dtype))
+        depth = np.ascontiguousarray(depth, dtype=np.float64) * self.depth_scale
+        finite = depth[np.isfinite(depth)]
+        if finite.size and float(finite.max()) > MAX_DEPTH_M:
+            raise DataFormatError(
+                f"{source}: depths reach {float(finite.max()):.6g}, more than {MAX_DEPTH_M:g} m; "
+                "NYU depths are metres (up to about 10 m): is the file in millimetres?"
+            )
+        depth = torch.from_numpy(depth).to(self.dtype)[None]
         mask = valid_depth_mask(depth)
+        require_valid_depth(mask, source)
         return {"image": image, "depth": fill_unknown(depth, mask), "mask": mask}

@@ -31,7 +31,7 @@ The steps live in `optics.calibration` (one module each); the figure is
 
 from __future__ import annotations
 
-import warnings
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -50,12 +50,26 @@ from .plotting import plot_calibration as plot_calibration  # noqa: F401 (moved,
 __all__ = [
     "PARAMETERS",
     "PSF_FAMILIES",
+    "CalibrationError",
     "CalibrationPair",
     "CalibrationResult",
     "calibrate",
     "fit_thin_lens_curve",
     "measure_blur",
 ]
+
+
+class CalibrationError(ValueError):
+    """The photos do not determine the fitted parameters (an unidentifiable fit).
+
+    Attributes:
+        result: the `CalibrationResult` reached anyway, to inspect (never to save: its
+            uncertainty is infinite or NaN).
+    """
+
+    def __init__(self, message: str, result: CalibrationResult):
+        super().__init__(message)
+        self.result = result
 
 
 def calibrate(
@@ -114,8 +128,13 @@ def calibrate(
     Raises:
         ValueError: for no pairs, a PSF spec calibration cannot fit, nothing to fit, more than
             one of `f_number`, `pixel_pitch`, `psf_scale` to fit (only their product shows in
-            the blur), `psf_scale` for a disk or polygon, a non-positive value, too few depths,
-            or a margin that leaves no pixels.
+            the blur), `psf_scale` for a disk or polygon, a non-positive value, fewer distinct
+            depths than `optics.calibration.problem.needed_distances` (one per fitted
+            parameter, two at least with the focus distance), no measurable blur in any pair,
+            constant, NaN or infinite images, or a margin that leaves no pixels. Each message
+            says what to shoot or give instead.
+        CalibrationError: (a `ValueError`) if the fit leaves a fitted parameter undetermined
+            (singular Hessian: infinite or NaN uncertainty); its `result` holds the fit.
 
     Example:
         >>> torch.manual_seed(0)  # doctest: +ELLIPSIS
@@ -139,13 +158,19 @@ def calibrate(
     model = ResidualModel(problem, start.values, margin, pad, render_kwargs, use_renderer)
     theta = optimise(model.loss, model.theta0(), adam_steps, lbfgs_steps, progress)
     fit = gauss_newton(model, theta)
-    if fit.singular:
-        warnings.warn(
-            "the fit does not determine every fitted parameter (singular Hessian); "
-            "their uncertainty is reported as inf",
-            stacklevel=2,
+    result = _result(problem, start, model, theta, fit)
+    bad = [name for name, sd in result.uncertainty.items() if not math.isfinite(sd)]
+    bad += [name for name in problem.fitted
+            if not math.isfinite(result.values[name]) and name not in bad]
+    if fit.singular or bad:
+        raise CalibrationError(
+            f"the photos do not determine {bad or list(problem.fitted)} (singular Hessian: "
+            f"uncertainty {', '.join(f'{k} {v:.3g}' for k, v in result.uncertainty.items())}); "
+            f"no calibration is returned. Shoot targets at more distinct distances, nearer and "
+            "farther than the focus plane, with clearly visible blur, or fix more parameters",
+            result,
         )
-    return _result(problem, start, model, theta, fit)
+    return result
 
 
 def _result(problem: Problem, start: Start, model: ResidualModel, theta: torch.Tensor,

@@ -86,7 +86,16 @@ class Camera(nn.Module):
         return settings.shot(0)
 
     def coc_px(self, depth: Tensor) -> Tensor:
-        """CoC diameter in (effective) pixels for depths in metres (same shape as `depth`)."""
+        """CoC diameter in (effective) pixels for depths in metres (same shape as `depth`).
+
+        Computed in `depth`'s dtype promoted to at least float32 (a `float16`/`bfloat16` depth
+        gives a float32 map, so every camera parameter gets a finite gradient); `render` casts
+        it to the image's dtype.
+
+        Raises:
+            ValueError: if a lens or sensor value is no longer finite and > 0 (e.g. after an
+                optimiser step), naming it, or `depth` is not > 0 or NaN.
+        """
         return self.sensor.to_pixels(self.lens.coc_diameter(depth))
 
     def signed_coc_px(self, depth: Tensor) -> Tensor:
@@ -100,6 +109,10 @@ class Camera(nn.Module):
         """Render `image` `(B,C,H,W)` as this camera sees a scene of `depth` `(B,1,H,W)`.
 
         Keyword arguments go to `optics.render_defocus` (`mode`, `max_kernel_size`, ...).
+
+        Raises:
+            ValueError: for a NaN or infinite pixel in `image` (named, with its position), an
+                invalid depth, or a camera value out of range (named).
         """
         from .render import render_defocus
 

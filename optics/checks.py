@@ -6,7 +6,10 @@ received and what is allowed. Messages are only formatted on failure.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import contextvars
+import warnings
+from collections.abc import Iterator, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -36,9 +39,16 @@ def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
         tensor = value
     elif isinstance(value, bool):
         raise TypeError(f"{name} must be a number or a tensor, got bool {value!r}")
+    elif isinstance(value, str | bytes):
+        raise TypeError(
+            f"{name} must be a number (metres where it is a length), a 0-d or (B,) tensor or a "
+            f"list of numbers, got the string {value!r}; convert it first, e.g. float({value!r})"
+        )
     elif isinstance(value, int | float):
         tensor = torch.tensor(float(value), dtype=torch.float64)
     elif isinstance(value, Sequence):
+        if any(isinstance(v, str | bytes | bool) for v in value):
+            raise TypeError(f"{name} must hold numbers, got {value!r}; convert strings first")
         try:
             tensor = torch.tensor([float(v) for v in value], dtype=torch.float64)
         except (TypeError, ValueError):
@@ -53,6 +63,11 @@ def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
     if tensor.ndim > 1:
         raise ValueError(
             f"{name} must be a scalar or a (B,) tensor, got shape {tuple(tensor.shape)}"
+        )
+    if tensor.numel() == 0:
+        raise ValueError(
+            f"{name} must hold at least one value (a scalar or a (B,) tensor with B >= 1), got "
+            f"an empty tensor of shape {tuple(tensor.shape)}"
         )
     return tensor
 
@@ -73,6 +88,95 @@ def check_positive(name: str, value: Tensor, unit: str = "") -> None:
     if not bool(torch.all(torch.isfinite(value) & (value > 0))):
         suffix = f" ({unit})" if unit else ""
         raise ValueError(f"{name} must be finite and > 0{suffix}, got {_describe(value)}")
+
+
+def check_finite(name: str, tensor: Tensor) -> None:
+    """Raise `ValueError` if `tensor` holds a NaN or an infinity, naming `name`, how many and
+    where the first one is (one reduction when all is well; skipped while tracing).
+
+    Example:
+        >>> check_finite("image", torch.tensor([[0.5, float("nan")]]))
+        Traceback (most recent call last):
+        ...
+        ValueError: image has 1 NaN and 0 infinite value(s), the first at index (0, 1); ...
+    """
+    if not isinstance(tensor, Tensor) or not tensor.is_floating_point() or is_tracing(tensor):
+        return
+    if bool(torch.isfinite(tensor).all()):
+        return
+    values = tensor.detach()
+    nan = int(torch.isnan(values).sum())
+    inf = int(torch.isinf(values).sum())
+    first = tuple(int(i) for i in torch.nonzero(~torch.isfinite(values))[0].tolist())
+    raise ValueError(
+        f"{name} has {nan} NaN and {inf} infinite value(s), the first at index {first}; "
+        f"{name} must be finite everywhere (a NaN spreads over the whole blur window); "
+        "replace or mask those pixels before passing it"
+    )
+
+
+#: Values above which a length looks like millimetres given for metres (`warn_unit`).
+UNIT_LIMITS = {"focal_length": 2.0, "pixel_pitch": 1e-3}
+_UNIT_WARNINGS = contextvars.ContextVar("optics_unit_warnings", default=True)
+
+
+@contextlib.contextmanager
+def no_unit_warnings() -> Iterator[None]:
+    """Turn `warn_unit` off inside the block (e.g. for the *effective* pitch of a heavily
+    downsampled image, which may legitimately exceed 1 mm)."""
+    token = _UNIT_WARNINGS.set(False)
+    try:
+        yield
+    finally:
+        _UNIT_WARNINGS.reset(token)
+
+
+def warn_unit(name: str, value: Tensor) -> None:
+    """Warn (`UserWarning`) when a length is implausibly large for metres: a focal length over
+    2 m or a pixel pitch over 1 mm ("did you give millimetres?"). Other names are not checked."""
+    limit = UNIT_LIMITS.get(name)
+    if limit is None or not _UNIT_WARNINGS.get() or is_tracing(value):
+        return
+    largest = float(value.detach().max())
+    if largest > limit:
+        warnings.warn(
+            f"{name} is {largest:.6g} m, more than {limit:g} m: did you give millimetres? "
+            f"Lengths are in metres (e.g. {name}={largest * 1e-3:.6g} for {largest:.6g} mm)",
+            UserWarning,
+            stacklevel=4,  # the caller of ThinLens(...) or Sensor(...)
+        )
+
+
+def check_parameters(module: nn.Module, units: dict[str, str],
+                     also: Tensor | None = None) -> bool:
+    """Re-check a module's physical parameters at use (an optimiser step may have moved an
+    `nn.Parameter` out of range after construction): every value finite and > 0.
+
+    One reduction over all of them (and the 0-d boolean `also`, a further condition of the
+    caller's) when all is well; the failing parameter is named otherwise. Skipped while tracing.
+
+    Returns:
+        whether `also` holds too (`True` while tracing); the caller raises its own error if not.
+    """
+    tensors = [getattr(module, name) for name in units]
+    if is_tracing(*tensors):
+        return True
+    if len({t.device for t in tensors}) == 1:
+        values = torch.cat([t.detach().reshape(-1) for t in tensors])
+        ok = (values > 0).all() & (values < float("inf")).all()  # NaN fails both
+        if also is not None:
+            ok = ok & also.detach()
+        if bool(ok):
+            return True
+    for (name, unit), tensor in zip(units.items(), tensors, strict=True):
+        try:
+            check_positive(f"{type(module).__name__}.{name}", tensor.detach(), unit)
+        except ValueError as error:
+            raise ValueError(
+                f"{error} at use (it was valid when the {type(module).__name__} was built: was it "
+                "changed since, e.g. by an optimiser step? Fit it in log space or clamp it)"
+            ) from None
+    return also is None or bool(also)
 
 
 def check_depth(name: str, depth: Tensor) -> None:
@@ -126,6 +230,7 @@ def register_physical(module: nn.Module, name: str, value: ParamLike, unit: str 
     buffer, so `.to()`, `state_dict` and optimisers work either way."""
     tensor = as_parameter_tensor(name, value)
     check_positive(name, tensor.detach(), unit)
+    warn_unit(name, tensor)
     if isinstance(value, nn.Parameter):
         module.register_parameter(name, value)
     else:

@@ -7,7 +7,8 @@ from typing import Any
 from torch import Tensor
 
 from .aperture import Aperture
-from .checks import check_shape
+from .checks import check_finite, check_shape
+from .lens import compute_dtype
 from .settings import CameraSettings
 
 
@@ -31,7 +32,12 @@ def render_focal_stack(
         **render_kwargs: passed to `optics.render_defocus` (`mode`, `max_kernel_size`, ...).
 
     Returns:
-        `(B, F, C, H, W)` focused images.
+        `(B, F, C, H, W)` focused images (dtype of `image`; the CoC is computed in at least
+        float32).
+
+    Raises:
+        ValueError: on wrong shapes, or a NaN or infinite value in `image` (named, with its
+            position) or an invalid depth.
 
     Example:
         >>> import torch
@@ -43,6 +49,7 @@ def render_focal_stack(
     """
     check_shape("image", image, ["B", "C", "H", "W"])
     check_shape("depth", depth, ["B", "1", "H", "W"])
+    check_finite("image", image)
     if not isinstance(settings, CameraSettings):
         raise TypeError(f"settings must be a CameraSettings, got {type(settings).__name__}")
     b, c, h, w = image.shape
@@ -52,7 +59,8 @@ def render_focal_stack(
     if settings.shape[0] != b:
         raise ValueError(f"settings hold {settings.shape[0]} batch items, image {b}")
     n = settings.n_shots
-    camera = settings.to(device=image.device, dtype=image.dtype).camera(aperture)
+    # Settings in at least float32: a pitch of micrometres underflows in float16.
+    camera = settings.to(device=image.device, dtype=compute_dtype(image.dtype)).camera(aperture)
     images = image[:, None].expand(b, n, c, h, w).reshape(b * n, c, h, w)
     depths = depth[:, None].expand(b, n, 1, h, w).reshape(b * n, 1, h, w)
     return camera.render(images, depths, **render_kwargs).reshape(b, n, c, h, w)

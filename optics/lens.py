@@ -10,11 +10,21 @@ from .checks import (
     as_parameter_tensor,
     broadcast_to_batch,
     check_depth,
+    check_parameters,
     check_positive,
     is_tracing,
     register_physical,
 )
 from .checks import format_param as _fmt
+
+_UNITS = {"focal_length": "metres", "f_number": "", "focus_distance": "metres"}
+
+
+def compute_dtype(dtype: torch.dtype) -> torch.dtype:
+    """The dtype the CoC is computed in: at least float32 (fp16/bf16 inputs are promoted, since
+    a pixel pitch of a few micrometres and its gradient underflow or overflow in half
+    precision)."""
+    return torch.promote_types(dtype, torch.float32)
 
 
 class ThinLens(nn.Module):
@@ -38,8 +48,16 @@ class ThinLens(nn.Module):
         focus_distance: distance $D_f$ of the plane in focus, in metres, > `focal_length`.
 
     Raises:
-        ValueError: if a parameter is not positive and finite, or `focus_distance` is not beyond
-            `focal_length`.
+        TypeError: if a parameter is a string or not a number, tensor or list of numbers.
+        ValueError: if a parameter is empty, not positive and finite, or `focus_distance` is not
+            beyond `focal_length`. The values are checked again at every use (an optimiser may
+            move an `nn.Parameter` out of range), naming the parameter.
+
+    Warns:
+        UserWarning: for a focal length over 2 m ("did you give millimetres?").
+
+    The CoC is computed in at least float32 (`float16`/`bfloat16` depths are promoted) so that
+    every parameter gets a finite gradient from half-precision renders.
 
     Example:
         >>> lens = ThinLens(focal_length=0.05, f_number=2.0, focus_distance=2.0)
@@ -57,6 +75,9 @@ class ThinLens(nn.Module):
         register_physical(self, "focal_length", focal_length, "metres")
         register_physical(self, "f_number", f_number)
         register_physical(self, "focus_distance", focus_distance, "metres")
+        self._check_focus()
+
+    def _check_focus(self) -> None:
         if not is_tracing(self.focus_distance) and not bool(
                 torch.all(self.focus_distance.detach() > self.focal_length.detach())):
             raise ValueError(
@@ -65,6 +86,13 @@ class ThinLens(nn.Module):
                 f"and focal_length={_fmt(self.focal_length)} m"
             )
 
+    def check(self) -> None:
+        """Raise `ValueError` naming the parameter unless every value is finite and > 0 and the
+        focus distance lies beyond the focal length (called at every use)."""
+        beyond = torch.all(self.focus_distance.detach() > self.focal_length.detach())
+        if not check_parameters(self, _UNITS, also=beyond):
+            self._check_focus()
+
     def extra_repr(self) -> str:
         return (
             f"focal_length={_fmt(self.focal_length)} m, f_number={_fmt(self.f_number)}, "
@@ -72,6 +100,7 @@ class ThinLens(nn.Module):
         )
 
     def _params(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        self.check()
         return (
             broadcast_to_batch(self.focal_length, like),
             broadcast_to_batch(self.f_number, like),
@@ -80,10 +109,12 @@ class ThinLens(nn.Module):
 
     def aperture_diameter(self) -> Tensor:
         """Entrance-pupil diameter `f / N` in metres."""
+        self.check()
         return self.focal_length / self.f_number
 
     def image_distance(self) -> Tensor:
         """Lens-to-sensor distance `f D_f / (D_f - f)` in metres when focused at `D_f`."""
+        self.check()
         return self.focal_length * self.focus_distance / (self.focus_distance - self.focal_length)
 
     def signed_coc_diameter(self, depth: Tensor) -> Tensor:
@@ -96,9 +127,11 @@ class ThinLens(nn.Module):
                 `(B,)`; > 0 and not NaN (`inf` is allowed).
 
         Returns:
-            tensor of the shape of `depth` (sensor metres).
+            tensor of the shape of `depth` (sensor metres), in `depth`'s dtype promoted to at
+            least float32.
         """
         check_depth("depth", depth)
+        depth = depth.to(compute_dtype(depth.dtype))
         f, n, df = self._params(depth)
         return f * f / (n * (df - f)) * (1.0 - df / depth)
 
@@ -111,6 +144,7 @@ class ThinLens(nn.Module):
             >>> round(ThinLens(0.05, 2.0, 2.0).coc_at_infinity().item() * 1e6, 2)  # micrometres
             641.03
         """
+        self.check()
         f, n, df = self.focal_length, self.f_number, self.focus_distance
         return f * f / (n * (df - f))
 
@@ -130,6 +164,7 @@ class ThinLens(nn.Module):
         c = as_parameter_tensor("coc_limit", coc_limit)
         check_positive("coc_limit", c.detach(), "metres")
         c = c.to(self.focal_length)
+        self.check()
         return self.focal_length**2 / (self.f_number * c) + self.focal_length
 
     def depth_of_field(self, coc_limit: ParamLike) -> tuple[Tensor, Tensor]:
@@ -158,6 +193,7 @@ class ThinLens(nn.Module):
 
         A CoC at or beyond the limit reached at infinite depth maps to `inf`.
         """
+        signed_coc = signed_coc.to(compute_dtype(signed_coc.dtype))
         f, n, df = self._params(signed_coc)
         denominator = f * f - signed_coc * n * (df - f)
         safe = denominator.clamp_min(torch.finfo(denominator.dtype).tiny)

@@ -366,6 +366,8 @@ def read_raw(
             image, e.g. a file whose pixel data were stripped).
         ValueError: for an unknown option, or a colour conversion without a colour matrix or
             without white balance.
+        TypeError: if `dtype` is not a floating-point dtype (integers would truncate the
+            white balance).
 
     Example:
         >>> image, meta = read_raw(raw_samples / "canon_eos_6d.dng", binning=4)  # doctest: +SKIP
@@ -374,6 +376,12 @@ def read_raw(
     """
     import rawpy
 
+    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
+        raise TypeError(
+            f"dtype must be a floating-point torch dtype (torch.float32, torch.float64, ...), "
+            f"got {dtype!r}: the image is scaled to [0, 1] and white-balanced, which integers "
+            "would truncate"
+        )
     white_balance = _check_choice("white_balance", white_balance, WHITE_BALANCES)
     colour_space = _check_choice("colour_space", colour_space, COLOUR_SPACES)
     demosaic = _check_choice("demosaic", demosaic, DEMOSAIC_ALGORITHMS)

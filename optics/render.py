@@ -38,7 +38,7 @@ from torch import Tensor, nn
 from . import _render_cpp
 from . import _render_ops as ops
 from .aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
-from .checks import check_depth, check_shape
+from .checks import check_depth, check_finite, check_shape
 
 MODES = ("gather", "scatter", "layered")
 PRESETS = ("gur_wolf_2019",)
@@ -178,6 +178,7 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
     check_shape("coc_px", coc_px, ["B", "1", "H", "W"])
     if not image.is_floating_point():
         raise TypeError(f"image must be a floating-point tensor, got dtype {image.dtype}")
+    check_finite("image", image)
     if not coc_px.is_floating_point():
         raise TypeError(f"coc_px must be a floating-point tensor, got dtype {coc_px.dtype}")
     b, _, h, w = image.shape

@@ -4,8 +4,16 @@ from __future__ import annotations
 
 from torch import Tensor, nn
 
-from .checks import ParamLike, broadcast_to_batch, register_physical
+from .checks import (
+    ParamLike,
+    broadcast_to_batch,
+    check_parameters,
+    no_unit_warnings,
+    register_physical,
+)
 from .checks import format_param as _fmt
+
+_UNITS = {"pixel_pitch": "metres", "downsample": ""}
 
 
 class Sensor(nn.Module):
@@ -14,6 +22,8 @@ class Sensor(nn.Module):
     Args:
         pixel_pitch: distance between pixel centres of the full-resolution sensor, in metres, > 0
             (e.g. `5.6e-6`). A float, a 0-d or a `(B,)` tensor, or an `nn.Parameter`.
+            Values are checked again at every use (an optimiser may move an `nn.Parameter`),
+            and a pitch over 1 mm warns ("did you give millimetres?").
         resolution: optional full-resolution `(height, width)` in pixels, for reference.
         cfa: optional colour-filter-array pattern, e.g. `"RGGB"`.
         downsample: factor by which images were downsampled from the sensor (binning, half-size
@@ -50,6 +60,19 @@ class Sensor(nn.Module):
         self.resolution = resolution
         self.cfa = cfa
 
+    @classmethod
+    def from_effective_pitch(cls, pixel_pitch: ParamLike) -> Sensor:
+        """A sensor for images whose effective pitch (sensor pitch x downsampling) is
+        `pixel_pitch`, in metres. No "millimetres?" warning: a small image downsampled from a
+        large sensor may have a pitch over 1 mm.
+
+        Example:
+            >>> Sensor.from_effective_pitch(3e-3).to_pixels(torch.tensor(6e-3))
+            tensor(2.)
+        """
+        with no_unit_warnings():
+            return cls(pixel_pitch)
+
     def extra_repr(self) -> str:
         return (
             f"pixel_pitch={_fmt(self.pixel_pitch)} m, downsample={_fmt(self.downsample)}, "
@@ -59,10 +82,18 @@ class Sensor(nn.Module):
     @property
     def effective_pixel_pitch(self) -> Tensor:
         """Pixel pitch of the images actually used, `pixel_pitch * downsample`, in metres."""
+        check_parameters(self, _UNITS)
         return self.pixel_pitch * self.downsample
 
     def to_pixels(self, length_m: Tensor) -> Tensor:
-        """Convert lengths on the sensor from metres to (effective) pixels."""
+        """Convert lengths on the sensor from metres to (effective) pixels.
+
+        Computed in `length_m`'s dtype (`ThinLens` gives at least float32).
+
+        Raises:
+            ValueError: if `pixel_pitch` or `downsample` is no longer finite and > 0 (e.g. after
+                an optimiser step), naming it.
+        """
         return length_m / broadcast_to_batch(self.effective_pixel_pitch, length_m)
 
     def to_metres(self, length_px: Tensor) -> Tensor:

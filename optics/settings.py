@@ -200,7 +200,7 @@ class CameraSettings:
 
     def _camera(self, values: Mapping[str, Tensor], aperture: Aperture | None) -> Camera:
         lens = ThinLens(values["focal_length"], values["f_number"], values["focus_distance"])
-        return Camera(lens, Sensor(values["pixel_pitch"]),
+        return Camera(lens, Sensor.from_effective_pitch(values["pixel_pitch"]),
                       aperture if aperture is not None else self.aperture_module())
 
     def coc_at_infinity_px(self) -> Tensor:
@@ -208,7 +208,7 @@ class CameraSettings:
         `c(D) = A (1 - D_f / D)` (same shape as the settings)."""
         lens = ThinLens(self.focal_length.reshape(-1), self.f_number.reshape(-1),
                         self.focus_distance.reshape(-1))
-        coc = Sensor(self.pixel_pitch.reshape(-1)).to_pixels(lens.coc_at_infinity())
+        coc = Sensor.from_effective_pitch(self.pixel_pitch.reshape(-1)).to_pixels(lens.coc_at_infinity())
         return coc.reshape(self.shape)
 
     # ---- JSON ----------------------------------------------------------------------------------

@@ -89,7 +89,7 @@ class ResidualModel:
             values[name] = self.space.from_theta(name, theta[i])
         t = {k: torch.as_tensor(v, dtype=self.dtype, device=self.device) for k, v in values.items()}
         lens = ThinLens(t["focal_length"], t["f_number"], t["focus_distance"])
-        return Camera(lens, Sensor(t["pixel_pitch"]), self.problem.aperture(t["psf_scale"]))
+        return Camera(lens, Sensor.from_effective_pitch(t["pixel_pitch"]), self.problem.aperture(t["psf_scale"]))
 
     def residuals(self, theta: Tensor) -> tuple[list[Tensor], list[Tensor]]:
         """Each pair's `(1,C,h,w)` interior residual (photo minus gain x render) and its gain."""

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..checks import check_shape
+from ..checks import check_finite, check_shape
 
 
 @dataclass
@@ -23,7 +23,9 @@ class CalibrationPair:
         name: a label for tables and figures.
 
     Raises:
-        ValueError: if the images differ in shape or the depth is not positive and finite.
+        ValueError: if the images differ in shape, hold NaN or infinite values, or one of them is
+            constant (an all-black frame, a lens cap: no texture to measure blur on), or the
+            depth is not positive and finite.
     """
 
     sharp: Tensor
@@ -40,6 +42,11 @@ class CalibrationPair:
             if value.ndim == 3:
                 value = value.unsqueeze(0)
             check_shape(f"{label}: {attr}", value, ["1", "C", "H", "W"])
+            if not value.is_floating_point():
+                raise TypeError(f"{label}: {attr} must be a floating-point image in [0, 1], got "
+                                f"dtype {value.dtype}")
+            check_finite(f"{label}: {attr}", value)
+            _check_not_constant(f"{label}: {attr}", value)
             setattr(self, attr, value)
         if self.sharp.shape != self.blurred.shape:
             raise ValueError(
@@ -59,6 +66,16 @@ class CalibrationPair:
     def typical_depth(self) -> float:
         """The target distance, or the median of the depth map, in metres."""
         return self.depth if isinstance(self.depth, float) else float(self.depth.median())
+
+
+def _check_not_constant(name: str, image: Tensor) -> None:
+    """A constant image (all zero, saturated, a lens cap) shows no blur: refuse it."""
+    low, high = float(image.min()), float(image.max())
+    if high - low <= 1e-12 * max(abs(high), 1.0):
+        raise ValueError(
+            f"{name} is constant (every pixel {low:.4g}), so it shows no blur to measure (an "
+            "all-black or saturated frame, a lens cap?); shoot a textured, well-exposed target"
+        )
 
 
 def _depth_map(label: str, depth: Tensor, sharp: Tensor) -> Tensor:

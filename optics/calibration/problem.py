@@ -140,13 +140,29 @@ def _fitted(known: dict[str, float | None]) -> tuple[str, ...]:
     return fitted
 
 
+_WORDS = {1: "one", 2: "two", 3: "three", 4: "four", 5: "five"}
+
+
+def needed_distances(fitted: tuple[str, ...]) -> int:
+    """Distinct target distances `calibrate` needs for `fitted`: one per fitted parameter, and
+    two at least when the focus distance is fitted (the blur at one distance fits a focus plane
+    in front of the target or behind it equally well)."""
+    return max(len(fitted), 2 if "focus_distance" in fitted else 1)
+
+
 def _check_depths(known: dict[str, float | None], fitted: tuple[str, ...],
                   depths: list[float]) -> None:
     distinct = len({round(d, 9) for d in depths})
-    if "focus_distance" in fitted and any(n in PRODUCT for n in fitted) and distinct < 2:
+    needed = needed_distances(fitted)
+    if distinct < needed:
+        why = ("the blur at one distance fits a focus plane in front of the target and one "
+               "behind it equally well" if "focus_distance" in fitted and distinct == 1
+               else "each distance gives one blur measurement, one per unknown at least")
         raise ValueError(
-            "fitting focus_distance together with the blur scale needs targets at two or more "
-            f"distinct depths (three or more recommended), got depths {depths}"
+            f"fitting {list(fitted)} needs targets at {_WORDS.get(needed, needed)} or more "
+            f"distinct depths (three or more recommended), got {distinct} distinct depth(s) "
+            f"{sorted(set(depths))} m: {why}. Shoot the target at more distances, nearer and "
+            "farther than the focus plane, or give the known values (e.g. --focus-distance)"
         )
     focus, focal = known["focus_distance"], known["focal_length"]
     if focus is not None and focus <= focal:  # type: ignore[operator]

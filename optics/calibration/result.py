@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from os import PathLike
 from typing import Any
@@ -116,7 +117,19 @@ class CalibrationResult:
 
     def save(self, path: str | PathLike) -> None:
         """Write `to_dict` as JSON; `optics.CameraSettings.from_json` (and
-        `optics.Camera.from_json`) load the camera back."""
+        `optics.Camera.from_json`) load the camera back.
+
+        Raises:
+            ValueError: if a value or an uncertainty is infinite or NaN (an undetermined fit is
+                never saved); nothing is written then.
+        """
+        bad = {k: v for k, v in {**self.values, **self.uncertainty}.items()
+               if not math.isfinite(v)}
+        if bad or not math.isfinite(self.rmse):
+            raise ValueError(
+                f"refusing to save a calibration with non-finite values {bad or {}} (rmse "
+                f"{self.rmse}): the photos do not determine the fit; {path} was not written"
+            )
         data = self.to_dict()
         self.settings.to_json(path, **{k: v for k, v in data.items() if k not in SETTING_FIELDS})
 
