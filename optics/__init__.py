@@ -3,6 +3,7 @@
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
 from .aperture_spec import APERTURE_FAMILIES, aperture_spec, parse_aperture
 from .calibrate import (
+    CalibrationError,
     CalibrationPair,
     CalibrationResult,
     calibrate,
@@ -25,6 +26,7 @@ __all__ = [
     "parse_aperture",
     "render_focal_stack",
     "Aperture",
+    "CalibrationError",
     "CalibrationPair",
     "CalibrationResult",
     "Camera",

@@ -11,7 +11,13 @@ import pytest
 import torch
 from PIL import Image
 
-from datasets.capture import CaptureNoise, RandomCameraScenes, capture, largest_coc_px, random_camera
+from datasets.capture import (
+    CaptureNoise,
+    RandomCameraScenes,
+    capture,
+    largest_coc_px,
+    random_camera,
+)
 from datasets.photos import read_photo
 from datasets.synthetic import generate_scene
 from defocus.cli import main
