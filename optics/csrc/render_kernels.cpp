@@ -955,18 +955,16 @@ inline T layer_alpha(T p, int64_t l) {
 
 template <typename T>
 inline uint32_t layer_bits(T p, int64_t n_layers, bool inclusive) {
-  // Layers l with alpha_l(p) != 0 (|p - l| < 1), or with |p - l| <= 1 when inclusive.
-  uint32_t bits = 0;
-  const int64_t lo = std::max<int64_t>(0, static_cast<int64_t>(std::floor(p)) - 1);
-  const int64_t hi = std::min<int64_t>(n_layers - 1, static_cast<int64_t>(std::floor(p)) + 2);
-  for (int64_t l = lo; l <= hi; ++l) {
-    const T d = std::abs(p - T(l));
-    if (inclusive ? d <= T(1) : d < T(1)) bits |= uint32_t(1) << l;
-  }
-  return bits;
+  // Layers l with alpha_l(p) != 0 (|p - l| < 1: floor(p), and floor(p) + 1 unless p is whole), or
+  // with |p - l| <= 1 when inclusive (also floor(p) + 1, and floor(p) - 1 when p is whole).
+  const int64_t fl = static_cast<int64_t>(p);  // p >= 0
+  const bool whole = T(fl) == p;
+  uint32_t bits = uint32_t(1) << fl;
+  if (!whole || inclusive) bits |= uint32_t(2) << fl;
+  if (inclusive && whole && fl > 0) bits |= uint32_t(1) << (fl - 1);
+  return n_layers >= 32 ? bits : bits & ((uint32_t(1) << n_layers) - 1);
 }
 
-// out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny) along one row (work: rows of W values).
 template <typename T>
 void composite_row(const T* S, T* out, int64_t C, int64_t NL, int64_t plane, int64_t W, int64_t b,
                    int64_t row, T* work) {
