@@ -54,7 +54,12 @@ constexpr int64_t block_lanes() {
 }
 constexpr int64_t kRowVectors = 1;     // vectors per row in the two-row register blocks
 constexpr int64_t kPadRight = 16;      // >= block_lanes<T>() for float and double
-constexpr int64_t kRowsPerBlock = 16;  // rows per task: the ring of source rows is reused
+// Rows per task: the ring of source rows is reused along a task, so longer tasks refill fewer
+// rows (a task of R rows reads R + K - 1), while enough tasks must remain for the threads.
+inline int64_t rows_per_block(int64_t B, int64_t H, int nthreads) {
+  const int64_t rows = (B * H) / (4 * std::max(nthreads, 1));
+  return std::max<int64_t>(16, std::min<int64_t>(64, rows & ~int64_t(1)));
+}
 
 // Ring of per-row buffers, padded by `half` on the left and half + kPadRight on the right with
 // zeros, so that the register blocks need no bounds checks (zero weight, finite values).
@@ -112,7 +117,8 @@ template <typename T>
 void forward(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t C, int64_t H,
              int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 4;
 #pragma omp parallel num_threads(nthreads)
@@ -124,8 +130,8 @@ void forward(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; ++oy) {
         std::vector<T*> slots(K, nullptr);
@@ -214,7 +220,8 @@ template <typename T>
 void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t B, int64_t C,
               int64_t H, int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 2;
 #pragma omp parallel num_threads(nthreads)
@@ -226,8 +233,8 @@ void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t 
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; ++sy) {
         bool fresh;
@@ -340,7 +347,8 @@ template <typename T>
 void clamp_forward(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B,
                    int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 4;
 #pragma omp parallel num_threads(nthreads)
@@ -350,8 +358,8 @@ void clamp_forward(const T* x, const T* rho, const T* norm, const T* dist, T* y,
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; ++oy) {
         std::vector<T*> slots(K, nullptr);
@@ -440,7 +448,8 @@ template <typename T>
 void clamp_backward(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,
                     int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 2;
 #pragma omp parallel num_threads(nthreads)
@@ -451,8 +460,8 @@ void clamp_backward(const T* g, const T* x, const T* rho, const T* dist, T* dx_r
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; ++sy) {
         const T* rrow = rho + b * plane + sy * W;
@@ -698,7 +707,8 @@ void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64
                    int64_t H, int64_t W, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
@@ -715,8 +725,8 @@ void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; oy += 2) {
         const bool pair = oy + 1 < y1;
@@ -831,7 +841,8 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
                     int64_t W, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
@@ -852,8 +863,8 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; sy += 2) {
         const bool pair = sy + 1 < y1;
@@ -1001,7 +1012,8 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
                      int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
@@ -1023,8 +1035,8 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; oy += 2) {
         const bool pair = oy + 1 < y1;
@@ -1171,7 +1183,8 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
                       int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
@@ -1194,8 +1207,8 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; sy += 2) {
         const bool pair = sy + 1 < y1;
