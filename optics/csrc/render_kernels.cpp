@@ -1025,7 +1025,7 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
   {
     // each slot: weight rows, L (C + 1) rows of alpha_l X_c norm, the norm row
     RowRing<T> ring(K + 1, half, W, nw + LC + 1);
-    std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1);
+    std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1), window_mask(K + 1);
     std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
     std::vector<T*> out0(G), out1(G);
     std::vector<T> scratch(4 * W + 1);
@@ -1081,9 +1081,11 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
           const int64_t t1 = std::min(ntiles - 1, (x0 + lanes - 1 + half) / lanes);
           uint32_t bm = 0;
           for (int64_t r = 0; r <= K; ++r) {
+            window_mask[r] = 0;
             if (slots[r] == nullptr) continue;
             const uint32_t* tm = tile_mask.data() + slot_index[r] * ntiles;
-            for (int64_t t = t0; t <= t1; ++t) bm |= tm[t];
+            for (int64_t t = t0; t <= t1; ++t) window_mask[r] |= tm[t];
+            bm |= window_mask[r];
           }
           for (int64_t l = 0; l < NL; ++l) {
             if (!((bm >> l) & 1u)) {
@@ -1097,7 +1099,8 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
             for (int64_t c0 = 0; c0 < C1; c0 += G) {
               const int64_t gsize = std::min<int64_t>(G, C1 - c0);
               for (int64_t r = 0; r <= K; ++r) {
-                const bool has = slots[r] != nullptr && ((row_mask[slot_index[r]] >> l) & 1u);
+                // rows whose sources in this block's window all lack layer l add nothing
+                const bool has = slots[r] != nullptr && ((window_mask[r] >> l) & 1u);
                 w_rows[r] = has ? slots[r] : nullptr;
                 for (int64_t g = 0; g < G; ++g)
                   ch_rows[r * G + g] = !has ? nullptr
