@@ -1019,6 +1019,7 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
   const int64_t C1 = C + 1;
   const int64_t LC = NL * C1;
   constexpr int G = 4;
+  constexpr int G2 = 8;
   constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
   const int64_t ntiles = (W + lanes - 1) / lanes;
 #pragma omp parallel num_threads(nthreads)
@@ -1026,12 +1027,12 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
     // each slot: weight rows, L (C + 1) rows of alpha_l X_c norm, the norm row
     RowRing<T> ring(K + 1, half, W, nw + LC + 1);
     std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1), window_mask(K + 1);
-    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
-    std::vector<T*> out0(G), out1(G);
+    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G2);
+    std::vector<T*> out0(G2), out1(G2);
     std::vector<T> scratch(4 * W + 1);
     std::vector<T*> slots(K + 1);
-    std::vector<int64_t> slot_index(K + 1);
-    std::vector<T> work((C + 2) * W);
+    std::vector<int64_t> slot_index(K + 1), chan(LC);
+    std::vector<T> work((C + 2) * W), zero_row(ring.padded, T(0));
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
@@ -1087,32 +1088,44 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
             for (int64_t t = t0; t <= t1; ++t) window_mask[r] |= tm[t];
             bm |= window_mask[r];
           }
+          // The channels of the layers present, in groups of up to G2: the weights of a tap
+          // are computed once for all of them.
+          int64_t n_ch = 0;
           for (int64_t l = 0; l < NL; ++l) {
-            if (!((bm >> l) & 1u)) {
-              for (int64_t c = 0; c < C1; ++c) {
-                T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
-                std::fill(o, o + n_out, T(0));
-                if (pair) std::fill(o + W, o + W + n_out, T(0));
-              }
+            if ((bm >> l) & 1u) {
+              for (int64_t c = 0; c < C1; ++c) chan[n_ch++] = l * C1 + c;
               continue;
             }
-            for (int64_t c0 = 0; c0 < C1; c0 += G) {
-              const int64_t gsize = std::min<int64_t>(G, C1 - c0);
-              for (int64_t r = 0; r <= K; ++r) {
-                // rows whose sources in this block's window all lack layer l add nothing
-                const bool has = slots[r] != nullptr && ((window_mask[r] >> l) & 1u);
-                w_rows[r] = has ? slots[r] : nullptr;
-                for (int64_t g = 0; g < G; ++g)
-                  ch_rows[r * G + g] = !has ? nullptr
-                      : slots[r] + (nw + l * C1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+            for (int64_t c = 0; c < C1; ++c) {
+              T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
+              std::fill(o, o + n_out, T(0));
+              if (pair) std::fill(o + W, o + W + n_out, T(0));
+            }
+          }
+          for (int64_t i0 = 0; i0 < n_ch; i0 += G2) {
+            const int64_t gsize = std::min<int64_t>(G2, n_ch - i0);
+            const int64_t G_used = gsize > G ? G2 : G;
+            for (int64_t r = 0; r <= K; ++r) {
+              bool any = false;
+              for (int64_t g = 0; g < G_used; ++g) {
+                const int64_t lc = chan[i0 + std::min(g, gsize - 1)];
+                // a row whose sources in this block's window all lack the layer adds nothing
+                const bool has = slots[r] != nullptr && ((window_mask[r] >> (lc / C1)) & 1u);
+                ch_rows[r * G_used + g] = has ? slots[r] + (nw + lc) * ring.padded : zero_row.data();
+                any = any || has;
               }
-              for (int64_t g = 0; g < gsize; ++g) {
-                out0[g] = S + ((b * NL + l) * C1 + c0 + g) * plane + oy * W;
-                out1[g] = pair ? out0[g] + W : nullptr;
-              }
+              w_rows[r] = any ? slots[r] : nullptr;
+            }
+            for (int64_t g = 0; g < gsize; ++g) {
+              out0[g] = S + (b * LC + chan[i0 + g]) * plane + oy * W;
+              out1[g] = pair ? out0[g] + W : nullptr;
+            }
+            if (G_used == G2)
+              fused_forward_rows<T, G2, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                           out0.data(), out1.data(), n_out, gsize);
+            else
               fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
                                           out0.data(), out1.data(), n_out, gsize);
-            }
           }
         }
         composite_row<T>(S, out, C, NL, plane, W, b, oy, work.data());
