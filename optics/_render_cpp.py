@@ -95,6 +95,7 @@ def _cpu_signature() -> str:
 
 def _make_private_dirs(folder: Path, root: Path) -> None:
     """Create `root` .. `folder` with mode 0o700 where missing (existing ones are left alone)."""
+    root.parent.mkdir(parents=True, exist_ok=True)  # above the root: not ours to restrict
     missing = [p for p in [folder, *folder.parents] if p == root or root in p.parents]
     for path in reversed(missing):
         if not path.exists():

@@ -264,7 +264,7 @@ def _ones_channel(x: Tensor) -> Tensor:
 
 
 def _normalised(spread: Tensor) -> tuple[Tensor, Tensor]:
-    den = spread[:, -1:].contiguous()
+    den = spread[:, -1:].clone()
     return (spread[:, :-1] / den).contiguous(), den
 
 

@@ -5,11 +5,9 @@ The root is `$DEFOCUS_CACHE_DIR` when set, else `$XDG_CACHE_HOME/defocus`, else
 temporary folder, so that nothing another user can write ends up loaded as code.
 
 Example:
-    >>> import os
-    >>> os.environ["DEFOCUS_CACHE_DIR"] = "/tmp/defocus-doc-cache"
-    >>> str(user_cache_dir("kernels"))
-    '/tmp/defocus-doc-cache/kernels'
-    >>> del os.environ["DEFOCUS_CACHE_DIR"]
+    >>> folder = user_cache_dir("kernels")
+    >>> folder.name, folder.parent == cache_root()
+    ('kernels', True)
 """
 
 from __future__ import annotations

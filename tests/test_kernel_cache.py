@@ -186,3 +186,11 @@ def test_no_cpp_environment_forces_the_pure_path(monkeypatch):
     finally:
         monkeypatch.undo()
         _render_cpp.reset()
+
+
+def test_cache_root_and_its_parents_are_created_private(tmp_path, monkeypatch):
+    root = tmp_path / "deep" / "er" / "cache"
+    monkeypatch.setenv("DEFOCUS_CACHE_DIR", str(root))
+    _render_cpp._make_private_dirs(_render_cpp.kernel_dir(), cache_root())
+    assert is_private_dir(_render_cpp.kernel_dir(), root) == (True, "")
+    assert stat.S_IMODE(root.stat().st_mode) == 0o700

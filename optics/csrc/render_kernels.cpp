@@ -54,7 +54,12 @@ constexpr int64_t block_lanes() {
 }
 constexpr int64_t kRowVectors = 1;     // vectors per row in the two-row register blocks
 constexpr int64_t kPadRight = 16;      // >= block_lanes<T>() for float and double
-constexpr int64_t kRowsPerBlock = 16;  // rows per task: the ring of source rows is reused
+// Rows per task: the ring of source rows is reused along a task, so longer tasks refill fewer
+// rows (a task of R rows reads R + K - 1), while enough tasks must remain for the threads.
+inline int64_t rows_per_block(int64_t B, int64_t H, int nthreads) {
+  const int64_t rows = (B * H) / (4 * std::max(nthreads, 1));
+  return std::max<int64_t>(16, std::min<int64_t>(64, rows & ~int64_t(1)));
+}
 
 // Ring of per-row buffers, padded by `half` on the left and half + kPadRight on the right with
 // zeros, so that the register blocks need no bounds checks (zero weight, finite values).
@@ -112,7 +117,8 @@ template <typename T>
 void forward(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t C, int64_t H,
              int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 4;
 #pragma omp parallel num_threads(nthreads)
@@ -124,8 +130,8 @@ void forward(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; ++oy) {
         std::vector<T*> slots(K, nullptr);
@@ -214,7 +220,8 @@ template <typename T>
 void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t B, int64_t C,
               int64_t H, int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 2;
 #pragma omp parallel num_threads(nthreads)
@@ -226,8 +233,8 @@ void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t 
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; ++sy) {
         bool fresh;
@@ -340,7 +347,8 @@ template <typename T>
 void clamp_forward(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B,
                    int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 4;
 #pragma omp parallel num_threads(nthreads)
@@ -350,8 +358,8 @@ void clamp_forward(const T* x, const T* rho, const T* norm, const T* dist, T* y,
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; ++oy) {
         std::vector<T*> slots(K, nullptr);
@@ -440,7 +448,8 @@ template <typename T>
 void clamp_backward(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,
                     int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   constexpr int G = 2;
 #pragma omp parallel num_threads(nthreads)
@@ -451,8 +460,8 @@ void clamp_backward(const T* g, const T* x, const T* rho, const T* dist, T* dx_r
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; ++sy) {
         const T* rrow = rho + b * plane + sy * W;
@@ -698,7 +707,8 @@ void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64
                    int64_t H, int64_t W, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
@@ -715,8 +725,8 @@ void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; oy += 2) {
         const bool pair = oy + 1 < y1;
@@ -831,7 +841,8 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
                     int64_t W, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
@@ -852,8 +863,8 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; sy += 2) {
         const bool pair = sy + 1 < y1;
@@ -955,18 +966,16 @@ inline T layer_alpha(T p, int64_t l) {
 
 template <typename T>
 inline uint32_t layer_bits(T p, int64_t n_layers, bool inclusive) {
-  // Layers l with alpha_l(p) != 0 (|p - l| < 1), or with |p - l| <= 1 when inclusive.
-  uint32_t bits = 0;
-  const int64_t lo = std::max<int64_t>(0, static_cast<int64_t>(std::floor(p)) - 1);
-  const int64_t hi = std::min<int64_t>(n_layers - 1, static_cast<int64_t>(std::floor(p)) + 2);
-  for (int64_t l = lo; l <= hi; ++l) {
-    const T d = std::abs(p - T(l));
-    if (inclusive ? d <= T(1) : d < T(1)) bits |= uint32_t(1) << l;
-  }
-  return bits;
+  // Layers l with alpha_l(p) != 0 (|p - l| < 1: floor(p), and floor(p) + 1 unless p is whole), or
+  // with |p - l| <= 1 when inclusive (also floor(p) + 1, and floor(p) - 1 when p is whole).
+  const int64_t fl = static_cast<int64_t>(p);  // p >= 0
+  const bool whole = T(fl) == p;
+  uint32_t bits = uint32_t(1) << fl;
+  if (!whole || inclusive) bits |= uint32_t(2) << fl;
+  if (inclusive && whole && fl > 0) bits |= uint32_t(1) << (fl - 1);
+  return n_layers >= 32 ? bits : bits & ((uint32_t(1) << n_layers) - 1);
 }
 
-// out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny) along one row (work: rows of W values).
 template <typename T>
 void composite_row(const T* S, T* out, int64_t C, int64_t NL, int64_t plane, int64_t W, int64_t b,
                    int64_t row, T* work) {
@@ -1003,30 +1012,32 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
                      int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
   const int64_t LC = NL * C1;
   constexpr int G = 4;
+  constexpr int G2 = 8;
   constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
   const int64_t ntiles = (W + lanes - 1) / lanes;
 #pragma omp parallel num_threads(nthreads)
   {
     // each slot: weight rows, L (C + 1) rows of alpha_l X_c norm, the norm row
     RowRing<T> ring(K + 1, half, W, nw + LC + 1);
-    std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1);
-    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
-    std::vector<T*> out0(G), out1(G);
+    std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1), window_mask(K + 1);
+    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G2);
+    std::vector<T*> out0(G2), out1(G2);
     std::vector<T> scratch(4 * W + 1);
     std::vector<T*> slots(K + 1);
-    std::vector<int64_t> slot_index(K + 1);
-    std::vector<T> work((C + 2) * W);
+    std::vector<int64_t> slot_index(K + 1), chan(LC);
+    std::vector<T> work((C + 2) * W), zero_row(ring.padded, T(0));
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t oy = y0; oy < y1; oy += 2) {
         const bool pair = oy + 1 < y1;
@@ -1071,35 +1082,50 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
           const int64_t t1 = std::min(ntiles - 1, (x0 + lanes - 1 + half) / lanes);
           uint32_t bm = 0;
           for (int64_t r = 0; r <= K; ++r) {
+            window_mask[r] = 0;
             if (slots[r] == nullptr) continue;
             const uint32_t* tm = tile_mask.data() + slot_index[r] * ntiles;
-            for (int64_t t = t0; t <= t1; ++t) bm |= tm[t];
+            for (int64_t t = t0; t <= t1; ++t) window_mask[r] |= tm[t];
+            bm |= window_mask[r];
           }
+          // The channels of the layers present, in groups of up to G2: the weights of a tap
+          // are computed once for all of them.
+          int64_t n_ch = 0;
           for (int64_t l = 0; l < NL; ++l) {
-            if (!((bm >> l) & 1u)) {
-              for (int64_t c = 0; c < C1; ++c) {
-                T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
-                std::fill(o, o + n_out, T(0));
-                if (pair) std::fill(o + W, o + W + n_out, T(0));
-              }
+            if ((bm >> l) & 1u) {
+              for (int64_t c = 0; c < C1; ++c) chan[n_ch++] = l * C1 + c;
               continue;
             }
-            for (int64_t c0 = 0; c0 < C1; c0 += G) {
-              const int64_t gsize = std::min<int64_t>(G, C1 - c0);
-              for (int64_t r = 0; r <= K; ++r) {
-                const bool has = slots[r] != nullptr && ((row_mask[slot_index[r]] >> l) & 1u);
-                w_rows[r] = has ? slots[r] : nullptr;
-                for (int64_t g = 0; g < G; ++g)
-                  ch_rows[r * G + g] = !has ? nullptr
-                      : slots[r] + (nw + l * C1 + c0 + std::min(g, gsize - 1)) * ring.padded;
+            for (int64_t c = 0; c < C1; ++c) {
+              T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
+              std::fill(o, o + n_out, T(0));
+              if (pair) std::fill(o + W, o + W + n_out, T(0));
+            }
+          }
+          for (int64_t i0 = 0; i0 < n_ch; i0 += G2) {
+            const int64_t gsize = std::min<int64_t>(G2, n_ch - i0);
+            const int64_t G_used = gsize > G ? G2 : G;
+            for (int64_t r = 0; r <= K; ++r) {
+              bool any = false;
+              for (int64_t g = 0; g < G_used; ++g) {
+                const int64_t lc = chan[i0 + std::min(g, gsize - 1)];
+                // a row whose sources in this block's window all lack the layer adds nothing
+                const bool has = slots[r] != nullptr && ((window_mask[r] >> (lc / C1)) & 1u);
+                ch_rows[r * G_used + g] = has ? slots[r] + (nw + lc) * ring.padded : zero_row.data();
+                any = any || has;
               }
-              for (int64_t g = 0; g < gsize; ++g) {
-                out0[g] = S + ((b * NL + l) * C1 + c0 + g) * plane + oy * W;
-                out1[g] = pair ? out0[g] + W : nullptr;
-              }
+              w_rows[r] = any ? slots[r] : nullptr;
+            }
+            for (int64_t g = 0; g < gsize; ++g) {
+              out0[g] = S + (b * LC + chan[i0 + g]) * plane + oy * W;
+              out1[g] = pair ? out0[g] + W : nullptr;
+            }
+            if (G_used == G2)
+              fused_forward_rows<T, G2, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                           out0.data(), out1.data(), n_out, gsize);
+            else
               fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
                                           out0.data(), out1.data(), n_out, gsize);
-            }
           }
         }
         composite_row<T>(S, out, C, NL, plane, W, b, oy, work.data());
@@ -1173,7 +1199,8 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
                       int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t blocks_per_image = (H + kRowsPerBlock - 1) / kRowsPerBlock;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
   const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
@@ -1196,8 +1223,8 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * kRowsPerBlock;
-      const int64_t y1 = std::min(H, y0 + kRowsPerBlock);
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
       ring.reset();
       for (int64_t sy = y0; sy < y1; sy += 2) {
         const bool pair = sy + 1 < y1;
