@@ -22,7 +22,8 @@ class StepSampler:
         dataset: a map-style dataset (`len` and indexing) or any iterable of samples.
         batch_size: samples per step and per process.
         seed: seed of the batch order.
-        rank, world_size: this process and the number of processes.
+        rank: this process's index.
+        world_size: the number of processes.
     """
 
     def __init__(self, dataset: Iterable[Mapping[str, Any]], batch_size: int, seed: int,
