@@ -265,24 +265,34 @@ def _suffix(x: Tensor) -> str:
     return "f32" if x.dtype == torch.float32 else "f64"
 
 
+def _call(name: str, like: Tensor, *args: Tensor | int) -> None:
+    """Run kernel `<name>_f32` or `<name>_f64` (by `like`'s dtype) on `args`, tensors passed as
+    pointers, then the thread count."""
+    getattr(library(), f"{name}_{_suffix(like)}")(
+        *(a.data_ptr() if isinstance(a, Tensor) else a for a in args), torch.get_num_threads()
+    )
+
+
+def _family(name: str, clamp: tuple[Tensor, Tensor, Tensor] | None) -> tuple[str, tuple]:
+    """The Gaussian (`clamp is None`) or clamped-distance kernel `name`, and the arguments the
+    latter takes after the parameter map: `dist, dists, counts, n_dists`."""
+    if clamp is None:
+        return f"gs_{name}", ()
+    dist, dists, counts = clamp
+    return f"cl_{name}", (dist, dists, counts, dists.numel())
+
+
 def gaussian_scatter_forward(x: Tensor, sigma: Tensor, norm: Tensor, half: int) -> Tensor:
     """Compiled twin of `_gaussian_scatter_forward_torch` (contiguous CPU tensors)."""
     out = torch.empty_like(x)
-    b, c, h, w = x.shape
-    getattr(library(), f"gs_forward_{_suffix(x)}")(
-        x.data_ptr(), sigma.data_ptr(), norm.data_ptr(), out.data_ptr(),
-        b, c, h, w, half, torch.get_num_threads(),
-    )
+    _call("gs_forward", x, x, sigma, norm, out, *x.shape, half)
     return out
 
 
 def window_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
     """Compiled twin of `_render_ops._window_line_sums` (contiguous CPU tensor)."""
     line, moment = torch.empty_like(sigma), torch.empty_like(sigma)
-    getattr(library(), f"gs_window_sums_{_suffix(sigma)}")(
-        sigma.data_ptr(), line.data_ptr(), moment.data_ptr(), sigma.numel(), half,
-        torch.get_num_threads(),
-    )
+    _call("gs_window_sums", sigma, sigma, line, moment, sigma.numel(), half)
     return line, moment
 
 
@@ -290,24 +300,15 @@ def gaussian_scatter_backward(
     grad: Tensor, x: Tensor, sigma: Tensor, half: int
 ) -> tuple[Tensor, Tensor]:
     """Compiled twin of `_gaussian_scatter_backward_torch`: `(dx_raw, m1)`."""
-    dx_raw = torch.empty_like(x)
-    m1 = torch.empty_like(sigma)
-    b, c, h, w = x.shape
-    getattr(library(), f"gs_backward_{_suffix(x)}")(
-        grad.data_ptr(), x.data_ptr(), sigma.data_ptr(), dx_raw.data_ptr(), m1.data_ptr(),
-        b, c, h, w, half, torch.get_num_threads(),
-    )
+    dx_raw, m1 = torch.empty_like(x), torch.empty_like(sigma)
+    _call("gs_backward", x, grad, x, sigma, dx_raw, m1, *x.shape, half)
     return dx_raw, m1
 
 
 def clamp_scatter_forward(x: Tensor, rho: Tensor, norm: Tensor, dist: Tensor, half: int) -> Tensor:
     """Compiled twin of `_clamp_scatter_forward_torch` (contiguous CPU tensors, `dist` K x K)."""
     out = torch.empty_like(x)
-    b, c, h, w = x.shape
-    getattr(library(), f"cl_forward_{_suffix(x)}")(
-        x.data_ptr(), rho.data_ptr(), norm.data_ptr(), dist.data_ptr(), out.data_ptr(),
-        b, c, h, w, half, torch.get_num_threads(),
-    )
+    _call("cl_forward", x, x, rho, norm, dist, out, *x.shape, half)
     return out
 
 
@@ -315,34 +316,22 @@ def clamp_scatter_backward(
     grad: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: int
 ) -> tuple[Tensor, Tensor]:
     """Compiled twin of `_clamp_scatter_backward_torch`: `(dx_raw, m)`."""
-    dx_raw = torch.empty_like(x)
-    m = torch.empty_like(rho)
-    b, c, h, w = x.shape
-    getattr(library(), f"cl_backward_{_suffix(x)}")(
-        grad.data_ptr(), x.data_ptr(), rho.data_ptr(), dist.data_ptr(), dx_raw.data_ptr(),
-        m.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
-    )
+    dx_raw, m = torch.empty_like(x), torch.empty_like(rho)
+    _call("cl_backward", x, grad, x, rho, dist, dx_raw, m, *x.shape, half)
     return dx_raw, m
 
 
 def clamp_window_sums(rho: Tensor, dists: Tensor, counts: Tensor) -> tuple[Tensor, Tensor]:
     """Compiled twin of `_clamp_window_sums_torch`: `(Z, dZ/drho)` per pixel."""
     total, slope = torch.empty_like(rho), torch.empty_like(rho)
-    getattr(library(), f"cl_window_sums_{_suffix(rho)}")(
-        rho.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), total.data_ptr(),
-        slope.data_ptr(), rho.numel(), torch.get_num_threads(),
-    )
+    _call("cl_window_sums", rho, rho, dists, counts, dists.numel(), total, slope, rho.numel())
     return total, slope
 
 
 def gaussian_render(x: Tensor, sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
     """Fused normalised Gaussian scatter: `(y, den)`, see `render_kernels.cpp`."""
-    b, c, h, w = x.shape
     y, den = torch.empty_like(x), torch.empty_like(sigma)
-    getattr(library(), f"gs_render_{_suffix(x)}")(
-        x.data_ptr(), sigma.data_ptr(), y.data_ptr(), den.data_ptr(), b, c, h, w, half,
-        torch.get_num_threads(),
-    )
+    _call("gs_render", x, x, sigma, y, den, *x.shape, half)
     return y, den
 
 
@@ -350,12 +339,8 @@ def gaussian_render_backward(
     grad: Tensor, y: Tensor, den: Tensor, x: Tensor, sigma: Tensor, half: int
 ) -> tuple[Tensor, Tensor]:
     """Backward of `gaussian_render`: `(grad_x, grad_sigma)`."""
-    b, c, h, w = x.shape
     grad_x, grad_sigma = torch.empty_like(x), torch.empty_like(sigma)
-    getattr(library(), f"gs_render_backward_{_suffix(x)}")(
-        grad.data_ptr(), y.data_ptr(), den.data_ptr(), x.data_ptr(), sigma.data_ptr(),
-        grad_x.data_ptr(), grad_sigma.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
-    )
+    _call("gs_render_backward", x, grad, y, den, x, sigma, grad_x, grad_sigma, *x.shape, half)
     return grad_x, grad_sigma
 
 
@@ -363,12 +348,8 @@ def clamp_render(
     x: Tensor, rho: Tensor, dist: Tensor, dists: Tensor, counts: Tensor, half: int
 ) -> tuple[Tensor, Tensor]:
     """Fused normalised clamped-distance scatter: `(y, den)`."""
-    b, c, h, w = x.shape
     y, den = torch.empty_like(x), torch.empty_like(rho)
-    getattr(library(), f"cl_render_{_suffix(x)}")(
-        x.data_ptr(), rho.data_ptr(), dist.data_ptr(), dists.data_ptr(), counts.data_ptr(),
-        dists.numel(), y.data_ptr(), den.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
-    )
+    _call("cl_render", x, x, rho, dist, dists, counts, dists.numel(), y, den, *x.shape, half)
     return y, den
 
 
@@ -377,13 +358,9 @@ def clamp_render_backward(
     counts: Tensor, half: int,
 ) -> tuple[Tensor, Tensor]:
     """Backward of `clamp_render`: `(grad_x, grad_rho)`."""
-    b, c, h, w = x.shape
     grad_x, grad_rho = torch.empty_like(x), torch.empty_like(rho)
-    getattr(library(), f"cl_render_backward_{_suffix(x)}")(
-        grad.data_ptr(), y.data_ptr(), den.data_ptr(), x.data_ptr(), rho.data_ptr(),
-        dist.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), grad_x.data_ptr(),
-        grad_rho.data_ptr(), b, c, h, w, half, torch.get_num_threads(),
-    )
+    _call("cl_render_backward", x, grad, y, den, x, rho, dist, dists, counts, dists.numel(),
+          grad_x, grad_rho, *x.shape, half)
     return grad_x, grad_rho
 
 
@@ -395,18 +372,8 @@ def layered_render(
     b, c, h, w = x.shape
     out = torch.empty_like(x)
     spread = torch.empty(b, n_layers, c + 1, h, w, dtype=x.dtype)
-    tail = (b, c, h, w, half, n_layers, torch.get_num_threads())
-    if clamp is None:
-        getattr(library(), f"gs_layered_{_suffix(x)}")(
-            x.data_ptr(), pos.data_ptr(), param.data_ptr(), spread.data_ptr(), out.data_ptr(),
-            *tail,
-        )
-    else:
-        dist, dists, counts = clamp
-        getattr(library(), f"cl_layered_{_suffix(x)}")(
-            x.data_ptr(), pos.data_ptr(), param.data_ptr(), dist.data_ptr(), dists.data_ptr(),
-            counts.data_ptr(), dists.numel(), spread.data_ptr(), out.data_ptr(), *tail,
-        )
+    name, extra = _family("layered", clamp)
+    _call(name, x, x, pos, param, *extra, spread, out, b, c, h, w, half, n_layers)
     return out, spread
 
 
@@ -415,18 +382,8 @@ def layered_render_backward(
     n_layers: int, clamp: tuple[Tensor, Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, Tensor, Tensor]:
     """Backward of `layered_render`: `(grad_x, grad_pos, grad_param)`."""
-    b, c, h, w = x.shape
     grad_x, grad_pos, grad_param = torch.empty_like(x), torch.empty_like(pos), torch.empty_like(pos)
-    head = (grad.data_ptr(), out.data_ptr(), spread.data_ptr(), x.data_ptr(), pos.data_ptr(),
-            param.data_ptr())
-    outs = (grad_x.data_ptr(), grad_pos.data_ptr(), grad_param.data_ptr())
-    tail = (b, c, h, w, half, n_layers, torch.get_num_threads())
-    if clamp is None:
-        getattr(library(), f"gs_layered_backward_{_suffix(x)}")(*head, *outs, *tail)
-    else:
-        dist, dists, counts = clamp
-        getattr(library(), f"cl_layered_backward_{_suffix(x)}")(
-            *head, dist.data_ptr(), dists.data_ptr(), counts.data_ptr(), dists.numel(), *outs,
-            *tail,
-        )
+    name, extra = _family("layered_backward", clamp)
+    _call(name, x, grad, out, spread, x, pos, param, *extra, grad_x, grad_pos, grad_param,
+          *x.shape, half, n_layers)
     return grad_x, grad_pos, grad_param

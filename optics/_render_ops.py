@@ -149,6 +149,20 @@ def _window(dist: Tensor, half: int) -> Tensor:
     return dist[m - half : m + half + 1, m - half : m + half + 1].detach().cpu().contiguous()
 
 
+def _dispatch(compiled, pure, args: tuple[Tensor, ...], half: Tensor, image: int = 0,
+              dist: Tensor | None = None):
+    """`compiled(*args, [table], k)` where the compiled kernels take the image `args[image]`, else
+    its PyTorch twin `pure` on the same arguments: `args` made contiguous, `k = int(half)`, and
+    `dist` (if given) cut to the window `table` (cast to the image's dtype for the kernel)."""
+    k = int(half)
+    args = tuple(a.contiguous() for a in args)
+    tables = () if dist is None else (_window(dist, k),)
+    x = args[image]
+    if _render_cpp.usable(x):
+        return compiled(*args, *(t.to(x.dtype) for t in tables), k)
+    return pure(*args, *tables, k)
+
+
 # ------------------------------------------------------------------ custom operators
 # Every operator takes the window half-width as a 0-d integer tensor `half`.
 
@@ -160,10 +174,8 @@ def gaussian_scatter(x: Tensor, sigma: Tensor, norm: Tensor, half: Tensor) -> Te
     Inputs: `x` `(B,C,H,W)`, `sigma` and `norm` `(B,1,H,W)` (pixels, and any per-source
     factor). Differentiable in `x`, `sigma` and `norm`.
     """
-    x, sigma, norm, k = x.contiguous(), sigma.contiguous(), norm.contiguous(), int(half)
-    if _render_cpp.usable(x):
-        return _render_cpp.gaussian_scatter_forward(x, sigma, norm, k)
-    return _gaussian_scatter_forward_torch(x, sigma, norm, k)
+    return _dispatch(_render_cpp.gaussian_scatter_forward, _gaussian_scatter_forward_torch,
+                     (x, sigma, norm), half)
 
 
 @torch.library.custom_op("defocus::gaussian_scatter_backward", mutates_args=())
@@ -171,10 +183,8 @@ def gaussian_scatter_backward(
     grad: Tensor, x: Tensor, sigma: Tensor, half: Tensor
 ) -> tuple[Tensor, Tensor]:
     """`(dx_raw, m1)`: `sum_u t(u) g(q+u)` and `sum_c x_c(q) sum_u t(u) |u|^2 g_c(q+u)`."""
-    grad, x, sigma, k = grad.contiguous(), x.contiguous(), sigma.contiguous(), int(half)
-    if _render_cpp.usable(x):
-        return _render_cpp.gaussian_scatter_backward(grad, x, sigma, k)
-    return _gaussian_scatter_backward_torch(grad, x, sigma, k)
+    return _dispatch(_render_cpp.gaussian_scatter_backward, _gaussian_scatter_backward_torch,
+                     (grad, x, sigma), half, image=1)
 
 
 @torch.library.custom_op("defocus::gaussian_gather", mutates_args=())
@@ -213,11 +223,8 @@ def clamp_scatter(x: Tensor, rho: Tensor, norm: Tensor, dist: Tensor, half: Tens
     `dist` is D on a square window at least as wide as `2 half + 1` (its centre is used).
     Differentiable in `x`, `rho` and `norm`.
     """
-    k = int(half)
-    x, rho, norm, table = x.contiguous(), rho.contiguous(), norm.contiguous(), _window(dist, k)
-    if _render_cpp.usable(x):
-        return _render_cpp.clamp_scatter_forward(x, rho, norm, table.to(x.dtype), k)
-    return _clamp_scatter_forward_torch(x, rho, norm, table, k)
+    return _dispatch(_render_cpp.clamp_scatter_forward, _clamp_scatter_forward_torch,
+                     (x, rho, norm), half, dist=dist)
 
 
 @torch.library.custom_op("defocus::clamp_scatter_backward", mutates_args=())
@@ -225,11 +232,8 @@ def clamp_scatter_backward(
     grad: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: Tensor
 ) -> tuple[Tensor, Tensor]:
     """`(dx_raw, m)`: the image and `rho` parts of the clamp scatter's vector-Jacobian product."""
-    k = int(half)
-    grad, x, rho, table = grad.contiguous(), x.contiguous(), rho.contiguous(), _window(dist, k)
-    if _render_cpp.usable(x):
-        return _render_cpp.clamp_scatter_backward(grad, x, rho, table.to(x.dtype), k)
-    return _clamp_scatter_backward_torch(grad, x, rho, table, k)
+    return _dispatch(_render_cpp.clamp_scatter_backward, _clamp_scatter_backward_torch,
+                     (grad, x, rho), half, image=1, dist=dist)
 
 
 @torch.library.custom_op("defocus::clamp_gather", mutates_args=())

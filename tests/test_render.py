@@ -96,37 +96,15 @@ def test_constant_image_stays_constant_borders_included(name, mode, dtype):
     torch.testing.assert_close(out, image, atol=_tol(dtype), rtol=0)
 
 
-def _brute_force(image, coc, psf, scatter):
-    """Independent double loop over output and source pixels (float64)."""
-    _, c, h, w = image.shape
-    kernel_half = psf.half_width(float(coc.max()))
-    out = torch.zeros_like(image)
-    for py in range(h):
-        for px in range(w):
-            num, den = torch.zeros(c, dtype=image.dtype), 0.0
-            for qy in range(max(0, py - kernel_half), min(h, py + kernel_half + 1)):
-                for qx in range(max(0, px - kernel_half), min(w, px + kernel_half + 1)):
-                    if scatter:  # the source's PSF, normalised over its full discrete window
-                        k = psf.kernel(coc[0, 0, qy, qx], 2 * kernel_half + 1)[0]
-                        wgt = k[kernel_half + py - qy, kernel_half + px - qx]
-                    else:  # the output's PSF, at the same offset output - source
-                        k = psf.kernel(coc[0, 0, py, px], 2 * kernel_half + 1)[0]
-                        wgt = k[kernel_half + py - qy, kernel_half + px - qx]
-                    num += wgt * image[0, :, qy, qx]
-                    den += float(wgt)
-            out[0, :, py, px] = num / den
-    return out
-
-
 @pytest.mark.parametrize("mode", ["scatter", "gather"])
 @pytest.mark.parametrize("name", ["gaussian", "pentagon"])
-def test_spatially_varying_matches_brute_force(name, mode):
+def test_spatially_varying_matches_brute_force(name, mode, brute_force_render):
     torch.manual_seed(1)
     image = torch.rand(1, 2, 7, 8, dtype=torch.float64)
     coc = torch.rand(1, 1, 7, 8, dtype=torch.float64) * 4
     psf = PSFS[name]().double()
     out = render_defocus(image, coc, psf, mode)
-    torch.testing.assert_close(out, _brute_force(image, coc, psf, mode == "scatter"))
+    torch.testing.assert_close(out, brute_force_render(image, coc, psf, mode == "scatter"))
 
 
 def test_paper_preset_matches_brute_force_double_loop(dtype):

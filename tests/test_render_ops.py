@@ -85,33 +85,15 @@ def test_fused_gaussian_kernels_match_pytorch_loops(shape, half, dtype, pure):
         _close(got, want, dtype)
 
 
-def _brute_force(image, coc, psf, scatter):
-    """Independent double loop over output and source pixels, from `psf.kernel` (float64)."""
-    _, c, h, w = image.shape
-    half = psf.half_width(float(coc.max()))
-    out = torch.zeros_like(image)
-    for py in range(h):
-        for px in range(w):
-            num, den = torch.zeros(c, dtype=image.dtype), 0.0
-            for qy in range(max(0, py - half), min(h, py + half + 1)):
-                for qx in range(max(0, px - half), min(w, px + half + 1)):
-                    owner = coc[0, 0, qy, qx] if scatter else coc[0, 0, py, px]
-                    wgt = psf.kernel(owner, 2 * half + 1)[0][half + py - qy, half + px - qx]
-                    num += wgt * image[0, :, qy, qx]
-                    den += float(wgt)
-            out[0, :, py, px] = num / den
-    return out
-
-
 @pytest.mark.parametrize("mode", ["scatter", "gather"])
 @pytest.mark.parametrize("psf", [Disk(), Polygon(6), Polygon(5, rotation=0.3)],
                          ids=["disk", "hexagon", "pentagon"])
-def test_disk_and_polygons_match_brute_force(psf, mode):
+def test_disk_and_polygons_match_brute_force(psf, mode, brute_force_render):
     torch.manual_seed(1)
     image = torch.rand(1, 2, 8, 9, dtype=torch.float64)
     coc = torch.rand(1, 1, 8, 9, dtype=torch.float64) * 6
     out = render_defocus(image, coc, psf.double(), mode)
-    torch.testing.assert_close(out, _brute_force(image, coc, psf.double(), mode == "scatter"))
+    torch.testing.assert_close(out, brute_force_render(image, coc, psf.double(), mode == "scatter"))
 
 
 class ScaledDisk(Disk):

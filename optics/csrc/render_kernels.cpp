@@ -17,8 +17,8 @@
 namespace {
 
 template <typename T>
-void fill_table(const T* sigma_row, int64_t width, int64_t half, T* table) {
-  // table[d * width + s] = exp(-d^2 / (2 sigma_s^2)), d = 0..half
+void fill_table(const T* sigma_row, int64_t width, int64_t half, T* table, int64_t stride) {
+  // table[d * stride + s] = exp(-d^2 / (2 sigma_s^2)), d = 0..half
   for (int64_t s = 0; s < width; ++s) table[s] = T(1);
   if (half == 0) return;
   for (int64_t s = 0; s < width; ++s) {
@@ -29,7 +29,7 @@ void fill_table(const T* sigma_row, int64_t width, int64_t half, T* table) {
     for (int64_t d = 1; d <= half; ++d) {
       t *= q;
       q *= e2;
-      table[d * width + s] = t;
+      table[d * stride + s] = t;
     }
   }
 }
@@ -81,223 +81,6 @@ struct RowRing {
   }
 };
 
-// Forward for G channels of one output row, one register block starting at output pixel x0.
-template <typename T, int G>
-void forward_group(const T* const* xn_rows, const T* const* tab_rows, int64_t half, int64_t padded,
-                   int64_t x0, T* out, int64_t out_stride, int64_t n_out, int64_t n_groups) {
-  constexpr int64_t L = Vec<T>::lanes;
-  V<T> acc[G][kVectors];
-  for (int g = 0; g < G; ++g)
-    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{} ;
-  const int64_t K = 2 * half + 1;
-  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
-    const T* tab = tab_rows[k];
-    if (tab == nullptr) continue;
-    const T* ty = tab + std::abs(k - half) * padded;
-    const T* const* xr = xn_rows + k * G;
-    for (int64_t dx = -half; dx <= half; ++dx) {
-      const int64_t base = x0 - dx + half;
-      const T* tx = tab + std::abs(dx) * padded + base;
-      const T* tyb = ty + base;
-      for (int j = 0; j < kVectors; ++j) {
-        const V<T> w = load(tyb + j * L) * load(tx + j * L);
-        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
-      }
-    }
-  }
-  for (int64_t g = 0; g < n_groups; ++g) {
-    T tmp[kVectors * L];
-    for (int j = 0; j < kVectors; ++j)
-      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
-    std::copy(tmp, tmp + n_out, out + g * out_stride);
-  }
-}
-
-template <typename T>
-void forward(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t C, int64_t H,
-             int64_t W, int64_t half, int nthreads) {
-  const int64_t K = 2 * half + 1;
-  const int64_t rpb = rows_per_block(B, H, nthreads);
-  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
-  const int64_t plane = H * W;
-  constexpr int G = 4;
-#pragma omp parallel num_threads(nthreads)
-  {
-    // Each slot: half+1 table rows, then C rows of x * norm.
-    RowRing<T> ring(K, half, W, half + 1 + C);
-    std::vector<const T*> tab_rows(K), xn_rows(K * G);
-    std::vector<T> table(half + 1 == 0 ? 1 : (half + 1) * W);
-#pragma omp for schedule(dynamic, 1)
-    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
-      const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * rpb;
-      const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
-      for (int64_t oy = y0; oy < y1; ++oy) {
-        std::vector<T*> slots(K, nullptr);
-        for (int64_t k = 0; k < K; ++k) {
-          const int64_t sy = oy - (k - half);
-          if (sy < 0 || sy >= H) continue;
-          bool fresh;
-          T* slot = ring.slot(sy, &fresh);
-          if (fresh) {
-            fill_table(sigma + b * plane + sy * W, W, half, table.data());
-            for (int64_t d = 0; d <= half; ++d)
-              std::copy(table.begin() + d * W, table.begin() + (d + 1) * W,
-                        slot + d * ring.padded + half);
-            const T* nrow = norm + b * plane + sy * W;
-            for (int64_t c = 0; c < C; ++c) {
-              const T* xrow = x + (b * C + c) * plane + sy * W;
-              T* dst = slot + (half + 1 + c) * ring.padded + half;
-              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * nrow[s];
-            }
-          }
-          slots[k] = slot;
-        }
-        for (int64_t c0 = 0; c0 < C; c0 += G) {
-          const int64_t gsize = std::min<int64_t>(G, C - c0);
-          for (int64_t k = 0; k < K; ++k) {
-            tab_rows[k] = slots[k];
-            for (int64_t g = 0; g < G; ++g)  // unused lanes of a short group read channel c0
-              xn_rows[k * G + g] = slots[k] == nullptr ? nullptr
-                  : slots[k] + (half + 1 + c0 + std::min(g, gsize - 1)) * ring.padded;
-          }
-          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>()) {
-            forward_group<T, G>(xn_rows.data(), tab_rows.data(), half, ring.padded, x0,
-                                y + (b * C + c0) * plane + oy * W + x0, plane,
-                                std::min(block_lanes<T>(), W - x0), gsize);
-          }
-        }
-      }
-    }
-  }
-}
-
-// Backward for G channels of one source row, one register block starting at source pixel s0.
-template <typename T, int G>
-void backward_group(const T* tab, const T* const* g_rows, int64_t half, int64_t padded,
-                    int64_t s0, const T* x_row, int64_t x_stride, T* dx_row, T* m_row,
-                    int64_t n_out, int64_t n_groups) {
-  constexpr int64_t L = Vec<T>::lanes;
-  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
-  for (int g = 0; g < G; ++g)
-    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
-  const int64_t K = 2 * half + 1;
-  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
-    const T* const* gr = g_rows + k * G;
-    if (gr[0] == nullptr) continue;
-    const int64_t dy = k - half;
-    const T* ty = tab + std::abs(dy) * padded + half + s0;
-    for (int64_t dx = -half; dx <= half; ++dx) {
-      const T* tx = tab + std::abs(dx) * padded + half + s0;
-      const T r2 = T(dy * dy + dx * dx);
-      const int64_t base = half + s0 + dx;
-      for (int j = 0; j < kVectors; ++j) {
-        const V<T> w = load(ty + j * L) * load(tx + j * L);
-        const V<T> w2 = w * r2;
-        for (int g = 0; g < G; ++g) {
-          const V<T> gv = load(gr[g] + base + j * L);
-          acc_d[g][j] += w * gv;
-          acc_f[g][j] += w2 * gv;
-        }
-      }
-    }
-  }
-  for (int64_t g = 0; g < n_groups; ++g) {
-    const T* xr = x_row + g * x_stride;
-    for (int j = 0; j < kVectors; ++j)
-      for (int64_t l = 0; l < L; ++l) {
-        const int64_t i = j * L + l;
-        if (i >= n_out) break;
-        dx_row[g * x_stride + i] = acc_d[g][j][l];
-        m_row[i] += xr[i] * acc_f[g][j][l];
-      }
-  }
-}
-
-// dx_raw_c(q) = sum_u t_q(u) g_c(q+u);  m1(q) = sum_c x_c(q) sum_u t_q(u) |u|^2 g_c(q+u)
-template <typename T>
-void backward(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t B, int64_t C,
-              int64_t H, int64_t W, int64_t half, int nthreads) {
-  const int64_t K = 2 * half + 1;
-  const int64_t rpb = rows_per_block(B, H, nthreads);
-  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
-  const int64_t plane = H * W;
-  constexpr int G = 2;
-#pragma omp parallel num_threads(nthreads)
-  {
-    RowRing<T> ring(K, half, W, C);  // padded gradient rows
-    RowRing<T> own(1, half, W, half + 1);  // the source row's table
-    std::vector<const T*> g_rows(K * G);
-    std::vector<T> table((half + 1) * W);
-#pragma omp for schedule(dynamic, 1)
-    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
-      const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * rpb;
-      const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
-      for (int64_t sy = y0; sy < y1; ++sy) {
-        bool fresh;
-        T* tab = own.slot(0, &fresh);
-        fill_table(sigma + b * plane + sy * W, W, half, table.data());
-        for (int64_t d = 0; d <= half; ++d)
-          std::copy(table.begin() + d * W, table.begin() + (d + 1) * W, tab + d * own.padded + half);
-        std::vector<T*> slots(K, nullptr);
-        for (int64_t k = 0; k < K; ++k) {
-          const int64_t oy = sy + (k - half);
-          if (oy < 0 || oy >= H) continue;
-          T* slot = ring.slot(oy, &fresh);
-          if (fresh)
-            for (int64_t c = 0; c < C; ++c) {
-              const T* grow = g + (b * C + c) * plane + oy * W;
-              std::copy(grow, grow + W, slot + c * ring.padded + half);
-            }
-          slots[k] = slot;
-        }
-        T* mrow = m1 + b * plane + sy * W;
-        std::fill(mrow, mrow + W, T(0));
-        for (int64_t c0 = 0; c0 < C; c0 += G) {
-          const int64_t gsize = std::min<int64_t>(G, C - c0);
-          for (int64_t k = 0; k < K; ++k)
-            for (int64_t gi = 0; gi < G; ++gi)
-              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
-                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
-          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>()) {
-            const int64_t offset = (b * C + c0) * plane + sy * W + s0;
-            backward_group<T, G>(tab, g_rows.data(), half, ring.padded, s0, x + offset, plane,
-                                 dx_raw + offset, mrow + s0, std::min(block_lanes<T>(), W - s0),
-                                 gsize);
-          }
-        }
-      }
-    }
-  }
-}
-
-// line(q) = sum_{d=-half..half} t_q(d), moment(q) = sum_d d^2 t_q(d): the separable window's total
-// (its square normalises a source to unit energy) and its sigma-derivative times sigma^3.
-template <typename T>
-void window_sums(const T* sigma, T* line, T* moment, int64_t n, int64_t half, int nthreads) {
-  // A few flops per pixel: threads only pay off on large maps (waking them costs more).
-  const int threads = n > (int64_t(1) << 20) ? nthreads : 1;
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int64_t i = 0; i < n; ++i) {
-    const T sg = sigma[i];
-    const T e = std::exp(T(-0.5) / (sg * sg));
-    const T e2 = e * e;
-    T t = T(1), q = e, l = T(1), m = T(0);
-    for (int64_t d = 1; d <= half; ++d) {
-      t *= q;
-      q *= e2;
-      l += T(2) * t;
-      m += T(2 * d * d) * t;
-    }
-    line[i] = l;
-    moment[i] = m;
-  }
-}
-
-
 // ---------------------------------------------------------------------------------------------
 // Clamped-distance profiles (the disk and the polygons, optics.Disk and its subclasses):
 //
@@ -312,233 +95,35 @@ inline V<T> clamp01(V<T> t) {
   return t > one ? one : t;
 }
 
-template <typename T, int G>
-void clamp_forward_group(const T* const* xn_rows, const T* const* rho_rows, const T* dist,
-                         int64_t half, int64_t x0, T* out, int64_t out_stride, int64_t n_out,
-                         int64_t n_groups) {
-  constexpr int64_t L = Vec<T>::lanes;
-  V<T> acc[G][kVectors];
-  for (int g = 0; g < G; ++g)
-    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{};
-  const int64_t K = 2 * half + 1;
-  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
-    const T* rho = rho_rows[k];
-    if (rho == nullptr) continue;
-    const T* const* xr = xn_rows + k * G;
-    const T* drow = dist + k * K + half;
-    for (int64_t dx = -half; dx <= half; ++dx) {
-      const int64_t base = x0 - dx + half;
-      const V<T> d = V<T>{} + drow[dx];
-      for (int j = 0; j < kVectors; ++j) {
-        const V<T> w = clamp01<T>(load(rho + base + j * L) - d);
-        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
-      }
-    }
-  }
-  for (int64_t g = 0; g < n_groups; ++g) {
-    T tmp[kVectors * L];
-    for (int j = 0; j < kVectors; ++j)
-      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
-    std::copy(tmp, tmp + n_out, out + g * out_stride);
-  }
-}
-
-template <typename T>
-void clamp_forward(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B,
-                   int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
-  const int64_t K = 2 * half + 1;
-  const int64_t rpb = rows_per_block(B, H, nthreads);
-  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
-  const int64_t plane = H * W;
-  constexpr int G = 4;
-#pragma omp parallel num_threads(nthreads)
-  {
-    RowRing<T> ring(K, half, W, 1 + C);  // each slot: the rho row, then C rows of x * norm
-    std::vector<const T*> rho_rows(K), xn_rows(K * G);
-#pragma omp for schedule(dynamic, 1)
-    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
-      const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * rpb;
-      const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
-      for (int64_t oy = y0; oy < y1; ++oy) {
-        std::vector<T*> slots(K, nullptr);
-        for (int64_t k = 0; k < K; ++k) {
-          const int64_t sy = oy - (k - half);
-          if (sy < 0 || sy >= H) continue;
-          bool fresh;
-          T* slot = ring.slot(sy, &fresh);
-          if (fresh) {
-            const T* rrow = rho + b * plane + sy * W;
-            std::copy(rrow, rrow + W, slot + half);
-            const T* nrow = norm + b * plane + sy * W;
-            for (int64_t c = 0; c < C; ++c) {
-              const T* xrow = x + (b * C + c) * plane + sy * W;
-              T* dst = slot + (1 + c) * ring.padded + half;
-              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * nrow[s];
-            }
-          }
-          slots[k] = slot;
-        }
-        for (int64_t c0 = 0; c0 < C; c0 += G) {
-          const int64_t gsize = std::min<int64_t>(G, C - c0);
-          for (int64_t k = 0; k < K; ++k) {
-            rho_rows[k] = slots[k];
-            for (int64_t g = 0; g < G; ++g)
-              xn_rows[k * G + g] = slots[k] == nullptr ? nullptr
-                  : slots[k] + (1 + c0 + std::min(g, gsize - 1)) * ring.padded;
-          }
-          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>()) {
-            clamp_forward_group<T, G>(xn_rows.data(), rho_rows.data(), dist, half, x0,
-                                      y + (b * C + c0) * plane + oy * W + x0, plane,
-                                      std::min(block_lanes<T>(), W - x0), gsize);
-          }
-        }
-      }
-    }
-  }
-}
-
-// dx_raw_c(q) = sum_u w_q(u) g_c(q+u);  m(q) = sum_c x_c(q) sum_u [0 <= rho_q - D(u) <= 1] g_c(q+u)
-// (m is d/d rho_q of sum_c x_c(q) sum_u w_q(u) g_c(q+u); the bounds are inclusive like clamp's).
-template <typename T, int G>
-void clamp_backward_group(const T* rho_row, const T* const* g_rows, const T* dist, int64_t half,
-                          int64_t s0, const T* x_row, int64_t x_stride, T* dx_row, T* m_row,
-                          int64_t n_out, int64_t n_groups) {
-  constexpr int64_t L = Vec<T>::lanes;
-  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
-  for (int g = 0; g < G; ++g)
-    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
-  V<T> rho[kVectors];
-  for (int j = 0; j < kVectors; ++j) rho[j] = load(rho_row + j * L);
-  const V<T> zero = V<T>{}, one = zero + T(1);
-  const int64_t K = 2 * half + 1;
-  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
-    const T* const* gr = g_rows + k * G;
-    if (gr[0] == nullptr) continue;
-    const T* drow = dist + k * K + half;
-    for (int64_t dx = -half; dx <= half; ++dx) {
-      const V<T> d = zero + drow[dx];
-      const int64_t base = half + s0 + dx;
-      for (int j = 0; j < kVectors; ++j) {
-        const V<T> t = rho[j] - d;
-        const V<T> w = clamp01<T>(t);
-        const V<T> ind = (t >= zero) & (t <= one) ? one : zero;
-        for (int g = 0; g < G; ++g) {
-          const V<T> gv = load(gr[g] + base + j * L);
-          acc_d[g][j] += w * gv;
-          acc_f[g][j] += ind * gv;
-        }
-      }
-    }
-  }
-  for (int64_t g = 0; g < n_groups; ++g) {
-    const T* xr = x_row + g * x_stride;
-    for (int j = 0; j < kVectors; ++j)
-      for (int64_t l = 0; l < L; ++l) {
-        const int64_t i = j * L + l;
-        if (i >= n_out) break;
-        dx_row[g * x_stride + i] = acc_d[g][j][l];
-        m_row[i] += xr[i] * acc_f[g][j][l];
-      }
-  }
-}
-
-template <typename T>
-void clamp_backward(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,
-                    int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
-  const int64_t K = 2 * half + 1;
-  const int64_t rpb = rows_per_block(B, H, nthreads);
-  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
-  const int64_t plane = H * W;
-  constexpr int G = 2;
-#pragma omp parallel num_threads(nthreads)
-  {
-    RowRing<T> ring(K, half, W, C);  // padded gradient rows
-    std::vector<T> own(W + kPadRight, T(0));  // the source row's rho (padded on the right)
-    std::vector<const T*> g_rows(K * G);
-#pragma omp for schedule(dynamic, 1)
-    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
-      const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * rpb;
-      const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
-      for (int64_t sy = y0; sy < y1; ++sy) {
-        const T* rrow = rho + b * plane + sy * W;
-        std::copy(rrow, rrow + W, own.begin());
-        std::vector<T*> slots(K, nullptr);
-        for (int64_t k = 0; k < K; ++k) {
-          const int64_t oy = sy + (k - half);
-          if (oy < 0 || oy >= H) continue;
-          bool fresh;
-          T* slot = ring.slot(oy, &fresh);
-          if (fresh)
-            for (int64_t c = 0; c < C; ++c) {
-              const T* grow = g + (b * C + c) * plane + oy * W;
-              std::copy(grow, grow + W, slot + c * ring.padded + half);
-            }
-          slots[k] = slot;
-        }
-        T* mrow = m + b * plane + sy * W;
-        std::fill(mrow, mrow + W, T(0));
-        for (int64_t c0 = 0; c0 < C; c0 += G) {
-          const int64_t gsize = std::min<int64_t>(G, C - c0);
-          for (int64_t k = 0; k < K; ++k)
-            for (int64_t gi = 0; gi < G; ++gi)
-              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
-                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
-          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>()) {
-            const int64_t offset = (b * C + c0) * plane + sy * W + s0;
-            clamp_backward_group<T, G>(own.data() + s0, g_rows.data(), dist, half, s0, x + offset,
-                                       plane, dx_raw + offset, mrow + s0,
-                                       std::min(block_lanes<T>(), W - s0), gsize);
-          }
-        }
-      }
-    }
-  }
-}
-
-// Z(q) = sum_j count_j clamp(rho_q - d_j, 0, 1) and dZ/drho = sum_j count_j [0 <= rho_q - d_j <= 1]
-// over the window's distinct distances d_j (with multiplicities count_j).
-template <typename T>
-void clamp_window_sums(const T* rho, const T* dists, const T* counts, int64_t n_dists, T* total,
-                       T* slope, int64_t n, int nthreads) {
-  const int threads = n > (int64_t(1) << 20) ? nthreads : 1;
-#pragma omp parallel for num_threads(threads) schedule(static)
-  for (int64_t i = 0; i < n; ++i) {
-    const T r = rho[i];
-    T z = T(0), s = T(0);
-    for (int64_t j = 0; j < n_dists; ++j) {
-      const T t = r - dists[j];
-      z += counts[j] * std::min(std::max(t, T(0)), T(1));
-      s += (t >= T(0) && t <= T(1)) ? counts[j] : T(0);
-    }
-    total[i] = z;
-    slope[i] = s;
-  }
-}
-
-
 // ---------------------------------------------------------------------------------------------
-// Fused, normalised scatter (the renderer's "scatter" mode in one pass each way).
-//
-//   s_c(p) = sum_q norm_q w_q(p - q) X_c(q),  X = (x_0 .. x_{C-1}, 1),  norm_q = 1 / Z_q
-//   y_c(p) = s_c(p) / s_C(p),  den(p) = s_C(p)
-//
-// The per-source parameter a_q (sigma for the Gaussian, rho for the clamped distance) gives the
-// weights w_q and Z_q. Backward, from g = dL/dy:
-//   G_c = g_c / den (c < C),  G_C = -sum_c g_c y_c / den      (dL/ds)
-//   D_c(q) = sum_u w_q(u) G_c(q+u),  F_c(q) = sum_u dw_q(u)/da G_c(q+u)
-//   dL/dx_c(q) = norm_q D_c(q)
-//   dL/da_q = norm_q sum_c X_c F_c + (sum_c X_c D_c) dnorm/da
-// A policy gives the weights: its weight rows live in each ring slot, ahead of the channels.
+// Weight policies: the per-source parameter a_q (sigma for the Gaussian, rho for the clamped
+// distance) gives the weights w_q(u), their derivative dw_q/da and the window's total Z_q. A
+// policy's weight rows live in each ring slot, ahead of the channels; the kernels below are
+// written once over the policy.
 
 // Gaussian: weight rows t(d), d = 0..half; w = t(|dy|) t(|dx|); dw/dsigma = w |u|^2 / sigma^3.
 template <typename T>
 struct GaussPolicy {
   int64_t half;
   int64_t rows() const { return half + 1; }
+  // The weight rows alone: rows[d * padded + s] = t_s(d).
+  void fill_rows(const T* sigma, int64_t W, T* rows, int64_t padded) const {
+    fill_table(sigma, W, half, rows, padded);
+  }
+  // line = sum_{d=-half..half} t(d), moment = sum_d d^2 t(d) (see window_sums).
+  void sums(T sg, T* line, T* moment) const {
+    const T e = std::exp(T(-0.5) / (sg * sg));
+    const T e2 = e * e;
+    T t = T(1), q = e, l = T(1), m = T(0);
+    for (int64_t d = 1; d <= half; ++d) {
+      t *= q;
+      q *= e2;
+      l += T(2) * t;
+      m += T(2 * d * d) * t;
+    }
+    *line = l;
+    *moment = m;
+  }
   // rows[d * padded + s] = t_s(d); norm[s] = 1 / line_s^2; dnorm[s] = d norm / d sigma.
   void fill(const T* sigma, int64_t W, T* rows, int64_t padded, T* norm, T* dnorm, T* scratch) const {
     T* q = scratch;
@@ -602,15 +187,24 @@ struct ClampPolicy {
   const T* counts;  // and their multiplicities
   int64_t n_dists;
   int64_t rows() const { return 1; }
+  void fill_rows(const T* rho, int64_t W, T* rows, int64_t) const { std::copy(rho, rho + W, rows); }
+  // Z = sum_j count_j clamp(r - d_j, 0, 1), dZ/dr = sum_j count_j [0 <= r - d_j <= 1] over the
+  // window's distinct distances d_j (with multiplicities count_j).
+  void sums(T r, T* total, T* slope) const {
+    T z = T(0), sl = T(0);
+    for (int64_t j = 0; j < n_dists; ++j) {
+      const T t = r - dists[j];
+      z += counts[j] * std::min(std::max(t, T(0)), T(1));
+      sl += (t >= T(0) && t <= T(1)) ? counts[j] : T(0);
+    }
+    *total = z;
+    *slope = sl;
+  }
   void fill(const T* rho, int64_t W, T* rows, int64_t, T* norm, T* dnorm, T*) const {
     for (int64_t s = 0; s < W; ++s) {
       const T r = rho[s];
-      T z = T(0), sl = T(0);
-      for (int64_t j = 0; j < n_dists; ++j) {
-        const T t = r - dists[j];
-        z += counts[j] * std::min(std::max(t, T(0)), T(1));
-        sl += (t >= T(0) && t <= T(1)) ? counts[j] : T(0);
-      }
+      T z, sl;
+      sums(r, &z, &sl);
       rows[s] = r;
       norm[s] = T(1) / z;
       if (dnorm != nullptr) dnorm[s] = -sl / (z * z);
@@ -637,6 +231,226 @@ struct ClampPolicy {
   }
   T scale(T) const { return T(1); }
 };
+
+// ---------------------------------------------------------------------------------------------
+// Unnormalised scatter with a per-source factor norm (optics/_render_ops.py: gaussian_scatter,
+// clamp_scatter and their gathers):
+//
+//   y_c(p) = sum_q norm_q w_q(p - q) x_c(q)                                       (forward)
+//   dx_raw_c(q) = sum_u w_q(u) g_c(q+u),  m(q) = sum_c x_c(q) sum_u dw_q(u) g_c(q+u)  (backward)
+//
+// dw without the policy's scale() (the Gaussian's m1 = sum_c x_c sum_u t_q(u) |u|^2 g_c(q+u)).
+
+// Forward for G channels of one output row, one register block starting at output pixel x0.
+template <typename T, int G, class P>
+void scatter_forward_group(const P& pol, const T* const* xn_rows, const T* const* w_rows,
+                           int64_t padded, int64_t x0, T* out, int64_t out_stride, int64_t n_out,
+                           int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  const int64_t half = pol.half;
+  V<T> acc[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // source row oy - dy, dy = k - half
+    const T* wr = w_rows[k];
+    if (wr == nullptr) continue;
+    const int64_t dy = k - half;
+    const T* const* xr = xn_rows + k * G;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = x0 - dx + half;
+      for (int j = 0; j < kVectors; ++j) {
+        const V<T> w = pol.weight(wr, padded, dy, dx, base + j * L);
+        for (int g = 0; g < G; ++g) acc[g][j] += w * load(xr[g] + base + j * L);
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    T tmp[kVectors * L];
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) tmp[j * L + l] = acc[g][j][l];
+    std::copy(tmp, tmp + n_out, out + g * out_stride);
+  }
+}
+
+template <typename T, class P>
+void scatter_forward(const P& pol, const T* x, const T* param, const T* norm, T* y, int64_t B,
+                     int64_t C, int64_t H, int64_t W, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
+  const int64_t plane = H * W;
+  const int64_t nw = pol.rows();
+  constexpr int G = 4;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, nw + C);  // each slot: the weight rows, then C rows of x * norm
+    std::vector<const T*> w_rows(K), xn_rows(K * G);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
+      ring.reset();
+      for (int64_t oy = y0; oy < y1; ++oy) {
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t sy = oy - (k - half);
+          if (sy < 0 || sy >= H) continue;
+          bool fresh;
+          T* slot = ring.slot(sy, &fresh);
+          if (fresh) {
+            pol.fill_rows(param + b * plane + sy * W, W, slot + half, ring.padded);
+            const T* nrow = norm + b * plane + sy * W;
+            for (int64_t c = 0; c < C; ++c) {
+              const T* xrow = x + (b * C + c) * plane + sy * W;
+              T* dst = slot + (nw + c) * ring.padded + half;
+              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * nrow[s];
+            }
+          }
+          slots[k] = slot;
+        }
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k) {
+            w_rows[k] = slots[k];
+            for (int64_t g = 0; g < G; ++g)  // unused lanes of a short group read channel c0
+              xn_rows[k * G + g] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (nw + c0 + std::min(g, gsize - 1)) * ring.padded;
+          }
+          for (int64_t x0 = 0; x0 < W; x0 += block_lanes<T>()) {
+            scatter_forward_group<T, G>(pol, xn_rows.data(), w_rows.data(), ring.padded, x0,
+                                        y + (b * C + c0) * plane + oy * W + x0, plane,
+                                        std::min(block_lanes<T>(), W - x0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// Backward for G channels of one source row (weight rows w_row), one register block from source
+// pixel s0.
+template <typename T, int G, class P>
+void scatter_backward_group(const P& pol, const T* w_row, int64_t padded, const T* const* g_rows,
+                            int64_t s0, const T* x_row, int64_t x_stride, T* dx_row, T* m_row,
+                            int64_t n_out, int64_t n_groups) {
+  constexpr int64_t L = Vec<T>::lanes;
+  const int64_t half = pol.half;
+  V<T> acc_d[G][kVectors], acc_f[G][kVectors];
+  for (int g = 0; g < G; ++g)
+    for (int j = 0; j < kVectors; ++j) acc_d[g][j] = acc_f[g][j] = V<T>{};
+  const int64_t K = 2 * half + 1;
+  for (int64_t k = 0; k < K; ++k) {  // output row sy + dy
+    const T* const* gr = g_rows + k * G;
+    if (gr[0] == nullptr) continue;
+    const int64_t dy = k - half;
+    for (int64_t dx = -half; dx <= half; ++dx) {
+      const int64_t base = half + s0 + dx;
+      for (int j = 0; j < kVectors; ++j) {
+        V<T> w, dw;
+        pol.weights(w_row, padded, dy, dx, half + s0 + j * L, &w, &dw);
+        for (int g = 0; g < G; ++g) {
+          const V<T> gv = load(gr[g] + base + j * L);
+          acc_d[g][j] += w * gv;
+          acc_f[g][j] += dw * gv;
+        }
+      }
+    }
+  }
+  for (int64_t g = 0; g < n_groups; ++g) {
+    const T* xr = x_row + g * x_stride;
+    for (int j = 0; j < kVectors; ++j)
+      for (int64_t l = 0; l < L; ++l) {
+        const int64_t i = j * L + l;
+        if (i >= n_out) break;
+        dx_row[g * x_stride + i] = acc_d[g][j][l];
+        m_row[i] += xr[i] * acc_f[g][j][l];
+      }
+  }
+}
+
+template <typename T, class P>
+void scatter_backward(const P& pol, const T* g, const T* x, const T* param, T* dx_raw, T* m,
+                      int64_t B, int64_t C, int64_t H, int64_t W, int nthreads) {
+  const int64_t half = pol.half;
+  const int64_t K = 2 * half + 1;
+  const int64_t rpb = rows_per_block(B, H, nthreads);
+  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
+  const int64_t plane = H * W;
+  constexpr int G = 2;
+#pragma omp parallel num_threads(nthreads)
+  {
+    RowRing<T> ring(K, half, W, C);  // padded gradient rows
+    RowRing<T> own(1, half, W, pol.rows());  // the source row's weight rows
+    std::vector<const T*> g_rows(K * G);
+#pragma omp for schedule(dynamic, 1)
+    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
+      const int64_t b = block / blocks_per_image;
+      const int64_t y0 = (block % blocks_per_image) * rpb;
+      const int64_t y1 = std::min(H, y0 + rpb);
+      ring.reset();
+      for (int64_t sy = y0; sy < y1; ++sy) {
+        bool fresh;
+        T* wrow = own.slot(0, &fresh);
+        pol.fill_rows(param + b * plane + sy * W, W, wrow + half, own.padded);
+        std::vector<T*> slots(K, nullptr);
+        for (int64_t k = 0; k < K; ++k) {
+          const int64_t oy = sy + (k - half);
+          if (oy < 0 || oy >= H) continue;
+          T* slot = ring.slot(oy, &fresh);
+          if (fresh)
+            for (int64_t c = 0; c < C; ++c) {
+              const T* grow = g + (b * C + c) * plane + oy * W;
+              std::copy(grow, grow + W, slot + c * ring.padded + half);
+            }
+          slots[k] = slot;
+        }
+        T* mrow = m + b * plane + sy * W;
+        std::fill(mrow, mrow + W, T(0));
+        for (int64_t c0 = 0; c0 < C; c0 += G) {
+          const int64_t gsize = std::min<int64_t>(G, C - c0);
+          for (int64_t k = 0; k < K; ++k)
+            for (int64_t gi = 0; gi < G; ++gi)
+              g_rows[k * G + gi] = slots[k] == nullptr ? nullptr
+                  : slots[k] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
+          for (int64_t s0 = 0; s0 < W; s0 += block_lanes<T>()) {
+            const int64_t offset = (b * C + c0) * plane + sy * W + s0;
+            scatter_backward_group<T, G>(pol, wrow, own.padded, g_rows.data(), s0, x + offset,
+                                         plane, dx_raw + offset, mrow + s0,
+                                         std::min(block_lanes<T>(), W - s0), gsize);
+          }
+        }
+      }
+    }
+  }
+}
+
+// The policy's per-pixel window sums: the Gaussian's line(q) = sum_{d=-half..half} t_q(d) and
+// moment(q) = sum_d d^2 t_q(d) (line^2 normalises a source to unit energy, moment is its
+// sigma-derivative times sigma^3); the clamped distance's Z(q) and dZ/drho.
+template <typename T, class P>
+void window_sums(const P& pol, const T* param, T* first, T* second, int64_t n, int nthreads) {
+  // A few flops per pixel: threads only pay off on large maps (waking them costs more).
+  const int threads = n > (int64_t(1) << 20) ? nthreads : 1;
+#pragma omp parallel for num_threads(threads) schedule(static)
+  for (int64_t i = 0; i < n; ++i) pol.sums(param[i], first + i, second + i);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fused, normalised scatter (the renderer's "scatter" mode in one pass each way).
+//
+//   s_c(p) = sum_q norm_q w_q(p - q) X_c(q),  X = (x_0 .. x_{C-1}, 1),  norm_q = 1 / Z_q
+//   y_c(p) = s_c(p) / s_C(p),  den(p) = s_C(p)
+//
+// The per-source parameter a_q (sigma for the Gaussian, rho for the clamped distance) gives the
+// weights w_q and Z_q. Backward, from g = dL/dy:
+//   G_c = g_c / den (c < C),  G_C = -sum_c g_c y_c / den      (dL/ds)
+//   D_c(q) = sum_u w_q(u) G_c(q+u),  F_c(q) = sum_u dw_q(u)/da G_c(q+u)
+//   dL/dx_c(q) = norm_q D_c(q)
+//   dL/da_q = norm_q sum_c X_c F_c + (sum_c X_c D_c) dnorm/da
+// The weight policies (above) give w, dw/da, Z and dnorm/da.
 
 // Two output rows (oy, oy + 1) of G channels at once, one register block from output pixel x0:
 // each source row and weight loaded serves both rows (they share K of their K + 1 source rows).
@@ -1364,47 +1178,36 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
 }  // namespace
 
 extern "C" {
-void gs_window_sums_f32(const float* sigma, float* line, float* moment, int64_t n, int64_t half,
-                        int nthreads) {
-  window_sums(sigma, line, moment, n, half, nthreads);
-}
-void gs_window_sums_f64(const double* sigma, double* line, double* moment, int64_t n,
-                        int64_t half, int nthreads) {
-  window_sums(sigma, line, moment, n, half, nthreads);
-}
-void gs_forward_f32(const float* x, const float* sigma, const float* norm, float* y, int64_t B,
-                    int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
-  forward(x, sigma, norm, y, B, C, H, W, half, nthreads);
-}
-void gs_forward_f64(const double* x, const double* sigma, const double* norm, double* y,
-                    int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
-  forward(x, sigma, norm, y, B, C, H, W, half, nthreads);
-}
-void gs_backward_f32(const float* g, const float* x, const float* sigma, float* dx_raw, float* m1,
-                     int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {
-  backward(g, x, sigma, dx_raw, m1, B, C, H, W, half, nthreads);
-}
-void gs_backward_f64(const double* g, const double* x, const double* sigma, double* dx_raw,
-                     double* m1, int64_t B, int64_t C, int64_t H, int64_t W, int64_t half,
-                     int nthreads) {
-  backward(g, x, sigma, dx_raw, m1, B, C, H, W, half, nthreads);
-}
-
-#define DEFOCUS_CLAMP_ABI(T, S)                                                                 \
+#define DEFOCUS_SCATTER_ABI(T, S)                                                               \
+  void gs_window_sums_##S(const T* sigma, T* line, T* moment, int64_t n, int64_t half,         \
+                          int nthreads) {                                                      \
+    window_sums(GaussPolicy<T>{half}, sigma, line, moment, n, nthreads);                       \
+  }                                                                                            \
+  void gs_forward_##S(const T* x, const T* sigma, const T* norm, T* y, int64_t B, int64_t C,   \
+                      int64_t H, int64_t W, int64_t half, int nthreads) {                      \
+    scatter_forward(GaussPolicy<T>{half}, x, sigma, norm, y, B, C, H, W, nthreads);            \
+  }                                                                                            \
+  void gs_backward_##S(const T* g, const T* x, const T* sigma, T* dx_raw, T* m1, int64_t B,    \
+                       int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {          \
+    scatter_backward(GaussPolicy<T>{half}, g, x, sigma, dx_raw, m1, B, C, H, W, nthreads);     \
+  }                                                                                            \
   void cl_forward_##S(const T* x, const T* rho, const T* norm, const T* dist, T* y, int64_t B, \
                       int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) {           \
-    clamp_forward(x, rho, norm, dist, y, B, C, H, W, half, nthreads);                          \
+    scatter_forward(ClampPolicy<T>{half, dist, nullptr, nullptr, 0}, x, rho, norm, y, B, C, H, \
+                    W, nthreads);                                                              \
   }                                                                                            \
   void cl_backward_##S(const T* g, const T* x, const T* rho, const T* dist, T* dx_raw, T* m,   \
                        int64_t B, int64_t C, int64_t H, int64_t W, int64_t half, int nthreads) { \
-    clamp_backward(g, x, rho, dist, dx_raw, m, B, C, H, W, half, nthreads);                    \
+    scatter_backward(ClampPolicy<T>{half, dist, nullptr, nullptr, 0}, g, x, rho, dx_raw, m, B, \
+                     C, H, W, nthreads);                                                       \
   }                                                                                            \
   void cl_window_sums_##S(const T* rho, const T* dists, const T* counts, int64_t n_dists,     \
                           T* total, T* slope, int64_t n, int nthreads) {                       \
-    clamp_window_sums(rho, dists, counts, n_dists, total, slope, n, nthreads);                 \
+    window_sums(ClampPolicy<T>{0, nullptr, dists, counts, n_dists}, rho, total, slope, n,      \
+                nthreads);                                                                     \
   }
-DEFOCUS_CLAMP_ABI(float, f32)
-DEFOCUS_CLAMP_ABI(double, f64)
+DEFOCUS_SCATTER_ABI(float, f32)
+DEFOCUS_SCATTER_ABI(double, f64)
 
 #define DEFOCUS_FUSED_ABI(T, S)                                                                \
   void gs_render_##S(const T* x, const T* sigma, T* y, T* den, int64_t B, int64_t C, int64_t H, \
