@@ -1,4 +1,5 @@
-"""Shared fixtures: devices and dtypes to parametrise over, and a brute-force renderer."""
+"""Shared fixtures: devices and dtypes to parametrise over, a brute-force renderer and a
+finite-difference check of a parameter's gradient."""
 
 import pytest
 import torch
@@ -40,3 +41,22 @@ def _brute_force_render(image, coc, psf, scatter):
 def brute_force_render():
     """`f(image, coc, psf, scatter)`: the rendering by an independent double loop (batch 0)."""
     return _brute_force_render
+
+
+def _check_param_grad(loss, param, step=1e-6):
+    """Autograd's `d loss() / d param` (a scalar parameter) matches a central difference and is
+    not vanishing; `param` is left shifted by `-step`."""
+    (grad,) = torch.autograd.grad(loss(), param)
+    with torch.no_grad():
+        param += step
+        up = loss()
+        param -= 2 * step
+        down = loss()
+    assert float(grad) == pytest.approx(float(up - down) / (2 * step), rel=1e-5, abs=1e-8)
+    assert abs(float(grad)) > 1e-3
+
+
+@pytest.fixture
+def check_param_grad():
+    """`f(loss, param)`: asserts the gradient of `loss()` in `param` against a central difference."""
+    return _check_param_grad
