@@ -60,3 +60,13 @@ def _check_param_grad(loss, param, step=1e-6):
 def check_param_grad():
     """`f(loss, param)`: asserts the gradient of `loss()` in `param` against a central difference."""
     return _check_param_grad
+
+
+@pytest.fixture(scope="module")
+def scenes():
+    """Six 16x16 synthetic scenes, rendered once per test module."""
+    from datasets.synthetic import SyntheticScenes
+
+    data = SyntheticScenes(6, (16, 16), seed=3)
+    [data[i] for i in range(len(data))]
+    return data

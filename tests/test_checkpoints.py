@@ -15,8 +15,8 @@ import shlex
 import numpy as np
 import pytest
 import torch
+from training_helpers import tiny_config as _tiny
 
-from datasets.synthetic import SyntheticScenes
 from defocus.cli import main
 from models.checkpoints import (
     CheckpointError,
@@ -27,7 +27,7 @@ from models.checkpoints import (
     to_plain,
 )
 from models.run_log import CsvLog
-from models.training import TrainConfig, Trainer, load_model
+from models.training import Trainer, load_model
 
 
 class ShellPayload:
@@ -53,18 +53,8 @@ class OpenPayload:
 PAYLOADS = {"os.system": ShellPayload, "open": OpenPayload}
 
 
-def _tiny(out_dir, **kw):
-    base = dict(steps=4, batch_size=2, lr=1e-3, width=4, out_dir=out_dir, depth_min=1.5,
-                depth_max=6.0, progress=False, seed=0)
-    base.update(kw)
-    return TrainConfig(**base)
 
 
-@pytest.fixture(scope="module")
-def scenes():
-    data = SyntheticScenes(6, (16, 16), seed=3)
-    [data[i] for i in range(len(data))]
-    return data
 
 
 def _evil(path: pathlib.Path, marker: pathlib.Path, payload: str = "os.system") -> pathlib.Path:

@@ -4,6 +4,7 @@ failures, config checks, bad data, non-finite steps and collapsed predictions.""
 from __future__ import annotations
 
 import csv
+import functools
 import os
 import signal
 import subprocess
@@ -13,27 +14,19 @@ from pathlib import Path
 
 import pytest
 import torch
+from training_helpers import tiny_config
 
-from datasets.synthetic import SyntheticScenes
 from defocus.cli import main
 from models.checkpoints import load_checkpoint
 from models.training import DepthCollapseWarning, TrainConfig, Trainer
 
+_tiny = functools.partial(tiny_config, supervision="depth")
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _tiny(out_dir, **kw):
-    base = dict(steps=4, batch_size=2, lr=1e-3, width=4, out_dir=out_dir, depth_min=1.5,
-                depth_max=6.0, progress=False, seed=0, supervision="depth")
-    base.update(kw)
-    return TrainConfig(**base)
 
 
-@pytest.fixture(scope="module")
-def scenes():
-    data = SyntheticScenes(6, (16, 16), seed=3)
-    [data[i] for i in range(len(data))]
-    return data
 
 
 def _log_steps(out_dir: Path) -> list[int]:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from training_helpers import tiny_config as _tiny
 
 from datasets.synthetic import SyntheticScenes
 from models.metrics import METRIC_NAMES, best_constant_depth, depth_metrics
@@ -17,18 +18,8 @@ from models.training import TrainConfig, Trainer, load_model
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _tiny(out_dir, **kw):
-    base = dict(steps=4, batch_size=2, lr=1e-3, width=4, out_dir=out_dir, depth_min=1.5,
-                depth_max=6.0, progress=False, seed=0)
-    base.update(kw)
-    return TrainConfig(**base)
 
 
-@pytest.fixture(scope="module")
-def scenes():
-    data = SyntheticScenes(6, (16, 16), seed=3)
-    [data[i] for i in range(len(data))]  # render once for every test of the module
-    return data
 
 
 def test_config_yaml_and_overrides(tmp_path):
