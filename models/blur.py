@@ -307,7 +307,8 @@ def train_blur_net(
         optimizer.step()
         schedule.step()
         if log is not None:
-            log.append({"step": step + 1, "loss": float(loss), "lr": schedule.get_last_lr()[0]})
+            log.append({"step": step + 1, "loss": float(loss.detach()),
+                        "lr": schedule.get_last_lr()[0]})
         bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
     net.eval()
     return net
