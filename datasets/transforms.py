@@ -2,7 +2,7 @@
 
 Geometric transforms (crop, resize, flip) are applied identically to `image`, `focused`,
 `depth` and `mask` so they stay pixel-aligned. Resizing changes the *effective* pixel pitch
-(`camera["pixel_pitch"]`) by the resize factor, so CoC sizes in pixels stay physically right;
+(the `camera` settings' pixel pitch) by the resize factor, so CoC sizes in pixels stay physically right;
 cropping and flipping do not. Colour augmentation multiplies every image (all-in-focus and focused)
 by the same per-channel gains: a linear blur commutes with that, so the focused images remain the
 renders of the augmented all-in-focus image.

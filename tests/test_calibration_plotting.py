@@ -57,3 +57,30 @@ def test_no_pyplot_or_backend_switch_in_optics():
         text = path.read_text()
         for pattern in ("matplotlib.pyplot", "import pyplot", "matplotlib.use("):
             assert pattern not in text, f"{path}: {pattern}"
+
+
+def test_every_figure_leaves_backend_and_pyplot_alone(tmp_path):
+    """The focus sweep (optics) and the prediction figures (models) too."""
+    import matplotlib.pyplot as plt
+
+    from datasets.middlebury import motorcycle_focus_sweep, motorcycle_sample
+    from models.plotting import plot_comparison, plot_prediction
+    from optics.plotting import plot_focus_sweep
+
+    before = matplotlib.get_backend()
+    try:
+        matplotlib.use("svg")
+        backend = matplotlib.get_backend()
+        plt.close("all")
+        sweep = motorcycle_focus_sweep([2.2, 5.0], scale=0.1)
+        plot_focus_sweep(sweep["image"], sweep["depth"], sweep["renders"], sweep["coc_px"],
+                         sweep["settings"], tmp_path / "sweep.png")
+        sample = motorcycle_sample(0.1)
+        plot_prediction(tmp_path / "p.png", sample["image"], sample["depth"], sample["focused"],
+                        sample["depth"], sample["mask"])
+        plot_comparison(tmp_path / "c.png", sample, {"truth": sample["depth"]}, (1.5, 6.0))
+        assert matplotlib.get_backend() == backend
+        assert plt.get_fignums() == []
+        assert all((tmp_path / n).stat().st_size > 1000 for n in ("sweep.png", "p.png", "c.png"))
+    finally:
+        matplotlib.use(before)
