@@ -73,6 +73,9 @@ def build_parser(description: str, out: str) -> argparse.ArgumentParser:
     parser.add_argument("--memory-cache-mb", type=float, default=2048,
                         help="keep up to this many MiB of full-resolution samples in memory")
     parser.add_argument("--out", type=Path, default=Path(out), help="run folder (logs, checkpoints)")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="CPU threads of PyTorch (0: its default, one per core; on a "
+                             "machine shared with other jobs 1 wastes less time waiting)")
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
     return parser
@@ -145,6 +148,10 @@ def train_and_evaluate(
     from models.training import TrainConfig
 
     keep_memory()
+    if args.threads < 0:
+        raise SystemExit(f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}")
+    if args.threads:
+        torch.set_num_threads(args.threads)
     kind = device_kind(args.device)
     defaults = DEVICE_DEFAULTS[kind]
     train_set, test_set = limit(train_set, args.max_train), limit(test_set, args.max_test)
