@@ -22,9 +22,7 @@ memory up to `--memory-cache-mb`.
 from __future__ import annotations
 
 import argparse
-import ctypes
 import math
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -113,20 +111,6 @@ def limit(dataset: Dataset, count: int | None) -> Dataset:
     return dataset if count is None or count >= len(dataset) else Subset(dataset, range(count))
 
 
-def keep_memory() -> None:
-    """Keep freed large blocks in the process (glibc `mallopt`), so that the same large
-    buffers of every training step are not mapped and unmapped again (system time)."""
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL("libc.so.6")
-    except OSError:
-        return
-    m_trim_threshold, m_mmap_threshold = -1, -3
-    libc.mallopt(m_mmap_threshold, 32 << 20)  # glibc's largest allowed threshold on 64 bit
-    libc.mallopt(m_trim_threshold, 1 << 30)
-
-
 def train_and_evaluate(
     name: str,
     args: argparse.Namespace,
@@ -143,11 +127,12 @@ def train_and_evaluate(
     `train_set` gives random crops (see `training_crop`); `constant_set`, the same training
     samples whole, chooses the best constant depth.
     """
+    from models.experiment import keep_freed_memory
     from models.experiment import train_and_evaluate as run
     from models.metrics import format_table
     from models.training import TrainConfig
 
-    keep_memory()
+    keep_freed_memory()
     if args.threads < 0:
         raise SystemExit(f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}")
     if args.threads:
@@ -164,7 +149,8 @@ def train_and_evaluate(
     config = TrainConfig(
         steps=steps or 1, batch_size=args.batch_size, lr=args.lr, network=args.network,
         input_mode=args.input_mode, out_dir=args.out, seed=args.seed,
-        depth_min=depth_range[0], depth_max=depth_range[1], device=args.device,
+        depth_min=depth_range[0], depth_max=depth_range[1],
+        device=kind if args.device == "auto" else args.device,
         n_focus=int(first["focused"].shape[0]), width=args.width, progress=not args.no_progress,
     )
     whole = (constant_set or train_set)[0]["image"].shape[-2:]
