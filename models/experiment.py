@@ -179,6 +179,10 @@ def measure_steps(config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
             "sys_s_per_step": system}
 
 
+class _OutOfTime(Exception):
+    """Raised by the step callback when the time budget is spent."""
+
+
 def _progress_printer(total: int, every: int) -> Callable[[Trainer, int, dict[str, float]], None]:
     """A `step_callback` that prints step, loss, s/step and ETA every `every` steps."""
     started = time.perf_counter()
@@ -274,7 +278,9 @@ def train_and_evaluate(
     Before the long part it prints the planned steps, the measured seconds per step (with user
     and system CPU time) and the ETA. With `minutes`, `config.steps` is replaced by as many
     steps as fit in that budget together with the evaluation (measured on `probe_steps` steps
-    and one test sample), at most `max_steps`.
+    and one test sample), at most `max_steps`; should the machine get slower than measured,
+    training stops when the budget (less the evaluation's share) is spent, and the table names
+    the steps actually run.
 
     Args:
         config: the training run (its `depth_max` is also the evaluation cap).
@@ -322,12 +328,25 @@ def train_and_evaluate(
           f"done about {time.strftime('%H:%M', time.localtime(time.time() + train_s + eval_s))}",
           flush=True)
     every = report_every if report_every is not None else max(1, math.ceil(steps / 10))
-    callback = _progress_printer(steps, every) if every else None
+    printer = _progress_printer(steps, every) if every else None
+    deadline = None if minutes is None else planning[0] + minutes * 60 - eval_s
+
+    def callback(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
+        if printer is not None:
+            printer(trainer, step, losses)
+        if deadline is not None and step < steps and time.perf_counter() > deadline:
+            raise _OutOfTime
+
     trainer = Trainer(config, train_set, step_callback=callback)
-    if callback is not None:
-        callback.start[0] = trainer.step  # type: ignore[attr-defined]
-    trainer.fit()
-    method = f"ours ({config.network}, {config.input_mode}, {config.steps} steps)"
+    if printer is not None:
+        printer.start[0] = trainer.step  # type: ignore[attr-defined]
+    try:
+        trainer.fit()
+    except _OutOfTime:
+        print(f"time budget of {minutes:g} min reached after {trainer.step} of {steps} steps "
+              f"(the machine got slower than measured); evaluating now", flush=True)
+        trainer.save_checkpoint()
+    method = f"ours ({config.network}, {config.input_mode}, {trainer.step} steps)"
     if not has_depth:
         return {method: reconstruction_metrics(trainer, test_set)}
     constant = constant_from_training(train_set if constant_set is None else constant_set)

@@ -117,3 +117,21 @@ def test_predict_tiled_covers_the_image():
     assert bool((tiled >= cfg.depth_min).all() and (tiled <= cfg.depth_max).all())
     with pytest.raises(ValueError, match="tile must be > 0"):
         predict_tiled(trainer, image, max_pixels=100, tile=0)
+
+
+def test_time_budget_stops_training_when_the_machine_gets_slower(monkeypatch, capsys):
+    """A plan from a too-optimistic measurement is cut at the budget, and the table says so."""
+    from models import experiment
+    from models.training import TrainConfig
+
+    monkeypatch.setattr(experiment, "measure_steps", lambda *a, **k: {
+        "first_step_s": 0.0, "s_per_step": 1e-4, "user_s_per_step": 1e-4, "sys_s_per_step": 0.0})
+    samples = [{"image": torch.rand(3, 16, 16), "depth": torch.full((1, 16, 16), 2.0),
+                "mask": torch.ones(1, 16, 16, dtype=torch.bool)}] * 2
+    cfg = TrainConfig(steps=5, batch_size=2, input_mode="aif", supervision="depth", width=4,
+                      progress=False, out_dir=tempfile.mkdtemp(), device="cpu")
+    rows = experiment.train_and_evaluate(cfg, samples, samples, minutes=0.2, max_steps=10**6)
+    out = capsys.readouterr().out
+    assert "time budget of 0.2 min reached after" in out
+    steps = int(out.split("reached after ")[1].split(" ")[0])
+    assert 1 <= steps < 10**6 and f"ours (small, aif, {steps} steps)" in rows
