@@ -10,16 +10,16 @@ at f/2.8 and f/8 with registered depth. The folder given as ``--root`` must hold
 The f/8 photo is the all-in-focus input, the f/2.8 photo the real focused image (35 mm, focus
 about 1.7 m): no synthesis.
 
-Training takes random crops (``--crop``) of the full-resolution samples (real photos: nothing is synthesised or cached on disk); evaluation
-runs on whole images.
+Training takes random crops (``--crop``) of the full-resolution samples (real photos: nothing is
+synthesised or cached on disk); evaluation runs on whole images.
 
 CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
 
     python examples/dslr.py --root data/dslr
 
-GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam
-lr 2e-5, Gaussian PSF sigma = CoC/2, real f/2.8 and f/8 photos; here 256x256 crops, batch 8,
-20000 steps)::
+GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam lr
+2e-5, Gaussian PSF sigma = CoC/2, real f/2.8 and f/8 photos; here 256x256 crops, batch 8, 20000
+steps)::
 
     python examples/dslr.py --root data/dslr --device cuda --network paper --lr 2e-5 \\
         --steps 20000 --crop 256 --batch-size 8

@@ -12,16 +12,17 @@ plus Eigen split files (e.g. from monodepth2: ``splits/eigen/{train,test}_files.
 Sparse LiDAR depth is densified by nearest neighbour for focus synthesis and masked for
 evaluation (Garg crop, 80 m cap).
 
-Training takes random crops (``--crop``) of the full-resolution samples, after their focal stacks were synthesised at full resolution (cached: the blur in pixels stays the camera's); evaluation
-runs on whole images.
+Training takes random crops (``--crop``) of the full-resolution samples, after their focal
+stacks were synthesised at full resolution (cached: the blur in pixels stays the camera's);
+evaluation runs on whole images.
 
 CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
 
     python examples/kitti.py --root data/kitti
 
-GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam
-lr 2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.KITTI` (ours: the paper gives none); here 256x256 crops, batch 8,
-20000 steps)::
+GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam lr
+2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.KITTI` (ours: the paper gives
+none); here 256x256 crops, batch 8, 20000 steps)::
 
     python examples/kitti.py --root data/kitti --device cuda --network paper --lr 2e-5 \\
         --steps 20000 --crop 256 --batch-size 8

@@ -11,16 +11,16 @@ The centre view is the all-in-focus image; focused images average the central vi
 circular aperture at two disparities. Light fields carry no depth, so the table reports the
 self-supervised reconstruction losses on the test set.
 
-Training takes random crops (``--crop``) of the full-resolution samples (real refocusing: nothing is synthesised or cached on disk); evaluation
-runs on whole images.
+Training takes random crops (``--crop``) of the full-resolution samples (real refocusing:
+nothing is synthesised or cached on disk); evaluation runs on whole images.
 
 CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
 
     python examples/lightfield.py --root data/flowers
 
-GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam
-lr 2e-5, Gaussian PSF sigma = CoC/2, real refocused views; here 256x256 crops, batch 8,
-20000 steps)::
+GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam lr
+2e-5, Gaussian PSF sigma = CoC/2, real refocused views; here 256x256 crops, batch 8, 20000
+steps)::
 
     python examples/lightfield.py --root data/flowers --device cuda --network paper --lr 2e-5 \\
         --steps 20000 --crop 256 --batch-size 8

@@ -9,16 +9,17 @@ Train400Depth, Test134Img, Test134Depth. The folder given as ``--root`` must hol
 Photos are resized to 460x345 by default (the common protocol; the pixel pitch follows);
 evaluation caps depth at 70 m.
 
-Training takes random crops (``--crop``) of the full-resolution samples, after their focal stacks were synthesised at 460x345 (cached: the blur in pixels stays the camera's); evaluation
+Training takes random crops (``--crop``) of the full-resolution samples, after their focal
+stacks were synthesised at 460x345 (cached: the blur in pixels stays the camera's); evaluation
 runs on whole images.
 
 CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
 
     python examples/make3d.py --root data/make3d
 
-GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam
-lr 2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.MAKE3D` (ours); here 256x256 crops, batch 8,
-20000 steps)::
+GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam lr
+2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.MAKE3D` (ours); here 256x256
+crops, batch 8, 20000 steps)::
 
     python examples/make3d.py --root data/make3d --device cuda --network paper --lr 2e-5 \\
         --steps 20000 --crop 256 --batch-size 8

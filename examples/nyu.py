@@ -10,16 +10,17 @@ Data: the labeled NYU Depth v2 set and its split, from the NYU Depth v2 page
 Focused images are synthesised with the paper's camera (35 mm, f/2.8, focus 2 m and 8 m, pixel
 pitch 5.6 um x 4 at 640x480); evaluation uses Eigen's crop and a 10 m cap.
 
-Training takes random crops (``--crop``) of the full-resolution samples, after their focal stacks were synthesised at full resolution (cached: the blur in pixels stays the camera's); evaluation
-runs on whole images.
+Training takes random crops (``--crop``) of the full-resolution samples, after their focal
+stacks were synthesised at full resolution (cached: the blur in pixels stays the camera's);
+evaluation runs on whole images.
 
 CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
 
     python examples/nyu.py --root data/nyu
 
-GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam
-lr 2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.NYU`; here 256x256 crops, batch 8,
-20000 steps)::
+GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam lr
+2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.NYU`; here 256x256 crops,
+batch 8, 20000 steps)::
 
     python examples/nyu.py --root data/nyu --device cuda --network paper --lr 2e-5 \\
         --steps 20000 --crop 256 --batch-size 8

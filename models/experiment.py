@@ -18,7 +18,7 @@ from typing import Any
 
 import torch
 from torch import Tensor
-from torch.utils.data import default_collate
+from torch.utils.data import Subset, default_collate
 
 from .direct import fit_depth_direct
 from .metrics import best_constant_depth, depth_metrics
@@ -149,8 +149,25 @@ def evaluate_whole_images(
                   if constant is not None else None)
 
 
-def constant_from_training(samples: Sequence[Mapping[str, Any]]) -> float | None:
-    """`best_constant_depth` (abs-rel-optimal) of the valid depths of `samples`, or None."""
+def evenly_spaced(samples: Sequence[Mapping[str, Any]], count: int) -> Sequence[Mapping[str, Any]]:
+    """`count` samples spread evenly over `samples` (all of them when there are no more).
+
+    Example:
+        >>> list(evenly_spaced(list(range(10)), 3))
+        [0, 3, 6]
+    """
+    n = len(samples)
+    if count >= n:
+        return samples
+    return Subset(samples, [i * n // count for i in range(count)])  # type: ignore[arg-type]
+
+
+def constant_from_training(samples: Sequence[Mapping[str, Any]],
+                           max_samples: int = 64) -> float | None:
+    """`best_constant_depth` (abs-rel-optimal) of the valid depths of `samples` (at most
+    `max_samples` of them, evenly spaced, so a large training set is not read whole), or None."""
+    if hasattr(samples, "__len__"):
+        samples = evenly_spaced(samples, max_samples)
     depths = [s["depth"][s["mask"].bool()] for s in samples if bool(s["mask"].any())]
     return None if not depths else best_constant_depth(target=torch.cat(depths))
 
@@ -272,6 +289,7 @@ def train_and_evaluate(
     max_steps: int | None = None,
     probe_steps: int = 3,
     report_every: int | None = None,
+    eval_share: float = 0.4,
 ) -> dict[str, dict[str, float]]:
     """Train a network with `config` on `train_set`, then evaluate it on whole `test_set` images.
 
@@ -297,6 +315,8 @@ def train_and_evaluate(
         probe_steps: steps timed before planning (plus one untimed warm-up step).
         report_every: print a progress line every this many steps (default: about 10 lines;
             0: never).
+        eval_share: with `minutes`, the largest share of the budget the evaluation may take;
+            beyond it an evenly spaced part of `test_set` is evaluated (and that is printed).
 
     Returns:
         table rows: the trained network's, and (with depth) the best constant depth's.
@@ -310,7 +330,15 @@ def train_and_evaluate(
     # a forward pass of a whole image: about half a step's cost per pixel (no backward)
     step_pixels = config.batch_size * _pixels(train_set)
     forward_one = timing["s_per_step"] * first_test["image"][0].numel() / step_pixels / 2
-    eval_s = (load_one + forward_one) * n_test + 2.0
+    per_test = load_one + forward_one
+    eval_s = per_test * n_test + 2.0
+    if minutes is not None and eval_s > eval_share * minutes * 60 and n_test > 1:
+        fit = max(1, int((eval_share * minutes * 60 - 2.0) / max(per_test, 1e-6)))
+        if fit < n_test:
+            print(f"evaluating {fit} of {n_test} test images (evenly spaced) to fit the "
+                  f"{minutes:g} min budget; --max-test {n_test} or a larger --minutes for all")
+            test_set, n_test = evenly_spaced(test_set, fit), fit
+            eval_s = per_test * n_test + 2.0
     if minutes is not None:
         spent = time.perf_counter() - planning[0]
         steps = plan_steps(timing["s_per_step"], minutes, reserve_s=eval_s + spent + 5,
