@@ -79,6 +79,18 @@ def build_parser(description: str, out: str) -> argparse.ArgumentParser:
     return parser
 
 
+def loss_window(size: Sequence[int], largest: int = 63) -> int:
+    """The loss's largest PSF window (odd, pixels) for training inputs of `size = (H, W)`:
+    `largest`, or less for inputs smaller than that, where a wider window adds only work.
+
+    Example:
+        >>> loss_window((128, 128)), loss_window((12, 18))
+        (63, 11)
+    """
+    side = min(int(size[0]), int(size[1]), largest)
+    return max(side - 1 + side % 2, 3)
+
+
 def device_kind(name: str) -> str:
     """`"cuda"` or `"cpu"` for a `--device` value (`"auto"`: CUDA when available)."""
     if name == "auto":
@@ -152,6 +164,7 @@ def train_and_evaluate(
         depth_min=depth_range[0], depth_max=depth_range[1],
         device=kind if args.device == "auto" else args.device,
         n_focus=int(first["focused"].shape[0]), width=args.width, progress=not args.no_progress,
+        max_kernel_size=loss_window(first["image"].shape[-2:]),
     )
     whole = (constant_set or train_set)[0]["image"].shape[-2:]
     crop_text = (f"random {tuple(first['image'].shape[-2:])} crops of"
