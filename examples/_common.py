@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -123,6 +124,24 @@ def limit(dataset: Dataset, count: int | None) -> Dataset:
     return dataset if count is None or count >= len(dataset) else Subset(dataset, range(count))
 
 
+def truncation_warning_once() -> None:
+    """Show the renderer's "PSFs are truncated" warning once, not at every training step
+    whose predicted depths reach the ends of the depth range."""
+    original = warnings.showwarning
+    seen = [False]
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
+        if "PSFs are truncated" in str(message):
+            if seen[0]:
+                return
+            seen[0] = True
+            message = UserWarning(f"{message} (shown once; predictions near the ends of the "
+                                  "depth range blur the most)")
+        original(message, category, filename, lineno, file, line)
+
+    warnings.showwarning = show
+
+
 def train_and_evaluate(
     name: str,
     args: argparse.Namespace,
@@ -145,6 +164,7 @@ def train_and_evaluate(
     from models.training import TrainConfig
 
     keep_freed_memory()
+    truncation_warning_once()
     if args.threads < 0:
         raise SystemExit(f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}")
     if args.threads:
