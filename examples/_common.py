@@ -54,6 +54,8 @@ def build_parser(description: str, out: str) -> argparse.ArgumentParser:
     parser.add_argument("--crop", type=int, nargs="+", metavar="PX", default=None,
                         help="train on random H [W] crops of the full-resolution samples "
                              "(default: CPU 128, GPU 256; 0: whole images)")
+    parser.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
+                        help="depths the network can output, metres (default: the dataset's)")
     parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
     parser.add_argument("--network", choices=["small", "paper"], default="small",
                         help="depth network (the paper's is large; use a GPU)")
@@ -165,6 +167,10 @@ def train_and_evaluate(
 
     keep_freed_memory()
     truncation_warning_once()
+    if args.depth_range is not None:
+        if not 0 < args.depth_range[0] < args.depth_range[1]:
+            raise SystemExit(f"--depth-range must be 0 < MIN < MAX metres, got {args.depth_range}")
+        depth_range = (args.depth_range[0], args.depth_range[1])
     if args.threads < 0:
         raise SystemExit(f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}")
     if args.threads:
