@@ -190,10 +190,10 @@ class DepthDataset(Dataset):
 
         Example:
             >>> from datasets import Middlebury
-            >>> whole = Middlebury(None, memory_cache_mb=64)
-            >>> crops = whole.with_augment(JointAugment(crop_size=(64, 96)))
+            >>> whole = Middlebury(None, size=(50, 74), memory_cache_mb=64)
+            >>> crops = whole.with_augment(JointAugment(crop_size=(16, 24)))
             >>> crops[0]["image"].shape, whole[0]["image"].shape
-            (torch.Size([3, 64, 96]), torch.Size([3, 500, 741]))
+            (torch.Size([3, 16, 24]), torch.Size([3, 50, 74]))
         """
         if augment is not None and not isinstance(augment, JointAugment):
             raise TypeError(f"augment must be a JointAugment or None, got {type(augment).__name__}")
