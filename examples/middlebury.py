@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
     crop = training_crop(args, whole)
     train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
     test = whole if splits[1] == splits[0] else Middlebury(root, splits[1], **kwargs)
-    train_and_evaluate("Middlebury", args, train, test, depth_range=(0.5, 10.0),
+    train_and_evaluate("Middlebury", args, train, test, depth_range=(1.0, 8.0),
                        constant_set=whole)
     return 0
 
