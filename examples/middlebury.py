@@ -8,8 +8,10 @@ Data: the Middlebury 2014 stereo set (https://vision.middlebury.edu/stereo/data/
 
 Without ``train.txt``/``test.txt`` every scene is used for both. ``--root builtin`` uses the
 motorcycle scene that ships with scikit-image (741x500, offline, no download). Training and
-test are then the *same single scene*: the table shows that the network fits the scene's
-depth from its defocus better than the best constant depth, not that it generalises.
+test are then the *same single scene*: the table shows whether the network recovers the
+scene's depth from its defocus better than the best constant depth, not that it generalises.
+Measured on 2 CPU cores (1 thread, load about 1): 300 steps in 9 min 10 s, abs rel 0.117
+against 0.202 for the best constant depth (2.53 m).
 
 Focused images are synthesised once per scene at full resolution (camera
 `datasets.presets.MIDDLEBURY`, pitch set per scene so the lens keeps the scene's field of
