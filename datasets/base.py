@@ -22,6 +22,8 @@ After `torch.utils.data.default_collate` the settings become `(B,F)` and `focuse
 
 from __future__ import annotations
 
+import copy
+from collections import OrderedDict
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -31,8 +33,35 @@ from torch.utils.data import Dataset
 
 from optics import Aperture, CameraSettings
 
-from .focus import CameraPreset, cached_focal_stack
+from .focus import CameraPreset, cached_focal_stack, resolve_cache_dir
 from .transforms import JointAugment, _check_size, crop_sample, resize_sample
+
+
+class _MemoryCache:
+    """Samples by index, least recently used dropped first beyond `limit_mb` MiB."""
+
+    def __init__(self, limit_mb: float):
+        self.limit = float(limit_mb) * 2**20
+        self.entries: OrderedDict[int, tuple[dict[str, Any], int]] = OrderedDict()
+        self.size = 0
+
+    def get(self, index: int) -> dict[str, Any] | None:
+        entry = self.entries.get(index)
+        if entry is None:
+            return None
+        self.entries.move_to_end(index)
+        return dict(entry[0])
+
+    def put(self, index: int, sample: dict[str, Any]) -> None:
+        size = sum(v.numel() * v.element_size() for v in sample.values()
+                   if isinstance(v, torch.Tensor))
+        if size > self.limit:
+            return
+        while self.entries and self.size + size > self.limit:
+            _, (_, dropped) = self.entries.popitem(last=False)
+            self.size -= dropped
+        self.entries[index] = (dict(sample), size)
+        self.size += size
 
 
 class DepthDataset(Dataset):
@@ -44,15 +73,24 @@ class DepthDataset(Dataset):
     synthesised from depth with the preset). `__getitem__` then crops, resizes (scaling the
     pixel pitch), synthesises (cached), augments and checks the sample.
 
+    Training on crops: pass `augment=JointAugment(crop_size=(h, w))`. The crop is taken *after*
+    the focal stack was synthesised at full resolution, so the blur in pixels is the preset's
+    (cropping leaves the pixel pitch alone), and image, focused images, depth and mask get the
+    same window. With `memory_cache_mb` the full-resolution synthesised sample is kept in
+    memory, so each step only loads nothing, crops and augments.
+
     Args:
         preset: the camera that synthesises the focused images.
         size: `(height, width)` to resize to, in pixels, or None to keep the native size.
         crop: `(top, left, height, width)` fixed crop at native resolution, before resizing.
         augment: a `JointAugment`, applied last (training only).
-        cache_dir: folder to keep synthesised focal stacks in, or None.
+        cache_dir: folder to keep synthesised focal stacks in, `"auto"` for the per-user
+            `datasets.focus.default_cache_dir()` (None when it is not writable), or None.
         aperture: PSF shape for synthesis (Gaussian, `sigma = CoC/2`, by default).
         render_kwargs: extra arguments of `optics.render_defocus` for synthesis.
         dtype: floating dtype of the returned tensors.
+        memory_cache_mb: keep up to this many MiB of loaded, synthesised samples (before
+            `augment`) in memory, least recently used dropped first; 0 keeps none.
     """
 
     #: Dataset name stored in each sample's `dataset` entry.
@@ -71,6 +109,7 @@ class DepthDataset(Dataset):
         aperture: Aperture | None = None,
         render_kwargs: Mapping[str, Any] | None = None,
         dtype: torch.dtype = torch.float32,
+        memory_cache_mb: float = 0,
     ):
         if not isinstance(preset, CameraPreset):
             raise TypeError(f"preset must be a CameraPreset, got {type(preset).__name__}")
@@ -80,11 +119,15 @@ class DepthDataset(Dataset):
             raise TypeError(f"augment must be a JointAugment or None, got {type(augment).__name__}")
         if not dtype.is_floating_point:
             raise TypeError(f"dtype must be a floating-point dtype, got {dtype}")
+        if not float(memory_cache_mb) >= 0:
+            raise ValueError(f"memory_cache_mb must be >= 0 MiB, got {memory_cache_mb!r}")
         self.preset = preset
         self.size = _check_size("size", size)
         self.crop = None if crop is None else tuple(int(c) for c in crop)
         self.augment = augment
-        self.cache_dir = None if cache_dir is None else Path(cache_dir)
+        self.cache_dir = resolve_cache_dir(cache_dir)
+        self.memory_cache_mb = float(memory_cache_mb)
+        self._memory = _MemoryCache(self.memory_cache_mb)
         self.aperture = aperture
         self.render_kwargs = dict(render_kwargs or {})
         self.dtype = dtype
@@ -105,6 +148,22 @@ class DepthDataset(Dataset):
         if not -len(self) <= index < len(self):
             raise IndexError(f"index {index} out of range for {self.name} with {len(self)} samples")
         index = index % len(self)
+        sample = self._memory.get(index)
+        if sample is None:
+            sample = self._prepare(index)
+        kept = {v.untyped_storage().data_ptr() for v in sample.values()
+                if isinstance(v, torch.Tensor)} if self._memory.limit > 0 else set()
+        if self.augment is not None:
+            sample = self.augment(sample)
+        for key, value in sample.items():  # the caller gets its own tensors, never the cache's
+            if isinstance(value, torch.Tensor) and value.untyped_storage().data_ptr() in kept:
+                sample[key] = value.clone(memory_format=torch.contiguous_format)
+        sample["dataset"] = self.name
+        sample["id"] = self.ids[index]
+        return self._finish(sample)
+
+    def _prepare(self, index: int) -> dict[str, Any]:
+        """Load, crop, resize and synthesise sample `index` (kept in memory when asked)."""
         sample = self.load(index)
         if "camera" not in sample:
             sample["camera"] = self.camera_settings(index)
@@ -122,11 +181,25 @@ class DepthDataset(Dataset):
                 sample["image"], depth, sample["camera"], self.aperture, self.cache_dir,
                 **self.render_kwargs,
             ).clamp(0, 1)
-        if self.augment is not None:
-            sample = self.augment(sample)
-        sample["dataset"] = self.name
-        sample["id"] = self.ids[index]
-        return self._finish(sample)
+        self._memory.put(index, sample)
+        return sample
+
+    def with_augment(self, augment: JointAugment | None) -> DepthDataset:
+        """A view of this dataset with another `augment` (e.g. random crops for training and
+        none for the best-constant baseline), sharing the in-memory cache of samples.
+
+        Example:
+            >>> from datasets import Middlebury
+            >>> whole = Middlebury(None, size=(50, 74), memory_cache_mb=64)
+            >>> crops = whole.with_augment(JointAugment(crop_size=(16, 24)))
+            >>> crops[0]["image"].shape, whole[0]["image"].shape
+            (torch.Size([3, 16, 24]), torch.Size([3, 50, 74]))
+        """
+        if augment is not None and not isinstance(augment, JointAugment):
+            raise TypeError(f"augment must be a JointAugment or None, got {type(augment).__name__}")
+        view = copy.copy(self)
+        view.augment = augment
+        return view
 
     def _finish(self, sample: dict[str, Any]) -> dict[str, Any]:
         out = {
@@ -153,5 +226,6 @@ class DepthDataset(Dataset):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(samples={len(self)}, size={self.size}, crop={self.crop}, "
-            f"augment={self.augment}, cache_dir={self.cache_dir})"
+            f"augment={self.augment}, cache_dir={self.cache_dir}, "
+            f"memory_cache_mb={self.memory_cache_mb:g})"
         )

@@ -52,6 +52,36 @@ class CameraPreset:
         return settings.to(dtype)
 
 
+def default_cache_dir() -> Path | None:
+    """The per-user folder for synthesised focal stacks, `optics.cache.user_cache_dir("focal_stacks")`,
+    or None when it cannot be created or written (then nothing is cached on disk).
+
+    Example:
+        >>> folder = default_cache_dir()
+        >>> folder is None or folder.name == "focal_stacks"
+        True
+    """
+    from optics.cache import user_cache_dir
+
+    try:
+        folder = user_cache_dir("focal_stacks", create=True)
+        probe = folder / f".probe.{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError:
+        return None
+    return folder
+
+
+def resolve_cache_dir(cache_dir: str | Path | None) -> Path | None:
+    """`cache_dir` as a folder: `"auto"` is `default_cache_dir()`, None stays None."""
+    if cache_dir is None:
+        return None
+    if isinstance(cache_dir, str) and cache_dir == "auto":
+        return default_cache_dir()
+    return Path(cache_dir)
+
+
 #: Bumped when the synthesis changes in a way the cache key cannot see (e.g. a renderer fix).
 CACHE_VERSION = 2
 
@@ -97,7 +127,8 @@ def cached_focal_stack(
         depth: depth `(1,H,W)` in metres, > 0.
         settings: `(F,)` settings, e.g. from `CameraPreset.settings`.
         aperture: PSF override (the settings' aperture by default).
-        cache_dir: folder for cached stacks (created on first use), or None.
+        cache_dir: folder for cached stacks (created on first use), `"auto"` for the per-user
+            `default_cache_dir()`, or None.
         **render_kwargs: passed to `optics.render_defocus`.
 
     Returns:
@@ -115,6 +146,7 @@ def cached_focal_stack(
         (True, 1)
     """
     path = None
+    cache_dir = resolve_cache_dir(cache_dir)
     if cache_dir is not None:
         key = focal_stack_key(image, depth, settings, aperture, **render_kwargs)
         path = Path(cache_dir) / f"{key}.pt"

@@ -6,16 +6,216 @@ The `defocus demo` command and the per-dataset example scripts call these; they 
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+import math
+import resource
+import shutil
+import tempfile
+import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import torch
-from torch.utils.data import default_collate
+from torch import Tensor
+from torch.utils.data import Subset, default_collate
 
 from .direct import fit_depth_direct
 from .metrics import best_constant_depth, depth_metrics
 from .training import TrainConfig, Trainer
+
+#: Whole images above this many pixels are predicted tile by tile (`predict_tiled`).
+TILE_PIXELS = 4_000_000
+
+
+def keep_freed_memory() -> bool:
+    """Keep freed large blocks in the process (glibc `mallopt`) instead of giving them back to
+    the system on every free; returns whether the setting was applied (Linux with glibc).
+
+    A training step allocates and frees the same large buffers every time; with glibc's
+    defaults each of them is a fresh `mmap` and `munmap` and its pages are faulted in again,
+    which shows up as system time. Here blocks up to 32 MiB (glibc's largest threshold) come
+    from the heap and up to 1 GiB of free heap is kept.
+    """
+    import ctypes
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+    except OSError:
+        return False
+    m_trim_threshold, m_mmap_threshold = -1, -3
+    return bool(libc.mallopt(m_mmap_threshold, 32 << 20)) and bool(
+        libc.mallopt(m_trim_threshold, 1 << 30))
+
+
+def _clock() -> tuple[float, float, float]:
+    """(wall, user CPU, system CPU) seconds of this process."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return time.perf_counter(), usage.ru_utime, usage.ru_stime
+
+
+def format_duration(seconds: float) -> str:
+    """`"1 h 02 min"`, `"3 min 05 s"` or `"12.3 s"`.
+
+    Example:
+        >>> format_duration(185), format_duration(3720), format_duration(4.25)
+        ('3 min 05 s', '1 h 02 min', '4.2 s')
+    """
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(int(round(seconds)), 60)
+    if minutes < 60:
+        return f"{minutes} min {secs:02d} s"
+    return f"{minutes // 60} h {minutes % 60:02d} min"
+
+
+def predict_tiled(trainer: Trainer, image: Tensor, focused: Tensor | None = None,
+                  settings: Any = None, max_pixels: int = TILE_PIXELS,
+                  tile: int = 1024, overlap: int = 64) -> Tensor:
+    """`trainer.predict` on a whole batch `(B,3,H,W)`, in overlapping tiles when `H*W` is
+    above `max_pixels` (the networks are fully convolutional).
+
+    Each tile is `tile` pixels square plus `overlap` pixels of context on every side that is
+    not an image border; only its centre is kept, so seams see the same context as the inside.
+
+    Args:
+        trainer: a trained `Trainer`.
+        image: `(B,3,H,W)`; `focused` `(B,F,3,H,W)` and `settings` as for `Trainer.predict`.
+        max_pixels: whole images up to this many pixels go through in one piece.
+        tile: side of a tile's kept centre, pixels (> 0).
+        overlap: context around each tile, pixels (>= 0).
+
+    Returns:
+        depth `(B,1,H,W)` metres, on the trainer's device.
+    """
+    if tile <= 0 or overlap < 0:
+        raise ValueError(f"tile must be > 0 and overlap >= 0 pixels, got tile={tile!r} and "
+                         f"overlap={overlap!r}")
+    h, w = image.shape[-2:]
+    if h * w <= max_pixels:
+        return trainer.predict(image, focused, settings)
+    out = None
+    for top in range(0, h, tile):
+        for left in range(0, w, tile):
+            t0, l0 = max(top - overlap, 0), max(left - overlap, 0)
+            t1, l1 = min(top + tile + overlap, h), min(left + tile + overlap, w)
+            part = trainer.predict(image[..., t0:t1, l0:l1],
+                                   None if focused is None else focused[..., t0:t1, l0:l1],
+                                   settings)
+            if out is None:
+                out = part.new_empty(image.shape[0], 1, h, w)
+            bottom, right = min(top + tile, h), min(left + tile, w)
+            out[..., top:bottom, left:right] = part[..., top - t0:bottom - t0,
+                                                    left - l0:right - l0]
+    return out
+
+
+def evaluate_whole_images(
+    trainer: Trainer, test_set: Sequence[Mapping[str, Any]], constant: float | None = None,
+    depth_cap: float | None = None, crop: str | Sequence[float] | None = None,
+    max_pixels: int = TILE_PIXELS,
+) -> tuple[dict[str, float], dict[str, float] | None]:
+    """Mean metrics of the network and of a constant depth over whole test images, one pass.
+
+    Each sample is read once (its focal stack synthesised or loaded once) and predicted whole,
+    tiled above `max_pixels` (`predict_tiled`).
+
+    Returns:
+        (the network's metrics, the constant's metrics or None without `constant`).
+    """
+    totals: dict[str, float] = {}
+    const_totals: dict[str, float] = {}
+    count = 0
+    for sample in test_set:
+        batch = default_collate([sample])
+        depth = predict_tiled(trainer, batch["image"], batch.get("focused"),
+                              batch.get("camera"), max_pixels=max_pixels).cpu()
+        kwargs = {"target": batch["depth"], "mask": batch.get("mask"), "max_depth": depth_cap,
+                  "crop": crop}
+        for key, value in depth_metrics(pred=depth, **kwargs).items():
+            totals[key] = totals.get(key, 0.0) + value
+        if constant is not None:
+            pred = torch.full_like(batch["depth"], constant)
+            for key, value in depth_metrics(pred=pred, **kwargs).items():
+                const_totals[key] = const_totals.get(key, 0.0) + value
+        count += 1
+    if count == 0:
+        raise ValueError("test_set holds no samples")
+    mean = {key: value / count for key, value in totals.items()}
+    return mean, ({key: value / count for key, value in const_totals.items()}
+                  if constant is not None else None)
+
+
+def evenly_spaced(samples: Sequence[Mapping[str, Any]], count: int) -> Sequence[Mapping[str, Any]]:
+    """`count` samples spread evenly over `samples` (all of them when there are no more).
+
+    Example:
+        >>> list(evenly_spaced(list(range(10)), 3))
+        [0, 3, 6]
+    """
+    n = len(samples)
+    if count >= n:
+        return samples
+    return Subset(samples, [i * n // count for i in range(count)])  # type: ignore[arg-type]
+
+
+def constant_from_training(samples: Sequence[Mapping[str, Any]],
+                           max_samples: int = 64) -> float | None:
+    """`best_constant_depth` (abs-rel-optimal) of the valid depths of `samples` (at most
+    `max_samples` of them, evenly spaced, so a large training set is not read whole), or None."""
+    if hasattr(samples, "__len__"):
+        samples = evenly_spaced(samples, max_samples)
+    depths = [s["depth"][s["mask"].bool()] for s in samples if bool(s["mask"].any())]
+    return None if not depths else best_constant_depth(target=torch.cat(depths))
+
+
+def measure_steps(config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
+                  steps: int = 3) -> dict[str, float]:
+    """Seconds, user and system CPU seconds per training step of `config` on `train_set`.
+
+    Runs `steps + 1` steps in a throwaway run folder (the first, which loads and synthesises
+    data, is timed apart as `first_step_s`).
+    """
+    folder = Path(tempfile.mkdtemp(prefix="defocus-probe-"))
+    try:
+        probe = replace(config, steps=steps + 1, out_dir=folder, progress=False, resume=False,
+                        checkpoint_every=0, val_every=0, figure_every=0)
+        trainer = Trainer(probe, train_set)
+        marks = [_clock()]
+        trainer.step_callback = lambda *_: marks.append(_clock())
+        trainer.fit()
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+    first = marks[1][0] - marks[0][0]
+    n = len(marks) - 2
+    wall, user, system = ((marks[-1][i] - marks[1][i]) / max(n, 1) for i in range(3))
+    return {"first_step_s": first, "s_per_step": wall, "user_s_per_step": user,
+            "sys_s_per_step": system}
+
+
+class _OutOfTime(Exception):
+    """Raised by the step callback when the time budget is spent."""
+
+
+def _progress_printer(total: int, every: int) -> Callable[[Trainer, int, dict[str, float]], None]:
+    """A `step_callback` that prints step, loss, s/step and ETA every `every` steps."""
+    started = time.perf_counter()
+
+    def report(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
+        if step % every and step != total:
+            return
+        elapsed = time.perf_counter() - started
+        done = max(step - trainer_start[0], 1)
+        rate = elapsed / done
+        print(f"  step {step}/{total}  loss {losses['loss']:.4f}  {rate:.2f} s/step  "
+              f"ETA {format_duration(rate * (total - step))}", flush=True)
+
+    trainer_start = [0]
+    report.start = trainer_start  # type: ignore[attr-defined]
+    return report
 
 
 def constant_depth_metrics(
@@ -56,35 +256,133 @@ def reconstruction_metrics(trainer: Trainer, test_set: Sequence[Mapping[str, Any
     return totals
 
 
+def _pixels(dataset: Sequence[Mapping[str, Any]]) -> int:
+    """Pixels of one (first) sample of `dataset`."""
+    sample = dataset[0] if hasattr(dataset, "__getitem__") else next(iter(dataset))
+    return int(sample["image"][0].numel())
+
+
+def plan_steps(s_per_step: float, minutes: float, reserve_s: float = 0.0,
+               max_steps: int | None = None, min_steps: int = 1) -> int:
+    """How many steps of `s_per_step` seconds fit in `minutes` minus `reserve_s` seconds
+    (at least `min_steps`, at most `max_steps`).
+
+    Example:
+        >>> plan_steps(0.5, minutes=10, reserve_s=60), plan_steps(0.5, 10, max_steps=100)
+        (1080, 100)
+    """
+    if not minutes > 0:
+        raise ValueError(f"minutes must be > 0, got {minutes!r}")
+    steps = int((minutes * 60 - reserve_s) / max(s_per_step, 1e-6))
+    steps = max(steps, min_steps)
+    return steps if max_steps is None else min(steps, max_steps)
+
+
 def train_and_evaluate(
     config: TrainConfig,
     train_set: Sequence[Mapping[str, Any]],
     test_set: Sequence[Mapping[str, Any]],
     crop: str | Sequence[float] | None = None,
     has_depth: bool = True,
+    constant_set: Sequence[Mapping[str, Any]] | None = None,
+    minutes: float | None = None,
+    max_steps: int | None = None,
+    probe_steps: int = 3,
+    report_every: int | None = None,
+    eval_share: float = 0.4,
 ) -> dict[str, dict[str, float]]:
-    """Train a network with `config` on `train_set`, then evaluate it on `test_set`.
+    """Train a network with `config` on `train_set`, then evaluate it on whole `test_set` images.
+
+    Before the long part it prints the planned steps, the measured seconds per step (with user
+    and system CPU time) and the ETA. With `minutes`, `config.steps` is replaced by as many
+    steps as fit in that budget together with the evaluation (measured on `probe_steps` steps
+    and one test sample), at most `max_steps`; should the machine get slower than measured,
+    training stops when the budget (less the evaluation's share) is spent, and the table names
+    the steps actually run.
 
     Args:
         config: the training run (its `depth_max` is also the evaluation cap).
-        train_set: training samples in the sample format.
-        test_set: test samples in the sample format.
+        train_set: training samples in the sample format (e.g. random crops).
+        test_set: test samples in the sample format, evaluated whole (tiled above
+            `TILE_PIXELS`).
         crop: evaluation crop (`"eigen"`, `"garg"` or fractions), see `Trainer.evaluate`.
         has_depth: False for data without ground truth: the rows then hold the self-supervised
             reconstruction losses instead of depth metrics.
+        constant_set: samples whose depths choose the best constant depth (default
+            `train_set`; pass the training samples without random crops).
+        minutes: time budget of training plus evaluation, or None to run `config.steps`.
+        max_steps: upper bound of the planned steps (with `minutes`).
+        probe_steps: steps timed before planning (plus one untimed warm-up step).
+        report_every: print a progress line every this many steps (default: about 10 lines;
+            0: never).
+        eval_share: with `minutes`, the largest share of the budget the evaluation may take;
+            beyond it an evenly spaced part of `test_set` is evaluated (and that is printed).
 
     Returns:
         table rows: the trained network's, and (with depth) the best constant depth's.
     """
-    trainer = Trainer(config, train_set)
-    trainer.fit()
-    method = f"ours ({config.network}, {config.input_mode}, {config.steps} steps)"
+    planning = _clock()
+    timing = measure_steps(config, train_set, probe_steps)
+    started = _clock()
+    first_test = test_set[0] if hasattr(test_set, "__getitem__") else next(iter(test_set))
+    load_one = time.perf_counter() - started[0]
+    n_test = len(test_set) if hasattr(test_set, "__len__") else 1
+    # a forward pass of a whole image: about half a step's cost per pixel (no backward)
+    step_pixels = config.batch_size * _pixels(train_set)
+    forward_one = timing["s_per_step"] * first_test["image"][0].numel() / step_pixels / 2
+    per_test = load_one + forward_one
+    eval_s = per_test * n_test + 2.0
+    if minutes is not None and eval_s > eval_share * minutes * 60 and n_test > 1:
+        fit = max(1, int((eval_share * minutes * 60 - 2.0) / max(per_test, 1e-6)))
+        if fit < n_test:
+            print(f"evaluating {fit} of {n_test} test images (evenly spaced) to fit the "
+                  f"{minutes:g} min budget; --max-test {n_test} or a larger --minutes for all")
+            test_set, n_test = evenly_spaced(test_set, fit), fit
+            eval_s = per_test * n_test + 2.0
+    if minutes is not None:
+        spent = time.perf_counter() - planning[0]
+        steps = plan_steps(timing["s_per_step"], minutes, reserve_s=eval_s + spent + 5,
+                           max_steps=max_steps)
+        config = replace(config, steps=steps)
+    steps = config.steps
+    train_s = steps * timing["s_per_step"]
+    user, system = timing["user_s_per_step"], timing["sys_s_per_step"]
+    print(f"measured {timing['s_per_step']:.3f} s/step (user {user:.3f} s, system "
+          f"{system:.3f} s; first step with data loading {timing['first_step_s']:.1f} s), "
+          f"batch {config.batch_size}, device {config.device}")
+    budget = "" if minutes is None else f" (budget {minutes:g} min)"
+    print(f"plan: {steps} steps, ETA {format_duration(train_s)} training + "
+          f"~{format_duration(eval_s)} evaluating {n_test} whole test images{budget}; "
+          f"done about {time.strftime('%H:%M', time.localtime(time.time() + train_s + eval_s))}",
+          flush=True)
+    every = report_every if report_every is not None else max(1, math.ceil(steps / 10))
+    printer = _progress_printer(steps, every) if every else None
+    deadline = None if minutes is None else planning[0] + minutes * 60 - eval_s
+
+    def callback(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
+        if printer is not None:
+            printer(trainer, step, losses)
+        if deadline is not None and step < steps and time.perf_counter() > deadline:
+            raise _OutOfTime
+
+    trainer = Trainer(config, train_set, step_callback=callback)
+    if printer is not None:
+        printer.start[0] = trainer.step  # type: ignore[attr-defined]
+    try:
+        trainer.fit()
+    except _OutOfTime:
+        print(f"time budget of {minutes:g} min reached after {trainer.step} of {steps} steps "
+              f"(the machine got slower than measured); evaluating now", flush=True)
+        trainer.save_checkpoint()
+    method = f"ours ({config.network}, {config.input_mode}, {trainer.step} steps)"
     if not has_depth:
         return {method: reconstruction_metrics(trainer, test_set)}
-    rows = {method: trainer.evaluate(test_set, depth_cap=config.depth_max, crop=crop)}
-    baseline = constant_depth_metrics(train_set, test_set, max_depth=config.depth_max, crop=crop)
+    constant = constant_from_training(train_set if constant_set is None else constant_set)
+    ours, baseline = evaluate_whole_images(trainer, test_set, constant,
+                                           depth_cap=config.depth_max, crop=crop)
+    rows = {method: ours}
     if baseline is not None:
-        rows[f"best constant depth ({baseline[0]:.2f} m, from training depths)"] = baseline[1]
+        rows[f"best constant depth ({constant:.2f} m, from training depths)"] = baseline
     return rows
 
 

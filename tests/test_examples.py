@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import importlib.util
+import re
+import time
 from pathlib import Path
 
 import pytest
@@ -53,20 +55,56 @@ def test_example_help(name, monkeypatch, capsys):
     assert "--root" in module.__doc__ or "root" in module.__doc__  # header says what to put there
 
 
+#: Options besides the defaults: Make3D's protocol resizes photos to 460x345, which would make a
+#: 300k-pixel data set of the 24x18 fixture photos; a tenth of that size keeps the run small.
+EXTRA = {"make3d": ["--size", "46", "35"]}
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(FIXTURES))
 def test_example_trains_and_evaluates(name, tmp_path, monkeypatch, capsys):
+    """Each example with its default budget on fixture data: plans, trains, prints the table."""
     root = tmp_path / "data"
     FIXTURES[name](root)
+    monkeypatch.setenv("DEFOCUS_CACHE_DIR", str(tmp_path / "cache"))
     module = load_example(name, monkeypatch)
-    argv = ["--root", str(root), "--steps", "2", "--batch-size", "2", "--size", "24", "32",
-            "--width", "8",
-            "--out", str(tmp_path / "run"), "--no-progress", "--max-test", "1"]
+    argv = ["--root", str(root), "--out", str(tmp_path / "run"), "--no-progress",
+            "--device", "cpu", *EXTRA.get(name, [])]
+    started = time.perf_counter()
     assert module.main(argv) == 0
+    elapsed = time.perf_counter() - started
     out = capsys.readouterr().out
-    assert "| method" in out and "ours (small, aif+focused, 2 steps)" in out
+    assert "s/step" in out and "plan:" in out and "ETA" in out and "budget 10 min" in out
+    planned = int(re.search(r"plan: (\d+) steps", out).group(1))
+    assert 10 <= planned <= 1000
+    assert "| method" in out and f"ours (small, aif+focused, {planned} steps)" in out
     if name == "lightfield":
         assert "loss" in out
     else:
         assert "abs rel" in out and "best constant depth" in out
     assert (tmp_path / "run" / "train_log.csv").is_file()
+    assert elapsed < 600, f"{name} took {elapsed:.0f} s with its defaults"
+    if name not in ("dslr", "lightfield"):  # synthesised focal stacks went to the cache
+        assert list((tmp_path / "cache" / "focal_stacks").glob("*.pt"))
+
+
+@pytest.mark.slow
+def test_example_trains_on_crops(tmp_path, monkeypatch, capsys):
+    """`--crop` smaller than the images: training sees crops, evaluation whole images."""
+    root = tmp_path / "data"
+    write_middlebury(root, h=20, w=30)
+    module = load_example("middlebury", monkeypatch)
+    argv = ["--root", str(root), "--out", str(tmp_path / "run"), "--no-progress", "--no-cache",
+            "--steps", "3", "--batch-size", "2", "--width", "8", "--crop", "8", "12",
+            "--device", "cpu"]
+    assert module.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "random (8, 12) crops of (20, 30) pixels" in out
+    assert "plan: 3 steps" in out and "ours (small, aif+focused, 3 steps)" in out
+
+
+def test_example_rejects_bad_crop(monkeypatch, tmp_path):
+    monkeypatch.setenv("DEFOCUS_CACHE_DIR", str(tmp_path / "cache"))
+    module = load_example("middlebury", monkeypatch)
+    with pytest.raises(SystemExit, match="--crop"):
+        module.main(["--root", "builtin", "--crop", "1", "2", "3", "--out", str(tmp_path)])
