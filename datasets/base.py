@@ -192,7 +192,8 @@ class DepthDataset(Dataset):
             >>> from datasets import Middlebury
             >>> whole = Middlebury(None, size=(50, 74), memory_cache_mb=64)
             >>> crops = whole.with_augment(JointAugment(crop_size=(16, 24)))
-            >>> crops[0]["image"].shape, whole[0]["image"].shape
+            >>> crop, sample = crops[0], whole[0]
+            >>> crop["image"].shape, sample["image"].shape
             (torch.Size([3, 16, 24]), torch.Size([3, 50, 74]))
         """
         if augment is not None and not isinstance(augment, JointAugment):

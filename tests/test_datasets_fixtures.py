@@ -27,20 +27,26 @@ def _rgb(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return image
 
 
+def write_nyu_arrays(root: Path, images: np.ndarray, depths: np.ndarray) -> Path:
+    """`nyu_depth_v2_labeled.mat` holding upright `(N,H,W,3)` images and `(N,H,W)` depths of
+    any dtype (MATLAB's HxWx3xN array is stored column-major: h5py sees it as (N,3,W,H))."""
+    root.mkdir(parents=True, exist_ok=True)
+    path = root / "nyu_depth_v2_labeled.mat"
+    with h5py.File(path, "w", userblock_size=512) as file:
+        file.create_dataset("images", data=images.transpose(0, 3, 2, 1))
+        file.create_dataset("depths", data=depths.transpose(0, 2, 1))
+    with open(path, "r+b") as raw:
+        raw.write(MAT73_HEADER.ljust(128, b" "))
+    return path
+
+
 def write_nyu(root: Path, n: int = 4, h: int = 12, w: int = 16, seed: int = 0) -> dict:
     """``nyu_depth_v2_labeled.mat`` (MAT 7.3, column-major as MATLAB writes it) and ``splits.mat``."""
     rng = np.random.default_rng(seed)
     images = np.stack([_rgb(rng, h, w) for _ in range(n)])  # (N,H,W,3) upright
     depths = rng.uniform(0.7, 9.5, size=(n, h, w))  # metres
     depths[0, 0, :3] = 0.0  # a hole
-    root.mkdir(parents=True, exist_ok=True)
-    path = root / "nyu_depth_v2_labeled.mat"
-    # MATLAB's HxWx3xN array is stored column-major: HDF5 (and h5py) see it as (N,3,W,H).
-    with h5py.File(path, "w", userblock_size=512) as file:
-        file.create_dataset("images", data=images.transpose(0, 3, 2, 1))
-        file.create_dataset("depths", data=depths.transpose(0, 2, 1))
-    with open(path, "r+b") as raw:
-        raw.write(MAT73_HEADER.ljust(128, b" "))
+    write_nyu_arrays(root, images, depths)
     train, test = np.arange(1, n + 1, 2), np.arange(2, n + 1, 2)  # 1-based, as MATLAB
     scipy.io.savemat(root / "splits.mat", {"trainNdxs": train[:, None], "testNdxs": test[:, None]})
     return {"images": images, "depths": depths, "train": train - 1, "test": test - 1}

@@ -3,19 +3,17 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
-import h5py
 import imageio.v3 as iio
 import numpy as np
 import pytest
 import torch
 from test_datasets_fixtures import (
     KITTI_DRIVE,
-    MAT73_HEADER,
     write_dslr,
     write_kitti,
     write_middlebury,
+    write_nyu_arrays,
 )
 
 from datasets import DSLR, KITTI, DataFormatError, Middlebury, NYUv2
@@ -23,19 +21,6 @@ from datasets.depth import densify_nearest, fill_unknown
 from datasets.io import read_rgb
 from datasets.middlebury import read_calib
 from optics import read_raw
-
-
-def write_nyu_arrays(root: Path, images: np.ndarray, depths: np.ndarray) -> Path:
-    """`nyu_depth_v2_labeled.mat` holding upright `(N,H,W,3)` images and `(N,H,W)` depths of
-    any dtype (column-major, as MATLAB writes them)."""
-    root.mkdir(parents=True, exist_ok=True)
-    path = root / "nyu_depth_v2_labeled.mat"
-    with h5py.File(path, "w", userblock_size=512) as file:
-        file.create_dataset("images", data=images.transpose(0, 3, 2, 1))
-        file.create_dataset("depths", data=depths.transpose(0, 2, 1))
-    with open(path, "r+b") as raw:
-        raw.write(MAT73_HEADER.ljust(128, b" "))
-    return path
 
 
 def names(path) -> str:
