@@ -649,116 +649,174 @@ void fused_backward_rows(const P& pol, const T* w0_row, const T* w1_row, int64_t
   }
 }
 
+// Per-thread state of the backward passes that take two source rows (sy, sy + 1) at a time
+// (fused_backward, layered_backward): a ring of padded gradient rows (`planes` rows a slot) for
+// the K + 1 output rows the two source rows reach, the source rows' weight rows, norm and dnorm,
+// their D rows (`planes` each) and moment rows, and the row pointers of fused_backward_rows.
 template <typename T, class P>
-void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T* x,
-                    const T* param, T* grad_x, T* grad_param, int64_t B, int64_t C, int64_t H,
-                    int64_t W, int nthreads) {
-  const int64_t half = pol.half;
-  const int64_t K = 2 * half + 1;
+struct TwoRowBackward {
+  static constexpr int G = 4;
+  const P& pol;
+  int64_t half, K, nw, H, W, plane, stride, planes;
+  RowRing<T> ring;
+  RowRing<T> own;
+  std::vector<T> dbuf, mrow, scratch;
+  std::vector<const T*> g_rows, x_rows;
+  std::vector<T*> d0_rows, d1_rows, slots;
+  T* wslot[2] = {nullptr, nullptr};
+  int64_t b = 0, sy = 0;
+  bool pair = false;
+
+  TwoRowBackward(const P& pol_, int64_t H_, int64_t W_, int64_t planes_)
+      : pol(pol_), half(pol_.half), K(2 * pol_.half + 1), nw(pol_.rows()), H(H_), W(W_),
+        plane(H_ * W_), stride(W_ + kPadRight), planes(planes_), ring(K + 1, half, W, planes),
+        own(2, half, W, nw + 2), dbuf(2 * planes * stride), mrow(2 * stride), scratch(4 * W + 1),
+        g_rows((K + 1) * G), x_rows(2 * G), d0_rows(G), d1_rows(G), slots(K + 1) {}
+
+  int64_t rows() const { return pair ? 2 : 1; }
+  const T* norm(int64_t i) const { return wslot[i] + nw * own.padded + half; }
+  const T* dnorm(int64_t i) const { return wslot[i] + (nw + 1) * own.padded + half; }
+  const T* d(int64_t i) const { return dbuf.data() + i * planes * stride; }
+  const T* m(int64_t i) const { return mrow.data() + i * stride; }
+
+  // Rows sy and sy + 1 (sy alone unless pair) of image b: their weight rows, norm and dnorm.
+  void start(const T* param, int64_t b_, int64_t sy_, bool pair_) {
+    b = b_;
+    sy = sy_;
+    pair = pair_;
+    for (int64_t i = 0; i < rows(); ++i) {
+      bool fresh;
+      wslot[i] = own.slot(i, &fresh);
+      pol.fill(param + b * plane + (sy + i) * W, W, wslot[i] + half, own.padded,
+               wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
+               scratch.data());
+    }
+  }
+  // Point slots at the ring rows of the output rows reached, fill(slot, oy) filling those new to
+  // the ring; clear the moment rows.
+  template <class Fill>
+  void gather(const Fill& fill) {
+    for (int64_t r = 0; r <= K; ++r) {
+      const int64_t oy = sy - half + r;
+      slots[r] = nullptr;
+      if (oy < 0 || oy >= H || (!pair && r == K)) continue;
+      bool fresh;
+      T* slot = ring.slot(oy, &fresh);
+      if (fresh) fill(slot, oy);
+      slots[r] = slot;
+    }
+    std::fill(mrow.begin(), mrow.end(), T(0));
+  }
+  // A group of gsize gradient planes from plane p0 (the last repeated up to G).
+  void point_g(int64_t p0, int64_t gsize) {
+    for (int64_t r = 0; r <= K; ++r)
+      for (int64_t gi = 0; gi < G; ++gi)
+        g_rows[r * G + gi] = slots[r] == nullptr ? nullptr
+            : slots[r] + (p0 + std::min<int64_t>(gi, gsize - 1)) * ring.padded;
+  }
+  // Member gi of the group writes the D rows of plane p.
+  void point_d(int64_t gi, int64_t p) {
+    d0_rows[gi] = dbuf.data() + p * stride;
+    d1_rows[gi] = dbuf.data() + (planes + p) * stride;
+  }
+  void run(int64_t s0, int64_t n_out, int64_t gsize) {
+    fused_backward_rows<T, G, P>(pol, wslot[0], pair ? wslot[1] : nullptr, own.padded,
+                                 g_rows.data(), s0, x_rows.data(), d0_rows.data(),
+                                 d1_rows.data(), mrow.data() + s0, mrow.data() + stride + s0,
+                                 n_out, gsize);
+  }
+};
+
+// Row blocks of every image split across the threads; in each, the source rows two at a time
+// (the last alone in a block of odd height): step(st) on the thread's state st, started on them.
+// make_step() gives each thread its step (a lambda owning the thread's other buffers).
+template <typename T, class P, class MakeStep>
+void two_row_backward(const P& pol, const T* param, int64_t B, int64_t H, int64_t W,
+                      int64_t planes, int nthreads, const MakeStep& make_step) {
   const int64_t rpb = rows_per_block(B, H, nthreads);
   const int64_t blocks_per_image = (H + rpb - 1) / rpb;
-  const int64_t plane = H * W;
-  const int64_t nw = pol.rows();
-  const int64_t C1 = C + 1;
-  const int64_t stride = W + kPadRight;
-  constexpr int G = 4;
-  constexpr int64_t lanes = Vec<T>::lanes;
 #pragma omp parallel num_threads(nthreads)
   {
-    RowRing<T> ring(K + 1, half, W, C1);  // padded rows of G = dL/ds
-    RowRing<T> own(2, half, W, nw + 2);   // the two source rows' weight rows, norm, dnorm
-    std::vector<T> ones(stride, T(1));
-    std::vector<T> dbuf(2 * C1 * stride);  // D_c of the two source rows
-    std::vector<T> mrow(2 * stride);
-    std::vector<T> scratch(4 * W + 1);
-    std::vector<const T*> g_rows((K + 1) * G), x_rows(2 * G);
-    std::vector<T*> d0_rows(G), d1_rows(G);
-    std::vector<T*> slots(K + 1);
+    TwoRowBackward<T, P> st(pol, H, W, planes);
+    auto step = make_step();
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
       const int64_t b = block / blocks_per_image;
       const int64_t y0 = (block % blocks_per_image) * rpb;
       const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
+      st.ring.reset();
       for (int64_t sy = y0; sy < y1; sy += 2) {
-        const bool pair = sy + 1 < y1;
-        T* wslot[2];
-        for (int64_t i = 0; i < (pair ? 2 : 1); ++i) {
-          bool fresh;
-          wslot[i] = own.slot(i, &fresh);
-          pol.fill(param + b * plane + (sy + i) * W, W, wslot[i] + half, own.padded,
-                   wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
-                   scratch.data());
-        }
-        for (int64_t r = 0; r <= K; ++r) {
-          const int64_t oy = sy - half + r;
-          slots[r] = nullptr;
-          if (oy < 0 || oy >= H || (!pair && r == K)) continue;
-          bool fresh;
-          T* slot = ring.slot(oy, &fresh);
-          if (fresh) {
-            const T* drow = den + b * plane + oy * W;
-            T* last = slot + C * ring.padded + half;
-            std::fill(last, last + W, T(0));
-            for (int64_t c = 0; c < C; ++c) {
-              const T* grow = g + (b * C + c) * plane + oy * W;
-              const T* yrow = y + (b * C + c) * plane + oy * W;
-              T* dst = slot + c * ring.padded + half;
-              for (int64_t s = 0; s < W; ++s) {
-                const T gd = grow[s] / drow[s];
-                dst[s] = gd;
-                last[s] -= gd * yrow[s];
-              }
-            }
-          }
-          slots[r] = slot;
-        }
-        std::fill(mrow.begin(), mrow.end(), T(0));
-        for (int64_t c0 = 0; c0 < C1; c0 += G) {
-          const int64_t gsize = std::min<int64_t>(G, C1 - c0);
-          for (int64_t r = 0; r <= K; ++r)
-            for (int64_t gi = 0; gi < G; ++gi)
-              g_rows[r * G + gi] = slots[r] == nullptr ? nullptr
-                  : slots[r] + (c0 + std::min(gi, gsize - 1)) * ring.padded;
-          for (int64_t gi = 0; gi < gsize; ++gi) {
-            const int64_t c = c0 + gi;
-            for (int64_t i = 0; i < 2; ++i)
-              x_rows[i * G + gi] = c < C ? x + (b * C + c) * plane + (sy + i) * W : ones.data();
-            d0_rows[gi] = dbuf.data() + c * stride;
-            d1_rows[gi] = dbuf.data() + (C1 + c) * stride;
-          }
-          for (int64_t s0 = 0; s0 < W; s0 += lanes)
-            fused_backward_rows<T, G, P>(pol, wslot[0], pair ? wslot[1] : nullptr, own.padded,
-                                         g_rows.data(), s0, x_rows.data(), d0_rows.data(),
-                                         d1_rows.data(), mrow.data() + s0,
-                                         mrow.data() + stride + s0, std::min(lanes, W - s0),
-                                         gsize);
-        }
-        for (int64_t i = 0; i < (pair ? 2 : 1); ++i) {
-          const int64_t row = sy + i;
-          const T* norm = wslot[i] + nw * own.padded + half;
-          const T* dnorm = wslot[i] + (nw + 1) * own.padded + half;
-          const T* d = dbuf.data() + i * C1 * stride;
-          const T* m = mrow.data() + i * stride;
-          const T* prow = param + b * plane + row * W;
-          T* gp = grad_param + b * plane + row * W;
-          const T* dlast = d + C * stride;
-          for (int64_t s = 0; s < W; ++s) gp[s] = dlast[s];  // sum_c X_c D_c, X_C = 1
-          for (int64_t c = 0; c < C; ++c) {
-            const T* xrow = x + (b * C + c) * plane + row * W;
-            const T* dc = d + c * stride;
-            T* gx = grad_x + (b * C + c) * plane + row * W;
-            for (int64_t s = 0; s < W; ++s) {
-              gx[s] = norm[s] * dc[s];
-              gp[s] += xrow[s] * dc[s];
-            }
-          }
-          for (int64_t s = 0; s < W; ++s)
-            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + gp[s] * dnorm[s];
-        }
+        st.start(param, b, sy, sy + 1 < y1);
+        step(st);
       }
     }
   }
+}
+
+template <typename T, class P>
+void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T* x,
+                    const T* param, T* grad_x, T* grad_param, int64_t B, int64_t C, int64_t H,
+                    int64_t W, int nthreads) {
+  const int64_t plane = H * W;
+  const int64_t C1 = C + 1;
+  const int64_t stride = W + kPadRight;
+  constexpr int G = TwoRowBackward<T, P>::G;
+  constexpr int64_t lanes = Vec<T>::lanes;
+  // ring rows: G = dL/ds; D rows: D_c
+  two_row_backward<T>(pol, param, B, H, W, C1, nthreads, [&] {
+    return [&, ones = std::vector<T>(stride, T(1))](TwoRowBackward<T, P>& st) {
+      const int64_t b = st.b, sy = st.sy;
+      st.gather([&](T* slot, int64_t oy) {
+        const T* drow = den + b * plane + oy * W;
+        T* last = slot + C * st.ring.padded + st.half;
+        std::fill(last, last + W, T(0));
+        for (int64_t c = 0; c < C; ++c) {
+          const T* grow = g + (b * C + c) * plane + oy * W;
+          const T* yrow = y + (b * C + c) * plane + oy * W;
+          T* dst = slot + c * st.ring.padded + st.half;
+          for (int64_t s = 0; s < W; ++s) {
+            const T gd = grow[s] / drow[s];
+            dst[s] = gd;
+            last[s] -= gd * yrow[s];
+          }
+        }
+      });
+      for (int64_t c0 = 0; c0 < C1; c0 += G) {
+        const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+        st.point_g(c0, gsize);
+        for (int64_t gi = 0; gi < gsize; ++gi) {
+          const int64_t c = c0 + gi;
+          for (int64_t i = 0; i < 2; ++i)
+            st.x_rows[i * G + gi] = c < C ? x + (b * C + c) * plane + (sy + i) * W : ones.data();
+          st.point_d(gi, c);
+        }
+        for (int64_t s0 = 0; s0 < W; s0 += lanes)
+          st.run(s0, std::min<int64_t>(lanes, W - s0), gsize);
+      }
+      for (int64_t i = 0; i < st.rows(); ++i) {
+        const int64_t row = sy + i;
+        const T* norm = st.norm(i);
+        const T* dnorm = st.dnorm(i);
+        const T* d = st.d(i);
+        const T* m = st.m(i);
+        const T* prow = param + b * plane + row * W;
+        T* gp = grad_param + b * plane + row * W;
+        const T* dlast = d + C * stride;
+        for (int64_t s = 0; s < W; ++s) gp[s] = dlast[s];  // sum_c X_c D_c, X_C = 1
+        for (int64_t c = 0; c < C; ++c) {
+          const T* xrow = x + (b * C + c) * plane + row * W;
+          const T* dc = d + c * stride;
+          T* gx = grad_x + (b * C + c) * plane + row * W;
+          for (int64_t s = 0; s < W; ++s) {
+            gx[s] = norm[s] * dc[s];
+            gp[s] += xrow[s] * dc[s];
+          }
+        }
+        for (int64_t s = 0; s < W; ++s)
+          gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + gp[s] * dnorm[s];
+      }
+    };
+  });
 }
 
 
@@ -1012,167 +1070,128 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
                       const T* pos, const T* param, T* grad_x, T* grad_pos, T* grad_param,
                       int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
   const int64_t half = pol.half;
-  const int64_t K = 2 * half + 1;
-  const int64_t rpb = rows_per_block(B, H, nthreads);
-  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
-  const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
   const int64_t LC = NL * C1;
   const int64_t stride = W + kPadRight;
-  constexpr int G = 4;
+  constexpr int G = TwoRowBackward<T, P>::G;
   constexpr int64_t lanes = Vec<T>::lanes;
-#pragma omp parallel num_threads(nthreads)
-  {
-    RowRing<T> ring(K + 1, half, W, LC);  // padded rows of dL/dS
-    RowRing<T> own(2, half, W, nw + 2);   // the two source rows' weight rows, norm, dnorm
-    std::vector<T> xl(2 * LC * stride, T(0));  // alpha_l X_c of the two source rows
-    std::vector<T> dbuf(2 * LC * stride), mrow(2 * stride), work((NL + C + 4) * W);
-    std::vector<T> acc(2 * W);
-    uint32_t row_support[2] = {0, 0};
-    std::vector<T> scratch(4 * W + 1);
-    std::vector<const T*> g_rows((K + 1) * G), x_rows(2 * G);
-    std::vector<T*> d0_rows(G), d1_rows(G);
-    std::vector<T*> slots(K + 1);
-#pragma omp for schedule(dynamic, 1)
-    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
-      const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * rpb;
-      const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
-      for (int64_t sy = y0; sy < y1; sy += 2) {
-        const bool pair = sy + 1 < y1;
-        const int64_t rows = pair ? 2 : 1;
-        T* wslot[2];
-        for (int64_t i = 0; i < rows; ++i) {
-          bool fresh;
-          wslot[i] = own.slot(i, &fresh);
-          pol.fill(param + b * plane + (sy + i) * W, W, wslot[i] + half, own.padded,
-                   wslot[i] + nw * own.padded + half, wslot[i] + (nw + 1) * own.padded + half,
-                   scratch.data());
-          const T* prow = pos + b * plane + (sy + i) * W;
-          uint32_t support = 0;
-          for (int64_t s = 0; s < W; ++s) support |= layer_bits(prow[s], NL, true);
-          row_support[i] = support;
-        }
-        const uint32_t both_rows = row_support[0] | (pair ? row_support[1] : 0u);
-        for (int64_t i = 0; i < rows; ++i) {
-          const T* prow = pos + b * plane + (sy + i) * W;
-          for (int64_t l = 0; l < NL; ++l) {
-            // the register blocks read both rows' X for the layers of either: fill the union
-            if (!((both_rows >> l) & 1u)) continue;
-            T* last = xl.data() + (i * LC + l * C1 + C) * stride;
-            for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l);
-            for (int64_t c = 0; c < C; ++c) {
-              const T* xrow = x + (b * C + c) * plane + (sy + i) * W;
-              T* dst = xl.data() + (i * LC + l * C1 + c) * stride;
-              for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
-            }
-          }
-        }
-        for (int64_t r = 0; r <= K; ++r) {
-          const int64_t oy = sy - half + r;
-          slots[r] = nullptr;
-          if (oy < 0 || oy >= H || (!pair && r == K)) continue;
-          bool fresh;
-          T* slot = ring.slot(oy, &fresh);
-          if (fresh)
-            composite_backward_row<T>(g, out, S, slot, ring.padded, half, C, NL, plane, W, b, oy,
-                                      work.data());
-          slots[r] = slot;
-        }
-        std::fill(mrow.begin(), mrow.end(), T(0));
-        for (int64_t s0 = 0; s0 < W; s0 += lanes) {
-          const int64_t n_out = std::min(lanes, W - s0);
-          uint32_t support = 0;
-          for (int64_t i = 0; i < rows; ++i) {
-            const T* prow = pos + b * plane + (sy + i) * W;
-            for (int64_t s = s0; s < s0 + n_out; ++s) support |= layer_bits(prow[s], NL, true);
-          }
-          for (int64_t l = 0; l < NL; ++l) {
-            if (!((support >> l) & 1u)) {
-              for (int64_t i = 0; i < 2 * LC; i += LC)
-                for (int64_t c = 0; c < C1; ++c) {
-                  T* d = dbuf.data() + (i + l * C1 + c) * stride + s0;
-                  std::fill(d, d + n_out, T(0));
-                }
-              continue;
-            }
-            for (int64_t c0 = 0; c0 < C1; c0 += G) {
-              const int64_t gsize = std::min<int64_t>(G, C1 - c0);
-              for (int64_t r = 0; r <= K; ++r)
-                for (int64_t gi = 0; gi < G; ++gi)
-                  g_rows[r * G + gi] = slots[r] == nullptr ? nullptr
-                      : slots[r] + (l * C1 + c0 + std::min(gi, gsize - 1)) * ring.padded;
-              for (int64_t gi = 0; gi < gsize; ++gi) {
-                const int64_t c = l * C1 + c0 + gi;
-                x_rows[gi] = xl.data() + c * stride;
-                x_rows[G + gi] = xl.data() + (LC + c) * stride;
-                d0_rows[gi] = dbuf.data() + c * stride;
-                d1_rows[gi] = dbuf.data() + (LC + c) * stride;
-              }
-              fused_backward_rows<T, G, P>(pol, wslot[0], pair ? wslot[1] : nullptr, own.padded,
-                                           g_rows.data(), s0, x_rows.data(), d0_rows.data(),
-                                           d1_rows.data(), mrow.data() + s0,
-                                           mrow.data() + stride + s0, n_out, gsize);
-            }
-          }
-        }
-        for (int64_t i = 0; i < rows; ++i) {
-          const int64_t row = sy + i;
-          const T* norm = wslot[i] + nw * own.padded + half;
-          const T* dnorm = wslot[i] + (nw + 1) * own.padded + half;
-          const T* d = dbuf.data() + i * LC * stride;
-          const T* xs = xl.data() + i * LC * stride;
-          const T* m = mrow.data() + i * stride;
-          const T* prow = param + b * plane + row * W;
-          const T* qrow = pos + b * plane + row * W;
-          T* gp = grad_param + b * plane + row * W;
-          T* gq = grad_pos + b * plane + row * W;
-          T* sum_xd = acc.data();
-          T* dalpha = acc.data() + W;
-          std::fill(sum_xd, sum_xd + W, T(0));
-          std::fill(gq, gq + W, T(0));
+  // ring rows: dL/dS; D rows: D_{l,c}; xl: alpha_l X_c of the two source rows
+  two_row_backward<T>(pol, param, B, H, W, LC, nthreads, [&] {
+    return [&, xl = std::vector<T>(2 * LC * stride, T(0)),
+            work = std::vector<T>((NL + C + 4) * W),
+            acc = std::vector<T>(2 * W)](TwoRowBackward<T, P>& st) mutable {
+      const int64_t b = st.b, sy = st.sy, rows = st.rows();
+      const bool pair = st.pair;
+      uint32_t row_support[2] = {0, 0};
+      for (int64_t i = 0; i < rows; ++i) {
+        const T* prow = pos + b * plane + (sy + i) * W;
+        uint32_t support = 0;
+        for (int64_t s = 0; s < W; ++s) support |= layer_bits(prow[s], NL, true);
+        row_support[i] = support;
+      }
+      const uint32_t both_rows = row_support[0] | (pair ? row_support[1] : 0u);
+      for (int64_t i = 0; i < rows; ++i) {
+        const T* prow = pos + b * plane + (sy + i) * W;
+        for (int64_t l = 0; l < NL; ++l) {
+          // the register blocks read both rows' X for the layers of either: fill the union
+          if (!((both_rows >> l) & 1u)) continue;
+          T* last = xl.data() + (i * LC + l * C1 + C) * stride;
+          for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l);
           for (int64_t c = 0; c < C; ++c) {
-            T* gx = grad_x + (b * C + c) * plane + row * W;
-            std::fill(gx, gx + W, T(0));
+            const T* xrow = x + (b * C + c) * plane + (sy + i) * W;
+            T* dst = xl.data() + (i * LC + l * C1 + c) * stride;
+            for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
           }
-          for (int64_t l = 0; l < NL; ++l) {
-            if (!((row_support[i] >> l) & 1u)) continue;  // D = 0 and d alpha / d pos = 0
-            const T* al = xs + (l * C1 + C) * stride;     // alpha_l
-            const T* dl = d + (l * C1 + C) * stride;
-            for (int64_t s = 0; s < W; ++s) {
-              dalpha[s] = dl[s];                            // sum_c x_c D_{l,c} + D_{l,C}
-              sum_xd[s] += al[s] * dl[s];
-            }
-            for (int64_t c = 0; c < C; ++c) {
-              const T* dc = d + (l * C1 + c) * stride;
-              const T* xc = x + (b * C + c) * plane + row * W;
-              const T* xlc = xs + (l * C1 + c) * stride;
-              T* gx = grad_x + (b * C + c) * plane + row * W;
-              for (int64_t s = 0; s < W; ++s) {
-                dalpha[s] += xc[s] * dc[s];
-                sum_xd[s] += xlc[s] * dc[s];
-                gx[s] += al[s] * dc[s];
-              }
-            }
-            const T lf = T(l);
-            for (int64_t s = 0; s < W; ++s) {
-              const T diff = qrow[s] - lf;
-              const T sign = diff > T(0) ? T(1) : (diff < T(0) ? T(-1) : T(0));
-              gq[s] -= (T(1) - std::abs(diff) >= T(0)) ? norm[s] * dalpha[s] * sign : T(0);
-            }
-          }
-          for (int64_t c = 0; c < C; ++c) {
-            T* gx = grad_x + (b * C + c) * plane + row * W;
-            for (int64_t s = 0; s < W; ++s) gx[s] *= norm[s];
-          }
-          for (int64_t s = 0; s < W; ++s)
-            gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + sum_xd[s] * dnorm[s];
         }
       }
-    }
-  }
+      st.gather([&](T* slot, int64_t oy) {
+        composite_backward_row<T>(g, out, S, slot, st.ring.padded, half, C, NL, plane, W, b, oy,
+                                  work.data());
+      });
+      for (int64_t s0 = 0; s0 < W; s0 += lanes) {
+        const int64_t n_out = std::min<int64_t>(lanes, W - s0);
+        uint32_t support = 0;
+        for (int64_t i = 0; i < rows; ++i) {
+          const T* prow = pos + b * plane + (sy + i) * W;
+          for (int64_t s = s0; s < s0 + n_out; ++s) support |= layer_bits(prow[s], NL, true);
+        }
+        for (int64_t l = 0; l < NL; ++l) {
+          if (!((support >> l) & 1u)) {
+            for (int64_t i = 0; i < 2 * LC; i += LC)
+              for (int64_t c = 0; c < C1; ++c) {
+                T* d = st.dbuf.data() + (i + l * C1 + c) * stride + s0;
+                std::fill(d, d + n_out, T(0));
+              }
+            continue;
+          }
+          for (int64_t c0 = 0; c0 < C1; c0 += G) {
+            const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+            st.point_g(l * C1 + c0, gsize);
+            for (int64_t gi = 0; gi < gsize; ++gi) {
+              const int64_t c = l * C1 + c0 + gi;
+              st.x_rows[gi] = xl.data() + c * stride;
+              st.x_rows[G + gi] = xl.data() + (LC + c) * stride;
+              st.point_d(gi, c);
+            }
+            st.run(s0, n_out, gsize);
+          }
+        }
+      }
+      for (int64_t i = 0; i < rows; ++i) {
+        const int64_t row = sy + i;
+        const T* norm = st.norm(i);
+        const T* dnorm = st.dnorm(i);
+        const T* d = st.d(i);
+        const T* xs = xl.data() + i * LC * stride;
+        const T* m = st.m(i);
+        const T* prow = param + b * plane + row * W;
+        const T* qrow = pos + b * plane + row * W;
+        T* gp = grad_param + b * plane + row * W;
+        T* gq = grad_pos + b * plane + row * W;
+        T* sum_xd = acc.data();
+        T* dalpha = acc.data() + W;
+        std::fill(sum_xd, sum_xd + W, T(0));
+        std::fill(gq, gq + W, T(0));
+        for (int64_t c = 0; c < C; ++c) {
+          T* gx = grad_x + (b * C + c) * plane + row * W;
+          std::fill(gx, gx + W, T(0));
+        }
+        for (int64_t l = 0; l < NL; ++l) {
+          if (!((row_support[i] >> l) & 1u)) continue;  // D = 0 and d alpha / d pos = 0
+          const T* al = xs + (l * C1 + C) * stride;     // alpha_l
+          const T* dl = d + (l * C1 + C) * stride;
+          for (int64_t s = 0; s < W; ++s) {
+            dalpha[s] = dl[s];                            // sum_c x_c D_{l,c} + D_{l,C}
+            sum_xd[s] += al[s] * dl[s];
+          }
+          for (int64_t c = 0; c < C; ++c) {
+            const T* dc = d + (l * C1 + c) * stride;
+            const T* xc = x + (b * C + c) * plane + row * W;
+            const T* xlc = xs + (l * C1 + c) * stride;
+            T* gx = grad_x + (b * C + c) * plane + row * W;
+            for (int64_t s = 0; s < W; ++s) {
+              dalpha[s] += xc[s] * dc[s];
+              sum_xd[s] += xlc[s] * dc[s];
+              gx[s] += al[s] * dc[s];
+            }
+          }
+          const T lf = T(l);
+          for (int64_t s = 0; s < W; ++s) {
+            const T diff = qrow[s] - lf;
+            const T sign = diff > T(0) ? T(1) : (diff < T(0) ? T(-1) : T(0));
+            gq[s] -= (T(1) - std::abs(diff) >= T(0)) ? norm[s] * dalpha[s] * sign : T(0);
+          }
+        }
+        for (int64_t c = 0; c < C; ++c) {
+          T* gx = grad_x + (b * C + c) * plane + row * W;
+          for (int64_t s = 0; s < W; ++s) gx[s] *= norm[s];
+        }
+        for (int64_t s = 0; s < W; ++s)
+          gp[s] = norm[s] * m[s] * pol.scale(prow[s]) + sum_xd[s] * dnorm[s];
+      }
+    };
+  });
 }
 
 }  // namespace
