@@ -24,7 +24,7 @@ from __future__ import annotations
 import argparse
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -226,3 +226,25 @@ def training_crop(args: argparse.Namespace, probe: Dataset) -> tuple[int, int] |
         print(f"crop {crop[0]}x{crop[1]} does not fit the {h}x{w} images: using {fitted[0]}x"
               f"{fitted[1]}")
     return None if fitted == (h, w) else fitted
+
+
+def run_example(
+    name: str,
+    args: argparse.Namespace,
+    make: Callable[[str], Dataset],
+    depth_range: tuple[float, float],
+    splits: tuple[str, str] = ("train", "test"),
+    **evaluate_kwargs: Any,
+) -> dict[str, dict[str, float]]:
+    """The whole example: `make(split)` builds a dataset; training takes random crops (flips and
+    gains) of the whole training samples, which also choose the best constant depth; evaluation
+    runs on the whole test samples (the training set itself when both splits are the same)."""
+    from datasets import JointAugment
+
+    whole = make(splits[0])
+    crop = training_crop(args, whole)
+    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
+    test = whole if splits[1] == splits[0] else make(splits[1])
+    if evaluate_kwargs.get("has_depth", True):
+        evaluate_kwargs.setdefault("constant_set", whole)
+    return train_and_evaluate(name, args, train, test, depth_range=depth_range, **evaluate_kwargs)

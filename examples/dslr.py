@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, train_and_evaluate, training_crop
+from _common import build_parser, dataset_kwargs, run_example
 
-from datasets import DSLR, JointAugment
+from datasets import DSLR
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,11 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
     kwargs.pop("cache_dir")  # real focused images: nothing to cache
-    whole = DSLR(args.root, "train", args.depth_scale, **kwargs)
-    crop = training_crop(args, whole)
-    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    test = DSLR(args.root, "test", args.depth_scale, **kwargs)
-    train_and_evaluate("DSLR", args, train, test, depth_range=(0.5, 10.0), constant_set=whole)
+    run_example("DSLR", args, lambda split: DSLR(args.root, split, args.depth_scale, **kwargs),
+                depth_range=(0.5, 10.0))
     return 0
 
 

@@ -32,21 +32,17 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, train_and_evaluate, training_crop
+from _common import build_parser, dataset_kwargs, run_example
 
-from datasets import KITTI, JointAugment
+from datasets import KITTI
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser(__doc__.splitlines()[0], "runs/kitti")
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
-    whole = KITTI(args.root, "train", **kwargs)
-    crop = training_crop(args, whole)
-    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    test = KITTI(args.root, "test", **kwargs)
-    train_and_evaluate("KITTI", args, train, test, depth_range=(1.0, 80.0), crop="garg",
-                       constant_set=whole)
+    run_example("KITTI", args, lambda split: KITTI(args.root, split, **kwargs),
+                depth_range=(1.0, 80.0), crop="garg")
     return 0
 
 

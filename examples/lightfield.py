@@ -30,9 +30,9 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, train_and_evaluate, training_crop
+from _common import build_parser, dataset_kwargs, run_example
 
-from datasets import JointAugment, LightField
+from datasets import LightField
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -48,11 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     kwargs.pop("cache_dir")  # real refocusing: nothing to cache
     lf = {"n_views": args.n_views, "layout": args.layout, "radius": args.radius,
           "focus_disparities": args.focus_disparities, **kwargs}
-    whole = LightField(args.root, "train", **lf)
-    crop = training_crop(args, whole)
-    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    test = LightField(args.root, "test", **lf)
-    train_and_evaluate("Light fields", args, train, test, depth_range=(0.5, 10.0), has_depth=False)
+    run_example("Light fields", args, lambda split: LightField(args.root, split, **lf),
+                depth_range=(0.5, 10.0), has_depth=False)
     return 0
 
 

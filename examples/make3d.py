@@ -29,9 +29,9 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, train_and_evaluate, training_crop
+from _common import build_parser, dataset_kwargs, run_example
 
-from datasets import JointAugment, Make3D
+from datasets import Make3D
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -39,11 +39,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.set_defaults(size=[460, 345])
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
-    whole = Make3D(args.root, "train", **kwargs)
-    crop = training_crop(args, whole)
-    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    test = Make3D(args.root, "test", **kwargs)
-    train_and_evaluate("Make3D", args, train, test, depth_range=(1.0, 70.0), constant_set=whole)
+    run_example("Make3D", args, lambda split: Make3D(args.root, split, **kwargs),
+                depth_range=(1.0, 70.0))
     return 0
 
 

@@ -33,9 +33,9 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, train_and_evaluate, training_crop
+from _common import build_parser, dataset_kwargs, run_example
 
-from datasets import JointAugment, Middlebury
+from datasets import Middlebury
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,12 +45,8 @@ def main(argv: list[str] | None = None) -> int:
     root = None if str(args.root) == "builtin" else args.root
     splits = ("all", "all") if root is None or not (root / "train.txt").is_file() else (
         "train", "test")
-    whole = Middlebury(root, splits[0], **kwargs)
-    crop = training_crop(args, whole)
-    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    test = whole if splits[1] == splits[0] else Middlebury(root, splits[1], **kwargs)
-    train_and_evaluate("Middlebury", args, train, test, depth_range=(1.0, 8.0),
-                       constant_set=whole)
+    run_example("Middlebury", args, lambda split: Middlebury(root, split, **kwargs),
+                depth_range=(1.0, 8.0), splits=splits)
     return 0
 
 

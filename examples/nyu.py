@@ -30,21 +30,17 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, train_and_evaluate, training_crop
+from _common import build_parser, dataset_kwargs, run_example
 
-from datasets import JointAugment, NYUv2
+from datasets import NYUv2
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser(__doc__.splitlines()[0], "runs/nyu")
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
-    whole = NYUv2(args.root, "train", **kwargs)
-    crop = training_crop(args, whole)
-    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    test = NYUv2(args.root, "test", **kwargs)
-    train_and_evaluate("NYU Depth v2", args, train, test, depth_range=(0.5, 10.0), crop="eigen",
-                       constant_set=whole)
+    run_example("NYU Depth v2", args, lambda split: NYUv2(args.root, split, **kwargs),
+                depth_range=(0.5, 10.0), crop="eigen")
     return 0
 
 
