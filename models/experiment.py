@@ -218,30 +218,6 @@ def _progress_printer(total: int, every: int) -> Callable[[Trainer, int, dict[st
     return report
 
 
-def constant_depth_metrics(
-    train_set: Sequence[Mapping[str, Any]], test_set: Sequence[Mapping[str, Any]], **metric_kwargs: Any
-) -> tuple[float, dict[str, float]] | None:
-    """The best constant depth of the training depths (`best_constant_depth`, abs-rel-optimal)
-    and its mean metrics on `test_set`; None when the training data holds no valid depth.
-
-    Args:
-        train_set: samples with `depth` and `mask`, where the constant is chosen.
-        test_set: samples with `depth` and `mask`, where it is evaluated.
-        **metric_kwargs: passed to `depth_metrics` (`max_depth`, `crop`, ...).
-    """
-    depths = [s["depth"][s["mask"].bool()] for s in train_set if bool(s["mask"].any())]
-    if not depths:
-        return None
-    constant = best_constant_depth(target=torch.cat(depths))
-    totals: dict[str, float] = {}
-    for sample in test_set:
-        row = depth_metrics(pred=torch.full_like(sample["depth"], constant),
-                            target=sample["depth"], mask=sample["mask"], **metric_kwargs)
-        for key, value in row.items():
-            totals[key] = totals.get(key, 0.0) + value / len(test_set)
-    return constant, totals
-
-
 def reconstruction_metrics(trainer: Trainer, test_set: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """Mean self-supervised loss terms on `test_set` (for data without ground-truth depth)."""
     totals: dict[str, float] = {}
