@@ -59,14 +59,6 @@ class CaptureNoise:
         return CaptureNoise(0.0, 0.0, 0.0, 0.0, 0.0, 0)
 
 
-def largest_coc_px(settings: CameraSettings, near: float, far: float) -> float:
-    """The largest |CoC| diameter in pixels over depths `[near, far]` metres, for any shot."""
-    a = settings.coc_at_infinity_px().abs().reshape(-1)
-    df = settings.focus_distance.reshape(-1)
-    edges = torch.stack([(1 - df / near).abs(), (1 - df / far).abs()])
-    return float((a * edges).max())
-
-
 def random_camera(
     rng: np.random.Generator, near: float, far: float, n_shots: int = 2,
     max_coc_px: tuple[float, float] = (1.0, 14.0), aperture: str | None = None,
@@ -79,7 +71,7 @@ def random_camera(
 
     Example:
         >>> s = random_camera(np.random.default_rng(0), 2.0, 6.0)
-        >>> s.n_shots, 1.0 <= largest_coc_px(s, 2.0, 6.0) <= 14.0
+        >>> s.n_shots, 1.0 <= s.largest_coc_px(2.0, 6.0) <= 14.0
         (2, True)
     """
     f = math.exp(rng.uniform(math.log(0.018), math.log(0.2)))
@@ -92,7 +84,7 @@ def random_camera(
     spec = aperture or TRAINING_APERTURES[int(rng.integers(len(TRAINING_APERTURES)))]
     unit = CameraSettings(f, n, focus, 1.0, aperture=spec)
     target = math.exp(rng.uniform(math.log(max_coc_px[0]), math.log(max_coc_px[1])))
-    pitch = largest_coc_px(unit, near, far) / target
+    pitch = unit.largest_coc_px(near, far) / target
     return unit.replace(pixel_pitch=pitch)
 
 

@@ -325,11 +325,8 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
         >>> round(working_scale(s, 1.0, 10.0, (3000, 4000)), 3)
         0.048
     """
-    a = settings.coc_at_infinity_px().abs().reshape(-1)
-    df = settings.focus_distance.reshape(-1)
-    largest = float((a * torch.stack([(1 - df / near).abs(), (1 - df / far).abs()])).max())
-    scale = min(1.0, max_coc_px / max(largest, 1e-9), math.sqrt(max_pixels / (shape[0] * shape[1])))
-    return scale
+    largest = settings.largest_coc_px(near, far)
+    return min(1.0, max_coc_px / max(largest, 1e-9), math.sqrt(max_pixels / (shape[0] * shape[1])))
 
 
 def predict_depth(

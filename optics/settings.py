@@ -211,6 +211,19 @@ class CameraSettings:
         coc = Sensor.from_effective_pitch(self.pixel_pitch.reshape(-1)).to_pixels(lens.coc_at_infinity())
         return coc.reshape(self.shape)
 
+    def largest_coc_px(self, near: float, far: float) -> float:
+        """The largest |CoC| diameter in pixels of any shot over depths `[near, far]` metres
+        (reached at one of the two ends: the CoC is linear in inverse depth).
+
+        Example:
+            >>> round(CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).largest_coc_px(1.0, 10.0), 3)
+            10.504
+        """
+        a = self.coc_at_infinity_px().abs().reshape(-1)
+        df = self.focus_distance.reshape(-1)
+        edges = torch.stack([(1 - df / near).abs(), (1 - df / far).abs()])
+        return float((a * edges).max())
+
     # ---- JSON ----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """Plain numbers and lists (metres), and the aperture spec under `psf`."""

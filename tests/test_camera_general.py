@@ -15,7 +15,6 @@ from datasets.capture import (
     CaptureNoise,
     RandomCameraScenes,
     capture,
-    largest_coc_px,
     random_camera,
 )
 from datasets.photos import read_photo
@@ -30,7 +29,7 @@ def test_random_cameras_hit_their_blur_target():
     rng = np.random.default_rng(0)
     for _ in range(20):
         s = random_camera(rng, 2.0, 9.0, n_shots=3, max_coc_px=(2.0, 6.0))
-        assert s.n_shots == 3 and 2.0 - 1e-6 <= largest_coc_px(s, 2.0, 9.0) <= 6.0 + 1e-6
+        assert s.n_shots == 3 and 2.0 - 1e-6 <= s.largest_coc_px(2.0, 9.0) <= 6.0 + 1e-6
         assert bool((s.focal_length >= 0.018).all() and (s.focal_length <= 0.2).all())
 
 
@@ -77,7 +76,7 @@ def test_working_scale_bounds_the_blur_and_the_pixels():
     s = CameraSettings(0.05, 1.4, [2.0, 6.0], 6e-6)  # 50 mm f/1.4, 6 um pixels
     scale = working_scale(s, 1.0, 10.0, (3000, 4000), max_coc_px=12.0)
     small = s.replace(pixel_pitch=s.pixel_pitch / scale)
-    assert largest_coc_px(small, 1.0, 10.0) == pytest.approx(12.0, rel=1e-6)
+    assert small.largest_coc_px(1.0, 10.0) == pytest.approx(12.0, rel=1e-6)
     assert working_scale(s.replace(pixel_pitch=1e-3), 1.0, 10.0, (3000, 4000)) \
         == pytest.approx((1.5e6 / 12e6) ** 0.5)
 
