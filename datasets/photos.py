@@ -16,6 +16,8 @@ import torch
 from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 
+from optics import CameraSettings
+
 from .io import DataFormatError, require_file
 
 #: EXIF tag numbers (the Exif IFD).
@@ -114,8 +116,8 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
 def photo_settings(
     infos: list[PhotoInfo], focus_distances: list[float], f_numbers: list[float] | None = None,
     focal_length: float | None = None, pixel_pitch: float | None = None,
-    calibration=None, aperture: str = "disk",
-):
+    calibration: CameraSettings | None = None, aperture: str = "disk",
+) -> CameraSettings:
     """The `(F,)` `CameraSettings` of focused photos, from what the user gave, else the
     calibration, else the photos' EXIF.
 
@@ -132,8 +134,6 @@ def photo_settings(
     Raises:
         ValueError: naming every value that is missing and how to give it.
     """
-    from optics import CameraSettings
-
     n = len(infos)
     if len(focus_distances) == 0 and calibration is not None and calibration.n_shots == n:
         focus_distances = calibration.focus_distance.tolist()

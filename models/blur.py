@@ -33,6 +33,7 @@ from optics import CameraSettings, Disk, render_defocus
 from optics.checks import check_shape
 
 from .losses import edge_aware_smoothness, photometric_loss
+from .tiling import apply_in_tiles
 
 #: Scales (pixels) of the band-pass energies in `blur_features`.
 FEATURE_SCALES = (0.0, 1.0, 2.0, 4.0)
@@ -235,17 +236,8 @@ class DepthFromDefocus(nn.Module):
         h, w = image.shape[-2:]
         if max(h, w) <= self.tile:
             return self.blur_net(image, focused)
-        out = image.new_zeros(image.shape[0], 1, h, w)
-        step, margin = self.tile - 2 * self.overlap, self.overlap
-        for top in range(0, h, step):
-            for left in range(0, w, step):
-                t0, l0 = max(0, top - margin), max(0, left - margin)
-                t1, l1 = min(h, top + step + margin), min(w, left + step + margin)
-                part = self.blur_net(image[..., t0:t1, l0:l1], focused[..., t0:t1, l0:l1])
-                bottom, right = min(h, top + step), min(w, left + step)
-                out[..., top:bottom, left:right] = part[..., top - t0:bottom - t0,
-                                                        left - l0:right - l0]
-        return out
+        return apply_in_tiles(self.blur_net, [image, focused], self.tile - 2 * self.overlap,
+                              self.overlap)
 
     def forward(self, image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
                 far: float) -> dict[str, Tensor]:

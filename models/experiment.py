@@ -22,6 +22,7 @@ from torch.utils.data import Subset, default_collate
 
 from .direct import fit_depth_direct
 from .metrics import best_constant_depth, depth_metrics
+from .tiling import apply_in_tiles, check_tiling
 from .training import TrainConfig, Trainer
 
 #: Whole images above this many pixels are predicted tile by tile (`predict_tiled`).
@@ -91,26 +92,11 @@ def predict_tiled(trainer: Trainer, image: Tensor, focused: Tensor | None = None
     Returns:
         depth `(B,1,H,W)` metres, on the trainer's device.
     """
-    if tile <= 0 or overlap < 0:
-        raise ValueError(f"tile must be > 0 and overlap >= 0 pixels, got tile={tile!r} and "
-                         f"overlap={overlap!r}")
-    h, w = image.shape[-2:]
-    if h * w <= max_pixels:
+    check_tiling(tile, overlap)
+    if image.shape[-2] * image.shape[-1] <= max_pixels:
         return trainer.predict(image, focused, settings)
-    out = None
-    for top in range(0, h, tile):
-        for left in range(0, w, tile):
-            t0, l0 = max(top - overlap, 0), max(left - overlap, 0)
-            t1, l1 = min(top + tile + overlap, h), min(left + tile + overlap, w)
-            part = trainer.predict(image[..., t0:t1, l0:l1],
-                                   None if focused is None else focused[..., t0:t1, l0:l1],
-                                   settings)
-            if out is None:
-                out = part.new_empty(image.shape[0], 1, h, w)
-            bottom, right = min(top + tile, h), min(left + tile, w)
-            out[..., top:bottom, left:right] = part[..., top - t0:bottom - t0,
-                                                    left - l0:right - l0]
-    return out
+    return apply_in_tiles(lambda x, f: trainer.predict(x, f, settings), [image, focused], tile,
+                          overlap)
 
 
 def evaluate_whole_images(
