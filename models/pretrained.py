@@ -43,9 +43,13 @@ def save_weights(model: DepthFromDefocus, path: str | Path, **metadata: float | 
 
 
 def is_weights_file(path: str | Path) -> bool:
-    """Whether `path` holds `save_weights` output (read safely; False for anything else)."""
+    """Whether `path` holds `save_weights` output (read safely; False for anything else).
+
+    The file is memory-mapped: its tensors are not read, so asking about a large training
+    checkpoint costs nothing before the caller loads it for real.
+    """
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception:  # not a weights file: the caller tries other formats
         return False
     return isinstance(state, dict) and state.get("kind") == "DepthFromDefocus"
