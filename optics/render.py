@@ -297,7 +297,7 @@ def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
         check_depth("depth", depth)
     if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
         raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
-    b, c, h, w = image.shape
+    b, _, h, w = image.shape
     depth = depth.to(image.dtype).expand(b, 1, h, w)
     kind = _fast_kind(psf)
     if kind is not None and n_layers <= 32 and _render_cpp.usable(image):
@@ -309,19 +309,33 @@ def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
         else:
             param, dist = psf.edge_radius(coc_px) + 0.5, _distance_table(psf, half, cap, image)
         return ops.layered_render(image, pos, param, dist, half_t, n_layers, kind)[0]
+    layers = split_layers(image, depth, n_layers)
+    return composite_layers(_linear_filter(layers, coc_px, psf, half, True, cap), n_layers)
+
+
+def split_layers(image: Tensor, depth: Tensor, n_layers: int) -> Tensor:
+    """The layered mode's input: per depth layer (front first) the image premultiplied by the
+    layer's weight, then the weight: `(B, n_layers * (C + 1), H, W)`."""
+    b, _, h, w = image.shape
     alpha = layer_weights(depth, n_layers)  # (B, L, H, W), front first
     layers = torch.cat([alpha.unsqueeze(2) * image.unsqueeze(1), alpha.unsqueeze(2)], 2)
-    spread = _linear_filter(layers.reshape(b, -1, h, w), coc_px, psf, half, True, cap)
-    spread = spread.view(b, n_layers, c + 1, h, w)
-    colour = torch.zeros_like(image)
-    coverage = torch.zeros_like(image[:, :1])
+    return layers.reshape(b, -1, h, w)
+
+
+def composite_layers(spread: Tensor, n_layers: int) -> Tensor:
+    """Composite blurred layers (`split_layers` layout) front to back: each layer's colour is
+    seen through the transmittance left by the layers in front; normalised by the coverage."""
+    b, _, h, w = spread.shape
+    spread = spread.view(b, n_layers, -1, h, w)
+    colour = torch.zeros_like(spread[:, 0, :-1])
+    coverage = torch.zeros_like(spread[:, 0, -1:])
     transmittance = torch.ones_like(coverage)
     for layer in range(n_layers):
         layer_alpha = spread[:, layer, -1:]
         colour = colour + transmittance * spread[:, layer, :-1]
         coverage = coverage + transmittance * layer_alpha
         transmittance = transmittance * (1 - layer_alpha.clamp(max=1.0))
-    return colour / coverage.clamp_min(torch.finfo(image.dtype).tiny)
+    return colour / coverage.clamp_min(torch.finfo(spread.dtype).tiny)
 
 
 class DefocusRenderer(nn.Module):

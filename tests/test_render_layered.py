@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from optics import Disk, Gaussian, Polygon, _render_cpp, render_defocus
-from optics.render import layer_weights
+from optics.render import composite_layers, split_layers
 
 needs_library = pytest.mark.skipif(
     _render_cpp.library() is None, reason="no C++ compiler (or DEFOCUS_NO_CPP set)"
@@ -25,7 +25,6 @@ def _shift(t, dy, dx):
 
 def reference_layered(image, coc, psf, depth, n_layers):
     """The layered semantics with plain autograd: per-source normalised profiles, front-to-back."""
-    b, c, h, w = image.shape
     half = psf.half_width(float(coc.detach().max()))
     offsets = [(dy, dx) for dy in range(-half, half + 1) for dx in range(-half, half + 1)]
 
@@ -34,20 +33,9 @@ def reference_layered(image, coc, psf, depth, n_layers):
                            torch.tensor(float(dx), dtype=coc.dtype), coc)
 
     total = sum(prof(dy, dx) for dy, dx in offsets)
-    alpha = layer_weights(depth, n_layers)
-    layers = torch.cat([alpha.unsqueeze(2) * image.unsqueeze(1), alpha.unsqueeze(2)], 2)
-    layers = layers.reshape(b, -1, h, w)
+    layers = split_layers(image, depth, n_layers)
     spread = sum(_shift(layers * (prof(dy, dx) / total), dy, dx) for dy, dx in offsets)
-    spread = spread.view(b, n_layers, c + 1, h, w)
-    colour = torch.zeros_like(image)
-    coverage = torch.zeros_like(image[:, :1])
-    transmittance = torch.ones_like(coverage)
-    for layer in range(n_layers):
-        layer_alpha = spread[:, layer, -1:]
-        colour = colour + transmittance * spread[:, layer, :-1]
-        coverage = coverage + transmittance * layer_alpha
-        transmittance = transmittance * (1 - layer_alpha.clamp(max=1.0))
-    return colour / coverage.clamp_min(torch.finfo(image.dtype).tiny)
+    return composite_layers(spread, n_layers)
 
 
 def _scene(h, w, dtype, seed, smooth):
