@@ -171,7 +171,7 @@ class CameraSettings:
     def select_shots(self, index: Any) -> CameraSettings:
         """Keep some shots (the last dimension), e.g. `select_shots([0, 2])`."""
         picked = self._map(lambda t: t[..., index])
-        if picked.shape[-1:] == () or picked.focus_distance.ndim < len(self.shape):
+        if picked.focus_distance.ndim < len(self.shape):
             raise IndexError("select_shots needs a slice or a list of shots; use .shot(i) for one")
         return picked
 
