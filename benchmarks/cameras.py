@@ -35,7 +35,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from datasets.capture import CaptureNoise, capture  # noqa: E402
-from datasets.middlebury import load_motorcycle  # noqa: E402
+from datasets.middlebury import motorcycle_scene  # noqa: E402
 from models.blur import predict_depth, working_scale  # noqa: E402
 from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
 from optics import CameraSettings  # noqa: E402
@@ -57,16 +57,9 @@ DEPTH_RANGE = (1.0, 15.0)
 def photograph(name: str, seed: int = 0, scale: float = 1.0) -> dict:
     """The motorcycle through camera `name`: photos, settings and ground truth."""
     f, n, focus, sensor_width, psf = CAMERAS[name]
-    scene = load_motorcycle()
-    image, depth, mask = scene["image"][0], scene["depth"][0], scene["mask"][0]
     if name.startswith("demo"):  # the demo's own resolution: 185x125 at 180 um
         scale = 0.25
-    if scale != 1:
-        size = (round(image.shape[-2] * scale), round(image.shape[-1] * scale))
-        image = torch.nn.functional.interpolate(image[None], size=size, mode="area")[0]
-        depth = torch.nn.functional.interpolate(depth[None], size=size, mode="nearest")[0]
-        mask = torch.nn.functional.interpolate(mask[None].float(), size=size)[0] > 0.5
-    depth = torch.where(mask, depth, depth[mask].max())
+    image, depth, mask = (t[0] for t in motorcycle_scene(scale))
     settings = CameraSettings(f, n, list(focus), sensor_width / image.shape[-1], aperture=psf)
     aif, focused = capture(image, depth, settings, np.random.default_rng(seed), CaptureNoise())
     return {"image": aif, "focused": focused, "settings": settings.to(torch.float32),

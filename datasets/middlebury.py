@@ -133,6 +133,31 @@ def motorcycle_focus_sweep(
             "settings": settings}
 
 
+def motorcycle_scene(scale: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
+    """The motorcycle's image `(1,3,H,W)` (linear), depth `(1,1,H,W)` metres and known-depth mask,
+    downscaled by `scale` in (0, 1].
+
+    Image and depth are area-averaged (depth over known pixels only); a pixel stays known only if
+    all of its source pixels had known disparity. Unknown depth is filled with the farthest known
+    depth, so the scene can be rendered.
+    """
+    import torch.nn.functional as F
+
+    if not 0 < float(scale) <= 1:
+        raise ValueError(f"scale must be in (0, 1], got {scale!r}")
+    scene = load_motorcycle()
+    known = scene["mask"].to(scene["depth"].dtype)
+    if scale != 1:
+        image = F.interpolate(scene["image"], scale_factor=scale, mode="area")
+        coverage = F.interpolate(known, scale_factor=scale, mode="area")
+        depth = F.interpolate(scene["depth"] * known, scale_factor=scale, mode="area")
+        depth = depth / coverage.clamp_min(1e-6)
+        mask = coverage > 0.999
+    else:
+        image, depth, mask = scene["image"], scene["depth"], scene["mask"].bool()
+    return image, torch.where(mask, depth, depth[mask].max()), mask
+
+
 def motorcycle_sample(scale: float = 0.25, preset: CameraPreset | None = None) -> dict[str, Any]:
     """The real motorcycle scene in the sample format, for evaluation (the demo's test scene).
 
@@ -154,26 +179,12 @@ def motorcycle_sample(scale: float = 0.25, preset: CameraPreset | None = None) -
         >>> sample["image"].shape, sample["focused"].shape
         (torch.Size([3, 50, 74]), torch.Size([2, 3, 50, 74]))
     """
-    import torch.nn.functional as F
-
     from optics import render_focal_stack
 
     from .synthetic import SYNTHETIC_PRESET
 
-    if not 0 < float(scale) <= 1:
-        raise ValueError(f"scale must be in (0, 1], got {scale!r}")
     preset = preset or SYNTHETIC_PRESET
-    scene = load_motorcycle()
-    known = scene["mask"].to(scene["depth"].dtype)
-    if scale != 1:
-        image = F.interpolate(scene["image"], scale_factor=scale, mode="area")
-        coverage = F.interpolate(known, scale_factor=scale, mode="area")
-        depth = F.interpolate(scene["depth"] * known, scale_factor=scale, mode="area")
-        depth = depth / coverage.clamp_min(1e-6)
-        mask = coverage > 0.999
-    else:
-        image, depth, mask = scene["image"], scene["depth"], scene["mask"].bool()
-    depth = torch.where(mask, depth, depth[mask].max())
+    image, depth, mask = motorcycle_scene(scale)
     settings = preset.settings()
     with torch.no_grad():
         focused = render_focal_stack(image, depth, settings)[0].clamp(0, 1)
