@@ -516,80 +516,133 @@ void fused_forward_rows(const P& pol, const T* const* ch_rows, const T* const* w
   }
 }
 
+// Per-thread state of the forward passes that take two output rows (oy, oy + 1) at a time
+// (fused_forward, layered_forward): a ring of the K + 1 source rows they reach, each slot its
+// weight rows, `planes` rows of weighted channels (the last the norm row), and the row pointers
+// of fused_forward_rows for groups of up to `group` channels.
 template <typename T, class P>
-void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64_t B, int64_t C,
-                   int64_t H, int64_t W, int nthreads) {
-  const int64_t half = pol.half;
-  const int64_t K = 2 * half + 1;
+struct TwoRowForward {
+  const P& pol;
+  int64_t half, K, nw, H, W, plane, planes;
+  RowRing<T> ring;
+  std::vector<T> scratch;
+  std::vector<const T*> w_rows, ch_rows;
+  std::vector<T*> out0, out1, slots;
+  int64_t b = 0, oy = 0;
+  bool pair = false;
+
+  // Inlined into two_row_forward: GCC then knows the ring and the scratch row apart and vectorizes
+  // the policy's fill (left scalar otherwise).
+  __attribute__((always_inline)) TwoRowForward(const P& pol_, int64_t H_, int64_t W_,
+                                               int64_t planes_, int64_t group)
+      : pol(pol_), half(pol_.half), K(2 * pol_.half + 1), nw(pol_.rows()), H(H_), W(W_),
+        plane(H_ * W_), planes(planes_), ring(K + 1, half, W, nw + planes), scratch(4 * W + 1),
+        w_rows(K + 1), ch_rows((K + 1) * group), out0(group), out1(group), slots(K + 1) {}
+
+  // Row plane p of a slot (index half + s is pixel s).
+  T* row(T* slot, int64_t p) const { return slot + (nw + p) * ring.padded + half; }
+  // Point slots at the ring rows of the source rows reached (source row r of the K + 1 is
+  // sy = oy + 1 + half - r, see fused_forward_rows), filling the weight and norm rows of those
+  // new to the ring and then fill(slot, sy, norm) the rest of them.
+  template <class Fill>
+  void gather(const T* param, const Fill& fill) {
+    for (int64_t r = 0; r <= K; ++r) {
+      const int64_t sy = oy + 1 + half - r;
+      slots[r] = nullptr;
+      if (sy < 0 || sy >= H || (!pair && r == 0)) continue;
+      bool fresh;
+      T* slot = ring.slot(sy, &fresh);
+      if (fresh) {
+        fill_weights(param + b * plane + sy * W, slot);
+        fill(slot, sy, static_cast<const T*>(row(slot, planes - 1)));
+      }
+      slots[r] = slot;
+    }
+  }
+  // A slot's weight rows and norm row from its row of the parameter.
+  void fill_weights(const T* param_row, T* slot) {
+    pol.fill(param_row, W, slot + half, ring.padded, row(slot, planes - 1), nullptr,
+             scratch.data());
+  }
+  template <int G>
+  void run(int64_t x0, int64_t n_out, int64_t gsize) {
+    fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
+                                out0.data(), out1.data(), n_out, gsize);
+  }
+};
+
+// Row blocks of every image split across the threads; in each, the output rows two at a time
+// (the last alone in a block of odd height): step(st) on the thread's state st, set on them.
+// make_step() gives each thread its step (a lambda owning the thread's other buffers).
+template <typename T, class P, class MakeStep>
+void two_row_forward(const P& pol, int64_t B, int64_t H, int64_t W, int64_t planes,
+                     int64_t group, int nthreads, const MakeStep& make_step) {
   const int64_t rpb = rows_per_block(B, H, nthreads);
   const int64_t blocks_per_image = (H + rpb - 1) / rpb;
-  const int64_t plane = H * W;
-  const int64_t nw = pol.rows();
-  const int64_t C1 = C + 1;
-  constexpr int G = 4;
-  constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
 #pragma omp parallel num_threads(nthreads)
   {
-    // each slot: weight rows, C rows of x * norm, the norm row; K + 1 source rows are live
-    RowRing<T> ring(K + 1, half, W, nw + C1);
-    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G);
-    std::vector<T*> out0(G), out1(G);
-    std::vector<T> scratch(4 * W + 1);
-    std::vector<T*> slots(K + 1);
+    TwoRowForward<T, P> st(pol, H, W, planes, group);
+    auto step = make_step();
 #pragma omp for schedule(dynamic, 1)
     for (int64_t block = 0; block < B * blocks_per_image; ++block) {
-      const int64_t b = block / blocks_per_image;
+      st.b = block / blocks_per_image;
       const int64_t y0 = (block % blocks_per_image) * rpb;
       const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
+      st.ring.reset();
       for (int64_t oy = y0; oy < y1; oy += 2) {
-        const bool pair = oy + 1 < y1;
-        for (int64_t r = 0; r <= K; ++r) {
-          const int64_t sy = oy + 1 + half - r;  // see fused_forward_rows
-          slots[r] = nullptr;
-          if (sy < 0 || sy >= H || (!pair && r == 0)) continue;
-          bool fresh;
-          T* slot = ring.slot(sy, &fresh);
-          if (fresh) {
-            T* norm = slot + (nw + C) * ring.padded + half;
-            pol.fill(param + b * plane + sy * W, W, slot + half, ring.padded, norm, nullptr,
-                     scratch.data());
-            for (int64_t c = 0; c < C; ++c) {
-              const T* xrow = x + (b * C + c) * plane + sy * W;
-              T* dst = slot + (nw + c) * ring.padded + half;
-              for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * norm[s];
-            }
-          }
-          slots[r] = slot;
-        }
-        T* den0 = den + b * plane + oy * W;
-        T* den1 = pair ? den0 + W : nullptr;
-        for (int64_t c0 = 0; c0 < C1; c0 += G) {
-          const int64_t gsize = std::min<int64_t>(G, C1 - c0);
-          for (int64_t r = 0; r <= K; ++r) {
-            w_rows[r] = slots[r];
-            for (int64_t g = 0; g < G; ++g)
-              ch_rows[r * G + g] = slots[r] == nullptr ? nullptr
-                  : slots[r] + (nw + c0 + std::min(g, gsize - 1)) * ring.padded;
-          }
-          for (int64_t g = 0; g < gsize; ++g) {
-            const int64_t c = c0 + g;
-            out0[g] = c < C ? y + (b * C + c) * plane + oy * W : den0;
-            out1[g] = !pair ? nullptr : c < C ? out0[g] + W : den1;
-          }
-          for (int64_t x0 = 0; x0 < W; x0 += lanes)
-            fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
-                                        out0.data(), out1.data(), std::min(lanes, W - x0), gsize);
-        }
-        for (int64_t c = 0; c < C; ++c) {
-          T* yr = y + (b * C + c) * plane + oy * W;
-          for (int64_t s = 0; s < W; ++s) yr[s] /= den0[s];
-          if (pair)
-            for (int64_t s = 0; s < W; ++s) yr[W + s] /= den1[s];
-        }
+        st.oy = oy;
+        st.pair = oy + 1 < y1;
+        step(st);
       }
     }
   }
+}
+
+template <typename T, class P>
+void fused_forward(const P& pol, const T* x, const T* param, T* y, T* den, int64_t B, int64_t C,
+                   int64_t H, int64_t W, int nthreads) {
+  const int64_t plane = H * W;
+  const int64_t C1 = C + 1;
+  constexpr int G = 4;
+  constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
+  // slot planes: C rows of x * norm, the norm row
+  two_row_forward<T>(pol, B, H, W, C1, G, nthreads, [&] {
+    return [&](TwoRowForward<T, P>& st) {
+      const int64_t b = st.b, oy = st.oy;
+      const bool pair = st.pair;
+      st.gather(param, [&](T* slot, int64_t sy, const T* norm) {
+        for (int64_t c = 0; c < C; ++c) {
+          const T* xrow = x + (b * C + c) * plane + sy * W;
+          T* dst = st.row(slot, c);
+          for (int64_t s = 0; s < W; ++s) dst[s] = xrow[s] * norm[s];
+        }
+      });
+      T* den0 = den + b * plane + oy * W;
+      T* den1 = pair ? den0 + W : nullptr;
+      for (int64_t c0 = 0; c0 < C1; c0 += G) {
+        const int64_t gsize = std::min<int64_t>(G, C1 - c0);
+        for (int64_t r = 0; r <= st.K; ++r) {
+          st.w_rows[r] = st.slots[r];
+          for (int64_t g = 0; g < G; ++g)
+            st.ch_rows[r * G + g] = st.slots[r] == nullptr ? nullptr
+                : st.slots[r] + (st.nw + c0 + std::min<int64_t>(g, gsize - 1)) * st.ring.padded;
+        }
+        for (int64_t g = 0; g < gsize; ++g) {
+          const int64_t c = c0 + g;
+          st.out0[g] = c < C ? y + (b * C + c) * plane + oy * W : den0;
+          st.out1[g] = !pair ? nullptr : c < C ? st.out0[g] + W : den1;
+        }
+        for (int64_t x0 = 0; x0 < W; x0 += lanes)
+          st.template run<G>(x0, std::min(lanes, W - x0), gsize);
+      }
+      for (int64_t c = 0; c < C; ++c) {
+        T* yr = y + (b * C + c) * plane + oy * W;
+        for (int64_t s = 0; s < W; ++s) yr[s] /= den0[s];
+        if (pair)
+          for (int64_t s = 0; s < W; ++s) yr[W + s] /= den1[s];
+      }
+    };
+  });
 }
 
 // Two source rows (sy, sy + 1) of G channels at once, one register block from source pixel s0:
@@ -884,127 +937,102 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
                      int64_t B, int64_t C, int64_t H, int64_t W, int64_t NL, int nthreads) {
   const int64_t half = pol.half;
   const int64_t K = 2 * half + 1;
-  const int64_t rpb = rows_per_block(B, H, nthreads);
-  const int64_t blocks_per_image = (H + rpb - 1) / rpb;
   const int64_t plane = H * W;
-  const int64_t nw = pol.rows();
   const int64_t C1 = C + 1;
   const int64_t LC = NL * C1;
   constexpr int G = 4;
   constexpr int G2 = 8;
   constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
   const int64_t ntiles = (W + lanes - 1) / lanes;
-#pragma omp parallel num_threads(nthreads)
-  {
-    // each slot: weight rows, L (C + 1) rows of alpha_l X_c norm, the norm row
-    RowRing<T> ring(K + 1, half, W, nw + LC + 1);
-    std::vector<uint32_t> tile_mask((K + 1) * ntiles), row_mask(K + 1), window_mask(K + 1);
-    std::vector<const T*> w_rows(K + 1), ch_rows((K + 1) * G2);
-    std::vector<T*> out0(G2), out1(G2);
-    std::vector<T> scratch(4 * W + 1);
-    std::vector<T*> slots(K + 1);
-    std::vector<int64_t> slot_index(K + 1), chan(LC);
-    std::vector<T> work((C + 2) * W), zero_row(ring.padded, T(0));
-#pragma omp for schedule(dynamic, 1)
-    for (int64_t block = 0; block < B * blocks_per_image; ++block) {
-      const int64_t b = block / blocks_per_image;
-      const int64_t y0 = (block % blocks_per_image) * rpb;
-      const int64_t y1 = std::min(H, y0 + rpb);
-      ring.reset();
-      for (int64_t oy = y0; oy < y1; oy += 2) {
-        const bool pair = oy + 1 < y1;
+  // slot planes: L (C + 1) rows of alpha_l X_c norm, the norm row
+  two_row_forward<T>(pol, B, H, W, LC + 1, G2, nthreads, [&] {
+    return [&, tile_mask = std::vector<uint32_t>((K + 1) * ntiles),
+            row_mask = std::vector<uint32_t>(K + 1), window_mask = std::vector<uint32_t>(K + 1),
+            slot_index = std::vector<int64_t>(K + 1), chan = std::vector<int64_t>(LC),
+            work = std::vector<T>((C + 2) * W),
+            zero_row = std::vector<T>(W + 2 * half + kPadRight, T(0))](
+               TwoRowForward<T, P>& st) mutable {
+      const int64_t b = st.b, oy = st.oy;
+      const bool pair = st.pair;
+      const int64_t nw = st.nw, padded = st.ring.padded;
+      st.gather(param, [&](T* slot, int64_t sy, const T* norm) {
+        const int64_t k = sy % (K + 1);
+        const T* prow = pos + b * plane + sy * W;
+        uint32_t rm = 0;
+        for (int64_t t = 0; t < ntiles; ++t) {
+          uint32_t m = 0;
+          for (int64_t s = t * lanes; s < std::min(W, (t + 1) * lanes); ++s)
+            m |= layer_bits(prow[s], NL, false);
+          tile_mask[k * ntiles + t] = m;
+          rm |= m;
+        }
+        row_mask[k] = rm;
+        for (int64_t l = 0; l < NL; ++l) {
+          if (!((rm >> l) & 1u)) continue;  // never read: the row pointer is null then
+          T* last = st.row(slot, l * C1 + C);
+          for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l) * norm[s];
+          for (int64_t c = 0; c < C; ++c) {
+            const T* xrow = x + (b * C + c) * plane + sy * W;
+            T* dst = st.row(slot, l * C1 + c);
+            for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
+          }
+        }
+      });
+      for (int64_t r = 0; r <= K; ++r) slot_index[r] = (oy + 1 + half - r) % (K + 1);
+      for (int64_t x0 = 0; x0 < W; x0 += lanes) {
+        const int64_t n_out = std::min(lanes, W - x0);
+        const int64_t t0 = std::max<int64_t>(0, x0 - half) / lanes;
+        const int64_t t1 = std::min(ntiles - 1, (x0 + lanes - 1 + half) / lanes);
+        uint32_t bm = 0;
         for (int64_t r = 0; r <= K; ++r) {
-          const int64_t sy = oy + 1 + half - r;  // as in fused_forward_rows
-          slots[r] = nullptr;
-          if (sy < 0 || sy >= H || (!pair && r == 0)) continue;
-          bool fresh;
-          T* slot = ring.slot(sy, &fresh);
-          const int64_t k = sy % (K + 1);
-          slot_index[r] = k;
-          if (fresh) {
-            T* norm = slot + (nw + LC) * ring.padded + half;
-            pol.fill(param + b * plane + sy * W, W, slot + half, ring.padded, norm, nullptr,
-                     scratch.data());
-            const T* prow = pos + b * plane + sy * W;
-            uint32_t rm = 0;
-            for (int64_t t = 0; t < ntiles; ++t) {
-              uint32_t m = 0;
-              for (int64_t s = t * lanes; s < std::min(W, (t + 1) * lanes); ++s)
-                m |= layer_bits(prow[s], NL, false);
-              tile_mask[k * ntiles + t] = m;
-              rm |= m;
-            }
-            row_mask[k] = rm;
-            for (int64_t l = 0; l < NL; ++l) {
-              if (!((rm >> l) & 1u)) continue;  // never read: the row pointer is null then
-              T* last = slot + (nw + l * C1 + C) * ring.padded + half;
-              for (int64_t s = 0; s < W; ++s) last[s] = layer_alpha(prow[s], l) * norm[s];
-              for (int64_t c = 0; c < C; ++c) {
-                const T* xrow = x + (b * C + c) * plane + sy * W;
-                T* dst = slot + (nw + l * C1 + c) * ring.padded + half;
-                for (int64_t s = 0; s < W; ++s) dst[s] = last[s] * xrow[s];
-              }
-            }
-          }
-          slots[r] = slot;
+          window_mask[r] = 0;
+          if (st.slots[r] == nullptr) continue;
+          const uint32_t* tm = tile_mask.data() + slot_index[r] * ntiles;
+          for (int64_t t = t0; t <= t1; ++t) window_mask[r] |= tm[t];
+          bm |= window_mask[r];
         }
-        for (int64_t x0 = 0; x0 < W; x0 += lanes) {
-          const int64_t n_out = std::min(lanes, W - x0);
-          const int64_t t0 = std::max<int64_t>(0, x0 - half) / lanes;
-          const int64_t t1 = std::min(ntiles - 1, (x0 + lanes - 1 + half) / lanes);
-          uint32_t bm = 0;
+        // The channels of the layers present, in groups of up to G2: the weights of a tap
+        // are computed once for all of them.
+        int64_t n_ch = 0;
+        for (int64_t l = 0; l < NL; ++l) {
+          if ((bm >> l) & 1u) {
+            for (int64_t c = 0; c < C1; ++c) chan[n_ch++] = l * C1 + c;
+            continue;
+          }
+          for (int64_t c = 0; c < C1; ++c) {
+            T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
+            std::fill(o, o + n_out, T(0));
+            if (pair) std::fill(o + W, o + W + n_out, T(0));
+          }
+        }
+        for (int64_t i0 = 0; i0 < n_ch; i0 += G2) {
+          const int64_t gsize = std::min<int64_t>(G2, n_ch - i0);
+          const int64_t G_used = gsize > G ? G2 : G;
           for (int64_t r = 0; r <= K; ++r) {
-            window_mask[r] = 0;
-            if (slots[r] == nullptr) continue;
-            const uint32_t* tm = tile_mask.data() + slot_index[r] * ntiles;
-            for (int64_t t = t0; t <= t1; ++t) window_mask[r] |= tm[t];
-            bm |= window_mask[r];
+            bool any = false;
+            for (int64_t g = 0; g < G_used; ++g) {
+              const int64_t lc = chan[i0 + std::min(g, gsize - 1)];
+              // a row whose sources in this block's window all lack the layer adds nothing
+              const bool has = st.slots[r] != nullptr && ((window_mask[r] >> (lc / C1)) & 1u);
+              st.ch_rows[r * G_used + g] = has ? st.slots[r] + (nw + lc) * padded : zero_row.data();
+              any = any || has;
+            }
+            st.w_rows[r] = any ? st.slots[r] : nullptr;
           }
-          // The channels of the layers present, in groups of up to G2: the weights of a tap
-          // are computed once for all of them.
-          int64_t n_ch = 0;
-          for (int64_t l = 0; l < NL; ++l) {
-            if ((bm >> l) & 1u) {
-              for (int64_t c = 0; c < C1; ++c) chan[n_ch++] = l * C1 + c;
-              continue;
-            }
-            for (int64_t c = 0; c < C1; ++c) {
-              T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
-              std::fill(o, o + n_out, T(0));
-              if (pair) std::fill(o + W, o + W + n_out, T(0));
-            }
+          for (int64_t g = 0; g < gsize; ++g) {
+            st.out0[g] = S + (b * LC + chan[i0 + g]) * plane + oy * W;
+            st.out1[g] = pair ? st.out0[g] + W : nullptr;
           }
-          for (int64_t i0 = 0; i0 < n_ch; i0 += G2) {
-            const int64_t gsize = std::min<int64_t>(G2, n_ch - i0);
-            const int64_t G_used = gsize > G ? G2 : G;
-            for (int64_t r = 0; r <= K; ++r) {
-              bool any = false;
-              for (int64_t g = 0; g < G_used; ++g) {
-                const int64_t lc = chan[i0 + std::min(g, gsize - 1)];
-                // a row whose sources in this block's window all lack the layer adds nothing
-                const bool has = slots[r] != nullptr && ((window_mask[r] >> (lc / C1)) & 1u);
-                ch_rows[r * G_used + g] = has ? slots[r] + (nw + lc) * ring.padded : zero_row.data();
-                any = any || has;
-              }
-              w_rows[r] = any ? slots[r] : nullptr;
-            }
-            for (int64_t g = 0; g < gsize; ++g) {
-              out0[g] = S + (b * LC + chan[i0 + g]) * plane + oy * W;
-              out1[g] = pair ? out0[g] + W : nullptr;
-            }
-            if (G_used == G2)
-              fused_forward_rows<T, G2, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
-                                           out0.data(), out1.data(), n_out, gsize);
-            else
-              fused_forward_rows<T, G, P>(pol, ch_rows.data(), w_rows.data(), ring.padded, x0,
-                                          out0.data(), out1.data(), n_out, gsize);
-          }
+          if (G_used == G2)
+            st.template run<G2>(x0, n_out, gsize);
+          else
+            st.template run<G>(x0, n_out, gsize);
         }
-        composite_row<T>(S, out, C, NL, plane, W, b, oy, work.data());
-        if (pair) composite_row<T>(S, out, C, NL, plane, W, b, oy + 1, work.data());
       }
-    }
-  }
+      composite_row<T>(S, out, C, NL, plane, W, b, oy, work.data());
+      if (pair) composite_row<T>(S, out, C, NL, plane, W, b, oy + 1, work.data());
+    };
+  });
 }
 
 // dL/dS of the compositing along one output row, written into the ring slot's L (C + 1) rows.
