@@ -13,13 +13,16 @@ was used to choose the model's settings. For each camera it prints abs rel and d
   the camera and the PSF (no network; slow),
 
 next to the best constant depth (an oracle chosen on the ground truth), the ratio to it, and the
-seconds each took (one thread). Goal: pretrained abs rel <= 0.3x the constant's for every camera,
+seconds each took (one thread). `--oracle` adds the bound of the design itself: the thin-lens solve
+(`models.blur.solve_depth`) fed the true blur of every shot at the working resolution, i.e. what a
+perfect blur reader would reach. Goal: pretrained abs rel <= 0.3x the constant's for every camera,
 <= 0.06 at the demo camera, inference under 1 s at 185x125 on one thread.
 
 Usage:
 
     python benchmarks/cameras.py --weights runs/pretrain/dfd_general.pt   # the table
     python benchmarks/cameras.py --weights W.pt --no-direct   # only the model (seconds)
+    python benchmarks/cameras.py --weights W.pt --no-direct --oracle   # and a perfect reader
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from datasets.capture import CaptureNoise, capture  # noqa: E402
 from datasets.middlebury import motorcycle_scene  # noqa: E402
-from models.blur import predict_depth, working_scale  # noqa: E402
+from models.blur import predict_depth, solve_depth, texture_weight, working_scale  # noqa: E402
 from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
 from optics import CameraSettings  # noqa: E402
 
@@ -72,16 +75,33 @@ def run_pretrained(model, shot: dict) -> tuple[torch.Tensor, float]:
     return out["depth"], time.perf_counter() - started
 
 
-def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float]:
-    from models.direct import fit_depth_direct
-
+def working_resolution(shot: dict) -> tuple[torch.Tensor, CameraSettings, tuple[int, int]]:
+    """The all-in-focus and focused photos `(1+F,3,h,w)` at `predict_depth`'s working resolution,
+    the settings there and that size."""
     settings = shot["settings"]
     scale = working_scale(settings, *DEPTH_RANGE, tuple(shot["image"].shape[-2:]))
     h, w = shot["image"].shape[-2:]
     size = (max(8, round(h * scale)), max(8, round(w * scale)))
     stack = torch.nn.functional.interpolate(torch.cat([shot["image"][None], shot["focused"]]),
                                             size=size, mode="area")
-    small = settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
+    return stack, settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1])), size
+
+
+def run_oracle(shot: dict) -> torch.Tensor:
+    """Depth from `solve_depth` given the true blur of every shot (a perfect blur reader)."""
+    stack, small, size = working_resolution(shot)
+    depth = torch.nn.functional.interpolate(shot["depth"][None], size=size, mode="area")
+    blur = small.camera().signed_coc_px(depth.expand(small.n_shots, 1, *size)).abs()
+    solved, _ = solve_depth(blur.transpose(0, 1), texture_weight(stack[:1]), small, *DEPTH_RANGE)
+    return torch.nn.functional.interpolate(solved, size=shot["image"].shape[-2:],
+                                           mode="bilinear")[0]
+
+
+def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float]:
+    from models.direct import fit_depth_direct
+
+    stack, small, _ = working_resolution(shot)
+    h, w = shot["image"].shape[-2:]
     started = time.perf_counter()
     depth = fit_depth_direct(stack[:1], stack[1:][None], small, *DEPTH_RANGE, steps=steps)
     elapsed = time.perf_counter() - started
@@ -95,6 +115,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="camera-general weights written by `defocus pretrain`")
     parser.add_argument("--no-direct", action="store_true", help="skip the direct fits")
     parser.add_argument("--direct-steps", type=int, default=150, help="Adam steps of a direct fit")
+    parser.add_argument("--oracle", action="store_true",
+                        help="add the solve fed the true blur (the bound of a perfect reader)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photo imperfections")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
@@ -102,8 +124,8 @@ def main(argv: list[str] | None = None) -> int:
 
     model = load_weights(args.weights)
     print("| camera | PSF | constant abs rel | pretrained abs rel | ratio | d1 | s | "
-          "direct abs rel | ratio | s |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "direct abs rel | ratio | s |" + (" oracle abs rel | ratio |" if args.oracle else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|" if args.oracle else ""))
     ratios = []
     for name, spec in CAMERAS.items():
         shot = photograph(name, args.seed)
@@ -121,6 +143,9 @@ def main(argv: list[str] | None = None) -> int:
             direct, direct_s = run_direct(shot, args.direct_steps)
             d = depth_metrics(pred=direct[None], target=target, mask=mask)
             row += f" {d['abs_rel']:.3f} | {d['abs_rel'] / base['abs_rel']:.2f} | {direct_s:.1f} |"
+        if args.oracle:
+            o = depth_metrics(pred=run_oracle(shot)[None], target=target, mask=mask)
+            row += f" {o['abs_rel']:.3f} | {o['abs_rel'] / base['abs_rel']:.2f} |"
         print(row, flush=True)
     worst = max(r for _, r, _ in ratios)
     demo = ratios[0][2]
