@@ -546,10 +546,13 @@ def _save_layered(ctx, inputs, output) -> None:
     x, pos, param, dist, half, n_layers, kind = inputs
     ctx.save_for_backward(x, pos, param, dist, half, *output)
     ctx.n_layers, ctx.kind = n_layers, kind
+    ctx.set_materialize_grads(False)  # no zero gradient for `spread`, L (C + 1) image planes
 
 
 def _layered_vjp(ctx, grad_out, grad_spread):
     # `spread` is an auxiliary output for the backward pass; its gradient is not propagated.
+    if grad_out is None:
+        return None, None, None, None, None, None, None
     x, pos, param, dist, half, out, spread = ctx.saved_tensors
     grad_x, grad_pos, grad_param = layered_render_backward(
         grad_out, out, spread, x, pos, param, dist, half, ctx.n_layers, ctx.kind
