@@ -1126,14 +1126,19 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
   two_row_backward<T>(pol, param, B, H, W, LC, nthreads, [&] {
     return [&, xl = std::vector<T>(2 * LC * stride, T(0)),
             work = std::vector<T>((NL + C + 4) * W),
-            acc = std::vector<T>(2 * W)](TwoRowBackward<T, P>& st) mutable {
+            acc = std::vector<T>(2 * W), bits = std::vector<uint32_t>(2 * W)](
+               TwoRowBackward<T, P>& st) mutable {
       const int64_t b = st.b, sy = st.sy, rows = st.rows();
       const bool pair = st.pair;
       uint32_t row_support[2] = {0, 0};
-      for (int64_t i = 0; i < rows; ++i) {
+      for (int64_t i = 0; i < 2; ++i) {  // a lone row's partner has no layer
         const T* prow = pos + b * plane + (sy + i) * W;
+        uint32_t* bi = bits.data() + i * W;
         uint32_t support = 0;
-        for (int64_t s = 0; s < W; ++s) support |= layer_bits(prow[s], NL, true);
+        for (int64_t s = 0; s < W; ++s) {
+          bi[s] = i < rows ? layer_bits(prow[s], NL, true) : 0u;
+          support |= bi[s];
+        }
         row_support[i] = support;
       }
       const uint32_t both_rows = row_support[0] | (pair ? row_support[1] : 0u);
@@ -1158,11 +1163,9 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
       for (int64_t s0 = 0; s0 < W; s0 += lanes) {
         const int64_t n_out = std::min<int64_t>(lanes, W - s0);
         uint32_t support = 0;
-        for (int64_t i = 0; i < rows; ++i) {
-          const T* prow = pos + b * plane + (sy + i) * W;
-          for (int64_t s = s0; s < s0 + n_out; ++s) support |= layer_bits(prow[s], NL, true);
-        }
+        for (int64_t s = s0; s < s0 + n_out; ++s) support |= bits[s] | bits[W + s];
         for (int64_t l = 0; l < NL; ++l) {
+          if (!((both_rows >> l) & 1u)) continue;  // D never read (see row_support below)
           if (!((support >> l) & 1u)) {
             for (int64_t i = 0; i < 2 * LC; i += LC)
               for (int64_t c = 0; c < C1; ++c) {
