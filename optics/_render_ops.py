@@ -510,7 +510,12 @@ def layered_render(
     x: Tensor, pos: Tensor, param: Tensor, dist: Tensor, half: Tensor, n_layers: int, kind: str
 ) -> tuple[Tensor, Tensor]:
     """`(out, spread)` of the layered mode; `kind` is "gaussian" (`param` = sigma, `dist` unused)
-    or "clamp" (`param` = rho, `dist` the distance table)."""
+    or "clamp" (`param` = rho, `dist` the distance table).
+
+    `spread` `(B, L, C + 1, H, W)` is for the backward pass only: a layer's rows are written only
+    where a source within the window's half-width rows has the layer (elsewhere it is zero, left
+    unwritten so that its memory is never touched).
+    """
     _need_library(x)
     x, pos, param = x.contiguous(), pos.contiguous(), param.contiguous()
     clamp = _clamp_tables(dist, half, x) if kind == "clamp" else None
