@@ -876,16 +876,6 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
 }
 
 
-// ---------------------------------------------------------------------------------------------
-// Layered (occlusion-aware) mode in one pass each way. Layer weights from the continuous layer
-// position pos_q in [0, L-1]: alpha_l(q) = max(0, 1 - |pos_q - l|) (two layers per pixel at most).
-//
-//   S_{l,c}(p) = sum_q norm_q w_q(p - q) alpha_l(q) X_c(q),  X = (x_0 .. x_{C-1}, 1)
-//   T_0 = 1, T_{l+1} = T_l (1 - min(S_{l,C}, 1)),  out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny)
-//
-// Work is skipped where it is exactly zero: a layer absent from every source of a register
-// block's window (forward), or whose weight has a zero derivative at every source of the block
-// (backward: |pos_q - l| > 1), so the cost follows the number of layers present locally.
 // Ask for transparent huge pages on the 2 MiB-aligned interior of a large output not yet written
 // (a fresh mapping: first touching 4 KiB pages costs more than the layered forward's arithmetic).
 inline void advise_huge_pages(void* data, int64_t bytes) {
@@ -900,6 +890,17 @@ inline void advise_huge_pages(void* data, int64_t bytes) {
 #endif
 }
 
+// ---------------------------------------------------------------------------------------------
+// Layered (occlusion-aware) mode in one pass each way. Layer weights from the continuous layer
+// position pos_q in [0, L-1]: alpha_l(q) = max(0, 1 - |pos_q - l|) (two layers per pixel at most).
+//
+//   S_{l,c}(p) = sum_q norm_q w_q(p - q) alpha_l(q) X_c(q),  X = (x_0 .. x_{C-1}, 1)
+//   T_0 = 1, T_{l+1} = T_l (1 - min(S_{l,C}, 1)),  out_c = sum_l T_l S_{l,c} / max(sum_l T_l S_{l,C}, tiny)
+//
+// Work is skipped where it is exactly zero: a layer absent from every source of a register
+// block's window (forward), or whose weight has a zero derivative at every source of the block
+// (backward: |pos_q - l| > 1), so the cost follows the number of layers present locally. S is
+// written, composited and read back only on the rows of the layers present nearby (window_layers).
 template <typename T>
 inline T layer_alpha(T p, int64_t l) {
   const T a = T(1) - std::abs(p - T(l));
