@@ -368,7 +368,10 @@ def layered_render(
     x: Tensor, pos: Tensor, param: Tensor, half: int, n_layers: int,
     clamp: tuple[Tensor, Tensor, Tensor] | None = None,
 ) -> tuple[Tensor, Tensor]:
-    """Fused layered mode: `(out, spread)`; `clamp = (dist, dists, counts)` for the disk family."""
+    """Fused layered mode: `(out, spread)`; `clamp = (dist, dists, counts)` for the disk family.
+
+    `spread` holds only the rows of the layers present near each row (see `window_layers` in
+    `render_kernels.cpp`); the others are left unwritten."""
     b, c, h, w = x.shape
     out = torch.empty_like(x)
     spread = torch.empty(b, n_layers, c + 1, h, w, dtype=x.dtype)

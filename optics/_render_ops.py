@@ -510,7 +510,12 @@ def layered_render(
     x: Tensor, pos: Tensor, param: Tensor, dist: Tensor, half: Tensor, n_layers: int, kind: str
 ) -> tuple[Tensor, Tensor]:
     """`(out, spread)` of the layered mode; `kind` is "gaussian" (`param` = sigma, `dist` unused)
-    or "clamp" (`param` = rho, `dist` the distance table)."""
+    or "clamp" (`param` = rho, `dist` the distance table).
+
+    `spread` `(B, L, C + 1, H, W)` is for the backward pass only: a layer's rows are written only
+    where a source within the window's half-width rows has the layer (elsewhere it is zero, left
+    unwritten so that its memory is never touched).
+    """
     _need_library(x)
     x, pos, param = x.contiguous(), pos.contiguous(), param.contiguous()
     clamp = _clamp_tables(dist, half, x) if kind == "clamp" else None
@@ -546,10 +551,13 @@ def _save_layered(ctx, inputs, output) -> None:
     x, pos, param, dist, half, n_layers, kind = inputs
     ctx.save_for_backward(x, pos, param, dist, half, *output)
     ctx.n_layers, ctx.kind = n_layers, kind
+    ctx.set_materialize_grads(False)  # no zero gradient for `spread`, L (C + 1) image planes
 
 
 def _layered_vjp(ctx, grad_out, grad_spread):
     # `spread` is an auxiliary output for the backward pass; its gradient is not propagated.
+    if grad_out is None:
+        return None, None, None, None, None, None, None
     x, pos, param, dist, half, out, spread = ctx.saved_tensors
     grad_x, grad_pos, grad_param = layered_render_backward(
         grad_out, out, spread, x, pos, param, dist, half, ctx.n_layers, ctx.kind

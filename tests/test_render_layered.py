@@ -95,3 +95,32 @@ def test_fused_layered_equals_pytorch_path_at_layer_centres(monkeypatch):
             results.append((out, *torch.autograd.grad(out.square().sum(), (i, c, d))))
     for got, want in zip(*results, strict=True):
         torch.testing.assert_close(got, want)
+
+
+@needs_library
+@pytest.mark.parametrize("threads", [1, 2])
+def test_fused_layered_with_layers_absent_from_row_bands(monkeypatch, threads):
+    """Depth bands taller than the window: most spread rows of most layers are never written."""
+    gen = torch.Generator().manual_seed(8)
+    image = torch.rand(2, 3, 70, 23, generator=gen, dtype=torch.float64)
+    rows = torch.arange(70, dtype=torch.float64).view(1, 1, -1, 1)
+    depth = (1.0 + (rows // 12) + 0.3 * torch.rand(2, 1, 70, 23, generator=gen,
+                                                    dtype=torch.float64)).contiguous()
+    coc = torch.rand(2, 1, 70, 23, generator=gen, dtype=torch.float64) * 2.5
+    previous = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        results = []
+        for usable in (True, False):
+            with monkeypatch.context() as patch:
+                if not usable:
+                    patch.setattr(_render_cpp, "usable", lambda x: False)
+                for psf in (Gaussian().double(), Disk().double()):
+                    i, c, d = (t.clone().requires_grad_() for t in (image, coc, depth))
+                    out = render_defocus(i, c, psf, "layered", depth=d, n_layers=8)
+                    results.append((out, *torch.autograd.grad(out.square().sum(), (i, c, d))))
+    finally:
+        torch.set_num_threads(previous)
+    for got, want in zip(results[:2], results[2:], strict=True):
+        for a, b in zip(got, want, strict=True):
+            torch.testing.assert_close(a, b, rtol=0, atol=1e-10)

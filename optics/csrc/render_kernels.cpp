@@ -13,6 +13,9 @@
 #include <cstdint>
 #include <limits>
 #include <vector>
+#ifdef __linux__
+#include <sys/mman.h>
+#endif
 
 namespace {
 
@@ -873,6 +876,20 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
 }
 
 
+// Ask for transparent huge pages on the 2 MiB-aligned interior of a large output not yet written
+// (a fresh mapping: first touching 4 KiB pages costs more than the layered forward's arithmetic).
+inline void advise_huge_pages(void* data, int64_t bytes) {
+#if defined(__linux__) && defined(MADV_HUGEPAGE)
+  constexpr uintptr_t huge = uintptr_t(1) << 21;
+  const uintptr_t start = (reinterpret_cast<uintptr_t>(data) + huge - 1) & ~(huge - 1);
+  const uintptr_t end = (reinterpret_cast<uintptr_t>(data) + bytes) & ~(huge - 1);
+  if (end > start) madvise(reinterpret_cast<void*>(start), end - start, MADV_HUGEPAGE);
+#else
+  (void)data;
+  (void)bytes;
+#endif
+}
+
 // ---------------------------------------------------------------------------------------------
 // Layered (occlusion-aware) mode in one pass each way. Layer weights from the continuous layer
 // position pos_q in [0, L-1]: alpha_l(q) = max(0, 1 - |pos_q - l|) (two layers per pixel at most).
@@ -882,7 +899,8 @@ void fused_backward(const P& pol, const T* g, const T* y, const T* den, const T*
 //
 // Work is skipped where it is exactly zero: a layer absent from every source of a register
 // block's window (forward), or whose weight has a zero derivative at every source of the block
-// (backward: |pos_q - l| > 1), so the cost follows the number of layers present locally.
+// (backward: |pos_q - l| > 1), so the cost follows the number of layers present locally. S is
+// written, composited and read back only on the rows of the layers present nearby (window_layers).
 template <typename T>
 inline T layer_alpha(T p, int64_t l) {
   const T a = T(1) - std::abs(p - T(l));
@@ -901,9 +919,25 @@ inline uint32_t layer_bits(T p, int64_t n_layers, bool inclusive) {
   return n_layers >= 32 ? bits : bits & ((uint32_t(1) << n_layers) - 1);
 }
 
+// Per row y of each image, (B, H): the layers of the sources within `reach` rows (layer_bits,
+// `inclusive` or not, of all their pixels). With reach = half and exclusive bits, S_{l,.}(y) is
+// exactly zero for the layers outside: those spread rows are neither written nor read.
+template <typename T>
+std::vector<uint32_t> window_layers(const T* pos, int64_t B, int64_t H, int64_t W, int64_t NL,
+                                    int64_t reach, bool inclusive) {
+  std::vector<uint32_t> own(B * H, 0u), near(B * H, 0u);
+  for (int64_t r = 0; r < B * H; ++r)
+    for (int64_t s = 0; s < W; ++s) own[r] |= layer_bits(pos[r * W + s], NL, inclusive);
+  for (int64_t b = 0; b < B; ++b)
+    for (int64_t y = 0; y < H; ++y)
+      for (int64_t sy = std::max<int64_t>(0, y - reach); sy <= std::min(H - 1, y + reach); ++sy)
+        near[b * H + y] |= own[b * H + sy];
+  return near;
+}
+
 template <typename T>
 void composite_row(const T* S, T* out, int64_t C, int64_t NL, int64_t plane, int64_t W, int64_t b,
-                   int64_t row, T* work) {
+                   int64_t row, uint32_t present, T* work) {
   const int64_t C1 = C + 1;
   const T tiny = std::numeric_limits<T>::min();
   T* t = work;
@@ -913,6 +947,7 @@ void composite_row(const T* S, T* out, int64_t C, int64_t NL, int64_t plane, int
   std::fill(cov, cov + W, T(0));
   std::fill(colour, colour + C * W, T(0));
   for (int64_t l = 0; l < NL; ++l) {
+    if (!((present >> l) & 1u)) continue;  // S_l = 0 here: nothing to add, T unchanged
     const T* a = S + ((b * NL + l) * C1 + C) * plane + row * W;
     for (int64_t c = 0; c < C; ++c) {
       const T* sc = S + ((b * NL + l) * C1 + c) * plane + row * W;
@@ -944,17 +979,21 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
   constexpr int G2 = 8;
   constexpr int64_t lanes = kRowVectors * Vec<T>::lanes;
   const int64_t ntiles = (W + lanes - 1) / lanes;
+  advise_huge_pages(S, B * LC * plane * static_cast<int64_t>(sizeof(T)));
+  const std::vector<uint32_t> present = window_layers(pos, B, H, W, NL, half, false);
   // slot planes: L (C + 1) rows of alpha_l X_c norm, the norm row
   two_row_forward<T>(pol, B, H, W, LC + 1, G2, nthreads, [&] {
     return [&, tile_mask = std::vector<uint32_t>((K + 1) * ntiles),
             row_mask = std::vector<uint32_t>(K + 1), window_mask = std::vector<uint32_t>(K + 1),
             slot_index = std::vector<int64_t>(K + 1), chan = std::vector<int64_t>(LC),
             work = std::vector<T>((C + 2) * W),
-            zero_row = std::vector<T>(W + 2 * half + kPadRight, T(0))](
-               TwoRowForward<T, P>& st) mutable {
+            zero_row = std::vector<T>(W + 2 * half + kPadRight, T(0)),
+            discard = std::vector<T>(W)](TwoRowForward<T, P>& st) mutable {
       const int64_t b = st.b, oy = st.oy;
       const bool pair = st.pair;
       const int64_t nw = st.nw, padded = st.ring.padded;
+      // the spread rows written: those of the layers present within half rows (the rest are 0)
+      const uint32_t rows_present[2] = {present[b * H + oy], pair ? present[b * H + oy + 1] : 0u};
       st.gather(param, [&](T* slot, int64_t sy, const T* norm) {
         const int64_t k = sy % (K + 1);
         const T* prow = pos + b * plane + sy * W;
@@ -999,10 +1038,12 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
             for (int64_t c = 0; c < C1; ++c) chan[n_ch++] = l * C1 + c;
             continue;
           }
-          for (int64_t c = 0; c < C1; ++c) {
-            T* o = S + ((b * NL + l) * C1 + c) * plane + oy * W + x0;
-            std::fill(o, o + n_out, T(0));
-            if (pair) std::fill(o + W, o + W + n_out, T(0));
+          for (int64_t i = 0; i < 2; ++i) {
+            if (!((rows_present[i] >> l) & 1u)) continue;
+            for (int64_t c = 0; c < C1; ++c) {
+              T* o = S + ((b * NL + l) * C1 + c) * plane + (oy + i) * W + x0;
+              std::fill(o, o + n_out, T(0));
+            }
           }
         }
         for (int64_t i0 = 0; i0 < n_ch; i0 += G2) {
@@ -1020,8 +1061,10 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
             st.w_rows[r] = any ? st.slots[r] : nullptr;
           }
           for (int64_t g = 0; g < gsize; ++g) {
-            st.out0[g] = S + (b * LC + chan[i0 + g]) * plane + oy * W;
-            st.out1[g] = pair ? st.out0[g] + W : nullptr;
+            const int64_t l = chan[i0 + g] / C1;
+            T* row0 = S + (b * LC + chan[i0 + g]) * plane + oy * W;
+            st.out0[g] = (rows_present[0] >> l) & 1u ? row0 : discard.data();
+            st.out1[g] = (rows_present[1] >> l) & 1u ? row0 + W : nullptr;
           }
           if (G_used == G2)
             st.template run<G2>(x0, n_out, gsize);
@@ -1029,18 +1072,20 @@ void layered_forward(const P& pol, const T* x, const T* pos, const T* param, T* 
             st.template run<G>(x0, n_out, gsize);
         }
       }
-      composite_row<T>(S, out, C, NL, plane, W, b, oy, work.data());
-      if (pair) composite_row<T>(S, out, C, NL, plane, W, b, oy + 1, work.data());
+      composite_row<T>(S, out, C, NL, plane, W, b, oy, rows_present[0], work.data());
+      if (pair) composite_row<T>(S, out, C, NL, plane, W, b, oy + 1, rows_present[1], work.data());
     };
   });
 }
 
-// dL/dS of the compositing along one output row, written into the ring slot's L (C + 1) rows.
-// work: (NL + C + 4) rows of W values.
+// dL/dS of the compositing along one output row, written into the ring slot's rows of the layers
+// `reached` (the only ones read); S is read for the layers `present` (zero for the others, which
+// leave T and dL/dT unchanged). work: (NL + C + 5) rows of W values.
 template <typename T>
 void composite_backward_row(const T* g, const T* out, const T* S, T* slot, int64_t padded,
                             int64_t half, int64_t C, int64_t NL, int64_t plane, int64_t W,
-                            int64_t b, int64_t row, T* work) {
+                            int64_t b, int64_t row, uint32_t present, uint32_t reached,
+                            T* work) {
   const int64_t C1 = C + 1;
   const T tiny = std::numeric_limits<T>::min();
   T* tl = work;                    // T_l, NL rows
@@ -1049,12 +1094,18 @@ void composite_backward_row(const T* g, const T* out, const T* S, T* slot, int64
   T* dt = dcov + W;                // dL/dT_{l+1} while going back
   T* dtl = dt + W;
   T* dcol = dtl + W;               // C rows: g_c / max(cov, tiny)
+  T* zeros = dcol + C * W;
+  std::fill(zeros, zeros + W, T(0));
   const int64_t at = row * W;
   std::fill(tl, tl + W, T(1));
   std::fill(cov, cov + W, T(0));
   for (int64_t l = 0; l < NL; ++l) {
     const T* a = S + ((b * NL + l) * C1 + C) * plane + at;
     T* t = tl + l * W;
+    if (!((present >> l) & 1u)) {
+      if (l + 1 < NL) std::copy(t, t + W, t + W);
+      continue;
+    }
     for (int64_t s = 0; s < W; ++s) cov[s] = cov[s] + t[s] * a[s];
     if (l + 1 < NL)
       for (int64_t s = 0; s < W; ++s) t[W + s] = t[s] * (T(1) - std::min(a[s], T(1)));
@@ -1074,11 +1125,13 @@ void composite_backward_row(const T* g, const T* out, const T* S, T* slot, int64
     dcov[s] = cov[s] >= tiny ? dcov[s] / std::max(cov[s], tiny) : T(0);
   std::fill(dt, dt + W, T(0));
   for (int64_t l = NL - 1; l >= 0; --l) {
-    const T* a = S + ((b * NL + l) * C1 + C) * plane + at;
+    if (!((reached >> l) & 1u)) continue;  // then not present either: dL/dT unchanged
+    const bool has = (present >> l) & 1u;   // else S_l = 0, read from the zero row
+    const T* a = has ? S + ((b * NL + l) * C1 + C) * plane + at : zeros;
     const T* t = tl + l * W;
     for (int64_t s = 0; s < W; ++s) dtl[s] = a[s] * dcov[s] + dt[s] * (T(1) - std::min(a[s], T(1)));
     for (int64_t c = 0; c < C; ++c) {
-      const T* sc = S + ((b * NL + l) * C1 + c) * plane + at;
+      const T* sc = has ? S + ((b * NL + l) * C1 + c) * plane + at : zeros;
       const T* dc = dcol + c * W;
       T* gs = slot + (l * C1 + c) * padded + half;
       for (int64_t s = 0; s < W; ++s) {
@@ -1104,18 +1157,27 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
   const int64_t stride = W + kPadRight;
   constexpr int G = TwoRowBackward<T, P>::G;
   constexpr int64_t lanes = Vec<T>::lanes;
+  // The spread rows the forward wrote, and the dL/dS rows the register blocks read: those of the
+  // layers reached (|pos - l| <= 1) by a source row sy or sy + 1 of the K + 1 output rows' pairs.
+  const std::vector<uint32_t> present = window_layers(pos, B, H, W, NL, half, false);
+  const std::vector<uint32_t> reached = window_layers(pos, B, H, W, NL, half + 1, true);
   // ring rows: dL/dS; D rows: D_{l,c}; xl: alpha_l X_c of the two source rows
   two_row_backward<T>(pol, param, B, H, W, LC, nthreads, [&] {
     return [&, xl = std::vector<T>(2 * LC * stride, T(0)),
-            work = std::vector<T>((NL + C + 4) * W),
-            acc = std::vector<T>(2 * W)](TwoRowBackward<T, P>& st) mutable {
+            work = std::vector<T>((NL + C + 5) * W),
+            acc = std::vector<T>(2 * W), bits = std::vector<uint32_t>(2 * W)](
+               TwoRowBackward<T, P>& st) mutable {
       const int64_t b = st.b, sy = st.sy, rows = st.rows();
       const bool pair = st.pair;
       uint32_t row_support[2] = {0, 0};
-      for (int64_t i = 0; i < rows; ++i) {
+      for (int64_t i = 0; i < 2; ++i) {  // a lone row's partner has no layer
         const T* prow = pos + b * plane + (sy + i) * W;
+        uint32_t* bi = bits.data() + i * W;
         uint32_t support = 0;
-        for (int64_t s = 0; s < W; ++s) support |= layer_bits(prow[s], NL, true);
+        for (int64_t s = 0; s < W; ++s) {
+          bi[s] = i < rows ? layer_bits(prow[s], NL, true) : 0u;
+          support |= bi[s];
+        }
         row_support[i] = support;
       }
       const uint32_t both_rows = row_support[0] | (pair ? row_support[1] : 0u);
@@ -1135,16 +1197,14 @@ void layered_backward(const P& pol, const T* g, const T* out, const T* S, const 
       }
       st.gather([&](T* slot, int64_t oy) {
         composite_backward_row<T>(g, out, S, slot, st.ring.padded, half, C, NL, plane, W, b, oy,
-                                  work.data());
+                                  present[b * H + oy], reached[b * H + oy], work.data());
       });
       for (int64_t s0 = 0; s0 < W; s0 += lanes) {
         const int64_t n_out = std::min<int64_t>(lanes, W - s0);
         uint32_t support = 0;
-        for (int64_t i = 0; i < rows; ++i) {
-          const T* prow = pos + b * plane + (sy + i) * W;
-          for (int64_t s = s0; s < s0 + n_out; ++s) support |= layer_bits(prow[s], NL, true);
-        }
+        for (int64_t s = s0; s < s0 + n_out; ++s) support |= bits[s] | bits[W + s];
         for (int64_t l = 0; l < NL; ++l) {
+          if (!((both_rows >> l) & 1u)) continue;  // D never read (see row_support below)
           if (!((support >> l) & 1u)) {
             for (int64_t i = 0; i < 2 * LC; i += LC)
               for (int64_t c = 0; c < C1; ++c) {
