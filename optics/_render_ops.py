@@ -660,3 +660,8 @@ def _accumulate_vjp(psf, dy, dx, coc, upstream, grad_coc, params, grad_params) -
     for acc, g in zip(grad_params, grads[1:], strict=True):
         if g is not None:
             acc += g
+
+
+# The Triton kernels register themselves as the CUDA implementations of the fused scatter (when
+# Triton imports); imported last because they use the operators defined above.
+from . import _render_triton  # noqa: E402, F401

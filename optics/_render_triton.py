@@ -1,0 +1,297 @@
+"""Triton kernels for the fused, normalised scatter operators (`defocus::gaussian_render`,
+`defocus::clamp_render` and their backward operators), registered as their CUDA implementations.
+
+Imported by `optics._render_ops`; without Triton this module defines nothing that runs and
+registers nothing, so the operators keep their PyTorch fallback on CUDA.
+
+Each kernel is a *gather* over the window: one program owns a `BLOCK_H x BLOCK_W` tile of pixels
+and loops over the `K x K` offsets, so no atomics are needed.
+
+- Forward, per output `p`: `s_c(p) = sum_q w_q(p - q) xn_c(q)` over the sources `q` of its
+  window, where `xn = (x * norm, norm)` is written by a first per-pixel pass (`norm` is the
+  source's unit-energy factor over its *full* window). Then `y = s[:C] / s[C]`, `den = s[C]`.
+- Backward, per source `q`: `sum_u w_q(u) G(q + u)` and `sum_u w'_q(u) G(q + u)` with `G` the
+  gradient of the unnormalised spread `s` (`_render_ops._grad_of_spread`), finished in the same
+  program into `dL/dx` and `dL/dsigma` (or `dL/drho`), as `_render_ops` does in PyTorch.
+
+The weight `w_q(u)` is `exp(-|u|^2 / (2 sigma_q^2))` (Gaussian) or `clamp(rho_q - D(u), 0, 1)`
+(disk, polygons; `D` the `K x K` distance table). Taps outside the image are skipped. Float32 and
+float64 run natively; other floating dtypes are computed in float32.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+from . import _render_ops
+
+try:
+    import triton
+    import triton.language as tl
+except ImportError:  # no Triton (CI): nothing to register
+    triton = None
+
+#: Pixels per program: a `BLOCK_H x BLOCK_W` tile (powers of two).
+BLOCK_H, BLOCK_W = 8, 32
+NUM_WARPS = 4
+#: Pixels per program of the per-pixel preparation pass.
+BLOCK_PREP = 256
+
+
+def available() -> bool:
+    """Whether Triton imported (the kernels can be launched on CUDA, or interpreted)."""
+    return triton is not None
+
+
+def _jit(fn):
+    return fn if triton is None else triton.jit(fn)
+
+
+# ------------------------------------------------------------------ device functions
+
+
+@_jit
+def _tap_weight(param, dy, dx, table_ptr, half, GAUSSIAN: tl.constexpr):
+    """`(w, dw)` at offset `(dy, dx)`: Gaussian `param = -1 / (2 sigma^2)`, `w = exp(param |u|^2)`,
+    `dw = w |u|^2`; clamp `param = rho`, `w = clamp(rho - D(u), 0, 1)`, `dw = [0 <= rho - D <= 1]`.
+    """
+    if GAUSSIAN:
+        r2 = dy * dy + dx * dx
+        w = tl.exp(param * r2)
+        dw = w * r2
+    else:
+        t = param - tl.load(table_ptr + (dy + half) * (2 * half + 1) + (dx + half))
+        w = tl.minimum(tl.maximum(t, 0.0), 1.0)
+        dw = tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
+    return w, dw
+
+
+@_jit
+def _unit_energy(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
+    """`(norm, dnorm)`: `1 / Z` over the full window and its derivative in sigma (or rho).
+
+    `param` is sigma (Gaussian, `coef = -1 / (2 sigma^2)`) or rho (clamp, `coef` unused).
+    """
+    if GAUSSIAN:
+        line = tl.zeros_like(param) + 1.0
+        moment = tl.zeros_like(param)
+        for d in range(1, half + 1):
+            term = 2.0 * tl.exp(coef * (d * d))
+            line += term
+            moment += term * (d * d)
+        norm = 1.0 / (line * line)
+        dnorm = -2.0 * moment / (param * param * param * line * line * line)
+    else:
+        total = tl.zeros_like(param)
+        slope = tl.zeros_like(param)
+        for i in range(0, (2 * half + 1) * (2 * half + 1)):
+            t = param - tl.load(table_ptr + i)
+            total += tl.minimum(tl.maximum(t, 0.0), 1.0)
+            slope += tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
+        norm = 1.0 / total
+        dnorm = -slope * norm * norm
+    return norm, dnorm
+
+
+@_jit
+def _tile(H, W, BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
+    """Row, column and in-image mask of this program's tile (axis 0 enumerates the tiles)."""
+    pid = tl.program_id(0)
+    tiles_w = tl.cdiv(W, BLOCK_W)
+    offs = tl.arange(0, BLOCK_H * BLOCK_W)
+    row = (pid // tiles_w) * BLOCK_H + offs // BLOCK_W
+    col = (pid % tiles_w) * BLOCK_W + offs % BLOCK_W
+    return row, col, (row < H) & (col < W)
+
+
+# ------------------------------------------------------------------ kernels
+
+
+@_jit
+def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half,
+                    C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+                    BLOCK: tl.constexpr):
+    """Per pixel: `xn = (x * norm, norm)` and, for the Gaussian, `coef = -1 / (2 sigma^2)`."""
+    b = tl.program_id(1).to(tl.int64)
+    pix = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    inside = pix < HW
+    ch = tl.arange(0, CP)[:, None]
+    param = tl.load(param_ptr + b * HW + pix, mask=inside, other=1.0)
+    coef = -0.5 / (param * param)
+    norm, _ = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
+    x = tl.load(x_ptr + b * C * HW + ch * HW + pix[None, :], mask=(ch < C) & inside[None, :],
+                other=1.0)
+    xn = tl.where(ch < C, x, 1.0) * norm[None, :]
+    tl.store(xn_ptr + b * (C + 1) * HW + ch * HW + pix[None, :], xn,
+             mask=(ch <= C) & inside[None, :])
+    if GAUSSIAN:
+        tl.store(coef_ptr + b * HW + pix, coef, mask=inside)
+
+
+@_jit
+def _forward_kernel(xn_ptr, param_ptr, table_ptr, y_ptr, den_ptr, H, W, half,
+                    C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+                    BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
+    """`s(p) = sum_q w_q(p - q) xn(q)`; stores `y = s[:C] / s[C]` and `den = s[C]`."""
+    b = tl.program_id(1).to(tl.int64)
+    HW = H * W
+    row, col, inside = _tile(H, W, BLOCK_H, BLOCK_W)
+    ch = tl.arange(0, CP)[:, None]
+    xn_base = xn_ptr + b * (C + 1) * HW + ch * HW
+    param_base = param_ptr + b * HW
+    acc = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=xn_ptr.dtype.element_ty)
+    for dy in range(-half, half + 1):
+        src_row = row - dy
+        row_ok = inside & (src_row >= 0) & (src_row < H)
+        for dx in range(-half, half + 1):
+            src_col = col - dx
+            ok = row_ok & (src_col >= 0) & (src_col < W)
+            src = src_row * W + src_col
+            param = tl.load(param_base + src, mask=ok, other=0.0)
+            w, _ = _tap_weight(param, dy, dx, table_ptr, half, GAUSSIAN)
+            xn = tl.load(xn_base + src[None, :], mask=(ch <= C) & ok[None, :], other=0.0)
+            acc += w[None, :] * xn
+    den = tl.sum(tl.where(ch == C, acc, 0.0), axis=0)
+    pix = row * W + col
+    safe = tl.where(inside, den, 1.0)  # pixels off the image are not stored
+    tl.store(y_ptr + b * C * HW + ch * HW + pix[None, :], acc / safe[None, :],
+             mask=(ch < C) & inside[None, :])
+    tl.store(den_ptr + b * HW + pix, den, mask=inside)
+
+
+@_jit
+def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_ptr, H, W,
+                     half, C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+                     BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
+    """Per source `q`: `dL/dx(q)` and `dL/dparam(q)` from `G`, the gradient of the spread."""
+    b = tl.program_id(1).to(tl.int64)
+    HW = H * W
+    row, col, inside = _tile(H, W, BLOCK_H, BLOCK_W)
+    pix = row * W + col
+    ch = tl.arange(0, CP)[:, None]
+    param = tl.load(param_ptr + b * HW + pix, mask=inside, other=1.0)
+    coef = -0.5 / (param * param)
+    own = coef if GAUSSIAN else param
+    g_base = g_ptr + b * (C + 1) * HW + ch * HW
+    acc = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    acc_slope = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    for dy in range(-half, half + 1):
+        out_row = row + dy
+        row_ok = inside & (out_row >= 0) & (out_row < H)
+        for dx in range(-half, half + 1):
+            out_col = col + dx
+            ok = row_ok & (out_col >= 0) & (out_col < W)
+            w, dw = _tap_weight(own, dy, dx, table_ptr, half, GAUSSIAN)
+            g = tl.load(g_base + (out_row * W + out_col)[None, :], mask=(ch <= C) & ok[None, :],
+                        other=0.0)
+            acc += w[None, :] * g
+            acc_slope += dw[None, :] * g
+    norm, dnorm = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
+    # (x, 1): the spread's input, whose last channel carries the normalisation
+    x = tl.load(x_ptr + b * C * HW + ch * HW + pix[None, :], mask=(ch < C) & inside[None, :],
+                other=0.0)
+    ones = tl.where(ch == C, 1.0, x)
+    raw = tl.sum(ones * acc, axis=0)
+    moment = tl.sum(ones * acc_slope, axis=0)
+    if GAUSSIAN:  # dw/dsigma = w |u|^2 / sigma^3
+        moment = moment / (param * param * param)
+    tl.store(grad_x_ptr + b * C * HW + ch * HW + pix[None, :], acc * norm[None, :],
+             mask=(ch < C) & inside[None, :])
+    tl.store(grad_param_ptr + b * HW + pix, norm * moment + raw * dnorm, mask=inside)
+
+
+# ------------------------------------------------------------------ launchers
+
+
+def _grid(x: Tensor) -> tuple[int, int]:
+    b, _, h, w = x.shape
+    return triton.cdiv(h, BLOCK_H) * triton.cdiv(w, BLOCK_W), b
+
+
+def _compute_dtype(x: Tensor) -> torch.dtype:
+    return x.dtype if x.dtype in (torch.float32, torch.float64) else torch.float32
+
+
+def _channels(x: Tensor) -> dict:
+    c = x.shape[1]
+    return {"C": c, "CP": triton.next_power_of_2(c + 1)}
+
+
+def render(x: Tensor, param: Tensor, half: int, table: Tensor | None) -> tuple[Tensor, Tensor]:
+    """`(y, den)` of the normalised scatter: Gaussian (`param` = sigma, `table` None) or clamp
+    (`param` = rho, `table` the `(2 half + 1)^2` distance table)."""
+    dtype = _compute_dtype(x)
+    x, param = x.to(dtype).contiguous(), param.to(dtype).contiguous()
+    gaussian = table is None
+    table = param if gaussian else table.to(x.device, dtype).contiguous()
+    b, c, h, w = x.shape
+    xn = x.new_empty(b, c + 1, h, w)
+    coef = torch.empty_like(param) if gaussian else param
+    meta = {**_channels(x), "GAUSSIAN": gaussian}
+    _prepare_kernel[(triton.cdiv(h * w, BLOCK_PREP), b)](
+        x, param, table, xn, coef, h * w, half, BLOCK=BLOCK_PREP, num_warps=NUM_WARPS, **meta
+    )
+    y, den = torch.empty_like(x), torch.empty_like(param)
+    _forward_kernel[_grid(x)](
+        xn, coef, table, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W,
+        num_warps=NUM_WARPS, **meta,
+    )
+    return y, den
+
+
+def render_backward(grad: Tensor, y: Tensor, den: Tensor, x: Tensor, param: Tensor, half: int,
+                    table: Tensor | None) -> tuple[Tensor, Tensor]:
+    """`(dL/dx, dL/dparam)` of `render` from `dL/dy`."""
+    dtype = _compute_dtype(x)
+    grad, y, den = (t.to(dtype) for t in (grad, y, den))
+    x, param = x.to(dtype).contiguous(), param.to(dtype).contiguous()
+    gaussian = table is None
+    table = param if gaussian else table.to(x.device, dtype).contiguous()
+    g = _render_ops._grad_of_spread(grad, y, den)
+    grad_x, grad_param = torch.empty_like(x), torch.empty_like(param)
+    b, c, h, w = x.shape
+    _backward_kernel[_grid(x)](
+        g, x, param, table, grad_x, grad_param, h, w, half, GAUSSIAN=gaussian,
+        BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS, **_channels(x),
+    )
+    return grad_x, grad_param
+
+
+# ------------------------------------------------------------------ operator registration
+
+
+def _cast(outputs: tuple[Tensor, Tensor], *like: Tensor) -> tuple[Tensor, Tensor]:
+    return tuple(o.to(t.dtype) for o, t in zip(outputs, like, strict=True))
+
+
+def _gaussian_render(x, sigma, half):
+    return _cast(render(x, sigma, int(half), None), x, sigma)
+
+
+def _gaussian_render_backward(grad, y, den, x, sigma, half):
+    return _cast(render_backward(grad, y, den, x, sigma, int(half), None), x, sigma)
+
+
+def _clamp_render(x, rho, dist, half):
+    k = int(half)
+    return _cast(render(x, rho, k, _render_ops._window(dist, k)), x, rho)
+
+
+def _clamp_render_backward(grad, y, den, x, rho, dist, half):
+    k = int(half)
+    return _cast(render_backward(grad, y, den, x, rho, k, _render_ops._window(dist, k)), x, rho)
+
+
+def register(device_type: str = "cuda") -> None:
+    """Make the Triton kernels the implementations of the fused scatter operators on
+    `device_type` (CUDA; the tests also use "cpu" under `TRITON_INTERPRET=1`)."""
+    for op, fn in ((_render_ops.gaussian_render, _gaussian_render),
+                   (_render_ops.gaussian_render_backward, _gaussian_render_backward),
+                   (_render_ops.clamp_render, _clamp_render),
+                   (_render_ops.clamp_render_backward, _clamp_render_backward)):
+        op.register_kernel(device_type)(fn)
+
+
+if triton is not None:
+    register("cuda")
