@@ -52,16 +52,25 @@ def _jit(fn):
 
 
 @_jit
-def _tap_weight(param, dy, dx, table_ptr, half, GAUSSIAN: tl.constexpr):
-    """`(w, dw)` at offset `(dy, dx)`: Gaussian `param = -1 / (2 sigma^2)`, `w = exp(param |u|^2)`,
-    `dw = w |u|^2`; clamp `param = rho`, `w = clamp(rho - D(u), 0, 1)`, `dw = [0 <= rho - D <= 1]`.
-    """
+def _tap_distance(dy, dx, table_ptr, half, GAUSSIAN: tl.constexpr):
+    """`D(dy, dx)` from the distance table (clamp); 0 for the Gaussian, which has no table."""
     if GAUSSIAN:
-        r2 = dy * dy + dx * dx
+        d = 0.0
+    else:
+        d = tl.load(table_ptr + (dy + half) * (2 * half + 1) + (dx + half))
+    return d
+
+
+@_jit
+def _tap_weight(param, r2, d, GAUSSIAN: tl.constexpr):
+    """`(w, dw)` at an offset `u` with `|u|^2 = r2` and distance `d = D(u)`: Gaussian
+    `param = -1 / (2 sigma^2)`, `w = exp(param |u|^2)`, `dw = w |u|^2`; clamp `param = rho`,
+    `w = clamp(rho - d, 0, 1)`, `dw = [0 <= rho - d <= 1]`."""
+    if GAUSSIAN:
         w = tl.exp(param * r2)
         dw = w * r2
     else:
-        t = param - tl.load(table_ptr + (dy + half) * (2 * half + 1) + (dx + half))
+        t = param - d
         w = tl.minimum(tl.maximum(t, 0.0), 1.0)
         dw = tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
     return w, dw
@@ -92,6 +101,17 @@ def _unit_energy(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
         norm = 1.0 / total
         dnorm = -slope * norm * norm
     return norm, dnorm
+
+
+@_jit
+def _reach(limit_ptr, GAUSSIAN: tl.constexpr):
+    """Largest distance with a non-zero weight: `max rho` (clamp, loaded); for the Gaussian, whose
+    `_tap_distance` is 0, any non-negative bound (every tap counts)."""
+    if GAUSSIAN:
+        limit = 1.0
+    else:
+        limit = tl.load(limit_ptr)
+    return limit
 
 
 @_jit
@@ -130,28 +150,34 @@ def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half,
 
 
 @_jit
-def _forward_kernel(xn_ptr, param_ptr, table_ptr, y_ptr, den_ptr, H, W, half,
+def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, W, half,
                     C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
                     BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
-    """`s(p) = sum_q w_q(p - q) xn(q)`; stores `y = s[:C] / s[C]` and `den = s[C]`."""
+    """`s(p) = sum_q w_q(p - q) xn(q)`; stores `y = s[:C] / s[C]` and `den = s[C]`.
+
+    Clamp: offsets farther than the largest rho (`limit_ptr`) weigh nothing and are skipped.
+    """
     b = tl.program_id(1).to(tl.int64)
     HW = H * W
     row, col, inside = _tile(H, W, BLOCK_H, BLOCK_W)
     ch = tl.arange(0, CP)[:, None]
     xn_base = xn_ptr + b * (C + 1) * HW + ch * HW
     param_base = param_ptr + b * HW
+    limit = _reach(limit_ptr, GAUSSIAN)
     acc = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=xn_ptr.dtype.element_ty)
     for dy in range(-half, half + 1):
         src_row = row - dy
         row_ok = inside & (src_row >= 0) & (src_row < H)
         for dx in range(-half, half + 1):
-            src_col = col - dx
-            ok = row_ok & (src_col >= 0) & (src_col < W)
-            src = src_row * W + src_col
-            param = tl.load(param_base + src, mask=ok, other=0.0)
-            w, _ = _tap_weight(param, dy, dx, table_ptr, half, GAUSSIAN)
-            xn = tl.load(xn_base + src[None, :], mask=(ch <= C) & ok[None, :], other=0.0)
-            acc += w[None, :] * xn
+            d = _tap_distance(dy, dx, table_ptr, half, GAUSSIAN)
+            if d <= limit:
+                src_col = col - dx
+                ok = row_ok & (src_col >= 0) & (src_col < W)
+                src = src_row * W + src_col
+                param = tl.load(param_base + src, mask=ok, other=0.0)
+                w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
+                xn = tl.load(xn_base + src[None, :], mask=(ch <= C) & ok[None, :], other=0.0)
+                acc += w[None, :] * xn
     den = tl.sum(tl.where(ch == C, acc, 0.0), axis=0)
     pix = row * W + col
     safe = tl.where(inside, den, 1.0)  # pixels off the image are not stored
@@ -176,17 +202,23 @@ def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_
     g_base = g_ptr + b * (C + 1) * HW + ch * HW
     acc = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=g_ptr.dtype.element_ty)
     acc_slope = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    if GAUSSIAN:  # every tap counts (`_tap_distance` is 0)
+        limit = 1.0
+    else:  # offsets beyond the tile's largest rho weigh nothing (nor does their slope)
+        limit = tl.max(tl.where(inside, param, 0.0), axis=0)
     for dy in range(-half, half + 1):
         out_row = row + dy
         row_ok = inside & (out_row >= 0) & (out_row < H)
         for dx in range(-half, half + 1):
-            out_col = col + dx
-            ok = row_ok & (out_col >= 0) & (out_col < W)
-            w, dw = _tap_weight(own, dy, dx, table_ptr, half, GAUSSIAN)
-            g = tl.load(g_base + (out_row * W + out_col)[None, :], mask=(ch <= C) & ok[None, :],
-                        other=0.0)
-            acc += w[None, :] * g
-            acc_slope += dw[None, :] * g
+            d = _tap_distance(dy, dx, table_ptr, half, GAUSSIAN)
+            if d <= limit:
+                out_col = col + dx
+                ok = row_ok & (out_col >= 0) & (out_col < W)
+                w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
+                g = tl.load(g_base + (out_row * W + out_col)[None, :],
+                            mask=(ch <= C) & ok[None, :], other=0.0)
+                acc += w[None, :] * g
+                acc_slope += dw[None, :] * g
     norm, dnorm = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
     # (x, 1): the spread's input, whose last channel carries the normalisation
     x = tl.load(x_ptr + b * C * HW + ch * HW + pix[None, :], mask=(ch < C) & inside[None, :],
@@ -233,8 +265,9 @@ def render(x: Tensor, param: Tensor, half: int, table: Tensor | None) -> tuple[T
         x, param, table, xn, coef, h * w, half, BLOCK=BLOCK_PREP, num_warps=NUM_WARPS, **meta
     )
     y, den = torch.empty_like(x), torch.empty_like(param)
+    limit = param if gaussian else param.amax()
     _forward_kernel[_grid(x)](
-        xn, coef, table, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W,
+        xn, coef, table, limit, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W,
         num_warps=NUM_WARPS, **meta,
     )
     return y, den

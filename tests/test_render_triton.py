@@ -108,6 +108,14 @@ def test_kernels_match_pytorch_path(name, k, shape, dtype):
     assert_paths_agree(name, *make_inputs(name, shape, k, dtype))
 
 
+@pytest.mark.parametrize("name", ["disk", "hexagon"])
+def test_smooth_coc_skips_only_empty_taps(name):
+    """A CoC ramp: the tiles' largest radii differ, so the kernels skip different offsets."""
+    image, _, weights = make_inputs(name, (1, 3, 33, 12), 9, torch.float64)
+    ramp = torch.linspace(0, coc_max(name, 9), 33, dtype=torch.float64, device=DEVICE)
+    assert_paths_agree(name, image, ramp.view(1, 1, 33, 1).expand(1, 1, 33, 12), weights)
+
+
 @pytest.mark.parametrize("name", list(APERTURES))
 def test_zero_coc_single_tap_window(name):
     image, coc, weights = make_inputs(name, (1, 3, 6, 7), 3, torch.float64)
