@@ -15,11 +15,15 @@ and loops over the `K x K` offsets, so no atomics are needed.
   program into `dL/dx` and `dL/dsigma` (or `dL/drho`), as `_render_ops` does in PyTorch.
 
 The weight `w_q(u)` is `exp(-|u|^2 / (2 sigma_q^2))` (Gaussian) or `clamp(rho_q - D(u), 0, 1)`
-(disk, polygons; `D` the `K x K` distance table). Taps outside the image are skipped. Float32 and
-float64 run natively; other floating dtypes are computed in float32.
+(disk, polygons; `D` the `K x K` distance table). Taps outside the image are skipped, and so are,
+for the clamp, offsets farther than the largest rho (of the image in the forward, of the tile in
+the backward), whose weight and slope are zero. Float32 and float64 run natively; other floating
+dtypes are computed in float32.
 """
 
 from __future__ import annotations
+
+import contextlib
 
 import torch
 from torch import Tensor
@@ -236,13 +240,24 @@ def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_
 # ------------------------------------------------------------------ launchers
 
 
+def _device_of(x: Tensor):
+    """Launch on `x`'s GPU, whichever is current (a no-op for the interpreter's CPU tensors)."""
+    return torch.cuda.device(x.device) if x.is_cuda else contextlib.nullcontext()
+
+
 def _grid(x: Tensor) -> tuple[int, int]:
     b, _, h, w = x.shape
     return triton.cdiv(h, BLOCK_H) * triton.cdiv(w, BLOCK_W), b
 
 
-def _compute_dtype(x: Tensor) -> torch.dtype:
-    return x.dtype if x.dtype in (torch.float32, torch.float64) else torch.float32
+def _operands(x: Tensor, param: Tensor, table: Tensor | None):
+    """`(x, param, table, gaussian)` ready for the kernels: float32 or float64, contiguous, the
+    table on the device (the Gaussian has none: `param` stands in for the unused pointer)."""
+    dtype = x.dtype if x.dtype in (torch.float32, torch.float64) else torch.float32
+    x, param = x.to(dtype).contiguous(), param.to(dtype).contiguous()
+    if table is None:
+        return x, param, param, True
+    return x, param, table.to(x.device, dtype).contiguous(), False
 
 
 def _channels(x: Tensor) -> dict:
@@ -253,41 +268,35 @@ def _channels(x: Tensor) -> dict:
 def render(x: Tensor, param: Tensor, half: int, table: Tensor | None) -> tuple[Tensor, Tensor]:
     """`(y, den)` of the normalised scatter: Gaussian (`param` = sigma, `table` None) or clamp
     (`param` = rho, `table` the `(2 half + 1)^2` distance table)."""
-    dtype = _compute_dtype(x)
-    x, param = x.to(dtype).contiguous(), param.to(dtype).contiguous()
-    gaussian = table is None
-    table = param if gaussian else table.to(x.device, dtype).contiguous()
+    x, param, table, gaussian = _operands(x, param, table)
     b, c, h, w = x.shape
     xn = x.new_empty(b, c + 1, h, w)
     coef = torch.empty_like(param) if gaussian else param
-    meta = {**_channels(x), "GAUSSIAN": gaussian}
-    _prepare_kernel[(triton.cdiv(h * w, BLOCK_PREP), b)](
-        x, param, table, xn, coef, h * w, half, BLOCK=BLOCK_PREP, num_warps=NUM_WARPS, **meta
-    )
     y, den = torch.empty_like(x), torch.empty_like(param)
-    limit = param if gaussian else param.amax()
-    _forward_kernel[_grid(x)](
-        xn, coef, table, limit, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W,
-        num_warps=NUM_WARPS, **meta,
-    )
+    meta = {**_channels(x), "GAUSSIAN": gaussian, "num_warps": NUM_WARPS}
+    with _device_of(x):
+        _prepare_kernel[(triton.cdiv(h * w, BLOCK_PREP), b)](
+            x, param, table, xn, coef, h * w, half, BLOCK=BLOCK_PREP, **meta
+        )
+        limit = param if gaussian else param.amax()
+        _forward_kernel[_grid(x)](
+            xn, coef, table, limit, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, **meta
+        )
     return y, den
 
 
 def render_backward(grad: Tensor, y: Tensor, den: Tensor, x: Tensor, param: Tensor, half: int,
                     table: Tensor | None) -> tuple[Tensor, Tensor]:
     """`(dL/dx, dL/dparam)` of `render` from `dL/dy`."""
-    dtype = _compute_dtype(x)
-    grad, y, den = (t.to(dtype) for t in (grad, y, den))
-    x, param = x.to(dtype).contiguous(), param.to(dtype).contiguous()
-    gaussian = table is None
-    table = param if gaussian else table.to(x.device, dtype).contiguous()
-    g = _render_ops._grad_of_spread(grad, y, den)
+    x, param, table, gaussian = _operands(x, param, table)
+    g = _render_ops._grad_of_spread(*(t.to(x.dtype) for t in (grad, y, den)))
     grad_x, grad_param = torch.empty_like(x), torch.empty_like(param)
-    b, c, h, w = x.shape
-    _backward_kernel[_grid(x)](
-        g, x, param, table, grad_x, grad_param, h, w, half, GAUSSIAN=gaussian,
-        BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS, **_channels(x),
-    )
+    _, _, h, w = x.shape
+    with _device_of(x):
+        _backward_kernel[_grid(x)](
+            g, x, param, table, grad_x, grad_param, h, w, half, GAUSSIAN=gaussian,
+            BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS, **_channels(x),
+        )
     return grad_x, grad_param
 
 
