@@ -36,9 +36,9 @@ try:
 except ImportError:  # no Triton (CI): nothing to register
     triton = None
 
-#: Pixels per program: a `BLOCK_H x BLOCK_W` tile (powers of two).
-BLOCK_H, BLOCK_W = 8, 32
-NUM_WARPS = 4
+#: Pixels per program: a `BLOCK_H x BLOCK_W` tile (powers of two); with `BLOCK_W = 32 NUM_WARPS`
+#: each thread holds one column of the tile, all its rows and channels.
+BLOCK_H, BLOCK_W, NUM_WARPS = 4, 128, 4
 #: Pixels per program of the per-pixel preparation pass.
 BLOCK_PREP = 256
 
@@ -56,12 +56,12 @@ def _jit(fn):
 
 
 @_jit
-def _tap_distance(dy, dx, table_ptr, half, GAUSSIAN: tl.constexpr):
-    """`D(dy, dx)` from the distance table (clamp); 0 for the Gaussian, which has no table."""
+def _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN: tl.constexpr):
+    """`D(dy, dx)` from the distance table where `tap` (clamp); 0 for the Gaussian (no table)."""
     if GAUSSIAN:
         d = 0.0
     else:
-        d = tl.load(table_ptr + (dy + half) * (2 * half + 1) + (dx + half))
+        d = tl.load(table_ptr + (dy + half) * (2 * half + 1) + (dx + half), mask=tap, other=0.0)
     return d
 
 
@@ -78,6 +78,16 @@ def _tap_weight(param, r2, d, GAUSSIAN: tl.constexpr):
         w = tl.minimum(tl.maximum(t, 0.0), 1.0)
         dw = tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
     return w, dw
+
+
+@_jit
+def _within(d, tap, limit, GAUSSIAN: tl.constexpr):
+    """Whether a tap of the rows lies within distance `limit` (clamp); always for the Gaussian."""
+    if GAUSSIAN:
+        hit = True
+    else:
+        hit = tl.min(tl.where(tap, d, limit + 1.0)) <= limit
+    return hit
 
 
 @_jit
@@ -108,28 +118,21 @@ def _unit_energy(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
 
 
 @_jit
-def _reach(limit_ptr, GAUSSIAN: tl.constexpr):
-    """Largest distance with a non-zero weight: `max rho` (clamp, loaded); for the Gaussian, whose
-    `_tap_distance` is 0, any non-negative bound (every tap counts)."""
-    if GAUSSIAN:
-        limit = 1.0
-    else:
-        limit = tl.load(limit_ptr)
-    return limit
-
-
-@_jit
-def _tile(H, W, BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
-    """Row, column and in-image mask of this program's tile (axis 0 enumerates the tiles)."""
+def _tile(W, BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr, CP: tl.constexpr):
+    """This program's first row, its row offsets `(R,1,1)`, columns `(1,1,BW)` and channels
+    `(1,CP,1)` (axis 0 of the grid enumerates the tiles)."""
     pid = tl.program_id(0)
     tiles_w = tl.cdiv(W, BLOCK_W)
-    offs = tl.arange(0, BLOCK_H * BLOCK_W)
-    row = (pid // tiles_w) * BLOCK_H + offs // BLOCK_W
-    col = (pid % tiles_w) * BLOCK_W + offs % BLOCK_W
-    return row, col, (row < H) & (col < W)
+    row0 = (pid // tiles_w) * BLOCK_H
+    r = tl.arange(0, BLOCK_H)[:, None, None]
+    col = (pid % tiles_w) * BLOCK_W + tl.arange(0, BLOCK_W)[None, None, :]
+    return row0, r, col, tl.arange(0, CP)[None, :, None]
 
 
 # ------------------------------------------------------------------ kernels
+# The forward and backward kernels hold a tile of `BLOCK_H` rows per thread column: each row of
+# sources (or gradients) they load serves every row of the tile it reaches, which divides the
+# loads per tap by about `BLOCK_H`.
 
 
 @_jit
@@ -163,30 +166,32 @@ def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, 
     """
     b = tl.program_id(1).to(tl.int64)
     HW = H * W
-    row, col, inside = _tile(H, W, BLOCK_H, BLOCK_W)
-    ch = tl.arange(0, CP)[:, None]
+    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CP)
     xn_base = xn_ptr + b * (C + 1) * HW + ch * HW
     param_base = param_ptr + b * HW
-    limit = _reach(limit_ptr, GAUSSIAN)
-    acc = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=xn_ptr.dtype.element_ty)
-    for dy in range(-half, half + 1):
-        src_row = row - dy
-        row_ok = inside & (src_row >= 0) & (src_row < H)
-        for dx in range(-half, half + 1):
-            d = _tap_distance(dy, dx, table_ptr, half, GAUSSIAN)
-            if d <= limit:
-                src_col = col - dx
-                ok = row_ok & (src_col >= 0) & (src_col < W)
-                src = src_row * W + src_col
-                param = tl.load(param_base + src, mask=ok, other=0.0)
-                w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
-                xn = tl.load(xn_base + src[None, :], mask=(ch <= C) & ok[None, :], other=0.0)
-                acc += w[None, :] * xn
-    den = tl.sum(tl.where(ch == C, acc, 0.0), axis=0)
+    limit = tl.load(limit_ptr)  # unused by the Gaussian
+    acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
+    for j in range(-half, BLOCK_H + half):  # sources on row row0 + j, at dy = r - j
+        src_row = row0 + j
+        if (src_row >= 0) & (src_row < H):
+            dy = r - j
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    src_col = col - dx
+                    ok = (src_col >= 0) & (src_col < W)
+                    src = src_row * W + src_col
+                    param = tl.load(param_base + src, mask=ok, other=0.0)
+                    xn = tl.load(xn_base + src, mask=ok & (ch <= C), other=0.0)
+                    w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * xn
+    row = row0 + r
+    inside = (row < H) & (col < W)
     pix = row * W + col
+    den = tl.sum(tl.where(ch == C, acc, 0.0), axis=1)[:, None, :]
     safe = tl.where(inside, den, 1.0)  # pixels off the image are not stored
-    tl.store(y_ptr + b * C * HW + ch * HW + pix[None, :], acc / safe[None, :],
-             mask=(ch < C) & inside[None, :])
+    tl.store(y_ptr + b * C * HW + ch * HW + pix, acc / safe, mask=inside & (ch < C))
     tl.store(den_ptr + b * HW + pix, den, mask=inside)
 
 
@@ -194,46 +199,46 @@ def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, 
 def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_ptr, H, W,
                      half, C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
                      BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
-    """Per source `q`: `dL/dx(q)` and `dL/dparam(q)` from `G`, the gradient of the spread."""
+    """Per source `q`: `dL/dx(q)` and `dL/dparam(q)` from `G`, the gradient of the spread.
+
+    Clamp: offsets farther than the tile's largest rho weigh nothing and are skipped.
+    """
     b = tl.program_id(1).to(tl.int64)
     HW = H * W
-    row, col, inside = _tile(H, W, BLOCK_H, BLOCK_W)
+    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CP)
+    row = row0 + r
+    inside = (row < H) & (col < W)
     pix = row * W + col
-    ch = tl.arange(0, CP)[:, None]
     param = tl.load(param_ptr + b * HW + pix, mask=inside, other=1.0)
     coef = -0.5 / (param * param)
     own = coef if GAUSSIAN else param
+    limit = tl.max(tl.where(inside, param, 0.0))  # unused by the Gaussian
     g_base = g_ptr + b * (C + 1) * HW + ch * HW
-    acc = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=g_ptr.dtype.element_ty)
-    acc_slope = tl.zeros([CP, BLOCK_H * BLOCK_W], dtype=g_ptr.dtype.element_ty)
-    if GAUSSIAN:  # every tap counts (`_tap_distance` is 0)
-        limit = 1.0
-    else:  # offsets beyond the tile's largest rho weigh nothing (nor does their slope)
-        limit = tl.max(tl.where(inside, param, 0.0), axis=0)
-    for dy in range(-half, half + 1):
-        out_row = row + dy
-        row_ok = inside & (out_row >= 0) & (out_row < H)
-        for dx in range(-half, half + 1):
-            d = _tap_distance(dy, dx, table_ptr, half, GAUSSIAN)
-            if d <= limit:
-                out_col = col + dx
-                ok = row_ok & (out_col >= 0) & (out_col < W)
-                w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
-                g = tl.load(g_base + (out_row * W + out_col)[None, :],
-                            mask=(ch <= C) & ok[None, :], other=0.0)
-                acc += w[None, :] * g
-                acc_slope += dw[None, :] * g
+    acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    acc_slope = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    for j in range(-half, BLOCK_H + half):  # outputs on row row0 + j, at dy = j - r
+        out_row = row0 + j
+        if (out_row >= 0) & (out_row < H):
+            dy = j - r
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    out_col = col + dx
+                    ok = (out_col >= 0) & (out_col < W)
+                    g = tl.load(g_base + out_row * W + out_col, mask=ok & (ch <= C), other=0.0)
+                    w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * g
+                    acc_slope += tl.where(tap, dw, 0.0) * g
     norm, dnorm = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
     # (x, 1): the spread's input, whose last channel carries the normalisation
-    x = tl.load(x_ptr + b * C * HW + ch * HW + pix[None, :], mask=(ch < C) & inside[None, :],
-                other=0.0)
+    x = tl.load(x_ptr + b * C * HW + ch * HW + pix, mask=inside & (ch < C), other=0.0)
     ones = tl.where(ch == C, 1.0, x)
-    raw = tl.sum(ones * acc, axis=0)
-    moment = tl.sum(ones * acc_slope, axis=0)
+    raw = tl.sum(ones * acc, axis=1)[:, None, :]
+    moment = tl.sum(ones * acc_slope, axis=1)[:, None, :]
     if GAUSSIAN:  # dw/dsigma = w |u|^2 / sigma^3
         moment = moment / (param * param * param)
-    tl.store(grad_x_ptr + b * C * HW + ch * HW + pix[None, :], acc * norm[None, :],
-             mask=(ch < C) & inside[None, :])
+    tl.store(grad_x_ptr + b * C * HW + ch * HW + pix, acc * norm, mask=inside & (ch < C))
     tl.store(grad_param_ptr + b * HW + pix, norm * moment + raw * dnorm, mask=inside)
 
 
@@ -278,7 +283,7 @@ def render(x: Tensor, param: Tensor, half: int, table: Tensor | None) -> tuple[T
         _prepare_kernel[(triton.cdiv(h * w, BLOCK_PREP), b)](
             x, param, table, xn, coef, h * w, half, BLOCK=BLOCK_PREP, **meta
         )
-        limit = param if gaussian else param.amax()
+        limit = param if gaussian else param.amax()  # the Gaussian ignores it
         _forward_kernel[_grid(x)](
             xn, coef, table, limit, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, **meta
         )

@@ -100,12 +100,20 @@ def assert_paths_agree(name, image, coc, weights):
         torch.testing.assert_close(a / scale, e / scale, **tol, msg=lambda m, w=what: f"{w}: {m}")
 
 
-@pytest.mark.parametrize("shape", [(2, 3, 9, 13), (1, 1, 20, 37)], ids=["b2c3", "c1-tiles"])
+@pytest.mark.parametrize("shape", [(2, 3, 9, 13), (1, 1, 20, 137)], ids=["b2c3", "c1-tiles"])
 @pytest.mark.parametrize("k", [3, 7, 11])
 @pytest.mark.parametrize("name", list(APERTURES))
 def test_kernels_match_pytorch_path(name, k, shape, dtype):
     """Forward and both gradients; the 11-wide window is wider than the 9-row image."""
     assert_paths_agree(name, *make_inputs(name, shape, k, dtype))
+
+
+@pytest.mark.parametrize("shape", [(2, 3, 9, 13), (1, 1, 20, 37)], ids=["b2c3", "c1"])
+@pytest.mark.parametrize("name", list(APERTURES))
+def test_many_small_tiles(name, shape):
+    """Tiles of 2 x 8 pixels: every tile border and partial tile of the images above."""
+    with mock.patch.multiple(_render_triton, BLOCK_H=2, BLOCK_W=8, NUM_WARPS=1):
+        assert_paths_agree(name, *make_inputs(name, shape, 7, torch.float64))
 
 
 @pytest.mark.parametrize("name", ["disk", "hexagon"])
