@@ -16,6 +16,7 @@ Usage:
 
     python benchmarks/render_gpu.py             # goals, then the table
     python benchmarks/render_gpu.py --rounds 21
+    python benchmarks/render_gpu.py --block-h 8 --warps 2   # another tile of the Triton kernels
 """
 
 from __future__ import annotations
@@ -82,14 +83,21 @@ def measure(shape, k: int, rounds: int, warmup: int = 3) -> dict[str, list[float
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=15, help="round-robin rounds (medians)")
+    parser.add_argument("--block-h", type=int, help="tile rows of the Triton kernels (tuning)")
+    parser.add_argument("--warps", type=int, help="warps per program; tile width is 32 per warp")
     args = parser.parse_args(argv)
+    if args.block_h:
+        _render_triton.BLOCK_H = args.block_h
+    if args.warps:
+        _render_triton.NUM_WARPS, _render_triton.BLOCK_W = args.warps, 32 * args.warps
     if not torch.cuda.is_available():
         print("benchmarks/render_gpu.py needs a CUDA GPU; none is available, nothing measured.")
         return 0
     bandwidth = copy_bandwidth()
+    tiles = f"{_render_triton.BLOCK_H}x{_render_triton.BLOCK_W}, {_render_triton.NUM_WARPS} warps"
     print(f"torch {torch.__version__}, {torch.cuda.get_device_name()}, Triton kernels: "
-          f"{_render_triton.available()}, copy bandwidth {bandwidth / 1e9:.0f} GB/s "
-          f"(read+write)\n")
+          f"{_render_triton.available()} (tiles {tiles}), copy bandwidth "
+          f"{bandwidth / 1e9:.0f} GB/s (read+write)\n")
     lines = ["| shape | K | method | fwd+bwd ms | / gaussian_blur2d | / Gaussian scatter | "
              "floor ms | / floor |", "|---|---|---|---|---|---|---|---|"]
     print("\n".join(lines), flush=True)

@@ -108,7 +108,7 @@ def test_kernels_match_pytorch_path(name, k, shape, dtype):
     assert_paths_agree(name, *make_inputs(name, shape, k, dtype))
 
 
-@pytest.mark.parametrize("shape", [(2, 3, 9, 13), (1, 1, 20, 37)], ids=["b2c3", "c1"])
+@pytest.mark.parametrize("shape", [(2, 3, 9, 13), (1, 1, 11, 21)], ids=["b2c3", "c1"])
 @pytest.mark.parametrize("name", list(APERTURES))
 def test_many_small_tiles(name, shape):
     """Tiles of 2 x 8 pixels: every tile border and partial tile of the images above."""
