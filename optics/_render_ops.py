@@ -662,6 +662,5 @@ def _accumulate_vjp(psf, dy, dx, coc, upstream, grad_coc, params, grad_params) -
             acc += g
 
 
-# The Triton kernels register themselves as the CUDA implementations of the fused scatter (when
-# Triton imports); imported last because they use the operators defined above.
+# Last: registers the Triton kernels of the operators above as their CUDA implementations.
 from . import _render_triton  # noqa: E402, F401
