@@ -668,3 +668,7 @@ def _accumulate_vjp(psf, dy, dx, coc, upstream, grad_coc, params, grad_params) -
     for acc, g in zip(grad_params, grads[1:], strict=True):
         if g is not None:
             acc += g
+
+
+# Last: registers the Triton kernels of the operators above as their CUDA implementations.
+from . import _render_triton  # noqa: E402, F401

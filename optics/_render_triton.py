@@ -1,0 +1,344 @@
+"""Triton kernels for the fused, normalised scatter operators (`defocus::gaussian_render`,
+`defocus::clamp_render` and their backward operators), registered as their CUDA implementations.
+
+Imported by `optics._render_ops`; without Triton this module defines nothing that runs and
+registers nothing, so the operators keep their PyTorch fallback on CUDA.
+
+Each kernel is a *gather* over the window: one program owns a `BLOCK_H x BLOCK_W` tile of pixels
+and loops over the `K x K` offsets, so no atomics are needed.
+
+- Forward, per output `p`: `s_c(p) = sum_q w_q(p - q) xn_c(q)` over the sources `q` of its
+  window, where `xn = (x * norm, norm)` is written by a first per-pixel pass (`norm` is the
+  source's unit-energy factor over its *full* window). Then `y = s[:C] / s[C]`, `den = s[C]`.
+- Backward, per source `q`: `sum_u w_q(u) G(q + u)` and `sum_u w'_q(u) G(q + u)` with `G` the
+  gradient of the unnormalised spread `s` (`_render_ops._grad_of_spread`), finished in the same
+  program into `dL/dx` and `dL/dsigma` (or `dL/drho`), as `_render_ops` does in PyTorch.
+
+The weight `w_q(u)` is `exp(-|u|^2 / (2 sigma_q^2))` (Gaussian) or `clamp(rho_q - D(u), 0, 1)`
+(disk, polygons; `D` the `K x K` distance table). Taps outside the image are skipped, and so are,
+for the clamp, offsets farther than the largest rho (of the image in the forward, of the tile in
+the backward), whose weight and slope are zero. Float32 and float64 run natively; other floating
+dtypes are computed in float32.
+"""
+
+from __future__ import annotations
+
+import contextlib
+
+import torch
+from torch import Tensor
+
+from . import _render_ops
+
+try:
+    import triton
+    import triton.language as tl
+except ImportError:  # no Triton (CI): nothing to register
+    triton = None
+
+#: Pixels per program: a `BLOCK_H x BLOCK_W` tile (powers of two); with `BLOCK_W = 32 NUM_WARPS`
+#: each thread holds one column of the tile, all its rows and channels.
+BLOCK_H, BLOCK_W, NUM_WARPS = 4, 128, 4
+#: Pixels per program of the per-pixel preparation pass.
+BLOCK_PREP = 256
+
+
+def available() -> bool:
+    """Whether Triton imported (the kernels can be launched on CUDA, or interpreted)."""
+    return triton is not None
+
+
+def _jit(fn):
+    return fn if triton is None else triton.jit(fn)
+
+
+# ------------------------------------------------------------------ device functions
+
+
+@_jit
+def _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN: tl.constexpr):
+    """`D(dy, dx)` from the distance table where `tap` (clamp); 0 for the Gaussian (no table)."""
+    if GAUSSIAN:
+        d = 0.0
+    else:
+        d = tl.load(table_ptr + (dy + half) * (2 * half + 1) + (dx + half), mask=tap, other=0.0)
+    return d
+
+
+@_jit
+def _tap_weight(param, r2, d, GAUSSIAN: tl.constexpr):
+    """`(w, dw)` at an offset `u` with `|u|^2 = r2` and distance `d = D(u)`: Gaussian
+    `param = -1 / (2 sigma^2)`, `w = exp(param |u|^2)`, `dw = w |u|^2`; clamp `param = rho`,
+    `w = clamp(rho - d, 0, 1)`, `dw = [0 <= rho - d <= 1]`."""
+    if GAUSSIAN:
+        w = tl.exp(param * r2)
+        dw = w * r2
+    else:
+        t = param - d
+        w = tl.minimum(tl.maximum(t, 0.0), 1.0)
+        dw = tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
+    return w, dw
+
+
+@_jit
+def _within(d, tap, limit, GAUSSIAN: tl.constexpr):
+    """Whether a tap of the rows lies within distance `limit` (clamp); always for the Gaussian."""
+    if GAUSSIAN:
+        hit = True
+    else:
+        hit = tl.min(tl.where(tap, d, limit + 1.0)) <= limit
+    return hit
+
+
+@_jit
+def _unit_energy(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
+    """`(norm, dnorm)`: `1 / Z` over the full window and its derivative in sigma (or rho).
+
+    `param` is sigma (Gaussian, `coef = -1 / (2 sigma^2)`) or rho (clamp, `coef` unused).
+    """
+    if GAUSSIAN:
+        line = tl.zeros_like(param) + 1.0
+        moment = tl.zeros_like(param)
+        for d in range(1, half + 1):
+            term = 2.0 * tl.exp(coef * (d * d))
+            line += term
+            moment += term * (d * d)
+        norm = 1.0 / (line * line)
+        dnorm = -2.0 * moment / (param * param * param * line * line * line)
+    else:
+        total = tl.zeros_like(param)
+        slope = tl.zeros_like(param)
+        for i in range(0, (2 * half + 1) * (2 * half + 1)):
+            t = param - tl.load(table_ptr + i)
+            total += tl.minimum(tl.maximum(t, 0.0), 1.0)
+            slope += tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
+        norm = 1.0 / total
+        dnorm = -slope * norm * norm
+    return norm, dnorm
+
+
+@_jit
+def _tile(W, BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr, CP: tl.constexpr):
+    """This program's first row, its row offsets `(R,1,1)`, columns `(1,1,BW)` and channels
+    `(1,CP,1)` (axis 0 of the grid enumerates the tiles)."""
+    pid = tl.program_id(0)
+    tiles_w = tl.cdiv(W, BLOCK_W)
+    row0 = (pid // tiles_w) * BLOCK_H
+    r = tl.arange(0, BLOCK_H)[:, None, None]
+    col = (pid % tiles_w) * BLOCK_W + tl.arange(0, BLOCK_W)[None, None, :]
+    return row0, r, col, tl.arange(0, CP)[None, :, None]
+
+
+# ------------------------------------------------------------------ kernels
+# The forward and backward kernels hold a tile of `BLOCK_H` rows per thread column: each row of
+# sources (or gradients) they load serves every row of the tile it reaches, which divides the
+# loads per tap by about `BLOCK_H`.
+
+
+@_jit
+def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half,
+                    C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+                    BLOCK: tl.constexpr):
+    """Per pixel: `xn = (x * norm, norm)` and, for the Gaussian, `coef = -1 / (2 sigma^2)`."""
+    b = tl.program_id(1).to(tl.int64)
+    pix = tl.program_id(0) * BLOCK + tl.arange(0, BLOCK)
+    inside = pix < HW
+    ch = tl.arange(0, CP)[:, None]
+    param = tl.load(param_ptr + b * HW + pix, mask=inside, other=1.0)
+    coef = -0.5 / (param * param)
+    norm, _ = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
+    x = tl.load(x_ptr + b * C * HW + ch * HW + pix[None, :], mask=(ch < C) & inside[None, :],
+                other=1.0)
+    xn = tl.where(ch < C, x, 1.0) * norm[None, :]
+    tl.store(xn_ptr + b * (C + 1) * HW + ch * HW + pix[None, :], xn,
+             mask=(ch <= C) & inside[None, :])
+    if GAUSSIAN:
+        tl.store(coef_ptr + b * HW + pix, coef, mask=inside)
+
+
+@_jit
+def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, W, half,
+                    C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+                    BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
+    """`s(p) = sum_q w_q(p - q) xn(q)`; stores `y = s[:C] / s[C]` and `den = s[C]`.
+
+    Clamp: offsets farther than the largest rho (`limit_ptr`) weigh nothing and are skipped.
+    """
+    b = tl.program_id(1).to(tl.int64)
+    HW = H * W
+    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CP)
+    xn_base = xn_ptr + b * (C + 1) * HW + ch * HW
+    param_base = param_ptr + b * HW
+    limit = tl.load(limit_ptr)  # unused by the Gaussian
+    acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
+    for j in range(-half, BLOCK_H + half):  # sources on row row0 + j, at dy = r - j
+        src_row = row0 + j
+        if (src_row >= 0) & (src_row < H):
+            dy = r - j
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    src_col = col - dx
+                    ok = (src_col >= 0) & (src_col < W)
+                    src = src_row * W + src_col
+                    param = tl.load(param_base + src, mask=ok, other=0.0)
+                    xn = tl.load(xn_base + src, mask=ok & (ch <= C), other=0.0)
+                    w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * xn
+    row = row0 + r
+    inside = (row < H) & (col < W)
+    pix = row * W + col
+    den = tl.sum(tl.where(ch == C, acc, 0.0), axis=1)[:, None, :]
+    safe = tl.where(inside, den, 1.0)  # pixels off the image are not stored
+    tl.store(y_ptr + b * C * HW + ch * HW + pix, acc / safe, mask=inside & (ch < C))
+    tl.store(den_ptr + b * HW + pix, den, mask=inside)
+
+
+@_jit
+def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_ptr, H, W,
+                     half, C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+                     BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
+    """Per source `q`: `dL/dx(q)` and `dL/dparam(q)` from `G`, the gradient of the spread.
+
+    Clamp: offsets farther than the tile's largest rho weigh nothing and are skipped.
+    """
+    b = tl.program_id(1).to(tl.int64)
+    HW = H * W
+    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CP)
+    row = row0 + r
+    inside = (row < H) & (col < W)
+    pix = row * W + col
+    param = tl.load(param_ptr + b * HW + pix, mask=inside, other=1.0)
+    coef = -0.5 / (param * param)
+    own = coef if GAUSSIAN else param
+    limit = tl.max(tl.where(inside, param, 0.0))  # unused by the Gaussian
+    g_base = g_ptr + b * (C + 1) * HW + ch * HW
+    acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    acc_slope = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    for j in range(-half, BLOCK_H + half):  # outputs on row row0 + j, at dy = j - r
+        out_row = row0 + j
+        if (out_row >= 0) & (out_row < H):
+            dy = j - r
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    out_col = col + dx
+                    ok = (out_col >= 0) & (out_col < W)
+                    g = tl.load(g_base + out_row * W + out_col, mask=ok & (ch <= C), other=0.0)
+                    w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * g
+                    acc_slope += tl.where(tap, dw, 0.0) * g
+    norm, dnorm = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
+    # (x, 1): the spread's input, whose last channel carries the normalisation
+    x = tl.load(x_ptr + b * C * HW + ch * HW + pix, mask=inside & (ch < C), other=0.0)
+    ones = tl.where(ch == C, 1.0, x)
+    raw = tl.sum(ones * acc, axis=1)[:, None, :]
+    moment = tl.sum(ones * acc_slope, axis=1)[:, None, :]
+    if GAUSSIAN:  # dw/dsigma = w |u|^2 / sigma^3
+        moment = moment / (param * param * param)
+    tl.store(grad_x_ptr + b * C * HW + ch * HW + pix, acc * norm, mask=inside & (ch < C))
+    tl.store(grad_param_ptr + b * HW + pix, norm * moment + raw * dnorm, mask=inside)
+
+
+# ------------------------------------------------------------------ launchers
+
+
+def _device_of(x: Tensor):
+    """Launch on `x`'s GPU, whichever is current (a no-op for the interpreter's CPU tensors)."""
+    return torch.cuda.device(x.device) if x.is_cuda else contextlib.nullcontext()
+
+
+def _grid(x: Tensor) -> tuple[int, int]:
+    b, _, h, w = x.shape
+    return triton.cdiv(h, BLOCK_H) * triton.cdiv(w, BLOCK_W), b
+
+
+def _operands(x: Tensor, param: Tensor, table: Tensor | None):
+    """`(x, param, table, gaussian)` ready for the kernels: float32 or float64, contiguous, the
+    table on the device (the Gaussian has none: `param` stands in for the unused pointer)."""
+    dtype = x.dtype if x.dtype in (torch.float32, torch.float64) else torch.float32
+    x, param = x.to(dtype).contiguous(), param.to(dtype).contiguous()
+    if table is None:
+        return x, param, param, True
+    return x, param, table.to(x.device, dtype).contiguous(), False
+
+
+def _channels(x: Tensor) -> dict:
+    c = x.shape[1]
+    return {"C": c, "CP": triton.next_power_of_2(c + 1)}
+
+
+def render(x: Tensor, param: Tensor, half: int, table: Tensor | None) -> tuple[Tensor, Tensor]:
+    """`(y, den)` of the normalised scatter: Gaussian (`param` = sigma, `table` None) or clamp
+    (`param` = rho, `table` the `(2 half + 1)^2` distance table)."""
+    x, param, table, gaussian = _operands(x, param, table)
+    b, c, h, w = x.shape
+    xn = x.new_empty(b, c + 1, h, w)
+    coef = torch.empty_like(param) if gaussian else param
+    y, den = torch.empty_like(x), torch.empty_like(param)
+    meta = {**_channels(x), "GAUSSIAN": gaussian, "num_warps": NUM_WARPS}
+    with _device_of(x):
+        _prepare_kernel[(triton.cdiv(h * w, BLOCK_PREP), b)](
+            x, param, table, xn, coef, h * w, half, BLOCK=BLOCK_PREP, **meta
+        )
+        limit = param if gaussian else param.amax()  # the Gaussian ignores it
+        _forward_kernel[_grid(x)](
+            xn, coef, table, limit, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, **meta
+        )
+    return y, den
+
+
+def render_backward(grad: Tensor, y: Tensor, den: Tensor, x: Tensor, param: Tensor, half: int,
+                    table: Tensor | None) -> tuple[Tensor, Tensor]:
+    """`(dL/dx, dL/dparam)` of `render` from `dL/dy`."""
+    x, param, table, gaussian = _operands(x, param, table)
+    g = _render_ops._grad_of_spread(*(t.to(x.dtype) for t in (grad, y, den)))
+    grad_x, grad_param = torch.empty_like(x), torch.empty_like(param)
+    _, _, h, w = x.shape
+    with _device_of(x):
+        _backward_kernel[_grid(x)](
+            g, x, param, table, grad_x, grad_param, h, w, half, GAUSSIAN=gaussian,
+            BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS, **_channels(x),
+        )
+    return grad_x, grad_param
+
+
+# ------------------------------------------------------------------ operator registration
+
+
+def _cast(outputs: tuple[Tensor, Tensor], *like: Tensor) -> tuple[Tensor, Tensor]:
+    return tuple(o.to(t.dtype) for o, t in zip(outputs, like, strict=True))
+
+
+def _gaussian_render(x, sigma, half):
+    return _cast(render(x, sigma, int(half), None), x, sigma)
+
+
+def _gaussian_render_backward(grad, y, den, x, sigma, half):
+    return _cast(render_backward(grad, y, den, x, sigma, int(half), None), x, sigma)
+
+
+def _clamp_render(x, rho, dist, half):
+    k = int(half)
+    return _cast(render(x, rho, k, _render_ops._window(dist, k)), x, rho)
+
+
+def _clamp_render_backward(grad, y, den, x, rho, dist, half):
+    k = int(half)
+    return _cast(render_backward(grad, y, den, x, rho, k, _render_ops._window(dist, k)), x, rho)
+
+
+def register(device_type: str = "cuda") -> None:
+    """Make the Triton kernels the implementations of the fused scatter operators on
+    `device_type` (CUDA; the tests also use "cpu" under `TRITON_INTERPRET=1`)."""
+    for op, fn in ((_render_ops.gaussian_render, _gaussian_render),
+                   (_render_ops.gaussian_render_backward, _gaussian_render_backward),
+                   (_render_ops.clamp_render, _clamp_render),
+                   (_render_ops.clamp_render_backward, _clamp_render_backward)):
+        op.register_kernel(device_type)(fn)
+
+
+if triton is not None:
+    register("cuda")

@@ -1,0 +1,149 @@
+"""The Triton kernels of the fused scatter (`optics._render_triton`) against the PyTorch path.
+
+They run on CUDA when a GPU is present, else on the CPU in Triton's interpreter when the suite
+is started with `TRITON_INTERPRET=1` (the kernels are then also registered for the CPU, enabled
+only inside `kernels(triton=True)`); otherwise the module is skipped. The reference is the same
+operator with the Triton kernel disabled and the compiled CPU kernels turned off: the PyTorch
+loops of `optics._render_ops`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from unittest import mock
+
+import pytest
+import torch
+from torch.autograd import gradcheck
+
+from optics import Disk, Gaussian, Polygon, _render_cpp, _render_ops, _render_triton, render_defocus
+
+INTERPRET = os.environ.get("TRITON_INTERPRET") == "1"
+
+if not _render_triton.available():
+    pytest.skip("Triton is not installed", allow_module_level=True)
+if INTERPRET:
+    DEVICE = "cpu"
+elif torch.cuda.is_available():
+    DEVICE = "cuda"
+else:
+    pytest.skip("the Triton kernels need a CUDA GPU, or TRITON_INTERPRET=1 for the interpreter",
+                allow_module_level=True)
+
+OPS = (_render_ops.gaussian_render, _render_ops.gaussian_render_backward,
+       _render_ops.clamp_render, _render_ops.clamp_render_backward)
+
+if DEVICE == "cpu":
+    # Registered for the CPU too, but disabled so that the rest of the session keeps the compiled
+    # CPU kernels; `kernels(True)` enables them. The contexts are entered and never left (kept
+    # here: a collected one would restore the kernels).
+    _DISABLED = [op.set_kernel_enabled("cpu", False) for op in OPS]
+    for _context in _DISABLED:
+        _context.__enter__()
+    _render_triton.register("cpu")
+
+
+def _not_triton(*args, **kwargs):
+    raise AssertionError("the reference path reached the Triton kernels")
+
+APERTURES = {"gaussian": Gaussian, "disk": Disk, "hexagon": lambda: Polygon(6)}
+
+
+@contextlib.contextmanager
+def kernels(triton: bool):
+    """Route the fused scatter operators to the Triton kernels, or to the PyTorch loops."""
+    with contextlib.ExitStack() as stack:
+        if triton != (DEVICE == "cuda"):  # the registration's state differs from the wanted one
+            for op in OPS:
+                stack.enter_context(op.set_kernel_enabled(DEVICE, triton))
+        if not triton:
+            stack.enter_context(mock.patch.object(_render_cpp, "usable", lambda x: False))
+            for name in ("render", "render_backward"):
+                stack.enter_context(mock.patch.object(_render_triton, name, _not_triton))
+        yield
+
+
+def coc_max(name: str, k: int) -> float:
+    """Largest CoC whose window is exactly `k` pixels wide."""
+    return 2 * (k // 2) / 3 if name == "gaussian" else k - 0.01
+
+
+def make_inputs(name: str, shape, k: int, dtype, seed: int = 0):
+    gen = torch.Generator().manual_seed(seed)
+    b, _, h, w = shape
+    image = torch.rand(shape, generator=gen, dtype=torch.float64)
+    coc = torch.rand(b, 1, h, w, generator=gen, dtype=torch.float64) * coc_max(name, k)
+    coc[:, :, h // 2, w // 3] = coc_max(name, k)
+    weights = torch.randn(shape, generator=gen, dtype=torch.float64)  # dL/dy
+    return (t.to(DEVICE, dtype) for t in (image, coc, weights))
+
+
+def render(name: str, image, coc, weights, triton: bool):
+    """`(y, dL/dimage, dL/dcoc)` of `render_defocus` on one path."""
+    image = image.detach().clone().requires_grad_(True)
+    coc = coc.detach().clone().requires_grad_(True)
+    with kernels(triton):
+        out = render_defocus(image, coc, APERTURES[name]().to(DEVICE, image.dtype), "scatter")
+        out.backward(weights)
+    return out.detach(), image.grad, coc.grad
+
+
+def assert_paths_agree(name, image, coc, weights):
+    tol = {"rtol": 1e-4, "atol": 1e-5} if image.dtype == torch.float32 else {"rtol": 1e-9,
+                                                                              "atol": 1e-11}
+    expected = render(name, image, coc, weights, triton=False)
+    got = render(name, image, coc, weights, triton=True)
+    for what, a, e in zip(("output", "image gradient", "CoC gradient"), got, expected,
+                          strict=True):
+        scale = float(e.abs().max()) or 1.0
+        torch.testing.assert_close(a / scale, e / scale, **tol, msg=lambda m, w=what: f"{w}: {m}")
+
+
+@pytest.mark.parametrize("shape", [(2, 3, 9, 13), (1, 1, 20, 137)], ids=["b2c3", "c1-tiles"])
+@pytest.mark.parametrize("k", [3, 7, 11])
+@pytest.mark.parametrize("name", list(APERTURES))
+def test_kernels_match_pytorch_path(name, k, shape, dtype):
+    """Forward and both gradients; the 11-wide window is wider than the 9-row image."""
+    assert_paths_agree(name, *make_inputs(name, shape, k, dtype))
+
+
+@pytest.mark.parametrize("shape", [(2, 3, 9, 13), (1, 1, 11, 21)], ids=["b2c3", "c1"])
+@pytest.mark.parametrize("name", list(APERTURES))
+def test_many_small_tiles(name, shape):
+    """Tiles of 2 x 8 pixels: every tile border and partial tile of the images above."""
+    with mock.patch.multiple(_render_triton, BLOCK_H=2, BLOCK_W=8, NUM_WARPS=1):
+        assert_paths_agree(name, *make_inputs(name, shape, 7, torch.float64))
+
+
+@pytest.mark.parametrize("name", ["disk", "hexagon"])
+def test_smooth_coc_skips_only_empty_taps(name):
+    """A CoC ramp: the tiles' largest radii differ, so the kernels skip different offsets."""
+    image, _, weights = make_inputs(name, (1, 3, 33, 12), 9, torch.float64)
+    ramp = torch.linspace(0, coc_max(name, 9), 33, dtype=torch.float64, device=DEVICE)
+    assert_paths_agree(name, image, ramp.view(1, 1, 33, 1).expand(1, 1, 33, 12), weights)
+
+
+@pytest.mark.parametrize("name", list(APERTURES))
+def test_zero_coc_single_tap_window(name):
+    image, coc, weights = make_inputs(name, (1, 3, 6, 7), 3, torch.float64)
+    assert_paths_agree(name, image, coc * 0, weights)
+
+
+def test_render_defocus_reaches_the_triton_kernels():
+    image, coc, weights = make_inputs("disk", (1, 3, 8, 8), 5, torch.float32)
+    with mock.patch.object(_render_triton, "render", wraps=_render_triton.render) as fwd, \
+            mock.patch.object(_render_triton, "render_backward",
+                              wraps=_render_triton.render_backward) as bwd:
+        render("disk", image, coc, weights, triton=True)
+    assert fwd.call_count == 1 and bwd.call_count == 1
+
+
+@pytest.mark.parametrize("name", ["gaussian", "disk"])
+def test_gradcheck(name):
+    image, coc, _ = make_inputs(name, (1, 2, 5, 6), 5, torch.float64, seed=1)
+    coc = coc * 0.9  # clear of the largest CoC that still fits the window (a jump in K)
+    psf = APERTURES[name]().to(DEVICE, torch.float64)
+    with kernels(triton=True):
+        assert gradcheck(lambda i, c: render_defocus(i, c, psf, "scatter"),
+                         (image.requires_grad_(), coc.requires_grad_()), fast_mode=True)
