@@ -35,6 +35,10 @@ from optics.checks import check_shape
 from .losses import edge_aware_smoothness, photometric_loss
 from .tiling import apply_in_tiles
 
+#: Blur (pixels) a fresh `BlurNet` answers: inside the range where the self-supervised loss has a
+#: gradient (a PSF narrower than a pixel spreads nothing, so a guess under a pixel never moves).
+INITIAL_BLUR_PX = 4.0
+
 #: Scales (pixels) of the band-pass energies in `blur_features`.
 FEATURE_SCALES = (0.0, 1.0, 2.0, 4.0)
 
@@ -110,6 +114,9 @@ class BlurNet(nn.Module):
         self.dec2 = _block(2 * w + 2 * w, 2 * w)
         self.dec1 = _block(2 * w + w, w)
         self.out = nn.Conv2d(w, 1, 3, padding=1)
+        with torch.no_grad():  # start at INITIAL_BLUR_PX everywhere (see `blur_loss`)
+            self.out.weight.mul_(0.1)
+            self.out.bias.fill_(math.log(math.expm1(INITIAL_BLUR_PX)))
 
     def forward(self, image: Tensor, focused: Tensor) -> Tensor:
         """CoC diameter `(B,1,H,W)` in pixels (>= 0) of `focused` `(B,3,H,W)` relative to the
@@ -251,9 +258,11 @@ def blur_loss(net: BlurNet, image: Tensor, focused: Tensor, supervision: str = "
               target_coc: Tensor | None = None, smoothness: float = 0.01) -> Tensor:
     """Training loss of `BlurNet` on pairs `(B,3,H,W)`.
 
-    `"self"`: the all-in-focus photo rendered with the predicted blur (disk PSF, scatter) must
-    reproduce the exposure-matched focused photo (SSIM + L1), plus edge-aware smoothness of the
-    blur; no depth and no camera are used. `"depth"` (the supervised twin): L1 to the true
+    `"self"`: the all-in-focus photo rendered with the predicted blur (scatter) must reproduce the
+    exposure-matched focused photo (SSIM + L1), plus edge-aware smoothness of the blur; no depth
+    and no camera are used. (Any PSF narrower than about a pixel spreads next to nothing, so this
+    loss has no gradient for blurs under a pixel: `BlurNet` starts at `INITIAL_BLUR_PX` for
+    that reason.) `"depth"` (the supervised twin): L1 to the true
     `|target_coc|` `(B,1,H,W)`, relative to `0.5 + |target|`.
     """
     blur = net(image, focused)

@@ -20,7 +20,14 @@ from datasets.capture import (
 from datasets.photos import read_photo
 from datasets.synthetic import generate_scene
 from defocus.cli import main
-from models.blur import BlurNet, DepthFromDefocus, solve_depth, texture_weight, working_scale
+from models.blur import (
+    BlurNet,
+    DepthFromDefocus,
+    blur_loss,
+    solve_depth,
+    texture_weight,
+    working_scale,
+)
 from models.pretrained import is_weights_file, load_weights, save_weights, sha256
 from optics import CameraSettings
 
@@ -70,6 +77,39 @@ def test_confidence_is_lower_where_there_is_no_texture():
                                 CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4), 1.0, 10.0)
     flat, textured = confidence[..., 8:-8, 4:20].mean(), confidence[..., 8:-8, 44:60].mean()
     assert float(flat) < 0.5 * float(textured)
+
+
+class _ConstantBlur(torch.nn.Module):
+    """A "network" that answers one blur everywhere (a fresh BlurNet's output is about this)."""
+
+    def __init__(self, blur: float):
+        super().__init__()
+        self.blur = torch.nn.Parameter(torch.tensor(blur, dtype=torch.float64))
+
+    def forward(self, image, focused):
+        return self.blur.expand_as(image[:, :1])
+
+
+def test_a_fresh_blur_net_starts_where_the_self_supervised_loss_has_a_gradient():
+    # A PSF under a pixel spreads nothing: the loss's gradient vanishes for blurs below ~1 px, so
+    # a network that starts there (softplus of ~0 = 0.7 px, as it did) never learns. It must start
+    # above, and from there the loss must pull its guess towards the true blur.
+    from optics import Disk, render_defocus
+
+    torch.manual_seed(0)
+    image = torch.rand(2, 3, 40, 40, generator=torch.Generator().manual_seed(0),
+                       dtype=torch.float64)
+    start = BlurNet(width=8).double()(image, image)
+    assert 2.0 <= float(start.min()) and float(start.max()) <= 8.0
+    for truth, sign in ((2.0, 1.0), (7.0, -1.0)):  # descent lowers / raises the guess
+        focused = render_defocus(image, torch.full_like(image[:, :1], truth), psf=Disk())
+        net = _ConstantBlur(float(start.mean()))
+        blur_loss(net, image, focused).backward()
+        assert sign * float(net.blur.grad) > 1e-3
+    flat = _ConstantBlur(0.7)  # and the reason: no gradient under a pixel
+    blur_loss(flat, image, render_defocus(image, torch.full_like(image[:, :1], 3.0),
+                                          psf=Disk())).backward()
+    assert abs(float(flat.blur.grad)) < 1e-12
 
 
 def test_working_scale_bounds_the_blur_and_the_pixels():
