@@ -21,8 +21,9 @@ in the backward pass).
 Speed: the Gaussian (a separable per-source table) and the disk and polygons (a clamped distance,
 `clamp(edge_radius(c_q) + 1/2 - D(u), 0, 1)` with the distance `D` tabulated once per call) run
 as `torch.library` custom operators (`optics._render_ops`) backed, on CPU, by a compiled C++
-kernel when a compiler is available (`optics._render_cpp`), and by PyTorch loops elsewhere (GPUs
-included). `torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and
+kernel when a compiler is available (`optics._render_cpp`), on CUDA by Triton kernels for the
+default scatter mode (`optics._render_triton`, where Triton is installed), and by PyTorch loops
+elsewhere. `torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and
 backward without graph breaks. Other apertures (`Mask`, user subclasses with their own
 `profile`) evaluate their `profile` per window offset in PyTorch.
 """
