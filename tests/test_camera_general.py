@@ -243,3 +243,16 @@ print("peak_mib", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "co
     print(f"12 MP predict: peak resident memory {peak:.0f} MiB")
     assert " code 0" in out.stdout and peak < 3 * 1024
     assert np.load(tmp_path / "o" / "depth.npy").shape == (3000, 4000)
+
+
+def test_pretrain_runs_from_a_config_with_photo_imperfections(tmp_path, capsys):
+    config = tmp_path / "tiny.yaml"
+    config.write_text("seed: 0\nwidth: 4\nsteps: 2\nbatch_size: 2\nlr: 0.001\npool_size: 2\n"
+                      "scene_size: [40, 40]\ncrop: [32, 32]\nmax_coc_px: [0.5, 6.0]\nthreads: 1\n"
+                      "noise: {read: 0.0, shot: 0.0, shift_px: 0.0, bits: 0}\n")
+    assert main(["pretrain", "--config", str(config), "--out", str(tmp_path / "run")]) == 0
+    weights = tmp_path / "run" / "dfd_general.pt"
+    assert is_weights_file(weights) and load_weights(weights).blur_net.width == 4
+    config.write_text(config.read_text().replace("shift_px", "shfit_px"))
+    assert main(["pretrain", "--config", str(config), "--out", str(tmp_path / "bad")]) == 2
+    assert "shfit_px" in capsys.readouterr().err

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     import yaml
 
-    from datasets.capture import RandomCameraScenes
+    from datasets.capture import CaptureNoise, RandomCameraScenes
     from models.blur import BlurNet, DepthFromDefocus, train_blur_net
     from models.pretrained import save_weights
 
@@ -43,6 +43,7 @@ def run(args: argparse.Namespace) -> int:
         torch.manual_seed(int(config["seed"]))
         data = RandomCameraScenes(int(config["pool_size"]), tuple(config["scene_size"]),
                                   tuple(config["crop"]), 2, tuple(config["max_coc_px"]),
+                                  noise=CaptureNoise(**config.get("noise", {})),
                                   seed=int(config["seed"]))
         log: list[dict[str, float]] = []
         started = time.perf_counter()
