@@ -126,6 +126,22 @@ def capture(
     with torch.no_grad():
         stack = render_focal_stack(image[None], depth[None], settings.to(image.dtype),
                                    mode=mode)[0]
+    return take_photos(image, stack, generator, noise)
+
+
+def take_photos(
+    image: Tensor, stack: Tensor, generator: np.random.Generator,
+    noise: CaptureNoise = CaptureNoise(),
+) -> tuple[Tensor, Tensor]:
+    """The photos a camera records of the all-in-focus `image` `(3,H,W)` and the rendered focal
+    `stack` `(F,3,H,W)` (linear): `noise`'s imperfections applied, as `capture` does.
+
+    Example:
+        >>> image = torch.rand(3, 8, 8)
+        >>> aif, focused = take_photos(image, image[None], np.random.default_rng(0))
+        >>> aif.shape, focused.shape
+        (torch.Size([3, 8, 8]), torch.Size([1, 3, 8, 8]))
+    """
     shots = [image, *stack]
     out = []
     for i, shot in enumerate(shots):
@@ -149,8 +165,10 @@ class RandomCameraScenes(torch.utils.data.IterableDataset):
 
     A pool of `pool_size` scenes (`datasets.synthetic.generate_scene`) is made once; each sample
     takes a random crop of one, draws a camera (`random_camera`) and photographs it (`capture`).
-    Samples hold `image`, `focused` `(F,3,h,w)`, `camera` (`CameraSettings`), `depth` and
-    `coc_px` (`(F,1,h,w)` true signed CoC diameters in pixels, for supervision and tests only).
+    Samples hold `image`, `focused` `(F,3,h,w)`, `camera` (`CameraSettings`), `depth`,
+    `coc_px` (`(F,1,h,w)` true signed CoC diameters in pixels, for supervision and tests only),
+    and `clean_image`, `clean_focused`: the same views before the camera's imperfections (the
+    targets of the self-supervised loss; no depth in them).
 
     Args:
         pool_size: number of scenes generated up front.
@@ -191,10 +209,14 @@ class RandomCameraScenes(torch.utils.data.IterableDataset):
         near, far = float(depth.min()), float(depth.max())
         n = int(rng.integers(self.n_shots[0], self.n_shots[1] + 1))
         settings = random_camera(rng, near, far, n, self.max_coc_px)
-        aif, focused = capture(image, depth, settings, rng, self.noise)
+        with torch.no_grad():
+            stack = render_focal_stack(image[None], depth[None], settings.to(image.dtype),
+                                       mode="layered")[0]
+        aif, focused = take_photos(image, stack, rng, self.noise)
         coc = settings.to(depth.dtype).camera().signed_coc_px(depth[None].expand(n, 1, h, w))
         return {"image": aif, "focused": focused, "camera": settings.to(torch.float32),
-                "depth": depth, "coc_px": coc.to(torch.float32)}
+                "depth": depth, "coc_px": coc.to(torch.float32),
+                "clean_image": image, "clean_focused": stack}
 
     def __iter__(self):
         info = torch.utils.data.get_worker_info()

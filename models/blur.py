@@ -29,14 +29,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from optics import CameraSettings, Disk, render_defocus
+from optics import CameraSettings, Gaussian, render_defocus
 from optics.checks import check_shape
 
 from .losses import edge_aware_smoothness, photometric_loss
 from .tiling import apply_in_tiles
 
-#: Blur (pixels) a fresh `BlurNet` answers: inside the range where the self-supervised loss has a
-#: gradient (a PSF narrower than a pixel spreads nothing, so a guess under a pixel never moves).
+#: Blur (pixels) a fresh `BlurNet` answers everywhere: inside the range it reads, where the
+#: self-supervised loss is steep (softplus of ~0 would start at 0.7 px, where it is nearly flat).
 INITIAL_BLUR_PX = 4.0
 
 #: Scales (pixels) of the band-pass energies in `blur_features`.
@@ -114,7 +114,7 @@ class BlurNet(nn.Module):
         self.dec2 = _block(2 * w + 2 * w, 2 * w)
         self.dec1 = _block(2 * w + w, w)
         self.out = nn.Conv2d(w, 1, 3, padding=1)
-        with torch.no_grad():  # start at INITIAL_BLUR_PX everywhere (see `blur_loss`)
+        with torch.no_grad():  # start at INITIAL_BLUR_PX everywhere
             self.out.weight.mul_(0.1)
             self.out.bias.fill_(math.log(math.expm1(INITIAL_BLUR_PX)))
 
@@ -254,16 +254,34 @@ class DepthFromDefocus(nn.Module):
         return {"depth": depth, "confidence": confidence, "blur": blur}
 
 
+#: PSF of the self-supervised loss's render: a Gaussian with a disk's second moment (sigma =
+#: diameter / 4), so that blurs compose exactly (see `blur_loss`).
+LOSS_PSF = Gaussian(0.25)
+#: Blur (pixels) added in quadrature to both sides of the self-supervised comparison.
+LOSS_FLOOR_PX = 2.0
+
+
 def blur_loss(net: BlurNet, image: Tensor, focused: Tensor, supervision: str = "self",
-              target_coc: Tensor | None = None, smoothness: float = 0.01) -> Tensor:
+              target_coc: Tensor | None = None, smoothness: float = 0.01,
+              clean: tuple[Tensor, Tensor] | None = None) -> Tensor:
     """Training loss of `BlurNet` on pairs `(B,3,H,W)`.
 
-    `"self"`: the all-in-focus photo rendered with the predicted blur (scatter) must reproduce the
-    exposure-matched focused photo (SSIM + L1), plus edge-aware smoothness of the blur; no depth
-    and no camera are used. (Any PSF narrower than about a pixel spreads next to nothing, so this
-    loss has no gradient for blurs under a pixel: `BlurNet` starts at `INITIAL_BLUR_PX` for
-    that reason.) `"depth"` (the supervised twin): L1 to the true
-    `|target_coc|` `(B,1,H,W)`, relative to `0.5 + |target|`.
+    `"self"`: the all-in-focus photo rendered with the predicted blur `b` must reproduce the
+    focused photo (SSIM + L1), plus edge-aware smoothness of the blur; no depth and no camera
+    are used. Both sides are blurred by `LOSS_FLOOR_PX` more: the render uses the Gaussian
+    `LOSS_PSF` at `sqrt(b^2 + floor^2)` and the focused photo is blurred by that Gaussian at
+    `floor`, which for Gaussians is the same comparison. A PSF narrower than a pixel spreads next
+    to nothing, so without the floor the loss has no gradient for blurs under a pixel and a
+    network that gets there never leaves (measured: it collapsed to one constant).
+
+    `clean`: `(image, focused)` of the same views without the camera's imperfections, where the
+    data has them (`datasets.capture.RandomCameraScenes`): the network still reads the
+    imperfect photos, but the comparison uses the clean ones. A misaligned pair looks blurrier
+    than it is, so on imperfect photos the loss rewards over-estimated blur (measured: 3.4 px
+    read where the truth averaged 1.4 px).
+
+    `"depth"` (the supervised twin): L1 to the true `|target_coc|` `(B,1,H,W)`, relative to
+    `0.5 + |target|`.
     """
     blur = net(image, focused)
     if supervision == "depth":
@@ -273,8 +291,13 @@ def blur_loss(net: BlurNet, image: Tensor, focused: Tensor, supervision: str = "
         return ((blur - target).abs() / (0.5 + target)).mean()
     if supervision != "self":
         raise ValueError(f"supervision must be 'self' or 'depth', got {supervision!r}")
-    rendered = render_defocus(image, blur, psf=Disk(), max_kernel_size=41)
-    target = match_exposure(image, focused)
+    source, target = clean if clean is not None else (image, match_exposure(image, focused))
+    rendered = render_defocus(source, torch.sqrt(blur**2 + LOSS_FLOOR_PX**2), psf=LOSS_PSF,
+                              max_kernel_size=41)
+    sigma = float(LOSS_PSF.scale) * LOSS_FLOOR_PX
+    size = 2 * math.ceil(3 * sigma) + 1
+    target = kornia.filters.gaussian_blur2d(target, (size, size), (sigma, sigma),
+                                            border_type="replicate")
     return photometric_loss(rendered, target) + smoothness * edge_aware_smoothness(blur + 0.5, image)
 
 
@@ -284,7 +307,9 @@ def train_blur_net(
     log: list[dict[str, float]] | None = None,
 ) -> BlurNet:
     """Train `net` on samples with `image`, `focused` `(F,3,H,W)` and, for `"depth"`
-    supervision, `coc_px` `(F,1,H,W)`; every shot is one training pair. Adam, cosine schedule,
+    supervision, `coc_px` `(F,1,H,W)`; every shot is one training pair. Samples that also hold
+    `clean_image` and `clean_focused` give the self-supervised loss its clean targets (see
+    `blur_loss`). Adam, cosine schedule,
     gradient clipping; stops with an error at the first non-finite loss."""
     from tqdm.auto import tqdm
 
@@ -299,7 +324,12 @@ def train_blur_net(
         image = torch.cat([p["image"][None].expand(len(p["focused"]), -1, -1, -1) for p in pairs])
         focused = torch.cat([p["focused"] for p in pairs])
         target = torch.cat([p["coc_px"] for p in pairs]) if supervision == "depth" else None
-        loss = blur_loss(net, image, focused, supervision, target)
+        clean = None
+        if all("clean_image" in p for p in pairs):
+            clean = (torch.cat([p["clean_image"][None].expand(len(p["focused"]), -1, -1, -1)
+                                for p in pairs]),
+                     torch.cat([p["clean_focused"] for p in pairs]))
+        loss = blur_loss(net, image, focused, supervision, target, clean=clean)
         if not torch.isfinite(loss):
             raise FloatingPointError(f"non-finite blur-net loss at step {step}")
         optimizer.zero_grad(set_to_none=True)

@@ -90,26 +90,63 @@ class _ConstantBlur(torch.nn.Module):
         return self.blur.expand_as(image[:, :1])
 
 
-def test_a_fresh_blur_net_starts_where_the_self_supervised_loss_has_a_gradient():
-    # A PSF under a pixel spreads nothing: the loss's gradient vanishes for blurs below ~1 px, so
-    # a network that starts there (softplus of ~0 = 0.7 px, as it did) never learns. It must start
-    # above, and from there the loss must pull its guess towards the true blur.
+def test_a_fresh_blur_net_starts_inside_the_blurs_it_reads():
+    image = torch.rand(2, 3, 40, 40, generator=torch.Generator().manual_seed(0))
+    torch.manual_seed(0)
+    start = BlurNet(width=8)(image, image)
+    assert 2.0 <= float(start.min()) and float(start.max()) <= 8.0
+
+
+def _loss_slope(guess: float, image, focused, **kwargs) -> float:
+    net = _ConstantBlur(guess)
+    blur_loss(net, image, focused, **kwargs).backward()
+    return float(net.blur.grad)
+
+
+@pytest.mark.parametrize("truth, guess", [(3.0, 1.5), (3.0, 4.5), (2.0, 0.5), (0.0, 1.0)])
+def test_self_supervised_loss_points_to_the_true_blur_from_either_side(truth, guess):
+    # A PSF under a pixel spreads nothing, so a loss that renders the guess alone has no
+    # gradient below a pixel (and a network there collapsed); both sides get a floor blur.
+    from models.blur import LOSS_PSF
     from optics import Disk, render_defocus
 
-    torch.manual_seed(0)
     image = torch.rand(2, 3, 40, 40, generator=torch.Generator().manual_seed(0),
                        dtype=torch.float64)
-    start = BlurNet(width=8).double()(image, image)
-    assert 2.0 <= float(start.min()) and float(start.max()) <= 8.0
-    for truth, sign in ((2.0, 1.0), (7.0, -1.0)):  # descent lowers / raises the guess
-        focused = render_defocus(image, torch.full_like(image[:, :1], truth), psf=Disk())
-        net = _ConstantBlur(float(start.mean()))
-        blur_loss(net, image, focused).backward()
-        assert sign * float(net.blur.grad) > 1e-3
-    flat = _ConstantBlur(0.7)  # and the reason: no gradient under a pixel
-    blur_loss(flat, image, render_defocus(image, torch.full_like(image[:, :1], 3.0),
-                                          psf=Disk())).backward()
+    focused = render_defocus(image, torch.full_like(image[:, :1], truth), psf=LOSS_PSF)
+    slope = _loss_slope(guess, image, focused)
+    assert slope * (guess - truth) > 1e-5  # descent moves the guess towards the truth
+    # without the floor a sub-pixel guess has no gradient at all
+    flat = _ConstantBlur(0.7)
+    rendered = render_defocus(image, flat.blur.expand_as(image[:, :1]), psf=Disk())
+    (rendered - focused).abs().mean().backward()
     assert abs(float(flat.blur.grad)) < 1e-12
+
+
+def test_self_supervised_loss_compares_the_clean_views_when_given():
+    # A pixel of misalignment looks like blur, so imperfect photos pull the answer up; the
+    # clean views of the same scene do not.
+    from models.blur import LOSS_PSF
+    from optics import render_defocus
+
+    gen = torch.Generator().manual_seed(1)
+    clean = torch.rand(2, 3, 48, 48, generator=gen, dtype=torch.float64)
+    clean_focused = render_defocus(clean, torch.full_like(clean[:, :1], 3.0), psf=LOSS_PSF)
+    noisy = clean + 0.02 * torch.randn(clean.shape, generator=gen, dtype=torch.float64)
+    shifted = torch.roll(clean_focused, 1, -1)
+    shifted = shifted + 0.02 * torch.randn(clean.shape, generator=gen, dtype=torch.float64)
+    guesses = torch.linspace(1.0, 6.0, 21).tolist()
+
+    def best(**kwargs) -> float:
+        losses = []
+        for g in guesses:
+            with torch.no_grad():
+                losses.append(float(blur_loss(_ConstantBlur(g), noisy, shifted,
+                                              smoothness=0.0, **kwargs)))
+        return guesses[int(np.argmin(losses))]
+
+    with_clean = best(clean=(clean, clean_focused))
+    assert abs(with_clean - 3.0) <= 0.5
+    assert best() >= with_clean + 0.5  # the bias the clean views remove
 
 
 def test_working_scale_bounds_the_blur_and_the_pixels():
