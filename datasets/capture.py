@@ -123,10 +123,14 @@ def capture(
     Returns:
         `(aif (3,H,W), focused (F,3,H,W))`, linear intensity as decoded from the photos.
     """
+    return take_photos(image, _render_stack(image, depth, settings, mode), generator, noise)
+
+
+def _render_stack(image: Tensor, depth: Tensor, settings: CameraSettings, mode: str) -> Tensor:
+    """The focal stack `(F,3,H,W)` of the scene `image` `(3,H,W)`, `depth` `(1,H,W)`."""
     with torch.no_grad():
-        stack = render_focal_stack(image[None], depth[None], settings.to(image.dtype),
-                                   mode=mode)[0]
-    return take_photos(image, stack, generator, noise)
+        return render_focal_stack(image[None], depth[None], settings.to(image.dtype),
+                                  mode=mode)[0]
 
 
 def take_photos(
@@ -209,9 +213,7 @@ class RandomCameraScenes(torch.utils.data.IterableDataset):
         near, far = float(depth.min()), float(depth.max())
         n = int(rng.integers(self.n_shots[0], self.n_shots[1] + 1))
         settings = random_camera(rng, near, far, n, self.max_coc_px)
-        with torch.no_grad():
-            stack = render_focal_stack(image[None], depth[None], settings.to(image.dtype),
-                                       mode="layered")[0]
+        stack = _render_stack(image, depth, settings, "layered")
         aif, focused = take_photos(image, stack, rng, self.noise)
         coc = settings.to(depth.dtype).camera().signed_coc_px(depth[None].expand(n, 1, h, w))
         return {"image": aif, "focused": focused, "camera": settings.to(torch.float32),

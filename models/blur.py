@@ -295,10 +295,15 @@ def blur_loss(net: BlurNet, image: Tensor, focused: Tensor, supervision: str = "
     rendered = render_defocus(source, torch.sqrt(blur**2 + LOSS_FLOOR_PX**2), psf=LOSS_PSF,
                               max_kernel_size=41)
     sigma = float(LOSS_PSF.scale) * LOSS_FLOOR_PX
-    size = 2 * math.ceil(3 * sigma) + 1
+    size = LOSS_PSF.kernel_size(LOSS_FLOOR_PX)
     target = kornia.filters.gaussian_blur2d(target, (size, size), (sigma, sigma),
                                             border_type="replicate")
     return photometric_loss(rendered, target) + smoothness * edge_aware_smoothness(blur + 0.5, image)
+
+
+def _per_shot(samples: list[Mapping[str, Any]], key: str) -> Tensor:
+    """`sample[key]` `(3,H,W)` once per shot of each sample, stacked: `(sum F, 3, H, W)`."""
+    return torch.cat([p[key][None].expand(len(p["focused"]), -1, -1, -1) for p in samples])
 
 
 def train_blur_net(
@@ -309,8 +314,8 @@ def train_blur_net(
     """Train `net` on samples with `image`, `focused` `(F,3,H,W)` and, for `"depth"`
     supervision, `coc_px` `(F,1,H,W)`; every shot is one training pair. Samples that also hold
     `clean_image` and `clean_focused` give the self-supervised loss its clean targets (see
-    `blur_loss`). Adam, cosine schedule,
-    gradient clipping; stops with an error at the first non-finite loss."""
+    `blur_loss`). Adam, cosine schedule, gradient clipping; stops with an error at the first
+    non-finite loss."""
     from tqdm.auto import tqdm
 
     optimizer = torch.optim.Adam(net.parameters(), lr=lr)
@@ -321,13 +326,12 @@ def train_blur_net(
     bar = tqdm(range(int(steps)), desc=f"blur net ({supervision})", disable=not progress)
     for step in bar:
         pairs = [next(stream) for _ in range(batch_size)]
-        image = torch.cat([p["image"][None].expand(len(p["focused"]), -1, -1, -1) for p in pairs])
+        image = _per_shot(pairs, "image")
         focused = torch.cat([p["focused"] for p in pairs])
         target = torch.cat([p["coc_px"] for p in pairs]) if supervision == "depth" else None
         clean = None
         if all("clean_image" in p for p in pairs):
-            clean = (torch.cat([p["clean_image"][None].expand(len(p["focused"]), -1, -1, -1)
-                                for p in pairs]),
+            clean = (_per_shot(pairs, "clean_image"),
                      torch.cat([p["clean_focused"] for p in pairs]))
         loss = blur_loss(net, image, focused, supervision, target, clean=clean)
         if not torch.isfinite(loss):

@@ -22,8 +22,8 @@ namespace, with fake (meta) implementations and registered autograd, so `torch.c
 them, forward and backward, without graph breaks. Each runs the compiled C++ kernel
 (`optics._render_cpp`) on CPU when it is available, Triton kernels on CUDA for the fused scatter
 (`gaussian_render`, `clamp_render` and their backwards; `optics._render_triton`, where Triton is
-installed), and the PyTorch loop below otherwise. The window half-width is passed as a 0-d integer tensor: under `torch.compile`
-it is computed from the CoC map inside the graph.
+installed), and the PyTorch loop below otherwise. The window half-width is passed as a 0-d
+integer tensor: under `torch.compile` it is computed from the CoC map inside the graph.
 
 Taps whose source or output falls outside the image are skipped.
 """
