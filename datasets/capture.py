@@ -22,11 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as F
 from kornia.color import linear_rgb_to_rgb, rgb_to_linear_rgb
 from torch import Tensor
 
 from optics import CameraSettings, render_focal_stack
+from optics.alignment import translate
 
 #: PSF specs drawn for training renders (physical apertures; a Gaussian of about the disk's spread).
 TRAINING_APERTURES = ("disk", "polygon:5", "polygon:6", "polygon:7", "polygon:8", "polygon:9",
@@ -97,12 +97,9 @@ def _srgb_quantise(linear: Tensor, bits: int) -> Tensor:
 
 
 def _shift(image: Tensor, dy: float, dx: float) -> Tensor:
-    """Translate `(C,H,W)` by a sub-pixel amount (bilinear, border replicated)."""
-    c, h, w = image.shape
-    theta = torch.tensor([[1.0, 0.0, -2 * dx / w], [0.0, 1.0, -2 * dy / h]], dtype=image.dtype)
-    grid = F.affine_grid(theta[None], [1, c, h, w], align_corners=False)
-    return F.grid_sample(image[None], grid, mode="bilinear", padding_mode="border",
-                         align_corners=False)[0]
+    """Translate `(C,H,W)` by a sub-pixel amount without blurring it (a camera that moves does
+    not blur; bilinear resampling would add up to half a pixel of blur the depth does not cause)."""
+    return translate(image[None], torch.tensor([[dy, dx]], dtype=image.dtype))[0]
 
 
 def capture(

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from optics import CameraSettings, Gaussian, render_defocus
+from optics import CameraSettings, Gaussian, align_shots, render_defocus
 from optics.checks import check_shape
 
 from .losses import edge_aware_smoothness, photometric_loss
@@ -180,16 +180,14 @@ def solve_depth(
     Returns:
         `(depth, confidence)`, both `(B,1,H,W)`; confidence in [0, 1].
     """
-    if not 0 < near < far:
-        raise ValueError(f"need 0 < near < far metres, got near={near!r}, far={far!r}")
-    windows = windows or {5: 1.0, 17: 0.3, 49: 0.1}
+    windows = windows or WINDOWS
+    x = candidate_inverse_depths(near, far, n_candidates, blur)
     b, n, h, w = blur.shape
     settings = settings.batched(b).to(device=blur.device, dtype=blur.dtype)
     if settings.n_shots != n:
         raise ValueError(f"blur holds {n} shots but settings {settings.n_shots}")
     a = settings.coc_at_infinity_px().abs()[..., None]  # (B,F,1)
     focus = settings.focus_distance[..., None]
-    x = torch.linspace(1 / far, 1 / near, n_candidates, dtype=blur.dtype, device=blur.device)
     predicted = (a * (1 - focus * x)).abs()  # (B,F,K)
     weight = weight.expand(b, n, h, w)
     cost = torch.zeros(b, n_candidates, h, w, dtype=blur.dtype, device=blur.device)
@@ -197,20 +195,44 @@ def solve_depth(
         scale = 1 / (0.3 + 0.15 * blur[:, i:i + 1])
         cost += weight[:, i:i + 1] * (blur[:, i:i + 1] - predicted[:, i, :, None, None]).abs() * scale
     total_weight = weight.mean(1, keepdim=True)
-    num = sum(s * _box(cost, k) for k, s in windows.items())
     den = sum(s * _box(total_weight, k) for k, s in windows.items()) + 1e-6
-    aggregated = num / den
-    best = aggregated.argmin(1, keepdim=True)
-    lo = aggregated.gather(1, (best - 1).clamp(0, n_candidates - 1))
-    mid = aggregated.gather(1, best)
-    hi = aggregated.gather(1, (best + 1).clamp(0, n_candidates - 1))
-    curvature = (lo + hi - 2 * mid).clamp_min(1e-9)
+    depth = select_depth(aggregate_cost(cost, windows) / den, near, far)
+    return depth, _box(total_weight, 5).clamp(0, 1)
+
+
+#: Default windows (pixels) -> weights of `aggregate_cost`: fine windows dominate where there is
+#: texture, coarse ones fill in where there is none.
+WINDOWS = {5: 1.0, 17: 0.3, 49: 0.1}
+
+
+def aggregate_cost(cost: Tensor, windows: Mapping[int, float] | None = None) -> Tensor:
+    """`cost` `(B,K,H,W)` summed over square windows of each size with its weight (`WINDOWS` by
+    default)."""
+    return sum(s * _box(cost, k) for k, s in (windows or WINDOWS).items())
+
+
+def select_depth(cost: Tensor, near: float, far: float) -> Tensor:
+    """Depth `(B,1,H,W)` metres of the cheapest of the `K` candidates of `cost` `(B,K,H,W)`,
+    candidate `k` at inverse depth `1/far + k (1/near - 1/far) / (K - 1)`, refined by a parabola
+    through the neighbouring costs."""
+    n_candidates = cost.shape[1]
+    best = cost.argmin(1, keepdim=True)
+    lo = cost.gather(1, (best - 1).clamp(0, n_candidates - 1))
+    mid = cost.gather(1, best)
+    hi = cost.gather(1, (best + 1).clamp(0, n_candidates - 1))
+    curvature = (lo + hi - 2 * mid).clamp_min(torch.finfo(cost.dtype).tiny)
     offset = (0.5 * (lo - hi) / curvature).clamp(-0.5, 0.5)
     inside = (best > 0) & (best < n_candidates - 1)
-    index = best.to(blur.dtype) + torch.where(inside, offset, torch.zeros_like(offset))
+    index = best.to(cost.dtype) + torch.where(inside, offset, torch.zeros_like(offset))
     inverse = 1 / far + index * (1 / near - 1 / far) / (n_candidates - 1)
-    confidence = _box(total_weight, 5).clamp(0, 1)
-    return (1 / inverse).clamp(near, far), confidence
+    return (1 / inverse).clamp(near, far)
+
+
+def candidate_inverse_depths(near: float, far: float, n_candidates: int, like: Tensor) -> Tensor:
+    """The `n_candidates` inverse depths (1/metres) of `select_depth`, evenly spaced."""
+    if not 0 < near < far:
+        raise ValueError(f"need 0 < near < far metres, got near={near!r}, far={far!r}")
+    return torch.linspace(1 / far, 1 / near, n_candidates, dtype=like.dtype, device=like.device)
 
 
 class DepthFromDefocus(nn.Module):
@@ -365,13 +387,14 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
 
 
 def predict_depth(
-    model: DepthFromDefocus, image: Tensor, focused: Tensor, settings: CameraSettings,
+    model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
     near: float, far: float, max_coc_px: float = 12.0, max_pixels: int = 1_500_000,
+    align: bool = True,
 ) -> dict[str, Tensor | float]:
     """Depth of one scene at the photos' resolution, computed at the working resolution.
 
     Args:
-        model: the depth-from-defocus model.
+        model: the depth-from-defocus model: `DepthFromDefocus` or `models.sweep.SweepDepth`.
         image: all-in-focus photo `(3,H,W)`, linear.
         focused: `(F,3,H,W)` focused photos, linear, `F >= 2` (1 works but stays ambiguous
             around the focus plane).
@@ -380,6 +403,8 @@ def predict_depth(
         far: farthest depth, metres.
         max_coc_px: see `working_scale`.
         max_pixels: see `working_scale`.
+        align: move each focused photo onto the all-in-focus one first (`optics.align_shots`,
+            at the working resolution): a misalignment would read as blur.
 
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
@@ -396,8 +421,9 @@ def predict_depth(
     small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \
         if scale < 1 else torch.cat([image[None], focused])
     effective = settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
+    shots = align_shots(small[:1], small[1:][None])[0] if align else small[1:][None]
     with torch.no_grad():
-        out = model(small[:1], small[1:][None], effective.to(small.dtype), near, far)
+        out = model(small[:1], shots, effective.to(small.dtype), near, far)
     depth = F.interpolate(out["depth"], size=(h, w), mode="bilinear", align_corners=False)
     confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",
                                align_corners=False)
@@ -405,7 +431,7 @@ def predict_depth(
             "scale": size[1] / w}
 
 
-def evaluate_on_sample(model: DepthFromDefocus, sample: Mapping[str, Any], near: float,
+def evaluate_on_sample(model: nn.Module, sample: Mapping[str, Any], near: float,
                        far: float) -> tuple[dict[str, float], Tensor, float]:
     """Metrics, depth `(1,H,W)` and seconds of `model` on one sample (with `image`,
     `focused`, `camera`, `depth`, `mask`), through `predict_depth`."""

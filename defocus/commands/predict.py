@@ -1,7 +1,8 @@
-"""`defocus predict`: depth of your own photos with a trained model.
+"""`defocus predict`: depth of your own photos.
 
-The model is a checkpoint of `defocus train` (a network for the camera it was trained with) or
-the weights of `defocus pretrain` (the camera-general model: it reads the blur of each focused
+With no model file it sweeps over depth (`models.sweep.SweepDepth`: no network, any camera). A
+model file is a checkpoint of `defocus train` (a network for the camera it was trained with) or
+the weights of `defocus pretrain` (the camera-general network: it reads the blur of each focused
 photo in pixels and solves the thin lens of your camera). Camera values not given are read from
 `--camera fit.json` (written by `defocus calibrate`) or from the photos' EXIF.
 """
@@ -13,9 +14,10 @@ from pathlib import Path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("checkpoint", type=Path,
+    parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
                         help="model file: a checkpoint of `defocus train` or the weights of "
-                             "`defocus pretrain` (camera-general)")
+                             "`defocus pretrain` (camera-general); default: no network, a "
+                             "sweep over depth (needs --focused photos and --depth-range)")
     parser.add_argument("--image", type=Path, required=True,
                         help="all-in-focus photo (sRGB JPEG/PNG; small aperture, e.g. f/11)")
     parser.add_argument("--focused", type=Path, nargs="*", default=[],
@@ -53,12 +55,17 @@ def run(args: argparse.Namespace) -> int:
     from defocus.cli import CommandError
     from models.plotting import plot_prediction
     from models.pretrained import is_weights_file, load_weights
+    from models.sweep import SweepDepth
     from models.training import Trainer
     from optics import CameraSettings
 
     # the model first: a file that is no model is refused before any photo is read
-    general = is_weights_file(args.checkpoint)
-    model = load_weights(args.checkpoint) if general else Trainer.from_checkpoint(args.checkpoint)
+    general = args.checkpoint is None or is_weights_file(args.checkpoint)
+    if args.checkpoint is None:
+        model = SweepDepth()
+    else:
+        model = load_weights(args.checkpoint) if general \
+            else Trainer.from_checkpoint(args.checkpoint)
     image, _ = read_photo(args.image)
     photos = [read_photo(path) for path in args.focused]
     for path, (photo, _) in zip(args.focused, photos, strict=True):
@@ -101,7 +108,7 @@ def _camera_general(args, model, image, focused, settings):
     from models.blur import predict_depth
 
     if focused is None or len(focused) < 1:
-        raise CommandError("the camera-general model needs --focused photos (2 or more, each "
+        raise CommandError("depth from defocus needs --focused photos (2 or more, each "
                            "focused at its own --focus-distance)")
     if args.depth_range is None:
         raise CommandError("give --depth-range NEAR FAR (metres): the thin lens has two depths "

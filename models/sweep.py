@@ -1,0 +1,259 @@
+"""Depth from defocus by a sweep over depth: no network, no training, any camera.
+
+For a candidate depth, the thin lens gives each shot's blur `|c_i| = |A_i (1 - D_f,i / D)|`
+pixels, and the all-in-focus photo blurred by the camera's PSF at that blur should reproduce the
+focused photo. `sweep_cost` measures how well at every pixel: for every candidate and shot it
+blurs the all-in-focus photo (a whole-image product in the Fourier domain, the photo transformed
+once), keeps the local squared error against the focused photo and sums over the shots. `models.blur.select_depth` then picks the cheapest candidate after aggregating over
+windows. The errors carry their own weighting: where the all-in-focus photo has no texture every
+candidate costs the same, and the coarse windows fill in from the textured neighbours.
+
+Two imperfections of real photos bias such a sweep toward more blur, and both are removed:
+
+- misalignment between shots looks like blur; `models.blur.predict_depth` aligns the shots first
+  (`optics.align_shots`);
+- noise: blurring the all-in-focus photo also averages its noise away, which lowers the error of
+  every large blur by the noise it removed. `noise_model` measures the photo's noise level (a
+  variance affine in intensity, shot plus read noise) from the photo itself, and the expected
+  share of that noise at each blur is subtracted from the errors.
+
+Both the photos and the camera are all it needs, so it works for any lens and focus distances
+within the range where the blur is readable (about 0.5 to 20 pixels at the working resolution).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from optics import Aperture, CameraSettings
+from optics.checks import check_shape
+
+from .blur import (
+    _box,
+    aggregate_cost,
+    candidate_inverse_depths,
+    match_exposure,
+    select_depth,
+    texture_weight,
+)
+
+#: Gaussian (sigma, pixels) applied to both sides of every comparison: errors of a fraction of a
+#: pixel (quantisation, resampling) weigh less than the blur being read.
+FLOOR_SIGMA_PX = 0.5
+#: Side (pixels) of the window the squared errors are first summed over.
+ERROR_WINDOW_PX = 5
+
+# Immerkaer's noise operator: zero on any plane, on white noise of variance s^2 its response has
+# variance 36 s^2.
+_NOISE_OPERATOR = ((1.0, -2.0, 1.0), (-2.0, 4.0, -2.0), (1.0, -2.0, 1.0))
+
+
+def _local_noise(image: Tensor, window: int = 7) -> tuple[Tensor, Tensor]:
+    """Per-pixel noise-variance estimates and local mean intensities of `(N,1,H,W)`."""
+    operator = torch.tensor(_NOISE_OPERATOR, dtype=image.dtype, device=image.device)
+    response = F.conv2d(image, operator[None, None])
+    return _box(response**2, window) / 36, _box(image[..., 1:-1, 1:-1], window)
+
+
+_QUANTILE = 0.1
+_QUANTILE_OF_PURE_NOISE: list[float] = []
+
+
+def noise_model(image: Tensor, bins: int = 12) -> Tensor:
+    """The noise of a photo `(B,C,H,W)` (linear intensity): `(B,2)` coefficients `(a, b)` of the
+    per-pixel variance `a + b * intensity` (read noise plus shot noise). Photos of one sensor
+    stacked along the channels are pooled: the defocused ones, with less texture to mistake for
+    noise, then set the estimate.
+
+    Per intensity band, the low tail (10th percentile) of the local variance of Immerkaer's
+    operator responses is texture-free enough to be noise; its ratio to the noise variance is
+    that percentile for pure white noise, measured once. A least-squares line through the bands,
+    kept non-negative, gives `a` and `b`.
+
+    Example:
+        >>> g = torch.Generator().manual_seed(0)
+        >>> flat = torch.linspace(0.1, 0.9, 128).expand(1, 3, 128, 128)
+        >>> noisy = flat + torch.randn(1, 3, 128, 128, generator=g) * (1e-4 + 1e-3 * flat).sqrt()
+        >>> a, b = noise_model(noisy)[0].tolist()
+        >>> 0.5e-3 < b < 2e-3 and a < 5e-4
+        True
+    """
+    check_shape("image", image, ["B", "C", "H", "W"])
+    if min(image.shape[-2:]) < 16:
+        return torch.zeros(image.shape[0], 2, dtype=image.dtype, device=image.device)
+    if not _QUANTILE_OF_PURE_NOISE:
+        g = torch.Generator().manual_seed(0)
+        white, _ = _local_noise(torch.randn(1, 1, 256, 256, generator=g, dtype=torch.float64))
+        _QUANTILE_OF_PURE_NOISE.append(float(torch.quantile(white.flatten(), _QUANTILE)))
+    out = []
+    for photo in image.detach().double():
+        variance, level = (t.flatten() for t in _local_noise(photo[:, None]))
+        edges = torch.quantile(level, torch.linspace(0, 1, bins + 1, dtype=level.dtype))
+        xs, ys = [], []
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            band = (level >= lo) & (level <= hi)
+            if int(band.sum()) < 50:
+                continue
+            xs.append(float(level[band].median()))
+            ys.append(float(torch.quantile(variance[band], _QUANTILE)) / _QUANTILE_OF_PURE_NOISE[0])
+        x, y = torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64)
+        design = torch.stack([torch.ones_like(x), x], 1)
+        a, b = torch.linalg.lstsq(design, y[:, None]).solution.flatten().tolist()
+        if b < 0:
+            a, b = float(y.mean()), 0.0
+        if a < 0:
+            a, b = 0.0, float((x * y).sum() / (x * x).sum().clamp_min(1e-30))
+        out.append([a, b])
+    return torch.tensor(out, dtype=image.dtype, device=image.device)
+
+
+class _FourierBlur:
+    """Whole-image convolutions of one `(B,C,H,W)` image with many kernels: the image is mirrored
+    at its borders by `pad` and transformed once."""
+
+    def __init__(self, image: Tensor, pad: int):
+        self.h, self.w = image.shape[-2:]
+        self.pad_y, self.pad_x = min(pad, self.h - 1), min(pad, self.w - 1)
+        padded = F.pad(image, (self.pad_x, self.pad_x, self.pad_y, self.pad_y), mode="reflect")
+        self.size = padded.shape[-2:]
+        self.spectrum = torch.fft.rfft2(padded)
+        fy = torch.fft.fftfreq(self.size[0], dtype=image.dtype, device=image.device)[:, None]
+        fx = torch.fft.rfftfreq(self.size[1], dtype=image.dtype, device=image.device)[None, :]
+        self.frequency2 = fy**2 + fx**2
+
+    def transfer(self, kernel: Tensor, sigma_px: float) -> Tensor:
+        """Transfer function of `kernel` `(K,K)` (centred) then a Gaussian of `sigma_px`."""
+        k = kernel.shape[-1]
+        if k > min(self.size):
+            raise ValueError(f"a {k}-pixel kernel does not fit the padded {tuple(self.size)}")
+        grid = torch.zeros(self.size, dtype=kernel.dtype, device=kernel.device)
+        grid[:k, :k] = kernel
+        grid = torch.roll(grid, (-(k // 2), -(k // 2)), (0, 1))
+        gaussian = torch.exp(-2 * math.pi**2 * sigma_px**2 * self.frequency2)
+        return torch.fft.rfft2(grid) * gaussian
+
+    def apply(self, transfer: Tensor) -> Tensor:
+        out = torch.fft.irfft2(self.spectrum * transfer, s=self.size)
+        return out[..., self.pad_y:self.pad_y + self.h, self.pad_x:self.pad_x + self.w]
+
+    def energy(self, transfer: Tensor) -> float:
+        """Sum of squares of the kernel with this transfer function (noise it lets through)."""
+        kernel = torch.fft.irfft2(transfer, s=self.size)
+        return float((kernel**2).sum())
+
+
+def _blur_kernel(aperture: Aperture, blur_px: float, like: Tensor) -> Tensor:
+    if blur_px < 0.05:  # a PSF under a twentieth of a pixel is a delta
+        return torch.ones(1, 1, dtype=like.dtype, device=like.device)
+    return aperture.kernel(torch.tensor(blur_px, dtype=like.dtype, device=like.device))[0]
+
+
+def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
+                noise: Tensor | None = None) -> Tensor:
+    """Local squared error `(B,G,H,W)` between the all-in-focus `image` `(B,3,H,W)` blurred by
+    `aperture` at each CoC diameter of `blurs` `(G,)` pixels and one `focused` photo `(B,3,H,W)`
+    (its exposure matched first), less the noise the blur removes from `image` (`noise`, the
+    `(B,2)` coefficients of `noise_model`; by default measured on both photos); both sides
+    through a Gaussian of `FLOOR_SIGMA_PX`, summed over channels and averaged over
+    `ERROR_WINDOW_PX` windows.
+
+    Example:
+        >>> from optics import Disk
+        >>> image = torch.rand(1, 3, 32, 32)
+        >>> errors = blur_errors(image, image, Disk(), torch.tensor([0.0, 2.0, 4.0]))
+        >>> errors.shape, bool(errors[0, 0].mean() < errors[0, 2].mean())
+        (torch.Size([1, 3, 32, 32]), True)
+    """
+    check_shape("image", image, ["B", "3", "H", "W"])
+    check_shape("focused", focused, ["B", "3", "H", "W"])
+    largest = float(blurs.max()) if blurs.numel() else 0.0
+    half = aperture.kernel_size(largest) // 2
+    source = _FourierBlur(image, half + math.ceil(4 * FLOOR_SIGMA_PX) + 2)
+    target = _FourierBlur(match_exposure(image, focused), source.pad_y)
+    floor = torch.ones(1, 1, dtype=image.dtype, device=image.device)
+    reference = target.apply(target.transfer(floor, FLOOR_SIGMA_PX))
+    if noise is None:
+        noise = noise_model(torch.cat([image, focused], 1))
+    variance = (noise[:, :1, None, None] + noise[:, 1:, None, None]
+                * _box(image, 5).clamp_min(0)).sum(1, keepdim=True)
+    errors = []
+    for blur_px in blurs.tolist():
+        transfer = source.transfer(_blur_kernel(aperture, blur_px, image), FLOOR_SIGMA_PX)
+        squared = ((source.apply(transfer) - reference) ** 2).sum(1, keepdim=True)
+        errors.append(_box(squared - variance * source.energy(transfer), ERROR_WINDOW_PX))
+    return torch.cat(errors, 1)
+
+
+def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
+               far: float, n_candidates: int = 96) -> Tensor:
+    """Cost `(B,K,H,W)` of the `K = n_candidates` depths of `candidate_inverse_depths`: summed
+    over shots, the `blur_errors` of each shot at the blur the thin lens gives that shot at that
+    depth. (Each candidate's blur is rendered: interpolating between a coarser grid of blurs
+    would misplace minima, most where a disk starts to spread past its pixel near 1 px.)
+
+    Args:
+        image: all-in-focus photos `(B,3,H,W)`, linear.
+        focused: focused photos `(B,F,3,H,W)`, linear, aligned with `image`.
+        settings: `(B,F)` or `(F,)` settings of the shots at this resolution; their aperture is
+            the PSF rendered.
+        near: nearest depth, metres.
+        far: farthest depth, metres.
+        n_candidates: candidate depths.
+    """
+    check_shape("focused", focused, ["B", "F", "3", "H", "W"])
+    b, n, _, h, w = focused.shape
+    x = candidate_inverse_depths(near, far, n_candidates, image)
+    settings = settings.batched(b).to(device=image.device, dtype=image.dtype)
+    if settings.n_shots != n:
+        raise ValueError(f"focused holds {n} shots but settings {settings.n_shots}")
+    predicted = (settings.coc_at_infinity_px()[..., None]
+                 * (1 - settings.focus_distance[..., None] * x)).abs()  # (B,F,K)
+    aperture = settings.aperture_module()
+    noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))  # every photo: one sensor
+    cost = torch.zeros(b, n_candidates, h, w, dtype=image.dtype, device=image.device)
+    for j in range(b):
+        for i in range(n):
+            cost[j] += blur_errors(image[j:j + 1], focused[j:j + 1, i], aperture, predicted[j, i],
+                                   noise[j:j + 1])[0]
+    return cost
+
+
+class SweepDepth(nn.Module):
+    """Metric depth from an all-in-focus photo and `F >= 2` focused photos of any camera, by a
+    sweep over depth (`sweep_cost`, then `models.blur.select_depth`). No weights: it is the
+    default model of `defocus predict`. Same call as `models.blur.DepthFromDefocus`.
+
+    Args:
+        n_candidates: candidate depths, evenly spaced in inverse depth.
+
+    Example:
+        >>> from optics import CameraSettings
+        >>> settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+        >>> out = SweepDepth()(torch.rand(1, 3, 24, 24), torch.rand(1, 2, 3, 24, 24), settings,
+        ...                    1.0, 10.0)
+        >>> out["depth"].shape, out["confidence"].shape, out["blur"].shape
+        (torch.Size([1, 1, 24, 24]), torch.Size([1, 1, 24, 24]), torch.Size([1, 2, 24, 24]))
+    """
+
+    def __init__(self, n_candidates: int = 96):
+        super().__init__()
+        if n_candidates < 3:
+            raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
+        self.n_candidates = int(n_candidates)
+
+    def forward(self, image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
+                far: float) -> dict[str, Tensor]:
+        """Depth `(B,1,H,W)` metres, confidence `(B,1,H,W)` in [0, 1] (texture to read) and the
+        blur `(B,F,H,W)` pixels the thin lens gives each shot at that depth."""
+        check_shape("image", image, ["B", "3", "H", "W"])
+        cost = sweep_cost(image, focused, settings, near, far, self.n_candidates)
+        depth = select_depth(aggregate_cost(cost), near, far)
+        settings = settings.batched(image.shape[0]).to(device=image.device, dtype=image.dtype)
+        blur = (settings.coc_at_infinity_px()[..., None, None]
+                * (1 - settings.focus_distance[..., None, None] / depth)).abs()
+        confidence = _box(texture_weight(image), 5).clamp(0, 1)
+        return {"depth": depth, "confidence": confidence, "blur": blur}
