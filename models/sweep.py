@@ -33,6 +33,7 @@ from optics import Aperture, CameraSettings
 from optics.checks import check_shape
 
 from .blur import (
+    WINDOWS,
     _box,
     aggregate_cost,
     candidate_inverse_depths,
@@ -40,6 +41,7 @@ from .blur import (
     select_depth,
     texture_weight,
 )
+from .tiling import apply_in_tiles, check_tiling
 
 #: Gaussian (sigma, pixels) applied to both sides of every comparison: errors of a fraction of a
 #: pixel (quantisation, resampling) weigh less than the blur being read.
@@ -121,29 +123,30 @@ class _FourierBlur:
         padded = F.pad(image, (self.pad_x, self.pad_x, self.pad_y, self.pad_y), mode="reflect")
         self.size = padded.shape[-2:]
         self.spectrum = torch.fft.rfft2(padded)
-        fy = torch.fft.fftfreq(self.size[0], dtype=image.dtype, device=image.device)[:, None]
-        fx = torch.fft.rfftfreq(self.size[1], dtype=image.dtype, device=image.device)[None, :]
-        self.frequency2 = fy**2 + fx**2
 
-    def transfer(self, kernel: Tensor, sigma_px: float) -> Tensor:
-        """Transfer function of `kernel` `(K,K)` (centred) then a Gaussian of `sigma_px`."""
+    def transfer(self, kernel: Tensor) -> Tensor:
+        """Transfer function of `kernel` `(K,K)` (centred) on the padded grid."""
         k = kernel.shape[-1]
         if k > min(self.size):
             raise ValueError(f"a {k}-pixel kernel does not fit the padded {tuple(self.size)}")
         grid = torch.zeros(self.size, dtype=kernel.dtype, device=kernel.device)
         grid[:k, :k] = kernel
-        grid = torch.roll(grid, (-(k // 2), -(k // 2)), (0, 1))
-        gaussian = torch.exp(-2 * math.pi**2 * sigma_px**2 * self.frequency2)
-        return torch.fft.rfft2(grid) * gaussian
+        return torch.fft.rfft2(torch.roll(grid, (-(k // 2), -(k // 2)), (0, 1)))
 
     def apply(self, transfer: Tensor) -> Tensor:
         out = torch.fft.irfft2(self.spectrum * transfer, s=self.size)
         return out[..., self.pad_y:self.pad_y + self.h, self.pad_x:self.pad_x + self.w]
 
-    def energy(self, transfer: Tensor) -> float:
-        """Sum of squares of the kernel with this transfer function (noise it lets through)."""
-        kernel = torch.fft.irfft2(transfer, s=self.size)
-        return float((kernel**2).sum())
+
+def _with_floor(kernel: Tensor) -> Tensor:
+    """`kernel` `(K,K)` convolved with the sampled Gaussian of `FLOOR_SIGMA_PX` (spatially, so
+    that the result does not depend on the size of the image it is applied to)."""
+    half = math.ceil(4 * FLOOR_SIGMA_PX)
+    offsets = torch.arange(-half, half + 1, dtype=kernel.dtype, device=kernel.device)
+    line = torch.exp(-(offsets**2) / (2 * FLOOR_SIGMA_PX**2))
+    gaussian = torch.outer(line, line) / line.sum() ** 2
+    padded = F.pad(kernel[None, None], (2 * half,) * 4)
+    return F.conv2d(padded, gaussian[None, None])[0, 0]
 
 
 def _blur_kernel(aperture: Aperture, blur_px: float, like: Tensor) -> Tensor:
@@ -156,7 +159,7 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
                 noise: Tensor | None = None) -> Tensor:
     """Local squared error `(B,G,H,W)` between the all-in-focus `image` `(B,3,H,W)` blurred by
     `aperture` at each CoC diameter of `blurs` `(G,)` pixels and one `focused` photo `(B,3,H,W)`
-    (its exposure matched first), less the noise the blur removes from `image` (`noise`, the
+    (exposure-matched to `image`: `models.blur.match_exposure`), less the noise the blur removes from `image` (`noise`, the
     `(B,2)` coefficients of `noise_model`; by default measured on both photos); both sides
     through a Gaussian of `FLOOR_SIGMA_PX`, summed over channels and averaged over
     `ERROR_WINDOW_PX` windows.
@@ -173,23 +176,24 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
     largest = float(blurs.max()) if blurs.numel() else 0.0
     half = aperture.kernel_size(largest) // 2
     source = _FourierBlur(image, half + math.ceil(4 * FLOOR_SIGMA_PX) + 2)
-    target = _FourierBlur(match_exposure(image, focused), source.pad_y)
-    floor = torch.ones(1, 1, dtype=image.dtype, device=image.device)
-    reference = target.apply(target.transfer(floor, FLOOR_SIGMA_PX))
+    target = _FourierBlur(focused, source.pad_y)
+    floor = _with_floor(torch.ones(1, 1, dtype=image.dtype, device=image.device))
+    reference = target.apply(target.transfer(floor))
     if noise is None:
         noise = noise_model(torch.cat([image, focused], 1))
     variance = (noise[:, :1, None, None] + noise[:, 1:, None, None]
                 * _box(image, 5).clamp_min(0)).sum(1, keepdim=True)
     errors = []
     for blur_px in blurs.tolist():
-        transfer = source.transfer(_blur_kernel(aperture, blur_px, image), FLOOR_SIGMA_PX)
-        squared = ((source.apply(transfer) - reference) ** 2).sum(1, keepdim=True)
-        errors.append(_box(squared - variance * source.energy(transfer), ERROR_WINDOW_PX))
+        kernel = _with_floor(_blur_kernel(aperture, blur_px, image))
+        squared = ((source.apply(source.transfer(kernel)) - reference) ** 2).sum(1, keepdim=True)
+        # the noise variance `image` loses under this kernel: variance * sum of its squares
+        errors.append(_box(squared - variance * float((kernel**2).sum()), ERROR_WINDOW_PX))
     return torch.cat(errors, 1)
 
 
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
-               far: float, n_candidates: int = 96) -> Tensor:
+               far: float, n_candidates: int = 96, noise: Tensor | None = None) -> Tensor:
     """Cost `(B,K,H,W)` of the `K = n_candidates` depths of `candidate_inverse_depths`: summed
     over shots, the `blur_errors` of each shot at the blur the thin lens gives that shot at that
     depth. (Each candidate's blur is rendered: interpolating between a coarser grid of blurs
@@ -197,12 +201,15 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
 
     Args:
         image: all-in-focus photos `(B,3,H,W)`, linear.
-        focused: focused photos `(B,F,3,H,W)`, linear, aligned with `image`.
+        focused: focused photos `(B,F,3,H,W)`, linear, aligned with `image` and
+            exposure-matched to it (`models.blur.match_exposure`).
         settings: `(B,F)` or `(F,)` settings of the shots at this resolution; their aperture is
             the PSF rendered.
         near: nearest depth, metres.
         far: farthest depth, metres.
         n_candidates: candidate depths.
+        noise: `(B,2)` `noise_model` coefficients of the photos; by default measured on all of
+            them.
     """
     check_shape("focused", focused, ["B", "F", "3", "H", "W"])
     b, n, _, h, w = focused.shape
@@ -213,7 +220,8 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
     predicted = (settings.coc_at_infinity_px()[..., None]
                  * (1 - settings.focus_distance[..., None] * x)).abs()  # (B,F,K)
     aperture = settings.aperture_module()
-    noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))  # every photo: one sensor
+    if noise is None:  # every photo: one sensor
+        noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
     cost = torch.zeros(b, n_candidates, h, w, dtype=image.dtype, device=image.device)
     for j in range(b):
         for i in range(n):
@@ -227,8 +235,12 @@ class SweepDepth(nn.Module):
     sweep over depth (`sweep_cost`, then `models.blur.select_depth`). No weights: it is the
     default model of `defocus predict`. Same call as `models.blur.DepthFromDefocus`.
 
+    Large photos are swept in tiles (the cost volume of a whole 1.5-megapixel photo would take
+    gigabytes), each with enough context around it that the result is the untiled one.
+
     Args:
         n_candidates: candidate depths, evenly spaced in inverse depth.
+        tile: largest tile side in pixels.
 
     Example:
         >>> from optics import CameraSettings
@@ -239,20 +251,36 @@ class SweepDepth(nn.Module):
         (torch.Size([1, 1, 24, 24]), torch.Size([1, 1, 24, 24]), torch.Size([1, 2, 24, 24]))
     """
 
-    def __init__(self, n_candidates: int = 96):
+    def __init__(self, n_candidates: int = 96, tile: int = 384):
         super().__init__()
         if n_candidates < 3:
             raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
-        self.n_candidates = int(n_candidates)
+        check_tiling(tile, 0)
+        self.n_candidates, self.tile = int(n_candidates), int(tile)
 
     def forward(self, image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
                 far: float) -> dict[str, Tensor]:
         """Depth `(B,1,H,W)` metres, confidence `(B,1,H,W)` in [0, 1] (texture to read) and the
         blur `(B,F,H,W)` pixels the thin lens gives each shot at that depth."""
         check_shape("image", image, ["B", "3", "H", "W"])
-        cost = sweep_cost(image, focused, settings, near, far, self.n_candidates)
-        depth = select_depth(aggregate_cost(cost), near, far)
+        check_shape("focused", focused, ["B", "F", "3", "H", "W"])
         settings = settings.batched(image.shape[0]).to(device=image.device, dtype=image.dtype)
+        focused = torch.stack([match_exposure(image, focused[:, i])
+                               for i in range(focused.shape[1])], 1)
+        noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
+
+        def depth_of(image: Tensor, focused: Tensor) -> Tensor:
+            cost = sweep_cost(image, focused, settings, near, far, self.n_candidates, noise)
+            return select_depth(aggregate_cost(cost), near, far)
+
+        # context for an exact result: the largest PSF, then the error and aggregation windows
+        largest = settings.largest_coc_px(near, far)
+        reach = settings.aperture_module().kernel_size(largest) // 2 + math.ceil(
+            4 * FLOOR_SIGMA_PX) + ERROR_WINDOW_PX // 2 + max(WINDOWS) // 2 + 2
+        if max(image.shape[-2:]) <= self.tile + 2 * reach:
+            depth = depth_of(image, focused)
+        else:
+            depth = apply_in_tiles(depth_of, [image, focused], self.tile, reach)
         blur = (settings.coc_at_infinity_px()[..., None, None]
                 * (1 - settings.focus_distance[..., None, None] / depth)).abs()
         confidence = _box(texture_weight(image), 5).clamp(0, 1)

@@ -28,6 +28,7 @@ from models.blur import (
     texture_weight,
     working_scale,
 )
+from models.metrics import best_constant_depth
 from models.pretrained import is_weights_file, load_weights, save_weights, sha256
 from optics import CameraSettings
 
@@ -233,6 +234,20 @@ def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path):
     assert main(["predict", *args, "--camera", str(tmp_path / "fit.json"),
                  "--depth-range", "1", "8", "--out", str(tmp_path / "b")]) == 0
     np.testing.assert_allclose(np.load(tmp_path / "b" / "depth.npy"), a, rtol=1e-5)
+
+
+def test_predict_without_a_model_file_sweeps_over_depth(photos, tmp_path, capsys):
+    args = photos()[1:]  # no weights: models.sweep.SweepDepth
+    assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
+                 "--depth-range", "1", "8", "--out", str(tmp_path / "s")]) == 0
+    depth = np.load(tmp_path / "s" / "depth.npy")
+    rng = np.random.default_rng(0)
+    _, truth = generate_scene((48, 64), rng, (1.5, 6.0))  # the fixture's scene
+    truth = truth[0].numpy()
+    constant = best_constant_depth(target=torch.from_numpy(truth))
+    assert np.mean(np.abs(depth - truth) / truth) < 0.8 * np.mean(np.abs(constant - truth) / truth)
+    assert main(["predict", "--image", args[1], "--depth-range", "1", "8"]) == 2
+    assert "--focused" in capsys.readouterr().err
 
 
 def test_predict_rotated_photos_come_out_upright(photos, tmp_path):

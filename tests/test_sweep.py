@@ -131,3 +131,11 @@ def test_sweep_refuses_bad_arguments():
         SweepDepth()(image, image[:, None].expand(1, 2, 3, 16, 16), settings, 1.0, 10.0)
     with pytest.raises(ValueError, match="near"):
         SweepDepth()(image, image[:, None].expand(1, 3, 3, 16, 16), settings, 5.0, 1.0)
+
+
+def test_tiles_give_the_untiled_depth():
+    aif, focused, settings, _ = _photographed_planes([2.5, 4.5], seed=3, focus=(1.5, 8.0))
+    aif, focused = aif.double()[None], focused.double()[None]
+    whole = SweepDepth()(aif, focused, settings, 1.0, 10.0)["depth"]
+    tiled = SweepDepth(tile=24)(aif, focused, settings, 1.0, 10.0)["depth"]
+    torch.testing.assert_close(tiled, whole, rtol=1e-6, atol=0)
