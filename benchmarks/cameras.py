@@ -10,7 +10,7 @@ was used to choose the model's settings. For each camera it prints abs rel and d
   `models.blur.predict_depth` (the working resolution chosen from the camera and the depth
   range, the shots aligned first),
 - `pretrained`: the camera-general weights of `defocus pretrain` (`--weights`), the same way, and
-- `direct`: `models.direct.fit_depth_direct` through the renderer at the same resolution, told
+- `direct`: `models.direct.fit_depth_direct` through the renderer at the sweep's resolution, told
   the camera and the PSF, the shots aligned first (no network; slow),
 
 next to the best constant depth (an oracle chosen on the ground truth), the ratio to it, and the
@@ -40,8 +40,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from datasets.capture import CaptureNoise, capture  # noqa: E402
 from datasets.middlebury import motorcycle_scene  # noqa: E402
-from models.blur import predict_depth, solve_depth, texture_weight, working_scale  # noqa: E402
+from models.blur import (  # noqa: E402
+    DepthFromDefocus,
+    predict_depth,
+    solve_depth,
+    texture_weight,
+    working_scale,
+)
 from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
+from models.sweep import SweepDepth  # noqa: E402
 from optics import CameraSettings, align_shots  # noqa: E402
 
 #: name -> (focal length m, f-number, focus distances m, sensor width m (full 741 px), PSF)
@@ -76,11 +83,12 @@ def run_model(model, shot: dict) -> tuple[torch.Tensor, float]:
     return out["depth"], time.perf_counter() - started
 
 
-def working_resolution(shot: dict) -> tuple[torch.Tensor, CameraSettings, tuple[int, int]]:
-    """The all-in-focus and focused photos `(1+F,3,h,w)` at `predict_depth`'s working resolution,
-    the settings there and that size."""
+def working_resolution(shot: dict, max_coc_px: float) -> tuple[torch.Tensor, CameraSettings,
+                                                              tuple[int, int]]:
+    """The all-in-focus and focused photos `(1+F,3,h,w)` at `predict_depth`'s working resolution
+    for a model reading blurs up to `max_coc_px`, the settings there and that size."""
     settings = shot["settings"]
-    scale = working_scale(settings, *DEPTH_RANGE, tuple(shot["image"].shape[-2:]))
+    scale = working_scale(settings, *DEPTH_RANGE, tuple(shot["image"].shape[-2:]), max_coc_px)
     h, w = shot["image"].shape[-2:]
     size = (max(8, round(h * scale)), max(8, round(w * scale)))
     stack = torch.nn.functional.interpolate(torch.cat([shot["image"][None], shot["focused"]]),
@@ -90,7 +98,7 @@ def working_resolution(shot: dict) -> tuple[torch.Tensor, CameraSettings, tuple[
 
 def run_oracle(shot: dict) -> torch.Tensor:
     """Depth from `solve_depth` given the true blur of every shot (a perfect blur reader)."""
-    stack, small, size = working_resolution(shot)
+    stack, small, size = working_resolution(shot, DepthFromDefocus.max_coc_px)
     depth = torch.nn.functional.interpolate(shot["depth"][None], size=size, mode="area")
     blur = small.camera().signed_coc_px(depth.expand(small.n_shots, 1, *size)).abs()
     solved, _ = solve_depth(blur.transpose(0, 1), texture_weight(stack[:1]), small, *DEPTH_RANGE)
@@ -101,7 +109,7 @@ def run_oracle(shot: dict) -> torch.Tensor:
 def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float]:
     from models.direct import fit_depth_direct
 
-    stack, small, _ = working_resolution(shot)
+    stack, small, _ = working_resolution(shot, SweepDepth.max_coc_px)
     h, w = shot["image"].shape[-2:]
     started = time.perf_counter()
     focused = align_shots(stack[:1], stack[1:][None])[0]
@@ -124,7 +132,6 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     from models.pretrained import load_weights
-    from models.sweep import SweepDepth
 
     methods = {"sweep": lambda shot: run_model(SweepDepth(), shot)}
     if args.weights is not None:

@@ -251,6 +251,9 @@ class DepthFromDefocus(nn.Module):
         (torch.Size([1, 1, 24, 24]), torch.Size([1, 1, 24, 24]), torch.Size([1, 2, 24, 24]))
     """
 
+    #: Largest blur (pixels) at the working resolution that `predict_depth` lets it read.
+    max_coc_px = 12.0
+
     def __init__(self, blur_net: BlurNet | None = None, tile: int = 512, overlap: int = 48):
         super().__init__()
         self.blur_net = blur_net or BlurNet()
@@ -388,7 +391,7 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
 
 def predict_depth(
     model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
-    near: float, far: float, max_coc_px: float = 12.0, max_pixels: int = 1_500_000,
+    near: float, far: float, max_coc_px: float | None = None, max_pixels: int = 1_500_000,
     align: bool = True,
 ) -> dict[str, Tensor | float]:
     """Depth of one scene at the photos' resolution, computed at the working resolution.
@@ -401,7 +404,8 @@ def predict_depth(
         settings: their `(F,)` settings at the photos' resolution (effective pixel pitch).
         near: nearest depth of the scene, metres.
         far: farthest depth, metres.
-        max_coc_px: see `working_scale`.
+        max_coc_px: see `working_scale`; by default the model's `max_coc_px` (the largest blur
+            it reads well).
         max_pixels: see `working_scale`.
         align: move each focused photo onto the all-in-focus one first (`optics.align_shots`,
             at the working resolution): a misalignment would read as blur.
@@ -416,6 +420,7 @@ def predict_depth(
         raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
                          f"all-in-focus photo is {tuple(image.shape[-2:])}")
     h, w = image.shape[-2:]
+    max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
     scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
     size = (max(8, round(h * scale)), max(8, round(w * scale)))
     small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \

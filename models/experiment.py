@@ -20,8 +20,10 @@ import torch
 from torch import Tensor
 from torch.utils.data import Subset, default_collate
 
+from .blur import predict_depth
 from .direct import fit_depth_direct
 from .metrics import best_constant_depth, depth_metrics
+from .sweep import SweepDepth
 from .tiling import apply_in_tiles, check_tiling
 from .training import TrainConfig, Trainer
 
@@ -355,11 +357,13 @@ def compare_on_scene(
     sample: Mapping[str, Any],
     direct_steps: int = 150,
 ) -> tuple[dict[str, dict[str, float]], dict[str, torch.Tensor]]:
-    """Four ways to get one scene's depth, with their metrics on its ground truth.
+    """Five ways to get one scene's depth, with their metrics on its ground truth.
 
     `self_supervised` and `supervised`: the network of `config` trained without and with depth
     labels (same budget); `direct_optimisation`: `fit_depth_direct` through the renderer, no
-    network; `constant`: the best constant depth of the scene's own ground truth (an oracle).
+    network; `sweep`: `models.sweep.SweepDepth` (no network, no training, any camera; the default
+    of `defocus predict`); `constant`: the best constant depth of the scene's own ground truth (an
+    oracle).
 
     Args:
         config: the training run; `out_dir` gets one subfolder per trained method.
@@ -388,6 +392,11 @@ def compare_on_scene(
                               config.depth_max, steps=direct_steps, progress=config.progress)
     results["direct_optimisation"] = depth_metrics(pred=direct, target=target, mask=mask)
     predictions["direct_optimisation"] = direct[0]
+    print("\n[sweep] sweeping over depth (no network)")
+    swept = predict_depth(SweepDepth(), sample["image"], sample["focused"], sample["camera"],
+                          config.depth_min, config.depth_max)["depth"]
+    results["sweep"] = depth_metrics(pred=swept[None], target=target, mask=mask)
+    predictions["sweep"] = swept
     constant = best_constant_depth(target=target, mask=mask)
     predictions["constant"] = torch.full_like(target[0], constant)
     results["constant"] = depth_metrics(pred=predictions["constant"][None], target=target,

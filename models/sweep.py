@@ -251,6 +251,10 @@ class SweepDepth(nn.Module):
         (torch.Size([1, 1, 24, 24]), torch.Size([1, 1, 24, 24]), torch.Size([1, 2, 24, 24]))
     """
 
+    #: Largest blur (pixels) at the working resolution that `predict_depth` lets it read: the
+    #: upper end the thin-lens design covers (larger blurs cost time and gain little).
+    max_coc_px = 20.0
+
     def __init__(self, n_candidates: int = 96, tile: int = 384):
         super().__init__()
         if n_candidates < 3:

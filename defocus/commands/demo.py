@@ -6,8 +6,10 @@
 2. Train the same network with supervised depth for the same number of steps.
 3. Evaluate both on the real Middlebury motorcycle scene (never seen in training), downscaled by
    `--scale`, whose focused images are rendered from its real depth through the same camera;
-   add the direct optimisation baseline (`models.direct.fit_depth_direct`) and the best
-   constant depth (an oracle: the abs-rel-optimal constant of the ground truth).
+   add the direct optimisation baseline (`models.direct.fit_depth_direct`), the sweep over
+   depth that `defocus predict` runs without a model file (`models.sweep.SweepDepth`, no
+   network) and the best constant depth (an oracle: the abs-rel-optimal constant of the ground
+   truth).
 4. Print the metrics table; write `metrics.json` and the figures under `--out`, among them
    `focus_sweep.png`: the motorcycle rendered at four focus distances (`defocus render`).
 """
@@ -21,7 +23,7 @@ from pathlib import Path
 
 import torch
 
-METHODS = ("self_supervised", "supervised", "direct_optimisation", "constant")
+METHODS = ("self_supervised", "supervised", "direct_optimisation", "sweep", "constant")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
