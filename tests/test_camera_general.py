@@ -266,8 +266,13 @@ def test_predict_says_which_camera_value_is_missing(photos, tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_predict_12_megapixels_within_3_gb(tmp_path):
-    """A 3000x4000 photo set runs within 3 GB resident memory (working resolution and tiles)."""
+@pytest.mark.parametrize("model", ["network", "sweep"])
+def test_predict_12_megapixels_within_3_gb(tmp_path, model):
+    """A 3000x4000 photo set runs within 3 GB resident memory (working resolution and tiles); for
+    the sweep, a camera whose small blur leaves 1.5 megapixels to sweep."""
+    weights = [r"{tmp_path}/w.pt"] if model == "network" else []
+    lens = ["--f-number", "1.8", "--focal-length", "0.035"] if model == "network" \
+        else ["--f-number", "8", "--focal-length", "0.018"]
     script = f"""
 import resource, sys, numpy as np, torch
 from PIL import Image
@@ -283,8 +288,8 @@ for i in range(3):
     Image.fromarray(array).save(r"{tmp_path}/p%d.png" % i)
     paths.append(r"{tmp_path}/p%d.png" % i)
 del array
-code = main(["predict", r"{tmp_path}/w.pt", "--image", paths[0], "--focused", *paths[1:],
-             "--focus-distance", "1.5", "4", "--f-number", "1.8", "--focal-length", "0.035",
+code = main(["predict", *{weights!r}, "--image", paths[0], "--focused", *paths[1:],
+             "--focus-distance", "1.5", "4", *{lens!r},
              "--pixel-pitch", "1.5e-6", "--depth-range", "0.8", "10", "--out", r"{tmp_path}/o"])
 print("peak_mib", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "code", code)
 """
@@ -292,9 +297,11 @@ print("peak_mib", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "co
                          timeout=900)
     assert out.returncode == 0, out.stderr[-2000:]
     peak = float(out.stdout.split("peak_mib")[1].split()[0])
-    print(f"12 MP predict: peak resident memory {peak:.0f} MiB")
+    print(f"12 MP predict ({model}): peak resident memory {peak:.0f} MiB")
     assert " code 0" in out.stdout and peak < 3 * 1024
     assert np.load(tmp_path / "o" / "depth.npy").shape == (3000, 4000)
+    if model == "sweep":
+        assert "working resolution 0.35" in out.stdout  # 1.5 megapixels swept
 
 
 def test_pretrain_runs_from_a_config_with_photo_imperfections(tmp_path, capsys):
