@@ -241,6 +241,7 @@ class SweepDepth(nn.Module):
     Args:
         n_candidates: candidate depths, evenly spaced in inverse depth.
         tile: largest tile side in pixels.
+        progress: show a progress bar over the tiles of a large photo.
 
     Example:
         >>> from optics import CameraSettings
@@ -255,12 +256,12 @@ class SweepDepth(nn.Module):
     #: upper end the thin-lens design covers (larger blurs cost time and gain little).
     max_coc_px = 20.0
 
-    def __init__(self, n_candidates: int = 96, tile: int = 384):
+    def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False):
         super().__init__()
         if n_candidates < 3:
             raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
         check_tiling(tile, 0)
-        self.n_candidates, self.tile = int(n_candidates), int(tile)
+        self.n_candidates, self.tile, self.progress = int(n_candidates), int(tile), progress
 
     def forward(self, image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
                 far: float) -> dict[str, Tensor]:
@@ -284,7 +285,17 @@ class SweepDepth(nn.Module):
         if max(image.shape[-2:]) <= self.tile + 2 * reach:
             depth = depth_of(image, focused)
         else:
-            depth = apply_in_tiles(depth_of, [image, focused], self.tile, reach)
+            from tqdm.auto import tqdm
+
+            h, w = image.shape[-2:]
+            tiles = math.ceil(h / self.tile) * math.ceil(w / self.tile)
+            with tqdm(total=tiles, desc="depth sweep (tiles)", disable=not self.progress) as bar:
+                def tile_depth(image: Tensor, focused: Tensor) -> Tensor:
+                    out = depth_of(image, focused)
+                    bar.update()
+                    return out
+
+                depth = apply_in_tiles(tile_depth, [image, focused], self.tile, reach)
         blur = (settings.coc_at_infinity_px()[..., None, None]
                 * (1 - settings.focus_distance[..., None, None] / depth)).abs()
         confidence = _box(texture_weight(image), 5).clamp(0, 1)

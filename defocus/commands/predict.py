@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     # the model first: a file that is no model is refused before any photo is read
     general = args.checkpoint is None or is_weights_file(args.checkpoint)
     if args.checkpoint is None:
-        model = SweepDepth()
+        model = SweepDepth(progress=True)
     else:
         model = load_weights(args.checkpoint) if general \
             else Trainer.from_checkpoint(args.checkpoint)
