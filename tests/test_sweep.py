@@ -139,3 +139,14 @@ def test_tiles_give_the_untiled_depth():
     whole = SweepDepth()(aif, focused, settings, 1.0, 10.0)["depth"]
     tiled = SweepDepth(tile=24)(aif, focused, settings, 1.0, 10.0)["depth"]
     torch.testing.assert_close(tiled, whole, rtol=1e-6, atol=0)
+
+
+def test_blur_errors_gradcheck():
+    """Differentiable in both photos (the noise coefficients given: measuring them is not)."""
+    g = torch.Generator().manual_seed(0)
+    image = torch.rand(1, 3, 12, 12, generator=g, dtype=torch.float64, requires_grad=True)
+    focused = torch.rand(1, 3, 12, 12, generator=g, dtype=torch.float64, requires_grad=True)
+    noise = torch.tensor([[1e-4, 1e-3]], dtype=torch.float64)
+    blurs = torch.tensor([0.0, 2.5], dtype=torch.float64)
+    assert torch.autograd.gradcheck(
+        lambda a, b: blur_errors(a, b, Disk(), blurs, noise), (image, focused))
