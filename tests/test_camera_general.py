@@ -270,7 +270,7 @@ def test_predict_says_which_camera_value_is_missing(photos, tmp_path, capsys):
 def test_predict_12_megapixels_within_3_gb(tmp_path, model):
     """A 3000x4000 photo set runs within 3 GB resident memory (working resolution and tiles); for
     the sweep, a camera whose small blur leaves 1.5 megapixels to sweep."""
-    weights = [r"{tmp_path}/w.pt"] if model == "network" else []
+    weights = [f"{tmp_path}/w.pt"] if model == "network" else []
     lens = ["--f-number", "1.8", "--focal-length", "0.035"] if model == "network" \
         else ["--f-number", "8", "--focal-length", "0.018"]
     script = f"""
