@@ -4,9 +4,11 @@ For a candidate depth, the thin lens gives each shot's blur `|c_i| = |A_i (1 - D
 pixels, and the all-in-focus photo blurred by the camera's PSF at that blur should reproduce the
 focused photo. `sweep_cost` measures how well at every pixel: for every candidate and shot it
 blurs the all-in-focus photo (a whole-image product in the Fourier domain, the photo transformed
-once), keeps the local squared error against the focused photo and sums over the shots. `models.blur.select_depth` then picks the cheapest candidate after aggregating over
-windows. The errors carry their own weighting: where the all-in-focus photo has no texture every
-candidate costs the same, and the coarse windows fill in from the textured neighbours.
+once), keeps the local squared error against the focused photo and sums over the shots.
+`models.blur.select_depth` then picks the cheapest candidate after aggregating over windows, and
+a median filter removes isolated wrong picks. The errors carry their own weighting: where the
+all-in-focus photo has no texture every candidate costs the same, and the coarse windows fill in
+from the textured neighbours.
 
 Two imperfections of real photos bias such a sweep toward more blur, and both are removed:
 
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import math
 
+import kornia
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -48,6 +51,9 @@ from .tiling import apply_in_tiles, check_tiling
 FLOOR_SIGMA_PX = 0.5
 #: Side (pixels) of the window the squared errors are first summed over.
 ERROR_WINDOW_PX = 5
+#: Side (pixels) of the median filter the depth map goes through: it removes isolated wrong
+#: picks (dark or textureless pixels whose costs are nearly flat) and keeps depth edges.
+MEDIAN_PX = 9
 
 # Immerkaer's noise operator: zero on any plane, on white noise of variance s^2 its response has
 # variance 36 s^2.
@@ -276,12 +282,13 @@ class SweepDepth(nn.Module):
 
         def depth_of(image: Tensor, focused: Tensor) -> Tensor:
             cost = sweep_cost(image, focused, settings, near, far, self.n_candidates, noise)
-            return select_depth(aggregate_cost(cost), near, far)
+            return kornia.filters.median_blur(select_depth(aggregate_cost(cost), near, far),
+                                              MEDIAN_PX)
 
         # context for an exact result: the largest PSF, then the error and aggregation windows
         largest = settings.largest_coc_px(near, far)
         reach = settings.aperture_module().kernel_size(largest) // 2 + math.ceil(
-            4 * FLOOR_SIGMA_PX) + ERROR_WINDOW_PX // 2 + max(WINDOWS) // 2 + 2
+            4 * FLOOR_SIGMA_PX) + ERROR_WINDOW_PX // 2 + max(WINDOWS) // 2 + MEDIAN_PX // 2 + 2
         if max(image.shape[-2:]) <= self.tile + 2 * reach:
             depth = depth_of(image, focused)
         else:
