@@ -121,12 +121,16 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
 
 class _FourierBlur:
     """Whole-image convolutions of one `(B,C,H,W)` image with many kernels: the image is mirrored
-    at its borders by `pad` and transformed once."""
+    at its borders by `pad` (and its edge repeated beyond what a small image can mirror) and
+    transformed once."""
 
     def __init__(self, image: Tensor, pad: int):
         self.h, self.w = image.shape[-2:]
-        self.pad_y, self.pad_x = min(pad, self.h - 1), min(pad, self.w - 1)
-        padded = F.pad(image, (self.pad_x, self.pad_x, self.pad_y, self.pad_y), mode="reflect")
+        self.pad_y, self.pad_x = pad, pad
+        my, mx = min(pad, self.h - 1), min(pad, self.w - 1)
+        padded = F.pad(image, (mx, mx, my, my), mode="reflect")
+        if my < pad or mx < pad:
+            padded = F.pad(padded, (pad - mx,) * 2 + (pad - my,) * 2, mode="replicate")
         self.size = padded.shape[-2:]
         self.spectrum = torch.fft.rfft2(padded)
 

@@ -115,6 +115,16 @@ def test_sweep_beats_a_constant_on_held_out_procedural_scenes():
     assert float(np.median(ratios)) < 0.6, ratios
 
 
+@pytest.mark.parametrize("shape", [(8, 8), (9, 11), (40, 7)])
+def test_sweep_handles_photos_smaller_than_the_blur(shape):
+    """Kernels wider than the photo: the border is repeated beyond what the photo can mirror."""
+    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+    g = torch.Generator().manual_seed(0)
+    image, focused = torch.rand(3, *shape, generator=g), torch.rand(2, 3, *shape, generator=g)
+    out = predict_depth(SweepDepth(), image, focused, settings, 1.0, 10.0)
+    assert out["depth"].shape == (1, *shape) and torch.isfinite(out["depth"]).all()
+
+
 def test_sweep_output_is_finite_on_flat_photos():
     settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
     flat = torch.full((1, 3, 32, 32), 0.5)
