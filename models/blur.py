@@ -412,7 +412,8 @@ def predict_depth(
 
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
-        resolution, and `scale` (working / photo resolution).
+        resolution, `scale` (working / photo resolution) and `shifts` `(F,2)`: how far each
+        focused photo had moved `(dy, dx)`, in the photos' pixels (zero without `align`).
     """
     check_shape("image", image, ["3", "H", "W"])
     check_shape("focused", focused, ["F", "3", "H", "W"])
@@ -426,14 +427,15 @@ def predict_depth(
     small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \
         if scale < 1 else torch.cat([image[None], focused])
     effective = settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
-    shots = align_shots(small[:1], small[1:][None])[0] if align else small[1:][None]
+    shots, shifts = align_shots(small[:1], small[1:][None]) if align \
+        else (small[1:][None], torch.zeros(1, len(focused), 2, dtype=small.dtype))
     with torch.no_grad():
         out = model(small[:1], shots, effective.to(small.dtype), near, far)
     depth = F.interpolate(out["depth"], size=(h, w), mode="bilinear", align_corners=False)
     confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",
                                align_corners=False)
     return {"depth": depth[0], "confidence": confidence[0], "blur": out["blur"][0],
-            "scale": size[1] / w}
+            "scale": size[1] / w, "shifts": shifts[0] * (w / size[1])}
 
 
 def evaluate_on_sample(model: nn.Module, sample: Mapping[str, Any], near: float,

@@ -10,7 +10,7 @@ from datasets.synthetic import generate_scene
 from models.blur import predict_depth
 from models.metrics import best_constant_depth, depth_metrics
 from models.sweep import SweepDepth, blur_errors, noise_model
-from optics import CameraSettings, Disk, render_defocus
+from optics import CameraSettings, Disk, render_defocus, translate
 
 
 def _texture(size=(96, 128), dtype=torch.float32):
@@ -160,3 +160,14 @@ def test_blur_errors_gradcheck():
     blurs = torch.tensor([0.0, 2.5], dtype=torch.float64)
     assert torch.autograd.gradcheck(
         lambda a, b: blur_errors(a, b, Disk(), blurs, noise), (image, focused))
+
+
+def test_predict_reports_how_far_each_shot_moved():
+    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1.2e-4, aperture="disk")
+    aif, focused = capture(_texture(), torch.full((1, 96, 128), 3.0), settings,
+                           np.random.default_rng(4), CaptureNoise.none())
+    moved = torch.tensor([[0.7, -1.3], [-0.4, 0.9]])
+    focused = torch.cat([translate(f[None], m[None]) for f, m in zip(focused, moved, strict=True)])
+    out = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 10.0)
+    assert torch.allclose(out["shifts"], moved, atol=0.1), out["shifts"]
+    assert float(out["depth"][0, 16:-16, 16:-16].median()) == pytest.approx(3.0, rel=0.03)

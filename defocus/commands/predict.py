@@ -115,7 +115,9 @@ def _camera_general(args, model, image, focused, settings):
                            "for each blur, the range picks the right one")
     near, far = args.depth_range
     out = predict_depth(model, image, focused, settings.to(image.dtype), near, far)
-    print(f"working resolution {out['scale']:.3f} x the photos")
+    moved = ", ".join(f"({dy:+.1f}, {dx:+.1f})" for dy, dx in out["shifts"].tolist())
+    print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned, moved by "
+          f"{moved} pixels (down, right)")
     return out["depth"], out["confidence"], (near, far)
 
 
