@@ -407,13 +407,15 @@ def predict_depth(
         max_coc_px: see `working_scale`; by default the model's `max_coc_px` (the largest blur
             it reads well).
         max_pixels: see `working_scale`.
-        align: move each focused photo onto the all-in-focus one first (`optics.align_shots`,
-            at the working resolution): a misalignment would read as blur.
+        align: move (and, for a lens that breathes, scale) each focused photo onto the
+            all-in-focus one first (`optics.align_shots`, at the working resolution): a
+            misalignment would read as blur.
 
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
-        resolution, `scale` (working / photo resolution) and `shifts` `(F,2)`: how far each
-        focused photo had moved `(dy, dx)`, in the photos' pixels (zero without `align`).
+        resolution, `scale` (working / photo resolution), `shifts` `(F,2)` and `zooms` `(F,)`:
+        how far each focused photo had moved `(dy, dx)`, in the photos' pixels, and how much it
+        was magnified (zero and one without `align`).
     """
     check_shape("image", image, ["3", "H", "W"])
     check_shape("focused", focused, ["F", "3", "H", "W"])
@@ -427,15 +429,17 @@ def predict_depth(
     small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \
         if scale < 1 else torch.cat([image[None], focused])
     effective = settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
-    shots, shifts = align_shots(small[:1], small[1:][None]) if align \
-        else (small[1:][None], torch.zeros(1, len(focused), 2, dtype=small.dtype))
+    identity = torch.tensor([0.0, 0.0, 1.0], dtype=small.dtype).expand(1, len(focused), 3)
+    shots, motions = align_shots(small[:1], small[1:][None]) if align \
+        else (small[1:][None], identity)
     with torch.no_grad():
         out = model(small[:1], shots, effective.to(small.dtype), near, far)
     depth = F.interpolate(out["depth"], size=(h, w), mode="bilinear", align_corners=False)
     confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",
                                align_corners=False)
     return {"depth": depth[0], "confidence": confidence[0], "blur": out["blur"][0],
-            "scale": size[1] / w, "shifts": shifts[0] * (w / size[1])}
+            "scale": size[1] / w, "shifts": motions[0, :, :2] * (w / size[1]),
+            "zooms": motions[0, :, 2]}
 
 
 def evaluate_on_sample(model: nn.Module, sample: Mapping[str, Any], near: float,

@@ -1,6 +1,6 @@
 """optics: differentiable thin-lens optics and per-pixel PSF rendering for PyTorch."""
 
-from .alignment import align_shots, estimate_shift, translate
+from .alignment import align_shots, estimate_motion, estimate_shift, translate, warp
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
 from .aperture_spec import APERTURE_FAMILIES, aperture_spec, parse_aperture
 from .calibrate import (
@@ -23,8 +23,10 @@ from .settings import CameraSettings
 __all__ = [
     "APERTURE_FAMILIES",
     "align_shots",
+    "estimate_motion",
     "estimate_shift",
     "translate",
+    "warp",
     "CameraSettings",
     "aperture_spec",
     "parse_aperture",

@@ -82,33 +82,109 @@ def _smoothed_grey(image: Tensor, sigma: float) -> Tensor:
     return grey / grey.mean((-2, -1), keepdim=True).clamp_min(1e-8)
 
 
-def _lucas_kanade(reference: Tensor, moving: Tensor, shift: Tensor, iterations: int,
+def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None) -> Tensor:
+    """`image` `(B,C,H,W)` magnified by `zoom` `(B,)` about its centre `c`, then moved by `shift`
+    `(B,2)` pixels: `out(p) = image(c + (p - c - shift) / zoom)`.
+
+    Without a zoom (or a zoom within 1e-4 of 1) this is `translate` (no interpolation blur);
+    otherwise bicubic resampling, which blurs fine detail slightly.
+
+    Example:
+        >>> image = torch.rand(1, 1, 8, 8)
+        >>> torch.equal(warp(image, torch.zeros(1, 2)), translate(image, torch.zeros(1, 2)))
+        True
+    """
+    if zoom is None or bool(((zoom - 1).abs() < 1e-4).all()):
+        return translate(image, shift)
+    check_shape("image", image, ["B", "C", "H", "W"])
+    b, c, h, w = image.shape
+    zoom, shift = zoom.to(image).reshape(b), shift.to(image)
+    # sample at q = c + (p - c - shift) / zoom; in align_corners=False coordinates about the
+    # centre, q_n = (p_n - 2 shift / size) / zoom
+    theta = torch.zeros(b, 2, 3, dtype=image.dtype, device=image.device)
+    theta[:, 0, 0] = theta[:, 1, 1] = 1 / zoom
+    theta[:, 0, 2] = -2 * shift[:, 1] / (w * zoom)
+    theta[:, 1, 2] = -2 * shift[:, 0] / (h * zoom)
+    grid = F.affine_grid(theta, [b, c, h, w], align_corners=False)
+    return F.grid_sample(image, grid, mode="bicubic", padding_mode="border", align_corners=False)
+
+
+def _lucas_kanade(reference: Tensor, moving: Tensor, motion: Tensor, iterations: int,
                   margin: int) -> Tensor:
-    # reference, moving (1,1,H,W) smoothed grey; the shift s with moving(p) ~ reference(p - s).
-    # A Hann taper over the inner window: the blur's terms cancel over the window only if they
-    # fade out at its edges.
+    # reference, moving (1,1,H,W) smoothed grey; motion (dy, dx) or (dy, dx, zoom) with
+    # moving ~ warp(reference, (dy, dx), zoom). A Hann taper over the inner window: the blur's
+    # terms cancel over the window only if they fade out at its edges.
     inner = (..., slice(margin, -margin), slice(margin, -margin))
     target = reference[inner][0, 0].double()
     h, w = target.shape
     taper = torch.outer(torch.hann_window(h + 2, periodic=False, dtype=torch.float64)[1:-1],
                         torch.hann_window(w + 2, periodic=False, dtype=torch.float64)[1:-1])
     taper = taper.to(target.device)
+    zoomed = len(motion) == 3
+    full_h, full_w = reference.shape[-2:]
+    y = torch.arange(full_h, dtype=torch.float64, device=target.device)[:, None] - (full_h - 1) / 2
+    x = torch.arange(full_w, dtype=torch.float64, device=target.device)[None, :] - (full_w - 1) / 2
+    radial_y, radial_x = (t.expand(full_h, full_w)[inner[1:]] for t in (y, x))
     for _ in range(iterations):
-        back = translate(moving, -shift[None])
+        # back(p) = moving(c + zoom (p - c) + shift) ~ reference(p)
+        back = _unwarp(moving, motion)
         grad = kornia.filters.spatial_gradient(back, normalized=True)[0, 0]  # (2: dx, dy, H, W)
         gx, gy = grad[0][inner[1:]].double(), grad[1][inner[1:]].double()
         level = back[inner][0, 0].double()
-        # r - back ~ gy dy + gx dx + gain * back + offset: exposure differences fitted alongside
-        columns = torch.stack([gy, gx, level, torch.ones_like(level)]).flatten(1)
+        # r - back ~ gy dy + gx dx (+ radial dzoom) + gain * back + offset: exposure differences
+        # fitted alongside
+        terms = [gy, gx] + ([gy * radial_y + gx * radial_x] if zoomed else [])
+        columns = torch.stack([*terms, level, torch.ones_like(level)]).flatten(1)
         normal = (columns * taper.flatten()) @ columns.T
         if float(torch.linalg.eigvalsh(normal[:2, :2])[0]) <= 1e-8 * float(taper.sum()):
             break  # under 1e-4 of the mean intensity per pixel along some direction: no texture
         rhs = (columns * taper.flatten()) @ (target - level).flatten()
-        step = torch.linalg.lstsq(normal, rhs[:, None]).solution[:2, 0]
-        shift = shift + step.to(shift)
-        if float(step.abs().max()) < 1e-3:
+        step = torch.linalg.lstsq(normal, rhs[:, None]).solution[:len(terms), 0]
+        motion = motion + step.to(motion)
+        if float(step[:2].abs().max()) < 1e-3 and (not zoomed or abs(float(step[2])) < 1e-6):
             break
-    return shift
+    return motion
+
+
+def _unwarp(moving: Tensor, motion: Tensor) -> Tensor:
+    """`moving(c + zoom (p - c) + shift)`: `moving` brought back onto the reference."""
+    if len(motion) == 2:
+        return translate(moving, -motion[None])
+    zoom = motion[2:3]
+    return warp(moving, -motion[None, :2] / zoom, 1 / zoom)
+
+
+def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: float,
+              zoomed: bool) -> Tensor:
+    check_shape("reference", reference, ["B", "C", "H", "W"])
+    check_shape("moving", moving, ["B", "C", "H", "W"])
+    if reference.shape[0] != moving.shape[0] or reference.shape[-2:] != moving.shape[-2:]:
+        raise ValueError(f"reference {tuple(reference.shape)} and moving {tuple(moving.shape)} "
+                         "must have one batch size and one image size")
+    if iterations < 1 or not sigma_px > 0:
+        raise ValueError(f"need iterations >= 1 and sigma_px > 0, got {iterations!r}, "
+                         f"{sigma_px!r}")
+    motions = []
+    with torch.no_grad():
+        for ref, mov in zip(reference, moving, strict=True):
+            levels = max(0, min(4, int(math.log2(max(1, min(ref.shape[-2:]) // 16)))))
+            motion = torch.tensor([0.0, 0.0, 1.0] if zoomed else [0.0, 0.0], dtype=ref.dtype,
+                                  device=ref.device)
+            for level in range(levels, -1, -1):
+                factor = 2**level
+                r = F.avg_pool2d(ref[None], factor) if factor > 1 else ref[None]
+                m = F.avg_pool2d(mov[None], factor) if factor > 1 else mov[None]
+                margin = min(math.ceil(3 * sigma_px) + 4, (min(r.shape[-2:]) - 1) // 3)
+                if margin < 1:
+                    continue
+                per_level = motion.clone()
+                per_level[:2] /= factor
+                per_level = _lucas_kanade(_smoothed_grey(r, sigma_px), _smoothed_grey(m, sigma_px),
+                                          per_level, iterations, margin)
+                motion = per_level.clone()
+                motion[:2] *= factor
+            motions.append(motion)
+    return torch.stack(motions)
 
 
 def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = 10,
@@ -126,48 +202,63 @@ def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = 10,
         >>> estimate_shift(image, moved).round(decimals=2)
         tensor([[ 0.4000, -0.7000]])
     """
-    check_shape("reference", reference, ["B", "C", "H", "W"])
-    check_shape("moving", moving, ["B", "C", "H", "W"])
-    if reference.shape[0] != moving.shape[0] or reference.shape[-2:] != moving.shape[-2:]:
-        raise ValueError(f"reference {tuple(reference.shape)} and moving {tuple(moving.shape)} "
-                         "must have one batch size and one image size")
-    if iterations < 1 or not sigma_px > 0:
-        raise ValueError(f"need iterations >= 1 and sigma_px > 0, got {iterations!r}, "
-                         f"{sigma_px!r}")
-    shifts = []
-    with torch.no_grad():
-        for ref, mov in zip(reference, moving, strict=True):
-            levels = max(0, min(4, int(math.log2(max(1, min(ref.shape[-2:]) // 16)))))
-            shift = torch.zeros(2, dtype=ref.dtype, device=ref.device)
-            for level in range(levels, -1, -1):
-                factor = 2**level
-                r = F.avg_pool2d(ref[None], factor) if factor > 1 else ref[None]
-                m = F.avg_pool2d(mov[None], factor) if factor > 1 else mov[None]
-                margin = min(math.ceil(3 * sigma_px) + 4, (min(r.shape[-2:]) - 1) // 3)
-                if margin < 1:
-                    continue
-                shift = _lucas_kanade(_smoothed_grey(r, sigma_px), _smoothed_grey(m, sigma_px),
-                                      shift / factor, iterations, margin) * factor
-            shifts.append(shift)
-    return torch.stack(shifts)
+    return _estimate(reference, moving, iterations, sigma_px, zoomed=False)
+
+
+def estimate_motion(reference: Tensor, moving: Tensor, iterations: int = 20,
+                    sigma_px: float = 1.5) -> Tensor:
+    """The translation and magnification `(B,3)` `(dy, dx, zoom)` of `moving` relative to
+    `reference`: `moving ~ warp(reference, (dy, dx), zoom)` up to a symmetric blur, exposure and
+    noise. A lens whose image scale changes with focus ("focus breathing") magnifies each
+    focused photo a little (about 0.1-2 %); `estimate_shift` ignores that.
+
+    Example:
+        >>> image = kornia.filters.gaussian_blur2d(torch.rand(1, 1, 96, 96), (9, 9), (2.0, 2.0))
+        >>> moved = warp(image, torch.tensor([[0.5, -0.3]]), torch.tensor([1.01]))
+        >>> estimate_motion(image, moved).round(decimals=2)
+        tensor([[ 0.5000, -0.3000,  1.0100]])
+    """
+    return _estimate(reference, moving, iterations, sigma_px, zoomed=True)
+
+
+#: Largest displacement (pixels, at the image corners) a zoom may cause and still be ignored:
+#: under it the estimated zoom is noise, and undoing it would resample (blur) the photo.
+ZOOM_TOLERANCE_PX = 0.25
 
 
 def align_shots(image: Tensor, focused: Tensor) -> tuple[Tensor, Tensor]:
-    """Focused photos `(B,F,C,H,W)` moved onto the all-in-focus `image` `(B,C,H,W)`.
+    """Focused photos `(B,F,C,H,W)` moved (and, where the lens breathes, scaled) onto the
+    all-in-focus `image` `(B,C,H,W)`.
+
+    Each photo's `estimate_motion` is undone by `warp`. A zoom that moves the corners by less
+    than `ZOOM_TOLERANCE_PX` is taken for noise: the photo is then only moved, by its
+    `estimate_shift`, with `translate` (no resampling blur).
 
     Returns:
-        `(aligned (B,F,C,H,W), shifts (B,F,2))`, the shifts (pixels) as `estimate_shift` gives
-        them (each focused photo was moved by minus its shift).
+        `(aligned (B,F,C,H,W), motions (B,F,3))`, the `(dy, dx, zoom)` of each focused photo
+        relative to `image` (zoom 1 where it was ignored).
 
     Example:
         >>> image = kornia.filters.gaussian_blur2d(torch.rand(1, 3, 48, 48), (7, 7), (1.0, 1.0))
         >>> focused = translate(image, torch.tensor([[1.0, 0.5]]))[:, None]
-        >>> aligned, shifts = align_shots(image, focused)
+        >>> aligned, motions = align_shots(image, focused)
         >>> torch.allclose(aligned[0, 0, :, 8:-8, 8:-8], image[0, :, 8:-8, 8:-8], atol=1e-2)
         True
     """
     check_shape("focused", focused, ["B", "F", "C", "H", "W"])
-    n = focused.shape[1]
-    shifts = torch.stack([estimate_shift(image, focused[:, i]) for i in range(n)], 1)
-    aligned = torch.stack([translate(focused[:, i], -shifts[:, i]) for i in range(n)], 1)
-    return aligned, shifts
+    b, n = focused.shape[:2]
+    half_diagonal = math.hypot(*focused.shape[-2:]) / 2
+    aligned, motions = [], []
+    for i in range(n):
+        motion = estimate_motion(image, focused[:, i])
+        small = (motion[:, 2] - 1).abs() * half_diagonal < ZOOM_TOLERANCE_PX
+        if bool(small.any()):  # no zoom to undo: the translation alone, estimated as such
+            motion[small, :2] = estimate_shift(image[small], focused[small, i])
+            motion[small, 2] = 1.0
+        shots = []
+        for j in range(b):
+            shift, zoom = motion[j:j + 1, :2], motion[j:j + 1, 2]
+            shots.append(warp(focused[j:j + 1, i], -shift / zoom, 1 / zoom))
+        aligned.append(torch.cat(shots))
+        motions.append(motion)
+    return torch.stack(aligned, 1), torch.stack(motions, 1)

@@ -6,7 +6,15 @@ import pytest
 import torch
 from skimage import data
 
-from optics import Disk, align_shots, estimate_shift, render_defocus, translate
+from optics import (
+    Disk,
+    align_shots,
+    estimate_motion,
+    estimate_shift,
+    render_defocus,
+    translate,
+    warp,
+)
 
 
 def _waves(shape, shift=(0.0, 0.0), dtype=torch.float64):
@@ -81,7 +89,8 @@ def test_align_shots_undoes_each_shift():
     shifts = torch.tensor([[0.6, -0.2], [-1.1, 0.9]], dtype=torch.float64)
     focused = torch.stack([translate(image, s[None]) for s in shifts], 1)
     aligned, found = align_shots(image, focused)
-    assert torch.allclose(found[0], shifts, atol=0.01)
+    assert torch.allclose(found[0, :, :2], shifts, atol=0.01)
+    assert torch.equal(found[0, :, 2], torch.ones(2, dtype=torch.float64))  # no zoom: ignored
     assert torch.allclose(aligned[0, :, :, 12:-12, 12:-12],
                           image[:, :, 12:-12, 12:-12].expand(2, -1, -1, -1), atol=0.03)
 
@@ -94,3 +103,34 @@ def test_bad_shifts_are_refused():
         translate(image, torch.tensor([[float("nan"), 0.0]]))
     with pytest.raises(ValueError, match="one batch size"):
         estimate_shift(image, torch.rand(2, 3, 8, 8))
+
+
+@pytest.mark.parametrize("zoom", [0.985, 1.012])
+def test_estimate_motion_finds_focus_breathing_through_defocus(zoom):
+    """A focused photo magnified by the lens (and shifted, defocused by 4 px, noisy)."""
+    reference = _texture(128)
+    blurred = render_defocus(reference, torch.full((1, 1, 128, 128), 4.0), Disk())
+    g = torch.Generator().manual_seed(1)
+    moving = warp(blurred, torch.tensor([[0.6, -0.9]]), torch.tensor([zoom]))
+    moving = moving + 0.01 * torch.randn(moving.shape, generator=g)
+    found = estimate_motion(reference, moving)[0]
+    assert torch.allclose(found[:2], torch.tensor([0.6, -0.9]), atol=0.1), found
+    assert float(found[2]) == pytest.approx(zoom, abs=1e-3)
+
+
+def test_warp_matches_the_magnified_function():
+    """warp(image, t, z)(p) = image(c + (p - c - t) / z), on band-limited waves."""
+    h = w = 64
+    shift, zoom = (0.5, -1.0), 1.02
+    y = torch.arange(h, dtype=torch.float64)[:, None]
+    x = torch.arange(w, dtype=torch.float64)[None, :]
+    c = (h - 1) / 2
+
+    def waves(yy, xx):
+        return (0.5 + 0.2 * torch.sin(2 * math.pi * (0.06 * yy + 0.04 * xx))).expand(1, 1, h, w)
+
+    moved = warp(waves(y, x), torch.tensor([shift], dtype=torch.float64),
+                 torch.tensor([zoom], dtype=torch.float64))
+    expected = waves(c + (y - c - shift[0]) / zoom, c + (x - c - shift[1]) / zoom)
+    # bicubic interpolation errs by about 0.006; a zoom or shift of the wrong sign, by 0.1 or more
+    assert torch.allclose(moved[..., 8:-8, 8:-8], expected[..., 8:-8, 8:-8], atol=0.01)

@@ -10,7 +10,7 @@ from datasets.synthetic import generate_scene
 from models.blur import predict_depth
 from models.metrics import best_constant_depth, depth_metrics
 from models.sweep import SweepDepth, blur_errors, noise_model
-from optics import CameraSettings, Disk, render_defocus, translate
+from optics import CameraSettings, Disk, render_defocus, translate, warp
 
 
 def _texture(size=(96, 128), dtype=torch.float32):
@@ -171,3 +171,20 @@ def test_predict_reports_how_far_each_shot_moved():
     out = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 10.0)
     assert torch.allclose(out["shifts"], moved, atol=0.1), out["shifts"]
     assert float(out["depth"][0, 16:-16, 16:-16].median()) == pytest.approx(3.0, rel=0.03)
+
+
+def test_sweep_sees_through_focus_breathing():
+    """The lens magnifies each focused photo a little (1.5 % and -1 %): aligned with a zoom, the
+    plane comes out at its depth; moved only, it does not."""
+    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1.2e-4, aperture="disk")
+    aif, focused = capture(_texture(), torch.full((1, 96, 128), 3.0), settings,
+                           np.random.default_rng(5), CaptureNoise(shift_px=0.0))
+    zooms = torch.tensor([1.015, 0.99])
+    focused = torch.cat([warp(f[None], torch.zeros(1, 2), z[None])
+                         for f, z in zip(focused, zooms, strict=True)])
+    out = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 10.0)
+    assert torch.allclose(out["zooms"], zooms, atol=2e-3), out["zooms"]
+    raw = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 10.0, align=False)
+    inner = (0, slice(8, -8), slice(8, -8))
+    error = [float(((o["depth"][inner] - 3.0).abs() / 3.0).mean()) for o in (out, raw)]
+    assert error[0] < 0.03 and error[1] > 2 * error[0], error

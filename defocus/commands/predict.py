@@ -115,9 +115,10 @@ def _camera_general(args, model, image, focused, settings):
                            "for each blur, the range picks the right one")
     near, far = args.depth_range
     out = predict_depth(model, image, focused, settings.to(image.dtype), near, far)
-    moved = ", ".join(f"({dy:+.1f}, {dx:+.1f})" for dy, dx in out["shifts"].tolist())
-    print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned, moved by "
-          f"{moved} pixels (down, right)")
+    moved = ", ".join(f"({dy:+.1f}, {dx:+.1f}, x{zoom:.4f})" for (dy, dx), zoom
+                      in zip(out["shifts"].tolist(), out["zooms"].tolist(), strict=True))
+    print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned: moved by "
+          f"{moved} (pixels down, right; magnification)")
     return out["depth"], out["confidence"], (near, far)
 
 
