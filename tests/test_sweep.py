@@ -59,14 +59,16 @@ def test_blur_errors_are_least_at_the_true_blur_despite_noise(dtype):
     assert errors.dtype == dtype
 
 
-def _photographed_planes(depths, seed=0, focus=(2.0, 6.0)):
-    """A textured scene at one or two depths (left, right halves), photographed with noise and
-    misalignment by a 50 mm f/2 camera focused at `focus` metres."""
+def _photographed_planes(depths, seed=0, focus=(2.0, 6.0), noise=None):
+    """A textured scene at one or two depths (left, right halves), photographed with `noise`'s
+    imperfections (noise and misalignment by default) by a 50 mm f/2 camera focused at `focus`
+    metres."""
     image = _texture()
     depth = torch.full((1, 96, 128), float(depths[0]))
     depth[..., 64:] = float(depths[-1])
     settings = CameraSettings(0.05, 2.0, list(focus), 1.2e-4, aperture="disk")
-    aif, focused = capture(image, depth, settings, np.random.default_rng(seed), CaptureNoise())
+    aif, focused = capture(image, depth, settings, np.random.default_rng(seed),
+                           noise or CaptureNoise())
     return aif, focused, settings, depth
 
 
@@ -163,9 +165,7 @@ def test_blur_errors_gradcheck():
 
 
 def test_predict_reports_how_far_each_shot_moved():
-    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1.2e-4, aperture="disk")
-    aif, focused = capture(_texture(), torch.full((1, 96, 128), 3.0), settings,
-                           np.random.default_rng(4), CaptureNoise.none())
+    aif, focused, settings, _ = _photographed_planes([3.0], seed=4, noise=CaptureNoise.none())
     moved = torch.tensor([[0.7, -1.3], [-0.4, 0.9]])
     focused = torch.cat([translate(f[None], m[None]) for f, m in zip(focused, moved, strict=True)])
     out = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 10.0)
@@ -176,9 +176,8 @@ def test_predict_reports_how_far_each_shot_moved():
 def test_sweep_sees_through_focus_breathing():
     """The lens magnifies each focused photo a little (1.5 % and -1 %): aligned with a zoom, the
     plane comes out at its depth; moved only, it does not."""
-    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1.2e-4, aperture="disk")
-    aif, focused = capture(_texture(), torch.full((1, 96, 128), 3.0), settings,
-                           np.random.default_rng(5), CaptureNoise(shift_px=0.0))
+    aif, focused, settings, _ = _photographed_planes([3.0], seed=5,
+                                                     noise=CaptureNoise(shift_px=0.0))
     zooms = torch.tensor([1.015, 0.99])
     focused = torch.cat([warp(f[None], torch.zeros(1, 2), z[None])
                          for f, z in zip(focused, zooms, strict=True)])
