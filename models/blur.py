@@ -392,7 +392,7 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
 def predict_depth(
     model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
     near: float, far: float, max_coc_px: float | None = None, max_pixels: int = 1_500_000,
-    align: bool = True,
+    align: bool = True, refine_range: bool = True,
 ) -> dict[str, Tensor | float]:
     """Depth of one scene at the photos' resolution, computed at the working resolution.
 
@@ -410,12 +410,18 @@ def predict_depth(
         align: move (and, for a lens that breathes, scale) each focused photo onto the
             all-in-focus one first (`optics.align_shots`, at the working resolution): a
             misalignment would read as blur.
+        refine_range: a stated range wider than the scene costs resolution: the largest blur
+            over `[near, far]` sets the working resolution, and a scene much farther than
+            `near` never blurs that much. With this on, a first pass finds the depths the scene
+            holds (`scene_range`); if that range allows a working resolution at least
+            `REFINE_GAIN` times finer, the depth is computed again there, over that range.
 
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
-        resolution, `scale` (working / photo resolution), `shifts` `(F,2)` and `zooms` `(F,)`:
-        how far each focused photo had moved `(dy, dx)`, in the photos' pixels, and how much it
-        was magnified (zero and one without `align`).
+        resolution, `scale` (working / photo resolution), `depth_range` (the `(near, far)`
+        metres of the pass kept), `shifts` `(F,2)` and `zooms` `(F,)`: how far each focused
+        photo had moved `(dy, dx)`, in the photos' pixels, and how much it was magnified (zero
+        and one without `align`).
     """
     check_shape("image", image, ["3", "H", "W"])
     check_shape("focused", focused, ["F", "3", "H", "W"])
@@ -425,6 +431,42 @@ def predict_depth(
     h, w = image.shape[-2:]
     max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
     scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
+    out = _predict_at(model, image, focused, settings, near, far, scale, align)
+    if refine_range:
+        inner = scene_range(out["depth"], near, far)
+        finer = working_scale(settings, *inner, (h, w), max_coc_px, max_pixels)
+        if finer >= REFINE_GAIN * scale:
+            out = _predict_at(model, image, focused, settings, *inner, finer, align)
+    return out
+
+
+#: How much finer (ratio of working scales) the scene's own depth range must allow before
+#: `predict_depth` computes the depth a second time.
+REFINE_GAIN = 1.25
+
+
+def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
+                margin: float = 0.15) -> tuple[float, float]:
+    """The depths `(near, far)` metres a depth map holds, within `[near, far]`: its `tail` and
+    `1 - tail` quantiles in inverse depth, widened by `margin` times their span on each side
+    (a coarse first estimate is off by some of it).
+
+    Example:
+        >>> depth = torch.linspace(2.0, 5.0, 1000).reshape(1, 1, 20, 50)
+        >>> [round(d, 2) for d in scene_range(depth, 1.0, 15.0, tail=0.0)]
+        [1.83, 6.45]
+    """
+    inverse = 1 / depth.detach().flatten().double()
+    inverse = inverse[:: max(1, inverse.numel() // 100_000)]
+    lo, hi = torch.quantile(inverse, torch.tensor([tail, 1 - tail], dtype=inverse.dtype)).tolist()
+    lo, hi = lo - margin * (hi - lo), hi + margin * (hi - lo)
+    return 1 / min(hi, 1 / near), 1 / max(lo, 1 / far)
+
+
+def _predict_at(model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
+                near: float, far: float, scale: float, align: bool) -> dict[str, Tensor | float]:
+    """`predict_depth`'s pass over `[near, far]` at the working `scale`."""
+    h, w = image.shape[-2:]
     size = (max(8, round(h * scale)), max(8, round(w * scale)))
     small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \
         if scale < 1 else torch.cat([image[None], focused])
@@ -438,8 +480,8 @@ def predict_depth(
     confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",
                                align_corners=False)
     return {"depth": depth[0], "confidence": confidence[0], "blur": out["blur"][0],
-            "scale": size[1] / w, "shifts": motions[0, :, :2] * (w / size[1]),
-            "zooms": motions[0, :, 2]}
+            "scale": size[1] / w, "depth_range": (near, far),
+            "shifts": motions[0, :, :2] * (w / size[1]), "zooms": motions[0, :, 2]}
 
 
 def evaluate_on_sample(model: nn.Module, sample: Mapping[str, Any], near: float,

@@ -44,6 +44,7 @@ from .blur import (
     select_depth,
     texture_weight,
 )
+from .smoothing import edge_aware_smooth
 from .tiling import apply_in_tiles, check_tiling
 
 #: Gaussian (sigma, pixels) applied to both sides of every comparison: errors of a fraction of a
@@ -54,6 +55,11 @@ ERROR_WINDOW_PX = 5
 #: Side (pixels) of the median filter the depth map goes through: it removes isolated wrong
 #: picks (dark or textureless pixels whose costs are nearly flat) and keeps depth edges.
 MEDIAN_PX = 9
+#: `models.smoothing.edge_aware_smooth` of the inverse depth afterwards: its strength, guide
+#: sigma, and the confidence every pixel keeps (where the photo has no texture at all).
+SMOOTHING_STRENGTH = 10.0
+SMOOTHING_SIGMA = 0.1
+CONFIDENCE_FLOOR = 0.01
 
 # Immerkaer's noise operator: zero on any plane, on white noise of variance s^2 its response has
 # variance 36 s^2.
@@ -252,6 +258,10 @@ class SweepDepth(nn.Module):
         n_candidates: candidate depths, evenly spaced in inverse depth.
         tile: largest tile side in pixels.
         progress: show a progress bar over the tiles of a large photo.
+        smoothing: strength of the edge-aware smoothing of the inverse depth by the texture
+            confidence (`models.smoothing.edge_aware_smooth`, whole image, after the tiles):
+            depth read on textured pixels spreads to their untextured neighbours of similar
+            colour. Zero turns it off.
 
     Example:
         >>> from optics import CameraSettings
@@ -266,12 +276,16 @@ class SweepDepth(nn.Module):
     #: upper end the thin-lens design covers (larger blurs cost time and gain little).
     max_coc_px = 20.0
 
-    def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False):
+    def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False,
+                 smoothing: float = SMOOTHING_STRENGTH):
         super().__init__()
         if n_candidates < 3:
             raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
+        if not smoothing >= 0:
+            raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
         check_tiling(tile, 0)
         self.n_candidates, self.tile, self.progress = int(n_candidates), int(tile), progress
+        self.smoothing = float(smoothing)
 
     def forward(self, image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
                 far: float) -> dict[str, Tensor]:
@@ -307,7 +321,11 @@ class SweepDepth(nn.Module):
                     return out
 
                 depth = apply_in_tiles(tile_depth, [image, focused], self.tile, reach)
+        confidence = _box(texture_weight(image), 5).clamp(0, 1)
+        if self.smoothing > 0:
+            weight = kornia.filters.median_blur(confidence, MEDIAN_PX) + CONFIDENCE_FLOOR
+            inverse = edge_aware_smooth(1 / depth, weight, image, self.smoothing, SMOOTHING_SIGMA)
+            depth = 1 / inverse.clamp(1 / far, 1 / near)
         blur = (settings.coc_at_infinity_px()[..., None, None]
                 * (1 - settings.focus_distance[..., None, None] / depth)).abs()
-        confidence = _box(texture_weight(image), 5).clamp(0, 1)
         return {"depth": depth, "confidence": confidence, "blur": blur}
