@@ -125,6 +125,18 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
     return torch.tensor(out, dtype=image.dtype, device=image.device)
 
 
+def _smooth_size(n: int) -> int:
+    """The smallest integer >= `n` with no prime factor above 5."""
+    while True:
+        m = n
+        for p in (2, 3, 5):
+            while m % p == 0:
+                m //= p
+        if m == 1:
+            return n
+        n += 1
+
+
 class _FourierBlur:
     """Whole-image convolutions of one `(B,C,H,W)` image with many kernels: the image is mirrored
     at its borders by `pad` (and its edge repeated beyond what a small image can mirror) and
@@ -135,8 +147,12 @@ class _FourierBlur:
         self.pad_y, self.pad_x = pad, pad
         my, mx = min(pad, self.h - 1), min(pad, self.w - 1)
         padded = F.pad(image, (mx, mx, my, my), mode="reflect")
-        if my < pad or mx < pad:
-            padded = F.pad(padded, (pad - mx,) * 2 + (pad - my,) * 2, mode="replicate")
+        # then the edge repeated: beyond what a small image can mirror, and on to a size whose
+        # only prime factors are 2, 3 and 5 (several times faster transforms)
+        extra_y = _smooth_size(self.h + 2 * pad) - self.h - 2 * pad
+        extra_x = _smooth_size(self.w + 2 * pad) - self.w - 2 * pad
+        padded = F.pad(padded, (pad - mx, pad - mx + extra_x, pad - my, pad - my + extra_y),
+                       mode="replicate")
         self.size = padded.shape[-2:]
         self.spectrum = torch.fft.rfft2(padded)
 
@@ -204,8 +220,10 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
         kernel = _with_floor(_blur_kernel(aperture, blur_px, image))
         squared = ((source.apply(source.transfer(kernel)) - reference) ** 2).sum(1, keepdim=True)
         # the noise variance `image` loses under this kernel: variance * sum of its squares
-        errors.append(_box(squared - variance * float((kernel**2).sum()), ERROR_WINDOW_PX))
-    return torch.cat(errors, 1)
+        errors.append(squared - variance * float((kernel**2).sum()))
+    if not errors:
+        return image.new_zeros(image.shape[0], 0, *image.shape[-2:])
+    return _box(torch.cat(errors, 1), ERROR_WINDOW_PX)
 
 
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
