@@ -453,8 +453,8 @@ def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
 
     Example:
         >>> depth = torch.linspace(2.0, 5.0, 1000).reshape(1, 1, 20, 50)
-        >>> [round(d, 2) for d in scene_range(depth, 1.0, 15.0, tail=0.0)]
-        [1.83, 6.45]
+        >>> tuple(round(d, 2) for d in scene_range(depth, 1.0, 15.0, tail=0.0))
+        (1.83, 6.45)
     """
     inverse = 1 / depth.detach().flatten().double()
     inverse = inverse[:: max(1, inverse.numel() // 100_000)]

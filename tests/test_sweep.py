@@ -7,7 +7,7 @@ from skimage import data
 
 from datasets.capture import CaptureNoise, capture, random_camera
 from datasets.synthetic import generate_scene
-from models.blur import predict_depth
+from models.blur import predict_depth, scene_range
 from models.metrics import best_constant_depth, depth_metrics
 from models.sweep import SweepDepth, blur_errors, noise_model
 from optics import CameraSettings, Disk, render_defocus, translate, warp
@@ -137,6 +137,8 @@ def test_sweep_output_is_finite_on_flat_photos():
 def test_sweep_refuses_bad_arguments():
     with pytest.raises(ValueError, match="n_candidates"):
         SweepDepth(n_candidates=2)
+    with pytest.raises(ValueError, match="smoothing"):
+        SweepDepth(smoothing=-1.0)
     settings = CameraSettings(0.05, 2.0, [2.0, 6.0, 9.0], 1e-4)
     image = torch.rand(1, 3, 16, 16)
     with pytest.raises(ValueError, match="settings 3"):
@@ -187,3 +189,33 @@ def test_sweep_sees_through_focus_breathing():
     inner = (0, slice(8, -8), slice(8, -8))
     error = [float(((o["depth"][inner] - 3.0).abs() / 3.0).mean()) for o in (out, raw)]
     assert error[0] < 0.03 and error[1] > 2 * error[0], error
+
+
+def test_scene_range_is_the_depth_maps_own_with_a_margin():
+    depth = torch.tensor([2.0, 2.5, 4.0, 5.0]).reshape(1, 1, 2, 2)
+    near, far = scene_range(depth, 1.0, 15.0, tail=0.0, margin=0.0)
+    assert (near, far) == pytest.approx((2.0, 5.0))
+    # 15 % of the inverse-depth span on each side, and never beyond the stated range
+    span = 1 / 2.0 - 1 / 5.0
+    assert scene_range(depth, 1.0, 15.0, tail=0.0) == pytest.approx(
+        (1 / (0.5 + 0.15 * span), 1 / (0.2 - 0.15 * span)))
+    assert scene_range(depth, 2.2, 4.5, tail=0.0) == pytest.approx((2.2, 4.5))
+
+
+def test_predict_refines_a_stated_range_wider_than_the_scene():
+    """A 135 mm lens, a scene at 2.5-4.5 m stated as 1-20 m: the blur at 1 m would force the
+    photos down to 40 % of their size; the scene's own range lets the second pass work at full
+    resolution, and its depth is closer to the truth."""
+    image = _texture()
+    depth = torch.full((1, 96, 128), 2.5)
+    depth[..., 64:] = 4.5
+    settings = CameraSettings(0.135, 2.8, [3.0, 8.0], 1.2e-4, aperture="disk")
+    aif, focused = capture(image, depth, settings, np.random.default_rng(6), CaptureNoise())
+    once = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 20.0, refine_range=False)
+    twice = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 20.0)
+    assert once["scale"] < 0.5 and twice["scale"] > 0.9
+    near, far = twice["depth_range"]
+    assert 1.0 < near < 2.5 and 4.5 < far < 20.0
+    errors = [float(((o["depth"] - depth).abs() / depth)[:, 8:-8, 8:-8].mean())
+              for o in (once, twice)]
+    assert errors[1] < 0.05 and errors[1] < errors[0], errors
