@@ -223,7 +223,9 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
         errors.append(squared - variance * float((kernel**2).sum()))
     if not errors:
         return image.new_zeros(image.shape[0], 0, *image.shape[-2:])
-    return _box(torch.cat(errors, 1), ERROR_WINDOW_PX)
+    stacked = torch.cat(errors, 1)
+    del errors  # one copy of the candidates' errors at a time
+    return _box(stacked, ERROR_WINDOW_PX)
 
 
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
