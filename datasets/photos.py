@@ -102,7 +102,7 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
         with Image.open(path) as opened:
             info = _exif_info(path, opened)
             upright = ImageOps.exif_transpose(opened)
-            array = np.asarray(upright.convert("RGB") if upright.mode not in ("RGB", "I;16")
+            array = np.array(upright.convert("RGB") if upright.mode not in ("RGB", "I;16")
                                else upright)
     except (UnidentifiedImageError, OSError, ValueError) as error:
         raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None

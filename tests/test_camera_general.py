@@ -250,6 +250,18 @@ def test_predict_without_a_model_file_sweeps_over_depth(photos, tmp_path, capsys
     assert "--focused" in capsys.readouterr().err
 
 
+def test_predict_says_when_it_narrows_the_stated_range(photos, tmp_path, capsys):
+    """0.3-20 m for a scene at 1.5-6 m: the blur at 0.3 m would shrink the photos; the second
+    pass works over the scene's own range."""
+    args = photos()[1:]
+    assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
+                 "--depth-range", "0.3", "20", "--out", str(tmp_path / "n")]) == 0
+    out = capsys.readouterr().out
+    assert "the scene lies within" in out and "working resolution 1.000" in out, out
+    depth = np.load(tmp_path / "n" / "depth.npy")
+    assert np.isfinite(depth).all() and 1.0 < np.median(depth) < 8.0
+
+
 def test_predict_rotated_photos_come_out_upright(photos, tmp_path):
     args = photos(orientation=6)
     assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
