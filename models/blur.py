@@ -449,7 +449,8 @@ def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
                 margin: float = 0.15) -> tuple[float, float]:
     """The depths `(near, far)` metres a depth map holds, within `[near, far]`: its `tail` and
     `1 - tail` quantiles in inverse depth, widened by `margin` times their span on each side
-    (a coarse first estimate is off by some of it).
+    (a coarse first estimate is off by some of it), and by at least 2 % of the stated range's
+    inverse-depth span (a map of one depth still gets a range).
 
     Example:
         >>> depth = torch.linspace(2.0, 5.0, 1000).reshape(1, 1, 20, 50)
@@ -459,8 +460,8 @@ def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
     inverse = 1 / depth.detach().flatten().double()
     inverse = inverse[:: max(1, inverse.numel() // 100_000)]
     lo, hi = torch.quantile(inverse, torch.tensor([tail, 1 - tail], dtype=inverse.dtype)).tolist()
-    lo, hi = lo - margin * (hi - lo), hi + margin * (hi - lo)
-    return 1 / min(hi, 1 / near), 1 / max(lo, 1 / far)
+    pad = max(margin * (hi - lo), 0.02 * (1 / near - 1 / far))
+    return 1 / min(hi + pad, 1 / near), 1 / max(lo - pad, 1 / far)
 
 
 def _predict_at(model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,

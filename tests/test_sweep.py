@@ -193,13 +193,27 @@ def test_sweep_sees_through_focus_breathing():
 
 def test_scene_range_is_the_depth_maps_own_with_a_margin():
     depth = torch.tensor([2.0, 2.5, 4.0, 5.0]).reshape(1, 1, 2, 2)
-    near, far = scene_range(depth, 1.0, 15.0, tail=0.0, margin=0.0)
-    assert (near, far) == pytest.approx((2.0, 5.0))
+    # the extremes, widened by at least 2 % of the stated range's inverse-depth span
+    pad = 0.02 * (1 / 1.0 - 1 / 15.0)
+    assert scene_range(depth, 1.0, 15.0, tail=0.0, margin=0.0) == pytest.approx(
+        (1 / (0.5 + pad), 1 / (0.2 - pad)))
     # 15 % of the inverse-depth span on each side, and never beyond the stated range
     span = 1 / 2.0 - 1 / 5.0
     assert scene_range(depth, 1.0, 15.0, tail=0.0) == pytest.approx(
         (1 / (0.5 + 0.15 * span), 1 / (0.2 - 0.15 * span)))
     assert scene_range(depth, 2.2, 4.5, tail=0.0) == pytest.approx((2.2, 4.5))
+    # one depth: still a range
+    assert scene_range(torch.full((1, 1, 4, 4), 3.0), 1.0, 15.0) == pytest.approx(
+        (1 / (1 / 3.0 + pad), 1 / (1 / 3.0 - pad)))
+
+
+def test_predict_on_flat_photos_with_a_wide_range():
+    """A textureless scene reads as one depth: the refined range must not collapse."""
+    settings = CameraSettings(0.135, 2.8, [3.0, 8.0], 1.2e-4)
+    flat = torch.full((3, 48, 64), 0.5)
+    out = predict_depth(SweepDepth(), flat, flat[None].expand(2, 3, 48, 64), settings, 1.0, 20.0)
+    near, far = out["depth_range"]
+    assert 1.0 <= near < far <= 20.0 and torch.isfinite(out["depth"]).all()
 
 
 def test_predict_refines_a_stated_range_wider_than_the_scene():
