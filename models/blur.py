@@ -30,7 +30,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from optics import CameraSettings, Gaussian, align_shots, render_defocus
-from optics.checks import check_shape
+from optics.checks import check_finite, check_shape
 
 from .losses import edge_aware_smoothness, photometric_loss
 from .tiling import apply_in_tiles
@@ -425,6 +425,8 @@ def predict_depth(
     """
     check_shape("image", image, ["3", "H", "W"])
     check_shape("focused", focused, ["F", "3", "H", "W"])
+    check_finite("image", image)
+    check_finite("focused", focused)
     if focused.shape[-2:] != image.shape[-2:]:
         raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
                          f"all-in-focus photo is {tuple(image.shape[-2:])}")

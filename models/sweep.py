@@ -33,7 +33,7 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from optics import Aperture, CameraSettings
-from optics.checks import check_shape
+from optics.checks import check_finite, check_shape
 
 from .blur import (
     WINDOWS,
@@ -313,6 +313,8 @@ class SweepDepth(nn.Module):
         blur `(B,F,H,W)` pixels the thin lens gives each shot at that depth."""
         check_shape("image", image, ["B", "3", "H", "W"])
         check_shape("focused", focused, ["B", "F", "3", "H", "W"])
+        check_finite("image", image)
+        check_finite("focused", focused)
         settings = settings.batched(image.shape[0]).to(device=image.device, dtype=image.dtype)
         focused = torch.stack([match_exposure(image, focused[:, i])
                                for i in range(focused.shape[1])], 1)

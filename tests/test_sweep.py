@@ -134,6 +134,18 @@ def test_sweep_output_is_finite_on_flat_photos():
     assert torch.isfinite(out["depth"]).all() and float(out["confidence"].max()) < 0.1
 
 
+def test_predict_refuses_photos_with_nan():
+    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+    image, focused = torch.rand(3, 32, 32), torch.rand(2, 3, 32, 32)
+    focused[1, 0, 5, 7] = float("nan")
+    with pytest.raises(ValueError, match=r"focused has 1 NaN .* at index \(1, 0, 5, 7\)"):
+        predict_depth(SweepDepth(), image, focused, settings, 1.0, 10.0)
+    image = image[None]
+    image[0, 1, 2, 3] = float("inf")
+    with pytest.raises(ValueError, match="image has 0 NaN and 1 infinite"):
+        SweepDepth()(image, focused[None].nan_to_num(), settings, 1.0, 10.0)
+
+
 def test_sweep_refuses_bad_arguments():
     with pytest.raises(ValueError, match="n_candidates"):
         SweepDepth(n_candidates=2)
