@@ -38,7 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--depth-range", type=float, nargs=2, default=None,
                         metavar=("NEAR", "FAR"),
                         help="nearest and farthest depth of the scene, metres (camera-general "
-                             "model)")
+                             "model); a range wider than the scene costs a second pass, not "
+                             "resolution: the depth is computed again over the scene's own range")
     parser.add_argument("--out", type=Path, default=Path("runs/predict"),
                         help="output folder: depth.npy (metres), depth_mm.png (16-bit "
                              "millimetres), confidence.png, figure.png")
