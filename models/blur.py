@@ -427,6 +427,13 @@ def predict_depth(
     check_shape("focused", focused, ["F", "3", "H", "W"])
     check_finite("image", image)
     check_finite("focused", focused)
+    if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
+        raise ValueError(f"near and far must be finite metres with 0 < near < far, got "
+                         f"near={near!r}, far={far!r}")
+    if max_coc_px is not None and not (math.isfinite(max_coc_px) and max_coc_px > 0):
+        raise ValueError(f"max_coc_px must be a positive number of pixels, got {max_coc_px!r}")
+    if not max_pixels >= 64:
+        raise ValueError(f"max_pixels must be >= 64 (8x8 pixels), got {max_pixels!r}")
     if focused.shape[-2:] != image.shape[-2:]:
         raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
                          f"all-in-focus photo is {tuple(image.shape[-2:])}")

@@ -146,6 +146,25 @@ def test_predict_refuses_photos_with_nan():
         SweepDepth()(image, focused[None].nan_to_num(), settings, 1.0, 10.0)
 
 
+@pytest.mark.parametrize(("near", "far", "match"), [
+    (0.0, 10.0, "0 < near < far"), (5.0, 1.0, "0 < near < far"),
+    (float("nan"), 3.0, "finite metres"), (1.0, float("inf"), "finite metres")])
+def test_predict_refuses_a_bad_depth_range(near, far, match):
+    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+    with pytest.raises(ValueError, match=match):
+        predict_depth(SweepDepth(), torch.rand(3, 16, 16), torch.rand(2, 3, 16, 16), settings,
+                      near, far)
+
+
+@pytest.mark.parametrize(("option", "value"), [
+    ("max_coc_px", 0.0), ("max_coc_px", float("nan")), ("max_pixels", 0)])
+def test_predict_refuses_a_bad_working_resolution(option, value):
+    settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+    with pytest.raises(ValueError, match=option):
+        predict_depth(SweepDepth(), torch.rand(3, 16, 16), torch.rand(2, 3, 16, 16), settings,
+                      1.0, 10.0, **{option: value})
+
+
 def test_sweep_refuses_bad_arguments():
     with pytest.raises(ValueError, match="n_candidates"):
         SweepDepth(n_candidates=2)
