@@ -419,9 +419,10 @@ def predict_depth(
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
         resolution, `scale` (working / photo resolution), `depth_range` (the `(near, far)`
-        metres of the pass kept), `shifts` `(F,2)` and `zooms` `(F,)`: how far each focused
-        photo had moved `(dy, dx)`, in the photos' pixels, and how much it was magnified (zero
-        and one without `align`).
+        metres of the pass kept), `shifts` `(F,2)`, `zooms` `(F,)` and `rotations` `(F,)`: how
+        far each focused photo had moved `(dy, dx)`, in the photos' pixels, how much it was
+        magnified and how far it was turned, in degrees, clockwise on screen (zero, one and zero
+        without `align`).
     """
     check_shape("image", image, ["3", "H", "W"])
     check_shape("focused", focused, ["F", "3", "H", "W"])
@@ -481,7 +482,7 @@ def _predict_at(model: nn.Module, image: Tensor, focused: Tensor, settings: Came
     small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \
         if scale < 1 else torch.cat([image[None], focused])
     effective = settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
-    identity = torch.tensor([0.0, 0.0, 1.0], dtype=small.dtype).expand(1, len(focused), 3)
+    identity = torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=small.dtype).expand(1, len(focused), 4)
     shots, motions = align_shots(small[:1], small[1:][None]) if align \
         else (small[1:][None], identity)
     with torch.no_grad():
@@ -491,7 +492,8 @@ def _predict_at(model: nn.Module, image: Tensor, focused: Tensor, settings: Came
                                align_corners=False)
     return {"depth": depth[0], "confidence": confidence[0], "blur": out["blur"][0],
             "scale": size[1] / w, "depth_range": (near, far),
-            "shifts": motions[0, :, :2] * (w / size[1]), "zooms": motions[0, :, 2]}
+            "shifts": motions[0, :, :2] * (w / size[1]), "zooms": motions[0, :, 2],
+            "rotations": torch.rad2deg(motions[0, :, 3])}
 
 
 def evaluate_on_sample(model: nn.Module, sample: Mapping[str, Any], near: float,

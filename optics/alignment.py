@@ -82,58 +82,70 @@ def _smoothed_grey(image: Tensor, sigma: float) -> Tensor:
     return grey / grey.mean((-2, -1), keepdim=True).clamp_min(1e-8)
 
 
-def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None) -> Tensor:
-    """`image` `(B,C,H,W)` magnified by `zoom` `(B,)` about its centre `c`, then moved by `shift`
-    `(B,2)` pixels: `out(p) = image(c + (p - c - shift) / zoom)`.
+def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None,
+         angle: Tensor | None = None) -> Tensor:
+    """`image` `(B,C,H,W)` magnified by `zoom` `(B,)` and turned by `angle` `(B,)` radians
+    about its centre `c`, then moved by `shift` `(B,2)` pixels `(dy, dx)`:
+    `out(p) = image(c + R(-angle) (p - c - shift) / zoom)`, with `R(a)` the rotation taking the
+    x axis (right) toward the y axis (down), i.e. clockwise on screen for a positive angle.
 
-    Without a zoom (or a zoom within 1e-4 of 1) this is `translate` (no interpolation blur);
-    otherwise bicubic resampling, which blurs fine detail slightly.
+    Without a zoom or an angle (a zoom within 1e-4 of 1, an angle within 1e-6 rad) this is
+    `translate` (no interpolation blur); otherwise bicubic resampling, which blurs fine detail
+    slightly.
 
     Example:
         >>> image = torch.rand(1, 1, 8, 8)
         >>> torch.equal(warp(image, torch.zeros(1, 2)), translate(image, torch.zeros(1, 2)))
         True
+        >>> quarter = warp(image, torch.zeros(1, 2), angle=torch.tensor([torch.pi / 2]))
+        >>> torch.allclose(quarter, image.rot90(-1, (-2, -1)), atol=1e-5)
+        True
     """
-    if zoom is None or bool(((zoom - 1).abs() < 1e-4).all()):
+    b = image.shape[0]
+    zoom = torch.ones(b) if zoom is None else zoom
+    angle = torch.zeros(b) if angle is None else angle
+    if bool(((zoom - 1).abs() < 1e-4).all()) and bool((angle.abs() < 1e-6).all()):
         return translate(image, shift)
     check_shape("image", image, ["B", "C", "H", "W"])
-    b, c, h, w = image.shape
-    zoom, shift = zoom.to(image).reshape(b), shift.to(image)
-    # sample at q = c + (p - c - shift) / zoom; in align_corners=False coordinates about the
-    # centre, q_n = (p_n - 2 shift / size) / zoom
-    theta = torch.zeros(b, 2, 3, dtype=image.dtype, device=image.device)
-    theta[:, 0, 0] = theta[:, 1, 1] = 1 / zoom
-    theta[:, 0, 2] = -2 * shift[:, 1] / (w * zoom)
-    theta[:, 1, 2] = -2 * shift[:, 0] / (h * zoom)
+    _, c, h, w = image.shape
+    zoom, angle, shift = zoom.to(image).reshape(b), angle.to(image).reshape(b), shift.to(image)
+    # sample at q = c + R(-angle) (p - c - shift) / zoom, written in align_corners=False
+    # coordinates about the centre (x_n = 2 (x - c_x) / w, y_n = 2 (y - c_y) / h)
+    cos, sin = torch.cos(angle) / zoom, torch.sin(angle) / zoom
+    theta = torch.stack([
+        torch.stack([cos, sin * h / w, -2 * (cos * shift[:, 1] + sin * shift[:, 0]) / w], -1),
+        torch.stack([-sin * w / h, cos, -2 * (cos * shift[:, 0] - sin * shift[:, 1]) / h], -1),
+    ], 1)
     grid = F.affine_grid(theta, [b, c, h, w], align_corners=False)
     return F.grid_sample(image, grid, mode="bicubic", padding_mode="border", align_corners=False)
 
 
 def _lucas_kanade(reference: Tensor, moving: Tensor, motion: Tensor, iterations: int,
                   margin: int) -> Tensor:
-    # reference, moving (1,1,H,W) smoothed grey; motion (dy, dx) or (dy, dx, zoom) with
-    # moving ~ warp(reference, (dy, dx), zoom). A Hann taper over the inner window: the blur's
-    # terms cancel over the window only if they fade out at its edges.
+    # reference, moving (1,1,H,W) smoothed grey; motion (dy, dx) or (dy, dx, zoom, angle) with
+    # moving ~ warp(reference, (dy, dx), zoom, angle). A Hann taper over the inner window: the
+    # blur's terms cancel over the window only if they fade out at its edges.
     inner = (..., slice(margin, -margin), slice(margin, -margin))
     target = reference[inner][0, 0].double()
     h, w = target.shape
     taper = torch.outer(torch.hann_window(h + 2, periodic=False, dtype=torch.float64)[1:-1],
                         torch.hann_window(w + 2, periodic=False, dtype=torch.float64)[1:-1])
     taper = taper.to(target.device)
-    zoomed = len(motion) == 3
+    zoomed = len(motion) == 4
     full_h, full_w = reference.shape[-2:]
     y = torch.arange(full_h, dtype=torch.float64, device=target.device)[:, None] - (full_h - 1) / 2
     x = torch.arange(full_w, dtype=torch.float64, device=target.device)[None, :] - (full_w - 1) / 2
     radial_y, radial_x = (t.expand(full_h, full_w)[inner[1:]] for t in (y, x))
     for _ in range(iterations):
-        # back(p) = moving(c + zoom (p - c) + shift) ~ reference(p)
+        # back(p) = moving(c + zoom R(angle) (p - c) + shift) ~ reference(p)
         back = _unwarp(moving, motion)
         grad = kornia.filters.spatial_gradient(back, normalized=True)[0, 0]  # (2: dx, dy, H, W)
         gx, gy = grad[0][inner[1:]].double(), grad[1][inner[1:]].double()
         level = back[inner][0, 0].double()
-        # r - back ~ gy dy + gx dx (+ radial dzoom) + gain * back + offset: exposure differences
-        # fitted alongside
-        terms = [gy, gx] + ([gy * radial_y + gx * radial_x] if zoomed else [])
+        # r - back ~ gy dy + gx dx (+ radial dzoom + tangential dangle) + gain * back + offset:
+        # exposure differences fitted alongside
+        terms = [gy, gx] + ([gy * radial_y + gx * radial_x, gy * radial_x - gx * radial_y]
+                            if zoomed else [])
         columns = torch.stack([*terms, level, torch.ones_like(level)]).flatten(1)
         normal = (columns * taper.flatten()) @ columns.T
         if float(torch.linalg.eigvalsh(normal[:2, :2])[0]) <= 1e-8 * float(taper.sum()):
@@ -141,17 +153,23 @@ def _lucas_kanade(reference: Tensor, moving: Tensor, motion: Tensor, iterations:
         rhs = (columns * taper.flatten()) @ (target - level).flatten()
         step = torch.linalg.lstsq(normal, rhs[:, None]).solution[:len(terms), 0]
         motion = motion + step.to(motion)
-        if float(step[:2].abs().max()) < 1e-3 and (not zoomed or abs(float(step[2])) < 1e-6):
+        if float(step[:2].abs().max()) < 1e-3 and (not zoomed or float(step[2:].abs().max())
+                                                    < 1e-6):
             break
     return motion
 
 
 def _unwarp(moving: Tensor, motion: Tensor) -> Tensor:
-    """`moving(c + zoom (p - c) + shift)`: `moving` brought back onto the reference."""
+    """`moving(c + zoom R(angle) (p - c) + shift)` for `motion` `(dy, dx)` or
+    `(dy, dx, zoom, angle)`: `moving` `(1,C,H,W)` brought back onto the reference."""
     if len(motion) == 2:
         return translate(moving, -motion[None])
-    zoom = motion[2:3]
-    return warp(moving, -motion[None, :2] / zoom, 1 / zoom)
+    zoom, angle = motion[2:3], motion[3:4]
+    # warp's shift s' with R(angle) s' / zoom... = -shift: s' = -R(-angle) shift / zoom
+    cos, sin = torch.cos(angle), torch.sin(angle)
+    dy, dx = motion[0:1], motion[1:2]
+    shift = -torch.stack([cos * dy - sin * dx, cos * dx + sin * dy], -1) / zoom
+    return warp(moving, shift, 1 / zoom, -angle)
 
 
 def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: float,
@@ -168,8 +186,8 @@ def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: floa
     with torch.no_grad():
         for ref, mov in zip(reference, moving, strict=True):
             levels = max(0, min(4, int(math.log2(max(1, min(ref.shape[-2:]) // 16)))))
-            motion = torch.tensor([0.0, 0.0, 1.0] if zoomed else [0.0, 0.0], dtype=ref.dtype,
-                                  device=ref.device)
+            motion = torch.tensor([0.0, 0.0, 1.0, 0.0] if zoomed else [0.0, 0.0],
+                                  dtype=ref.dtype, device=ref.device)
             for level in range(levels, -1, -1):
                 factor = 2**level
                 r = F.avg_pool2d(ref[None], factor) if factor > 1 else ref[None]
@@ -207,36 +225,40 @@ def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = 10,
 
 def estimate_motion(reference: Tensor, moving: Tensor, iterations: int = 20,
                     sigma_px: float = 1.5) -> Tensor:
-    """The translation and magnification `(B,3)` `(dy, dx, zoom)` of `moving` relative to
-    `reference`: `moving ~ warp(reference, (dy, dx), zoom)` up to a symmetric blur, exposure and
-    noise. A lens whose image scale changes with focus ("focus breathing") magnifies each
-    focused photo a little (about 0.1-2 %); `estimate_shift` ignores that.
+    """The translation, magnification and rotation `(B,4)` `(dy, dx, zoom, angle)` (pixels,
+    ratio, radians) of `moving` relative to `reference`:
+    `moving ~ warp(reference, (dy, dx), zoom, angle)` up to a symmetric blur, exposure and noise.
+    A lens whose image scale changes with focus ("focus breathing") magnifies each focused photo
+    a little (about 0.1-2 %), and a hand-held camera turns a little between shots;
+    `estimate_shift` ignores both.
 
     Example:
         >>> image = kornia.filters.gaussian_blur2d(torch.rand(1, 1, 96, 96), (9, 9), (2.0, 2.0))
-        >>> moved = warp(image, torch.tensor([[0.5, -0.3]]), torch.tensor([1.01]))
+        >>> moved = warp(image, torch.tensor([[0.5, -0.3]]), torch.tensor([1.01]),
+        ...              torch.tensor([0.01]))
         >>> estimate_motion(image, moved).round(decimals=2)
-        tensor([[ 0.5000, -0.3000,  1.0100]])
+        tensor([[ 0.5000, -0.3000,  1.0100,  0.0100]])
     """
     return _estimate(reference, moving, iterations, sigma_px, zoomed=True)
 
 
-#: Largest displacement (pixels, at the image corners) a zoom may cause and still be ignored:
-#: under it the estimated zoom is noise, and undoing it would resample (blur) the photo.
+#: Largest displacement (pixels, at the image corners) a zoom and a rotation together may
+#: cause and still be ignored: under it they are noise, and undoing them would resample (blur)
+#: the photo.
 ZOOM_TOLERANCE_PX = 0.25
 
 
 def align_shots(image: Tensor, focused: Tensor) -> tuple[Tensor, Tensor]:
-    """Focused photos `(B,F,C,H,W)` moved (and, where the lens breathes, scaled) onto the
-    all-in-focus `image` `(B,C,H,W)`.
+    """Focused photos `(B,F,C,H,W)` moved (and, where the lens breathes or the camera turned,
+    scaled and rotated) onto the all-in-focus `image` `(B,C,H,W)`.
 
-    Each photo's `estimate_motion` is undone by `warp`. A zoom that moves the corners by less
-    than `ZOOM_TOLERANCE_PX` is taken for noise: the photo is then only moved, by its
-    `estimate_shift`, with `translate` (no resampling blur).
+    Each photo's `estimate_motion` is undone by `warp`. A zoom and rotation that move the
+    corners by less than `ZOOM_TOLERANCE_PX` are taken for noise: the photo is then only moved,
+    by its `estimate_shift`, with `translate` (no resampling blur).
 
     Returns:
-        `(aligned (B,F,C,H,W), motions (B,F,3))`, the `(dy, dx, zoom)` of each focused photo
-        relative to `image` (zoom 1 where it was ignored).
+        `(aligned (B,F,C,H,W), motions (B,F,4))`, the `(dy, dx, zoom, angle)` of each focused
+        photo relative to `image` (zoom 1 and angle 0 where they were ignored).
 
     Example:
         >>> image = kornia.filters.gaussian_blur2d(torch.rand(1, 3, 48, 48), (7, 7), (1.0, 1.0))
@@ -251,14 +273,12 @@ def align_shots(image: Tensor, focused: Tensor) -> tuple[Tensor, Tensor]:
     aligned, motions = [], []
     for i in range(n):
         motion = estimate_motion(image, focused[:, i])
-        small = (motion[:, 2] - 1).abs() * half_diagonal < ZOOM_TOLERANCE_PX
-        if bool(small.any()):  # no zoom to undo: the translation alone, estimated as such
+        corner = ((motion[:, 2] - 1).abs() + motion[:, 3].abs()) * half_diagonal
+        small = corner < ZOOM_TOLERANCE_PX
+        if bool(small.any()):  # nothing to undo but the translation, estimated as such
             motion[small, :2] = estimate_shift(image[small], focused[small, i])
-            motion[small, 2] = 1.0
-        shots = []
-        for j in range(b):
-            shift, zoom = motion[j:j + 1, :2], motion[j:j + 1, 2]
-            shots.append(warp(focused[j:j + 1, i], -shift / zoom, 1 / zoom))
-        aligned.append(torch.cat(shots))
+            motion[small, 2:] = torch.tensor([1.0, 0.0], dtype=motion.dtype,
+                                             device=motion.device)
+        aligned.append(torch.cat([_unwarp(focused[j:j + 1, i], motion[j]) for j in range(b)]))
         motions.append(motion)
     return torch.stack(aligned, 1), torch.stack(motions, 1)

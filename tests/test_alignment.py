@@ -90,7 +90,8 @@ def test_align_shots_undoes_each_shift():
     focused = torch.stack([translate(image, s[None]) for s in shifts], 1)
     aligned, found = align_shots(image, focused)
     assert torch.allclose(found[0, :, :2], shifts, atol=0.01)
-    assert torch.equal(found[0, :, 2], torch.ones(2, dtype=torch.float64))  # no zoom: ignored
+    # no zoom, no rotation: both ignored
+    assert torch.equal(found[0, :, 2:], torch.tensor([[1.0, 0.0]] * 2, dtype=torch.float64))
     assert torch.allclose(aligned[0, :, :, 12:-12, 12:-12],
                           image[:, :, 12:-12, 12:-12].expand(2, -1, -1, -1), atol=0.03)
 
@@ -134,3 +135,41 @@ def test_warp_matches_the_magnified_function():
     expected = waves(c + (y - c - shift[0]) / zoom, c + (x - c - shift[1]) / zoom)
     # bicubic interpolation errs by about 0.006; a zoom or shift of the wrong sign, by 0.1 or more
     assert torch.allclose(moved[..., 8:-8, 8:-8], expected[..., 8:-8, 8:-8], atol=0.01)
+
+
+@pytest.mark.parametrize("angle", [-0.006, 0.004])
+def test_estimate_motion_finds_a_turned_camera_through_defocus(angle):
+    """A hand-held focused photo turned by a few tenths of a degree (and magnified, shifted,
+    defocused by 4 px, noisy)."""
+    reference = _texture(128)
+    blurred = render_defocus(reference, torch.full((1, 1, 128, 128), 4.0), Disk())
+    g = torch.Generator().manual_seed(2)
+    moving = warp(blurred, torch.tensor([[-0.4, 0.7]]), torch.tensor([1.005]),
+                  torch.tensor([angle]))
+    moving = moving + 0.01 * torch.randn(moving.shape, generator=g)
+    found = estimate_motion(reference, moving)[0]
+    assert torch.allclose(found[:2], torch.tensor([-0.4, 0.7]), atol=0.1), found
+    assert float(found[2]) == pytest.approx(1.005, abs=1e-3)
+    assert float(found[3]) == pytest.approx(angle, abs=5e-4)
+
+
+def test_warp_matches_the_turned_function_on_a_wide_image():
+    """warp(image, t, z, a)(p) = image(c + R(-a) (p - c - t) / z) on a non-square image, with R
+    turning x (right) toward y (down)."""
+    h, w = 48, 80
+    shift, zoom, angle = (0.7, -1.2), 0.97, 0.15
+    y = torch.arange(h, dtype=torch.float64)[:, None]
+    x = torch.arange(w, dtype=torch.float64)[None, :]
+    cy, cx = (h - 1) / 2, (w - 1) / 2
+
+    def waves(yy, xx):
+        return (0.5 + 0.2 * torch.sin(2 * math.pi * (0.05 * yy + 0.03 * xx))).expand(1, 1, h, w)
+
+    moved = warp(waves(y, x), torch.tensor([shift], dtype=torch.float64),
+                 torch.tensor([zoom], dtype=torch.float64),
+                 torch.tensor([angle], dtype=torch.float64))
+    u, v = x - cx - shift[1], y - cy - shift[0]
+    cos, sin = math.cos(angle), math.sin(angle)
+    expected = waves(cy + (-sin * u + cos * v) / zoom, cx + (cos * u + sin * v) / zoom)
+    inner = (..., slice(10, -10), slice(10, -10))
+    assert torch.allclose(moved[inner], expected[inner], atol=0.01)

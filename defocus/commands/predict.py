@@ -116,14 +116,15 @@ def _camera_general(args, model, image, focused, settings):
                            "for each blur, the range picks the right one")
     near, far = args.depth_range
     out = predict_depth(model, image, focused, settings.to(image.dtype), near, far)
-    moved = ", ".join(f"({dy:+.1f}, {dx:+.1f}, x{zoom:.4f})" for (dy, dx), zoom
-                      in zip(out["shifts"].tolist(), out["zooms"].tolist(), strict=True))
+    moved = ", ".join(f"({dy:+.1f}, {dx:+.1f}, x{zoom:.4f}, {turn:+.2f} deg)"
+                      for (dy, dx), zoom, turn in zip(out["shifts"].tolist(), out["zooms"].tolist(),
+                                                      out["rotations"].tolist(), strict=True))
     swept = out["depth_range"]
     if tuple(swept) != (near, far):
         print(f"the scene lies within {swept[0]:.2f}-{swept[1]:.2f} m of the stated "
               f"{near:g}-{far:g} m: depth computed again over that range, at a finer resolution")
     print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned: moved by "
-          f"{moved} (pixels down, right; magnification)")
+          f"{moved} (pixels down, right; magnification; rotation, clockwise)")
     return out["depth"], out["confidence"], (near, far)
 
 
