@@ -165,7 +165,8 @@ def _unwarp(moving: Tensor, motion: Tensor) -> Tensor:
     if len(motion) == 2:
         return translate(moving, -motion[None])
     zoom, angle = motion[2:3], motion[3:4]
-    # warp's shift s' with R(angle) s' / zoom... = -shift: s' = -R(-angle) shift / zoom
+    # warp(s', 1 / zoom, -angle) samples moving at c + zoom R(angle) (p - c - s'), which is
+    # c + zoom R(angle) (p - c) + shift for s' = -R(-angle) shift / zoom
     cos, sin = torch.cos(angle), torch.sin(angle)
     dy, dx = motion[0:1], motion[1:2]
     shift = -torch.stack([cos * dy - sin * dx, cos * dx + sin * dy], -1) / zoom

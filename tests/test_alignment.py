@@ -173,3 +173,13 @@ def test_warp_matches_the_turned_function_on_a_wide_image():
     expected = waves(cy + (-sin * u + cos * v) / zoom, cx + (cos * u + sin * v) / zoom)
     inner = (..., slice(10, -10), slice(10, -10))
     assert torch.allclose(moved[inner], expected[inner], atol=0.01)
+
+
+def test_warp_gradcheck():
+    """Differentiable in the image, the shift, the zoom and the angle (bicubic resampling)."""
+    g = torch.Generator().manual_seed(4)
+    image = torch.rand(1, 2, 10, 12, generator=g, dtype=torch.float64, requires_grad=True)
+    shift = torch.tensor([[0.3, -0.4]], dtype=torch.float64, requires_grad=True)
+    zoom = torch.tensor([1.05], dtype=torch.float64, requires_grad=True)
+    angle = torch.tensor([0.1], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(warp, (image, shift, zoom, angle))
