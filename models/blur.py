@@ -186,9 +186,7 @@ def solve_depth(
     settings = settings.batched(b).to(device=blur.device, dtype=blur.dtype)
     if settings.n_shots != n:
         raise ValueError(f"blur holds {n} shots but settings {settings.n_shots}")
-    a = settings.coc_at_infinity_px().abs()[..., None]  # (B,F,1)
-    focus = settings.focus_distance[..., None]
-    predicted = (a * (1 - focus * x)).abs()  # (B,F,K)
+    predicted = thin_lens_blur(settings, x[None, None])  # (B,F,K)
     weight = weight.expand(b, n, h, w)
     cost = torch.zeros(b, n_candidates, h, w, dtype=blur.dtype, device=blur.device)
     for i in range(n):
@@ -226,6 +224,23 @@ def select_depth(cost: Tensor, near: float, far: float) -> Tensor:
     index = best.to(cost.dtype) + torch.where(inside, offset, torch.zeros_like(offset))
     inverse = 1 / far + index * (1 / near - 1 / far) / (n_candidates - 1)
     return (1 / inverse).clamp(near, far)
+
+
+def thin_lens_blur(settings: CameraSettings, inverse_depth: Tensor) -> Tensor:
+    """The blur `|c_i| = |A_i (1 - D_f,i x)|` pixels that the thin lens gives each shot of
+    `settings` `(B,F)` at inverse depths `x` (1/metres) shaped `(B or 1, F or 1, ...)`:
+    `(B,F,...)`.
+
+    Example:
+        >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).batched(1)  # sharp at 2 m and 6 m
+        >>> thin_lens_blur(s, torch.tensor([[[1 / 2.0, 1 / 6.0]]])).round(decimals=2)
+        tensor([[[0.0000, 4.2700],
+                 [4.2000, 0.0000]]], dtype=torch.float64)
+    """
+    trailing = (1,) * (inverse_depth.dim() - 2)
+    a = settings.coc_at_infinity_px().reshape(*settings.shape, *trailing)
+    focus = settings.focus_distance.reshape(*settings.shape, *trailing)
+    return (a * (1 - focus * inverse_depth)).abs()
 
 
 def candidate_inverse_depths(near: float, far: float, n_candidates: int, like: Tensor) -> Tensor:

@@ -43,6 +43,7 @@ from .blur import (
     match_exposure,
     select_depth,
     texture_weight,
+    thin_lens_blur,
 )
 from .smoothing import edge_aware_smooth
 from .tiling import apply_in_tiles, check_tiling
@@ -253,8 +254,7 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
     settings = settings.batched(b).to(device=image.device, dtype=image.dtype)
     if settings.n_shots != n:
         raise ValueError(f"focused holds {n} shots but settings {settings.n_shots}")
-    predicted = (settings.coc_at_infinity_px()[..., None]
-                 * (1 - settings.focus_distance[..., None] * x)).abs()  # (B,F,K)
+    predicted = thin_lens_blur(settings, x[None, None])  # (B,F,K)
     aperture = settings.aperture_module()
     if noise is None:  # every photo: one sensor
         noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
@@ -348,6 +348,5 @@ class SweepDepth(nn.Module):
             weight = kornia.filters.median_blur(confidence, MEDIAN_PX) + CONFIDENCE_FLOOR
             inverse = edge_aware_smooth(1 / depth, weight, image, self.smoothing, SMOOTHING_SIGMA)
             depth = 1 / inverse.clamp(1 / far, 1 / near)
-        blur = (settings.coc_at_infinity_px()[..., None, None]
-                * (1 - settings.focus_distance[..., None, None] / depth)).abs()
-        return {"depth": depth, "confidence": confidence, "blur": blur}
+        return {"depth": depth, "confidence": confidence,
+                "blur": thin_lens_blur(settings, 1 / depth)}
