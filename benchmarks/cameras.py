@@ -46,6 +46,7 @@ from models.blur import (  # noqa: E402
     predict_depth,
     solve_depth,
     texture_weight,
+    to_working_resolution,
     working_scale,
 )
 from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
@@ -88,13 +89,11 @@ def working_resolution(shot: dict, max_coc_px: float) -> tuple[torch.Tensor, Cam
                                                               tuple[int, int]]:
     """The all-in-focus and focused photos `(1+F,3,h,w)` at `predict_depth`'s working resolution
     for a model reading blurs up to `max_coc_px`, the settings there and that size."""
-    settings = shot["settings"]
-    scale = working_scale(settings, *DEPTH_RANGE, tuple(shot["image"].shape[-2:]), max_coc_px)
-    h, w = shot["image"].shape[-2:]
-    size = (max(8, round(h * scale)), max(8, round(w * scale)))
-    stack = torch.nn.functional.interpolate(torch.cat([shot["image"][None], shot["focused"]]),
-                                            size=size, mode="area")
-    return stack, settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1])), size
+    scale = working_scale(shot["settings"], *DEPTH_RANGE, tuple(shot["image"].shape[-2:]),
+                          max_coc_px)
+    stack, settings = to_working_resolution(shot["image"], shot["focused"], shot["settings"],
+                                            scale)
+    return stack, settings, tuple(stack.shape[-2:])
 
 
 def run_oracle(shot: dict) -> torch.Tensor:

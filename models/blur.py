@@ -489,14 +489,24 @@ def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
     return 1 / min(hi + pad, 1 / near), 1 / max(lo - pad, 1 / far)
 
 
+def to_working_resolution(image: Tensor, focused: Tensor, settings: CameraSettings,
+                          scale: float) -> tuple[Tensor, CameraSettings]:
+    """The all-in-focus photo `(3,H,W)` and the focused ones `(F,3,H,W)` stacked `(1+F,3,h,w)`
+    at `scale` (`working_scale`; area-averaged, at least 8x8 pixels), and their settings there
+    (the effective pixel pitch grows by the same factor)."""
+    h, w = image.shape[-2:]
+    size = (max(8, round(h * scale)), max(8, round(w * scale)))
+    stack = torch.cat([image[None], focused])
+    small = F.interpolate(stack, size=size, mode="area") if scale < 1 else stack
+    return small, settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
+
+
 def _predict_at(model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
                 near: float, far: float, scale: float, align: bool) -> dict[str, Tensor | float]:
     """`predict_depth`'s pass over `[near, far]` at the working `scale`."""
     h, w = image.shape[-2:]
-    size = (max(8, round(h * scale)), max(8, round(w * scale)))
-    small = F.interpolate(torch.cat([image[None], focused]), size=size, mode="area") \
-        if scale < 1 else torch.cat([image[None], focused])
-    effective = settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
+    small, effective = to_working_resolution(image, focused, settings, scale)
+    size = small.shape[-2:]
     identity = torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=small.dtype).expand(1, len(focused), 4)
     shots, motions = align_shots(small[:1], small[1:][None]) if align \
         else (small[1:][None], identity)
