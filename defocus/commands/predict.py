@@ -61,12 +61,12 @@ def run(args: argparse.Namespace) -> int:
     from optics import CameraSettings
 
     # the model first: a file that is no model is refused before any photo is read
-    general = args.checkpoint is None or is_weights_file(args.checkpoint)
     if args.checkpoint is None:
-        model = SweepDepth(progress=True)
+        model, general = SweepDepth(progress=True), True
+    elif is_weights_file(args.checkpoint):
+        model, general = load_weights(args.checkpoint), True
     else:
-        model = load_weights(args.checkpoint) if general \
-            else Trainer.from_checkpoint(args.checkpoint)
+        model, general = Trainer.from_checkpoint(args.checkpoint), False
     image, _ = read_photo(args.image)
     photos = [read_photo(path) for path in args.focused]
     for path, (photo, _) in zip(args.focused, photos, strict=True):
