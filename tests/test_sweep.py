@@ -59,14 +59,14 @@ def test_blur_errors_are_least_at_the_true_blur_despite_noise(dtype):
     assert errors.dtype == dtype
 
 
-def _photographed_planes(depths, seed=0, focus=(2.0, 6.0), noise=None):
+def _photographed_planes(depths, seed=0, focus=(2.0, 6.0), noise=None, lens=(0.05, 2.0)):
     """A textured scene at one or two depths (left, right halves), photographed with `noise`'s
-    imperfections (noise and misalignment by default) by a 50 mm f/2 camera focused at `focus`
-    metres."""
+    imperfections (noise and misalignment by default) by a camera of `lens` (focal length m,
+    f-number; 50 mm f/2 by default) focused at `focus` metres."""
     image = _texture()
     depth = torch.full((1, 96, 128), float(depths[0]))
     depth[..., 64:] = float(depths[-1])
-    settings = CameraSettings(0.05, 2.0, list(focus), 1.2e-4, aperture="disk")
+    settings = CameraSettings(*lens, list(focus), 1.2e-4, aperture="disk")
     aif, focused = capture(image, depth, settings, np.random.default_rng(seed),
                            noise or CaptureNoise())
     return aif, focused, settings, depth
@@ -251,11 +251,8 @@ def test_predict_refines_a_stated_range_wider_than_the_scene():
     """A 135 mm lens, a scene at 2.5-4.5 m stated as 1-20 m: the blur at 1 m would force the
     photos down to 40 % of their size; the scene's own range lets the second pass work at full
     resolution, and its depth is closer to the truth."""
-    image = _texture()
-    depth = torch.full((1, 96, 128), 2.5)
-    depth[..., 64:] = 4.5
-    settings = CameraSettings(0.135, 2.8, [3.0, 8.0], 1.2e-4, aperture="disk")
-    aif, focused = capture(image, depth, settings, np.random.default_rng(6), CaptureNoise())
+    aif, focused, settings, depth = _photographed_planes([2.5, 4.5], seed=6, focus=(3.0, 8.0),
+                                                         lens=(0.135, 2.8))
     once = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 20.0, refine_range=False)
     twice = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 20.0)
     assert once["scale"] < 0.5 and twice["scale"] > 0.9
