@@ -107,6 +107,9 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
     out = []
     for photo in image.detach().double():
         variance, level = (t.flatten() for t in _local_noise(photo[:, None]))
+        # torch.quantile takes at most 2^24 values: a regular subsample of a larger stack
+        stride = math.ceil(level.numel() / 2**24)
+        variance, level = variance[::stride], level[::stride]
         edges = torch.quantile(level, torch.linspace(0, 1, bins + 1, dtype=level.dtype))
         xs, ys = [], []
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):

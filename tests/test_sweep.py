@@ -42,6 +42,16 @@ def test_noise_model_measures_shot_and_read_noise():
     assert clean[0] + clean[1] * 0.5 < 0.1 * (a + b * 0.5)
 
 
+def test_noise_model_of_a_large_stack():
+    """Six photos of 1000x1000 (18 channels, more values than torch.quantile takes at once), as
+    five focused photos at a 1-megapixel working resolution give."""
+    g = torch.Generator().manual_seed(3)
+    flat = torch.linspace(0.1, 0.9, 1000).expand(1, 18, 1000, 1000)
+    noisy = flat + torch.randn(1, 18, 1000, 1000, generator=g) * (1e-4 + 1e-3 * flat).sqrt()
+    a, b = noise_model(noisy)[0].tolist()
+    assert b == pytest.approx(1e-3, rel=0.2) and a < 5e-4
+
+
 def test_noise_model_of_tiny_images_is_zero():
     assert torch.equal(noise_model(torch.rand(2, 3, 8, 8)), torch.zeros(2, 2))
 
