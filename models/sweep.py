@@ -4,7 +4,7 @@ For a candidate depth, the thin lens gives each shot's blur `|c_i| = |A_i (1 - D
 pixels, and the all-in-focus photo blurred by the camera's PSF at that blur should reproduce the
 focused photo. `sweep_cost` measures how well at every pixel: for every candidate and shot it
 blurs the all-in-focus photo (a whole-image product in the Fourier domain, the photo transformed
-once), keeps the local squared error against the focused photo and sums over the shots.
+once per shot), keeps the local squared error against the focused photo and sums over the shots.
 `models.blur.select_depth` then picks the cheapest candidate after aggregating over windows, and
 a median filter removes isolated wrong picks. The errors carry their own weighting: where the
 all-in-focus photo has no texture every candidate costs the same, and the coarse windows fill in
@@ -25,6 +25,7 @@ within the range where the blur is readable (about 0.5 to 20 pixels at the worki
 
 from __future__ import annotations
 
+import functools
 import math
 
 import kornia
@@ -75,7 +76,14 @@ def _local_noise(image: Tensor, window: int = 7) -> tuple[Tensor, Tensor]:
 
 
 _QUANTILE = 0.1
-_QUANTILE_OF_PURE_NOISE: list[float] = []
+
+
+@functools.cache
+def _quantile_of_pure_noise() -> float:
+    """`_QUANTILE` of `_local_noise`'s estimates on white noise of unit variance (measured once)."""
+    g = torch.Generator().manual_seed(0)
+    white, _ = _local_noise(torch.randn(1, 1, 256, 256, generator=g, dtype=torch.float64))
+    return float(torch.quantile(white.flatten(), _QUANTILE))
 
 
 def noise_model(image: Tensor, bins: int = 12) -> Tensor:
@@ -100,10 +108,6 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
     check_shape("image", image, ["B", "C", "H", "W"])
     if min(image.shape[-2:]) < 16:
         return torch.zeros(image.shape[0], 2, dtype=image.dtype, device=image.device)
-    if not _QUANTILE_OF_PURE_NOISE:
-        g = torch.Generator().manual_seed(0)
-        white, _ = _local_noise(torch.randn(1, 1, 256, 256, generator=g, dtype=torch.float64))
-        _QUANTILE_OF_PURE_NOISE.append(float(torch.quantile(white.flatten(), _QUANTILE)))
     out = []
     for photo in image.detach().double():
         variance, level = (t.flatten() for t in _local_noise(photo[:, None]))
@@ -117,7 +121,7 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
             if int(band.sum()) < 50:
                 continue
             xs.append(float(level[band].median()))
-            ys.append(float(torch.quantile(variance[band], _QUANTILE)) / _QUANTILE_OF_PURE_NOISE[0])
+            ys.append(float(torch.quantile(variance[band], _QUANTILE)) / _quantile_of_pure_noise())
         x, y = torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64)
         design = torch.stack([torch.ones_like(x), x], 1)
         a, b = torch.linalg.lstsq(design, y[:, None]).solution.flatten().tolist()
