@@ -484,7 +484,8 @@ def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
     """
     inverse = 1 / depth.detach().flatten().double()
     inverse = inverse[:: max(1, inverse.numel() // 100_000)]
-    lo, hi = torch.quantile(inverse, torch.tensor([tail, 1 - tail], dtype=inverse.dtype)).tolist()
+    quantiles = torch.tensor([tail, 1 - tail], dtype=inverse.dtype, device=inverse.device)
+    lo, hi = torch.quantile(inverse, quantiles).tolist()
     pad = max(margin * (hi - lo), 0.02 * (1 / near - 1 / far))
     return 1 / min(hi + pad, 1 / near), 1 / max(lo - pad, 1 / far)
 
@@ -507,7 +508,8 @@ def _predict_at(model: nn.Module, image: Tensor, focused: Tensor, settings: Came
     h, w = image.shape[-2:]
     small, effective = to_working_resolution(image, focused, settings, scale)
     size = small.shape[-2:]
-    identity = torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=small.dtype).expand(1, len(focused), 4)
+    identity = torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=small.dtype,
+                            device=small.device).expand(1, len(focused), 4)
     shots, motions = align_shots(small[:1], small[1:][None]) if align \
         else (small[1:][None], identity)
     with torch.no_grad():

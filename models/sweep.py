@@ -114,7 +114,8 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
         # torch.quantile takes at most 2^24 values: a regular subsample of a larger stack
         stride = math.ceil(level.numel() / 2**24)
         variance, level = variance[::stride], level[::stride]
-        edges = torch.quantile(level, torch.linspace(0, 1, bins + 1, dtype=level.dtype))
+        edges = torch.quantile(level, torch.linspace(0, 1, bins + 1, dtype=level.dtype,
+                                                     device=level.device))
         xs, ys = [], []
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):
             band = (level >= lo) & (level <= hi)

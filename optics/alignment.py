@@ -102,8 +102,8 @@ def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None,
         True
     """
     b = image.shape[0]
-    zoom = torch.ones(b) if zoom is None else zoom
-    angle = torch.zeros(b) if angle is None else angle
+    zoom = torch.ones(b, device=image.device) if zoom is None else zoom
+    angle = torch.zeros(b, device=image.device) if angle is None else angle
     if bool(((zoom - 1).abs() < 1e-4).all()) and bool((angle.abs() < 1e-6).all()):
         return translate(image, shift)
     check_shape("image", image, ["B", "C", "H", "W"])

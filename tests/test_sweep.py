@@ -96,6 +96,22 @@ def test_sweep_separates_two_planes():
     assert float(depth[16:-16, 80:-8].median()) == pytest.approx(4.5, rel=0.05)
 
 
+@pytest.mark.parametrize("align", [True, False], ids=["aligned", "unaligned"])
+def test_predict_runs_on_the_photos_device(device, align):
+    """The photos' device is the computation's: on CUDA the depth of two planes matches the
+    CPU's (every tensor the sweep, the noise model, the alignment and the smoothing make
+    follows the photos)."""
+    aif, focused, settings, _ = _photographed_planes([2.5, 4.5], seed=1, focus=(1.5, 8.0))
+    here = predict_depth(SweepDepth(), aif.to(device), focused.to(device), settings, 1.0, 10.0,
+                         align=align)
+    cpu = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 10.0, align=align)
+    assert here["depth"].device.type == device.type
+    assert here["confidence"].device.type == device.type
+    assert here["depth_range"] == pytest.approx(cpu["depth_range"], rel=1e-3)
+    relative = (here["depth"].cpu() - cpu["depth"]).abs() / cpu["depth"]
+    assert float(relative.median()) < 1e-3 and float(relative.mean()) < 0.01
+
+
 def test_alignment_removes_the_bias_of_misaligned_shots():
     """Misaligned by about a pixel, unaligned shots read as extra blur: for shots focused in
     front of the plane, the depth comes out too far."""
