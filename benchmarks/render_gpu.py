@@ -1,11 +1,14 @@
 """Speed of the per-pixel PSF renderer on a CUDA GPU (the Triton kernels): scatter mode against
-`kornia.filters.gaussian_blur2d` and against a memory-bandwidth floor.
+`kornia.filters.gaussian_blur2d` and against a memory-bandwidth floor; then the modes and
+apertures without Triton kernels (the PyTorch loops) against the same two.
 
 For each shape (`1x3x512x512`, `8x3x512x512`), window `K` (15, 31) and aperture (Gaussian,
 disk), `render_defocus(..., mode="scatter")` and `gaussian_blur2d` with the same `K` run
 forward+backward, round-robin in this process (one run of each per round, timed with CUDA events
 after a warm-up), on the inputs of `benchmarks/render.py` (a CoC map whose largest CoC needs
-exactly the `K` window). Ratios are medians of the per-round ratios.
+exactly the `K` window). Ratios are medians of the per-round ratios. The second table runs, at
+`1x3x512x512` and `K = 15`, the gather and layered modes (8 layers; `scene` and `random` depth as
+in `benchmarks/render.py`), whose operators have no Triton kernel.
 
 The floor is the time to move, once, the bytes that a forward+backward must read and write:
 forward reads the image and the CoC and writes the output, backward reads the output's
@@ -17,6 +20,7 @@ Usage:
     python benchmarks/render_gpu.py             # goals, then the table
     python benchmarks/render_gpu.py --rounds 21
     python benchmarks/render_gpu.py --block-h 8 --warps 2   # another tile of the Triton kernels
+    python benchmarks/render_gpu.py --no-other   # only the Triton scatter table
 """
 
 from __future__ import annotations
@@ -37,6 +41,9 @@ from optics import _render_triton  # noqa: E402
 SHAPES = [(1, 3, 512, 512), (8, 3, 512, 512)]
 KERNELS = [15, 31]
 METHODS = ["kornia", "gaussian/scatter", "disk/scatter"]
+#: Modes and apertures that run PyTorch loops on GPU, timed beside the two baselines.
+OTHER_METHODS = ["gaussian/gather", "disk/gather", "gaussian/layered-scene",
+                 "disk/layered-scene", "gaussian/layered", "disk/layered"]
 #: The goals' configuration (as in benchmarks/render.py) and their targets.
 GOAL_SHAPE, GOAL_K = (1, 3, 512, 512), 15
 
@@ -66,9 +73,10 @@ def _timed(fn) -> float:
     return start.elapsed_time(end) / 1e3
 
 
-def measure(shape, k: int, rounds: int, warmup: int = 3) -> dict[str, list[float]]:
+def measure(shape, k: int, rounds: int, warmup: int = 3,
+            methods: list[str] = METHODS) -> dict[str, list[float]]:
     """Forward+backward seconds per method, interleaved over `rounds` after `warmup` runs."""
-    jobs = {name: Job(name, k, torch.device("cuda"), shape=shape) for name in METHODS}
+    jobs = {name: Job(name, k, torch.device("cuda"), shape=shape) for name in methods}
     for job in jobs.values():
         for _ in range(warmup):
             job.run(True)
@@ -85,6 +93,8 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=15, help="round-robin rounds (medians)")
     parser.add_argument("--block-h", type=int, help="tile rows of the Triton kernels (tuning)")
     parser.add_argument("--warps", type=int, help="warps per program; tile width is 32 per warp")
+    parser.add_argument("--no-other", action="store_true",
+                        help="skip the table of the modes that run PyTorch loops on GPU")
     args = parser.parse_args(argv)
     if args.block_h:
         _render_triton.BLOCK_H = args.block_h
@@ -124,6 +134,16 @@ def main(argv=None) -> int:
          paired_ratio(goal, "disk/scatter", "gaussian/scatter"), 1.5),
     ):
         print(f"{name} ({where}): {value:.2f}x, {'met' if value <= target else 'unmet'}")
+    if not args.no_other:
+        print(f"\nWithout Triton kernels (PyTorch loops), {where}:\n")
+        print("| method | fwd+bwd ms | / gaussian_blur2d | / Gaussian scatter (Triton) |\n"
+              "|---|---|---|---|")
+        times = measure(GOAL_SHAPE, GOAL_K, args.rounds,
+                        methods=["kornia", "gaussian/scatter", *OTHER_METHODS])
+        for name in OTHER_METHODS:
+            print(f"| {name} | {statistics.median(times[name]) * 1e3:.3f} | "
+                  f"{paired_ratio(times, name, 'kornia'):.2f} | "
+                  f"{paired_ratio(times, name, 'gaussian/scatter'):.2f} |", flush=True)
     return 0
 
 
