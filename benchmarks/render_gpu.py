@@ -1,6 +1,6 @@
 """Speed of the per-pixel PSF renderer on a CUDA GPU (the Triton kernels): scatter mode against
-`kornia.filters.gaussian_blur2d` and against a memory-bandwidth floor; then the modes and
-apertures without Triton kernels (the PyTorch loops) against the same two.
+`kornia.filters.gaussian_blur2d` and against a memory-bandwidth floor; then the gather and
+layered modes (Triton spreads, the layers composited in PyTorch) against the same two.
 
 For each shape (`1x3x512x512`, `8x3x512x512`), window `K` (15, 31) and aperture (Gaussian,
 disk), `render_defocus(..., mode="scatter")` and `gaussian_blur2d` with the same `K` run
@@ -8,7 +8,9 @@ forward+backward, round-robin in this process (one run of each per round, timed 
 after a warm-up), on the inputs of `benchmarks/render.py` (a CoC map whose largest CoC needs
 exactly the `K` window). Ratios are medians of the per-round ratios. The second table runs, at
 `1x3x512x512` and `K = 15`, the gather and layered modes (8 layers; `scene` and `random` depth as
-in `benchmarks/render.py`), whose operators have no Triton kernel.
+in `benchmarks/render.py`): their unnormalised spreads run the Triton kernels
+`CHANNEL_GROUP` channels per program, the rest (layer weights, normalisation, compositing) is
+PyTorch.
 
 The floor is the time to move, once, the bytes that a forward+backward must read and write:
 forward reads the image and the CoC and writes the output, backward reads the output's
@@ -20,7 +22,8 @@ Usage:
     python benchmarks/render_gpu.py             # goals, then the table
     python benchmarks/render_gpu.py --rounds 21
     python benchmarks/render_gpu.py --block-h 8 --warps 2   # another tile of the Triton kernels
-    python benchmarks/render_gpu.py --no-other   # only the Triton scatter table
+    python benchmarks/render_gpu.py --no-other   # only the fused scatter table
+    python benchmarks/render_gpu.py --channel-group 8   # channels per program of the spreads
 """
 
 from __future__ import annotations
@@ -41,7 +44,7 @@ from optics import _render_triton  # noqa: E402
 SHAPES = [(1, 3, 512, 512), (8, 3, 512, 512)]
 KERNELS = [15, 31]
 METHODS = ["kornia", "gaussian/scatter", "disk/scatter"]
-#: Modes and apertures that run PyTorch loops on GPU, timed beside the two baselines.
+#: The other modes, timed beside the two baselines.
 OTHER_METHODS = ["gaussian/gather", "disk/gather", "gaussian/layered-scene",
                  "disk/layered-scene", "gaussian/layered", "disk/layered"]
 #: The goals' configuration (as in benchmarks/render.py) and their targets.
@@ -94,10 +97,14 @@ def main(argv=None) -> int:
     parser.add_argument("--block-h", type=int, help="tile rows of the Triton kernels (tuning)")
     parser.add_argument("--warps", type=int, help="warps per program; tile width is 32 per warp")
     parser.add_argument("--no-other", action="store_true",
-                        help="skip the table of the modes that run PyTorch loops on GPU")
+                        help="skip the table of the gather and layered modes")
+    parser.add_argument("--channel-group", type=int,
+                        help="channels per program of the unnormalised spreads (a power of two)")
     args = parser.parse_args(argv)
     if args.block_h:
         _render_triton.BLOCK_H = args.block_h
+    if args.channel_group:
+        _render_triton.CHANNEL_GROUP = args.channel_group
     if args.warps:
         _render_triton.NUM_WARPS, _render_triton.BLOCK_W = args.warps, 32 * args.warps
     if not torch.cuda.is_available():
@@ -135,8 +142,9 @@ def main(argv=None) -> int:
     ):
         print(f"{name} ({where}): {value:.2f}x, {'met' if value <= target else 'unmet'}")
     if not args.no_other:
-        print(f"\nWithout Triton kernels (PyTorch loops), {where}:\n")
-        print("| method | fwd+bwd ms | / gaussian_blur2d | / Gaussian scatter (Triton) |\n"
+        print(f"\nGather and layered modes ({_render_triton.CHANNEL_GROUP} channels per "
+              f"program of the spreads), {where}:\n")
+        print("| method | fwd+bwd ms | / gaussian_blur2d | / Gaussian scatter |\n"
               "|---|---|---|---|")
         times = measure(GOAL_SHAPE, GOAL_K, args.rounds,
                         methods=["kornia", "gaussian/scatter", *OTHER_METHODS])

@@ -1,5 +1,7 @@
 """Triton kernels for the fused, normalised scatter operators (`defocus::gaussian_render`,
-`defocus::clamp_render` and their backward operators), registered as their CUDA implementations.
+`defocus::clamp_render` and their backward operators) and for the unnormalised spreads they are
+built from (`defocus::gaussian_scatter`, `defocus::clamp_scatter` and their backward operators:
+the gather and layered modes), registered as their CUDA implementations.
 
 Imported by `optics._render_ops`; without Triton this module defines nothing that runs and
 registers nothing, so the operators keep their PyTorch fallback on CUDA.
@@ -13,6 +15,10 @@ and loops over the `K x K` offsets, so no atomics are needed.
 - Backward, per source `q`: `sum_u w_q(u) G(q + u)` and `sum_u w'_q(u) G(q + u)` with `G` the
   gradient of the unnormalised spread `s` (`_render_ops._grad_of_spread`), finished in the same
   program into `dL/dx` and `dL/dsigma` (or `dL/drho`), as `_render_ops` does in PyTorch.
+- The unnormalised spreads take any number of channels (the layered mode spreads `L (C + 1)`),
+  `CHANNEL_GROUP` of them per program (axis 2 of the grid), with the per-source factor `norm`
+  applied beforehand; their backward returns `sum_u w_q(u) g(q + u)` per channel and, summed over
+  the groups afterwards, `sum_c x_c(q) sum_u w'_q(u) g_c(q + u)` (the operators' `(dx_raw, m)`).
 
 The weight `w_q(u)` is `exp(-|u|^2 / (2 sigma_q^2))` (Gaussian) or `clamp(rho_q - D(u), 0, 1)`
 (disk, polygons; `D` the `K x K` distance table). Taps outside the image are skipped, and so are,
@@ -41,6 +47,8 @@ except ImportError:  # no Triton (CI): nothing to register
 BLOCK_H, BLOCK_W, NUM_WARPS = 4, 128, 4
 #: Pixels per program of the per-pixel preparation pass.
 BLOCK_PREP = 256
+#: Channels per program of the unnormalised spreads (a power of two).
+CHANNEL_GROUP = 8
 
 
 def available() -> bool:
@@ -242,6 +250,91 @@ def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_
     tl.store(grad_param_ptr + b * HW + pix, norm * moment + raw * dnorm, mask=inside)
 
 
+@_jit
+def _spread_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, H, W, half,
+                   C: tl.constexpr, CG: tl.constexpr, GAUSSIAN: tl.constexpr,
+                   BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
+    """`y(p) = sum_q w_q(p - q) xn(q)` for the channels of this program's group (grid axis 2).
+
+    Clamp: offsets farther than the largest rho (`limit_ptr`) weigh nothing and are skipped.
+    """
+    b = tl.program_id(1).to(tl.int64)
+    HW = H * W
+    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CG)
+    ch = tl.program_id(2) * CG + ch
+    used = ch < C
+    xn_base = xn_ptr + b * C * HW + ch * HW
+    param_base = param_ptr + b * HW
+    limit = tl.load(limit_ptr)  # unused by the Gaussian
+    acc = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
+    for j in range(-half, BLOCK_H + half):  # sources on row row0 + j, at dy = r - j
+        src_row = row0 + j
+        if (src_row >= 0) & (src_row < H):
+            dy = r - j
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    src_col = col - dx
+                    ok = (src_col >= 0) & (src_col < W)
+                    src = src_row * W + src_col
+                    param = tl.load(param_base + src, mask=ok, other=0.0)
+                    xn = tl.load(xn_base + src, mask=ok & used, other=0.0)
+                    w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * xn
+    row = row0 + r
+    inside = (row < H) & (col < W)
+    tl.store(y_ptr + b * C * HW + ch * HW + row * W + col, acc, mask=inside & used)
+
+
+@_jit
+def _spread_backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, dx_ptr, m_ptr, H, W, half,
+                            C: tl.constexpr, CG: tl.constexpr, GAUSSIAN: tl.constexpr,
+                            BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
+    """Per source `q`, for this program's channels: `dx_raw(q) = sum_u w_q(u) g(q + u)` and its
+    group's share `sum_c x_c(q) sum_u w'_q(u) g_c(q + u)` of `m` (row `group` of `m_ptr`).
+
+    Clamp: offsets farther than the tile's largest rho weigh nothing and are skipped.
+    """
+    b = tl.program_id(1).to(tl.int64)
+    group = tl.program_id(2)
+    HW = H * W
+    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CG)
+    ch = group * CG + ch
+    used = ch < C
+    row = row0 + r
+    inside = (row < H) & (col < W)
+    pix = row * W + col
+    param = tl.load(param_ptr + b * HW + pix, mask=inside, other=1.0)
+    if GAUSSIAN:
+        own = -0.5 / (param * param)
+    else:
+        own = param
+    limit = tl.max(tl.where(inside, param, 0.0))  # unused by the Gaussian
+    g_base = g_ptr + b * C * HW + ch * HW
+    acc = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    acc_slope = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=g_ptr.dtype.element_ty)
+    for j in range(-half, BLOCK_H + half):  # outputs on row row0 + j, at dy = j - r
+        out_row = row0 + j
+        if (out_row >= 0) & (out_row < H):
+            dy = j - r
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    out_col = col + dx
+                    ok = (out_col >= 0) & (out_col < W)
+                    g = tl.load(g_base + out_row * W + out_col, mask=ok & used, other=0.0)
+                    w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * g
+                    acc_slope += tl.where(tap, dw, 0.0) * g
+    x = tl.load(x_ptr + b * C * HW + ch * HW + pix, mask=inside & used, other=0.0)
+    tl.store(dx_ptr + b * C * HW + ch * HW + pix, acc, mask=inside & used)
+    share = tl.sum(x * acc_slope, axis=1)[:, None, :]
+    groups = tl.num_programs(2)
+    tl.store(m_ptr + (b * groups + group) * HW + pix, share, mask=inside)
+
+
 # ------------------------------------------------------------------ launchers
 
 
@@ -305,6 +398,47 @@ def render_backward(grad: Tensor, y: Tensor, den: Tensor, x: Tensor, param: Tens
     return grad_x, grad_param
 
 
+def _spread_grid(x: Tensor) -> tuple[int, int, int]:
+    return (*_grid(x), triton.cdiv(x.shape[1], CHANNEL_GROUP))
+
+
+def spread(x: Tensor, param: Tensor, norm: Tensor, half: int, table: Tensor | None) -> Tensor:
+    """The unnormalised spread `y(p) = sum_q norm_q w_q(p - q) x(q)` of any number of channels:
+    Gaussian (`param` = sigma, `table` None) or clamp (`param` = rho, `table` the distance
+    table)."""
+    x, param, table, gaussian = _operands(x, param, table)
+    b, c, h, w = x.shape
+    xn = (x * norm.to(x.dtype)).contiguous()
+    source = -0.5 / (param * param) if gaussian else param
+    limit = param if gaussian else param.amax()  # the Gaussian ignores it
+    y = torch.empty_like(x)
+    with _device_of(x):
+        _spread_kernel[_spread_grid(x)](
+            xn, source, table, limit, y, h, w, half, C=c, CG=CHANNEL_GROUP, GAUSSIAN=gaussian,
+            BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS,
+        )
+    return y
+
+
+def spread_backward(grad: Tensor, x: Tensor, param: Tensor, half: int,
+                    table: Tensor | None) -> tuple[Tensor, Tensor]:
+    """`(dx_raw, m)` of `spread` (see `_render_ops.gaussian_scatter_backward` and
+    `clamp_scatter_backward`): `sum_u w_q(u) g(q + u)` per channel and
+    `sum_c x_c(q) sum_u w'_q(u) g_c(q + u)`, `w'` the weight's derivative without its
+    `1 / sigma^3` (Gaussian: `w |u|^2`) or the clamp's slope."""
+    x, param, table, gaussian = _operands(x, param, table)
+    g = grad.to(x.dtype).contiguous()
+    b, c, h, w = x.shape
+    grid = _spread_grid(x)
+    dx_raw, shares = torch.empty_like(x), x.new_empty(b, grid[2], h, w)
+    with _device_of(x):
+        _spread_backward_kernel[grid](
+            g, x, param, table, dx_raw, shares, h, w, half, C=c, CG=CHANNEL_GROUP,
+            GAUSSIAN=gaussian, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS,
+        )
+    return dx_raw, shares.sum(1, keepdim=True)
+
+
 # ------------------------------------------------------------------ operator registration
 
 
@@ -330,13 +464,41 @@ def _clamp_render_backward(grad, y, den, x, rho, dist, half):
     return _cast(render_backward(grad, y, den, x, rho, k, _render_ops._window(dist, k)), x, rho)
 
 
+def _gaussian_scatter(x, sigma, norm, half):
+    return spread(x, sigma, norm, int(half), None).to(x.dtype)
+
+
+def _gaussian_scatter_backward(grad, x, sigma, half):
+    return _cast(spread_backward(grad, x, sigma, int(half), None), x, sigma)
+
+
+def _clamp_scatter(x, rho, norm, dist, half):
+    k = int(half)
+    return spread(x, rho, norm, k, _render_ops._window(dist, k)).to(x.dtype)
+
+
+def _clamp_scatter_backward(grad, x, rho, dist, half):
+    k = int(half)
+    return _cast(spread_backward(grad, x, rho, k, _render_ops._window(dist, k)), x, rho)
+
+
+#: The operators with Triton kernels and those kernels' wrappers.
+KERNELS = (
+    (_render_ops.gaussian_render, _gaussian_render),
+    (_render_ops.gaussian_render_backward, _gaussian_render_backward),
+    (_render_ops.clamp_render, _clamp_render),
+    (_render_ops.clamp_render_backward, _clamp_render_backward),
+    (_render_ops.gaussian_scatter, _gaussian_scatter),
+    (_render_ops.gaussian_scatter_backward, _gaussian_scatter_backward),
+    (_render_ops.clamp_scatter, _clamp_scatter),
+    (_render_ops.clamp_scatter_backward, _clamp_scatter_backward),
+)
+
+
 def register(device_type: str = "cuda") -> None:
-    """Make the Triton kernels the implementations of the fused scatter operators on
-    `device_type` (CUDA; the tests also use "cpu" under `TRITON_INTERPRET=1`)."""
-    for op, fn in ((_render_ops.gaussian_render, _gaussian_render),
-                   (_render_ops.gaussian_render_backward, _gaussian_render_backward),
-                   (_render_ops.clamp_render, _clamp_render),
-                   (_render_ops.clamp_render_backward, _clamp_render_backward)):
+    """Make the Triton kernels the implementations of the scatter operators on `device_type`
+    (CUDA; the tests also use "cpu" under `TRITON_INTERPRET=1`)."""
+    for op, fn in KERNELS:
         op.register_kernel(device_type)(fn)
 
 

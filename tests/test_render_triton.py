@@ -1,4 +1,5 @@
-"""The Triton kernels of the fused scatter (`optics._render_triton`) against the PyTorch path.
+"""The Triton kernels (`optics._render_triton`: the fused scatter and the unnormalised spreads of
+the gather and layered modes) against the PyTorch path.
 
 They run on CUDA when a GPU is present, else on the CPU in Triton's interpreter when the suite
 is started with `TRITON_INTERPRET=1` (the kernels are then also registered for the CPU, enabled
@@ -31,8 +32,7 @@ else:
     pytest.skip("the Triton kernels need a CUDA GPU, or TRITON_INTERPRET=1 for the interpreter",
                 allow_module_level=True)
 
-OPS = (_render_ops.gaussian_render, _render_ops.gaussian_render_backward,
-       _render_ops.clamp_render, _render_ops.clamp_render_backward)
+OPS = tuple(op for op, _ in _render_triton.KERNELS)
 
 if DEVICE == "cpu":
     # Registered for the CPU too, but disabled so that the rest of the session keeps the compiled
@@ -52,14 +52,15 @@ APERTURES = {"gaussian": Gaussian, "disk": Disk, "hexagon": lambda: Polygon(6)}
 
 @contextlib.contextmanager
 def kernels(triton: bool):
-    """Route the fused scatter operators to the Triton kernels, or to the PyTorch loops."""
+    """Route the scatter operators to the Triton kernels, or to the PyTorch loops (the compiled
+    CPU kernels off either way, so that the interpreter's modes also reach the operators)."""
     with contextlib.ExitStack() as stack:
         if triton != (DEVICE == "cuda"):  # the registration's state differs from the wanted one
             for op in OPS:
                 stack.enter_context(op.set_kernel_enabled(DEVICE, triton))
+        stack.enter_context(mock.patch.object(_render_cpp, "usable", lambda x: False))
         if not triton:
-            stack.enter_context(mock.patch.object(_render_cpp, "usable", lambda x: False))
-            for name in ("render", "render_backward"):
+            for name in ("render", "render_backward", "spread", "spread_backward"):
                 stack.enter_context(mock.patch.object(_render_triton, name, _not_triton))
         yield
 
@@ -79,23 +80,26 @@ def make_inputs(name: str, shape, k: int, dtype, seed: int = 0):
     return (t.to(DEVICE, dtype) for t in (image, coc, weights))
 
 
-def render(name: str, image, coc, weights, triton: bool):
-    """`(y, dL/dimage, dL/dcoc)` of `render_defocus` on one path."""
+def render(name: str, image, coc, weights, triton: bool, mode: str = "scatter", depth=None):
+    """`(y, dL/dimage, dL/dcoc[, dL/ddepth])` of `render_defocus` on one path."""
     image = image.detach().clone().requires_grad_(True)
     coc = coc.detach().clone().requires_grad_(True)
+    if depth is not None:
+        depth = depth.detach().clone().requires_grad_(True)
     with kernels(triton):
-        out = render_defocus(image, coc, APERTURES[name]().to(DEVICE, image.dtype), "scatter")
+        out = render_defocus(image, coc, APERTURES[name]().to(DEVICE, image.dtype), mode,
+                             depth=depth, n_layers=4)
         out.backward(weights)
-    return out.detach(), image.grad, coc.grad
+    return (out.detach(), image.grad, coc.grad) + (() if depth is None else (depth.grad,))
 
 
-def assert_paths_agree(name, image, coc, weights):
+def assert_paths_agree(name, image, coc, weights, mode="scatter", depth=None):
     tol = {"rtol": 1e-4, "atol": 1e-5} if image.dtype == torch.float32 else {"rtol": 1e-9,
                                                                               "atol": 1e-11}
-    expected = render(name, image, coc, weights, triton=False)
-    got = render(name, image, coc, weights, triton=True)
-    for what, a, e in zip(("output", "image gradient", "CoC gradient"), got, expected,
-                          strict=True):
+    expected = render(name, image, coc, weights, False, mode, depth)
+    got = render(name, image, coc, weights, True, mode, depth)
+    for what, a, e in zip(("output", "image gradient", "CoC gradient", "depth gradient"), got,
+                          expected, strict=False):
         scale = float(e.abs().max()) or 1.0
         torch.testing.assert_close(a / scale, e / scale, **tol, msg=lambda m, w=what: f"{w}: {m}")
 
@@ -147,3 +151,91 @@ def test_gradcheck(name):
     with kernels(triton=True):
         assert gradcheck(lambda i, c: render_defocus(i, c, psf, "scatter"),
                          (image.requires_grad_(), coc.requires_grad_()), fast_mode=True)
+
+
+# ------------------------------------------------------------------ unnormalised spreads
+
+
+def _spread_inputs(kind: str, channels: int, dtype, half: int = 3, seed: int = 0):
+    gen = torch.Generator().manual_seed(seed)
+    shape = (2, channels, 11, 19)
+    x = torch.rand(shape, generator=gen, dtype=torch.float64)
+    grad = torch.randn(shape, generator=gen, dtype=torch.float64)
+    norm = 0.5 + torch.rand(2, 1, 11, 19, generator=gen, dtype=torch.float64)
+    size = torch.rand(2, 1, 11, 19, generator=gen, dtype=torch.float64)
+    # Gaussian sigma in [0.3, 1.3] px; clamp rho within the window's largest distance
+    param = 0.3 + size if kind == "gaussian" else 0.5 + size * half
+    offsets = torch.arange(-half, half + 1, dtype=torch.float64)
+    dist = torch.sqrt(offsets[:, None] ** 2 + offsets[None, :] ** 2)
+    return [t.to(DEVICE, dtype) for t in (x, grad, norm, param, dist)]
+
+
+@pytest.mark.parametrize("channels", [1, 5, 12, 16])
+@pytest.mark.parametrize("kind", ["gaussian", "clamp"])
+def test_spread_operators_match_pytorch_path(kind, channels, dtype):
+    """`gaussian_scatter` / `clamp_scatter` and their backward operators, for channel counts
+    that fill `CHANNEL_GROUP` channels per program partly, in one group or two, and fully."""
+    x, grad, norm, param, dist = _spread_inputs(kind, channels, dtype)
+    half = torch.tensor(3)
+    if kind == "gaussian":
+        calls = (lambda: _render_ops.gaussian_scatter(x, param, norm, half),
+                 lambda: _render_ops.gaussian_scatter_backward(grad, x, param, half))
+    else:
+        calls = (lambda: _render_ops.clamp_scatter(x, param, norm, dist, half),
+                 lambda: _render_ops.clamp_scatter_backward(grad, x, param, dist, half))
+    tol = {"rtol": 1e-4, "atol": 1e-5} if dtype == torch.float32 else {"rtol": 1e-9,
+                                                                        "atol": 1e-11}
+    for call in calls:
+        with kernels(False):
+            expected = call()
+        with kernels(True):
+            got = call()
+        for a, e in zip(torch.utils._pytree.tree_leaves(got),
+                        torch.utils._pytree.tree_leaves(expected), strict=True):
+            scale = float(e.abs().max()) or 1.0
+            torch.testing.assert_close(a / scale, e / scale, **tol)
+
+
+@pytest.mark.parametrize("name", list(APERTURES))
+def test_gather_mode_matches_pytorch_path(name, dtype):
+    assert_paths_agree(name, *make_inputs(name, (2, 3, 9, 13), 7, dtype), mode="gather")
+
+
+@pytest.mark.parametrize("scene", [False, True], ids=["random-depth", "two-planes"])
+@pytest.mark.parametrize("name", list(APERTURES))
+def test_layered_mode_matches_pytorch_path(name, scene, dtype):
+    """Four layers (16 channels: four groups); depth per pixel, or two planes (layers absent
+    from most windows)."""
+    image, coc, weights = make_inputs(name, (1, 3, 12, 17), 7, dtype, seed=2)
+    gen = torch.Generator().manual_seed(5)
+    depth = 1.0 + 4.0 * torch.rand(1, 1, 12, 17, generator=gen, dtype=torch.float64)
+    if scene:
+        depth = torch.where(torch.arange(17) < 8, 1.5, 4.0).to(torch.float64).expand(1, 1, 12, 17)
+    assert_paths_agree(name, image, coc, weights, "layered", depth.to(DEVICE, dtype))
+
+
+def test_layered_mode_reaches_the_spread_kernels():
+    image, coc, weights = make_inputs("disk", (1, 3, 8, 8), 5, torch.float32)
+    depth = (1.0 + coc).detach()
+    with mock.patch.object(_render_triton, "spread", wraps=_render_triton.spread) as fwd, \
+            mock.patch.object(_render_triton, "spread_backward",
+                              wraps=_render_triton.spread_backward) as bwd:
+        render("disk", image, coc, weights, True, "layered", depth)
+    assert fwd.call_count >= 1 and bwd.call_count >= 1
+
+
+@pytest.mark.parametrize("kind", ["gaussian", "clamp"])
+def test_spread_gradcheck(kind):
+    x, _, norm, param, dist = _spread_inputs(kind, 5, torch.float64, half=2, seed=3)
+    x, norm, param = (t[:1, :, :5, :6].clone().requires_grad_() for t in (x, norm, param))
+    half = torch.tensor(2)
+    if kind == "gaussian":
+        def fn(x, p, n):
+            return _render_ops.gaussian_scatter(x, p, n, half)
+    else:
+        param = param.detach().add(0.013).requires_grad_()  # clear of the clamp's kinks
+
+        def fn(x, p, n):
+            return _render_ops.clamp_scatter(x, p, n, dist, half)
+    with kernels(triton=True):
+        assert gradcheck(fn, (x, param, norm), fast_mode=True)
