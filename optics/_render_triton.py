@@ -137,6 +137,55 @@ def _tile(W, BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr, CP: tl.constexpr):
     return row0, r, col, tl.arange(0, CP)[None, :, None]
 
 
+@_jit
+def _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, used, H, W, half,
+                 GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr):
+    """`acc + sum_q w_q(p - q) xn(q)` for the tile's outputs `p` (rows `row0 + r`, columns
+    `col`): `xn_base` points at the channel planes, `used` masks the channels, `param_base` holds
+    each source's `-1 / (2 sigma^2)` (Gaussian) or rho. Clamp: offsets farther than `limit` weigh
+    nothing and are skipped."""
+    for j in range(-half, BLOCK_H + half):  # sources on row row0 + j, at dy = r - j
+        src_row = row0 + j
+        if (src_row >= 0) & (src_row < H):
+            dy = r - j
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    src_col = col - dx
+                    ok = (src_col >= 0) & (src_col < W)
+                    src = src_row * W + src_col
+                    param = tl.load(param_base + src, mask=ok, other=0.0)
+                    xn = tl.load(xn_base + src, mask=ok & used, other=0.0)
+                    w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * xn
+    return acc
+
+
+@_jit
+def _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col, used, H, W, half,
+                  GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr):
+    """For the tile's sources `q` (rows `row0 + r`, columns `col`), with `own` their
+    `-1 / (2 sigma^2)` or rho: `acc + sum_u w_q(u) g(q + u)` and `acc_slope + sum_u w'_q(u)
+    g(q + u)` (`_tap_weight`'s `dw`), `g_base` pointing at the gradient's channel planes and
+    `used` masking the channels. Clamp: offsets farther than `limit` are skipped."""
+    for j in range(-half, BLOCK_H + half):  # outputs on row row0 + j, at dy = j - r
+        out_row = row0 + j
+        if (out_row >= 0) & (out_row < H):
+            dy = j - r
+            tap = (dy >= -half) & (dy <= half)
+            for dx in range(-half, half + 1):
+                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                if _within(d, tap, limit, GAUSSIAN):
+                    out_col = col + dx
+                    ok = (out_col >= 0) & (out_col < W)
+                    g = tl.load(g_base + out_row * W + out_col, mask=ok & used, other=0.0)
+                    w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
+                    acc += tl.where(tap, w, 0.0) * g
+                    acc_slope += tl.where(tap, dw, 0.0) * g
+    return acc, acc_slope
+
+
 # ------------------------------------------------------------------ kernels
 # The forward and backward kernels hold a tile of `BLOCK_H` rows per thread column: each row of
 # sources (or gradients) they load serves every row of the tile it reaches, which divides the
@@ -179,21 +228,8 @@ def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, 
     param_base = param_ptr + b * HW
     limit = tl.load(limit_ptr)  # unused by the Gaussian
     acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
-    for j in range(-half, BLOCK_H + half):  # sources on row row0 + j, at dy = r - j
-        src_row = row0 + j
-        if (src_row >= 0) & (src_row < H):
-            dy = r - j
-            tap = (dy >= -half) & (dy <= half)
-            for dx in range(-half, half + 1):
-                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
-                if _within(d, tap, limit, GAUSSIAN):
-                    src_col = col - dx
-                    ok = (src_col >= 0) & (src_col < W)
-                    src = src_row * W + src_col
-                    param = tl.load(param_base + src, mask=ok, other=0.0)
-                    xn = tl.load(xn_base + src, mask=ok & (ch <= C), other=0.0)
-                    w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
-                    acc += tl.where(tap, w, 0.0) * xn
+    acc = _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, ch <= C, H, W,
+                       half, GAUSSIAN, BLOCK_H)
     row = row0 + r
     inside = (row < H) & (col < W)
     pix = row * W + col
@@ -224,20 +260,8 @@ def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_
     g_base = g_ptr + b * (C + 1) * HW + ch * HW
     acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
     acc_slope = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
-    for j in range(-half, BLOCK_H + half):  # outputs on row row0 + j, at dy = j - r
-        out_row = row0 + j
-        if (out_row >= 0) & (out_row < H):
-            dy = j - r
-            tap = (dy >= -half) & (dy <= half)
-            for dx in range(-half, half + 1):
-                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
-                if _within(d, tap, limit, GAUSSIAN):
-                    out_col = col + dx
-                    ok = (out_col >= 0) & (out_col < W)
-                    g = tl.load(g_base + out_row * W + out_col, mask=ok & (ch <= C), other=0.0)
-                    w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
-                    acc += tl.where(tap, w, 0.0) * g
-                    acc_slope += tl.where(tap, dw, 0.0) * g
+    acc, acc_slope = _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col,
+                                   ch <= C, H, W, half, GAUSSIAN, BLOCK_H)
     norm, dnorm = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
     # (x, 1): the spread's input, whose last channel carries the normalisation
     x = tl.load(x_ptr + b * C * HW + ch * HW + pix, mask=inside & (ch < C), other=0.0)
@@ -267,21 +291,8 @@ def _spread_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, H, W, half,
     param_base = param_ptr + b * HW
     limit = tl.load(limit_ptr)  # unused by the Gaussian
     acc = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
-    for j in range(-half, BLOCK_H + half):  # sources on row row0 + j, at dy = r - j
-        src_row = row0 + j
-        if (src_row >= 0) & (src_row < H):
-            dy = r - j
-            tap = (dy >= -half) & (dy <= half)
-            for dx in range(-half, half + 1):
-                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
-                if _within(d, tap, limit, GAUSSIAN):
-                    src_col = col - dx
-                    ok = (src_col >= 0) & (src_col < W)
-                    src = src_row * W + src_col
-                    param = tl.load(param_base + src, mask=ok, other=0.0)
-                    xn = tl.load(xn_base + src, mask=ok & used, other=0.0)
-                    w, _ = _tap_weight(param, dy * dy + dx * dx, d, GAUSSIAN)
-                    acc += tl.where(tap, w, 0.0) * xn
+    acc = _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, used, H, W, half,
+                       GAUSSIAN, BLOCK_H)
     row = row0 + r
     inside = (row < H) & (col < W)
     tl.store(y_ptr + b * C * HW + ch * HW + row * W + col, acc, mask=inside & used)
@@ -314,20 +325,8 @@ def _spread_backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, dx_ptr, m_ptr, H
     g_base = g_ptr + b * C * HW + ch * HW
     acc = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=g_ptr.dtype.element_ty)
     acc_slope = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=g_ptr.dtype.element_ty)
-    for j in range(-half, BLOCK_H + half):  # outputs on row row0 + j, at dy = j - r
-        out_row = row0 + j
-        if (out_row >= 0) & (out_row < H):
-            dy = j - r
-            tap = (dy >= -half) & (dy <= half)
-            for dx in range(-half, half + 1):
-                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
-                if _within(d, tap, limit, GAUSSIAN):
-                    out_col = col + dx
-                    ok = (out_col >= 0) & (out_col < W)
-                    g = tl.load(g_base + out_row * W + out_col, mask=ok & used, other=0.0)
-                    w, dw = _tap_weight(own, dy * dy + dx * dx, d, GAUSSIAN)
-                    acc += tl.where(tap, w, 0.0) * g
-                    acc_slope += tl.where(tap, dw, 0.0) * g
+    acc, acc_slope = _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col,
+                                   used, H, W, half, GAUSSIAN, BLOCK_H)
     x = tl.load(x_ptr + b * C * HW + ch * HW + pix, mask=inside & used, other=0.0)
     tl.store(dx_ptr + b * C * HW + ch * HW + pix, acc, mask=inside & used)
     share = tl.sum(x * acc_slope, axis=1)[:, None, :]
