@@ -169,6 +169,24 @@ def test_fit_thin_lens_curve_and_measure_blur():
     assert measure_blur(pair, Disk()) == pytest.approx(expected, rel=0.01)
 
 
+def test_measure_blur_and_calibrate_on_the_photos_device(device):
+    """Photos on `device` (CUDA where present) with a hexagon left on the CPU: the same blur and
+    fit as on the CPU."""
+    from optics import Polygon
+
+    camera = Camera(ThinLens(0.05, 2.0, 2.0), Sensor(2e-5), Disk())
+    pairs = _clean_pairs(camera, size=40, distances=(1.2, 3.0, 6.0))
+    moved = [CalibrationPair(p.sharp.to(device), p.blurred.to(device), p.depth) for p in pairs]
+    for psf in (Disk(), Polygon(6)):
+        assert measure_blur(moved[1], psf) == pytest.approx(measure_blur(pairs[1], psf), rel=1e-6)
+    kwargs = {"focal_length": 0.05, "pixel_pitch": 2e-5, "adam_steps": 10, "lbfgs_steps": 5}
+    here, cpu = calibrate(moved, **kwargs), calibrate(pairs, **kwargs)
+    for name in ("f_number", "focus_distance"):
+        assert float(getattr(here.settings, name)) == pytest.approx(
+            float(getattr(cpu.settings, name)), rel=1e-4)
+    assert here.rmse == pytest.approx(cpu.rmse, rel=1e-3, abs=1e-9)
+
+
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
 @pytest.mark.parametrize("psf", [Disk(), Gaussian(0.5)])
 def test_invariant_blur_matches_renderer_inside(dtype, psf):

@@ -40,8 +40,12 @@ class _ConstantBlur:
         self.spectrum = torch.fft.rfft2(padded)
 
     def __call__(self, aperture: Aperture, coc_px: float | Tensor) -> Tensor:
-        coc = torch.as_tensor(coc_px, dtype=self.spectrum.real.dtype).reshape(-1)
-        kernel = aperture.kernel(coc, kernel_size=2 * self.pad + 1)[0]
+        # the kernel where the aperture's tensors live (a shape's buffers may stay on the CPU
+        # while the photos are on a GPU), then onto the photos' device
+        tensors = [*aperture.parameters(), *aperture.buffers()]
+        where = tensors[0].device if tensors else self.spectrum.device
+        coc = torch.as_tensor(coc_px, dtype=self.spectrum.real.dtype, device=where).reshape(-1)
+        kernel = aperture.kernel(coc, kernel_size=2 * self.pad + 1)[0].to(self.spectrum.device)
         placed = F.pad(kernel, (0, self.size[1] - kernel.shape[1], 0, self.size[0] - kernel.shape[0]))
         placed = torch.roll(placed, (-self.pad, -self.pad), dims=(0, 1))
         out = torch.fft.irfft2(self.spectrum * torch.fft.rfft2(placed), s=self.size)
