@@ -221,7 +221,7 @@ class TrainConfig:
                                  f"{getattr(self, name)!r}")
         if not 0 <= self.ssim_weight <= 1:
             raise ValueError(f"ssim_weight must be in [0, 1], got {self.ssim_weight!r}")
-        _check_device(self.device)
+        check_device(self.device)
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)
@@ -273,7 +273,7 @@ def _check_type(name: str, value: Any, kind: Any) -> None:
         raise ValueError(f"config key {name} must be of type {kind}, got {value!r}")
 
 
-def _check_device(name: str) -> None:
+def check_device(name: str) -> None:
     """Raise `ValueError` unless `name` is "auto" or a device this machine has."""
     if name == "auto":
         return
@@ -332,7 +332,7 @@ def _distributed() -> tuple[int, int]:
     return 0, 1
 
 
-def _select_device(name: str) -> torch.device:
+def select_device(name: str) -> torch.device:
     """`name`, or for `"auto"` this process's GPU when CUDA is available, else the CPU."""
     if name == "auto":
         available = torch.cuda.is_available()
@@ -484,7 +484,7 @@ class Trainer:
         self.step_callback = step_callback
         self.rank, self.world_size = _distributed()
         self.is_main = self.rank == 0
-        self.device = _select_device(cfg.device)
+        self.device = select_device(cfg.device)
         torch.manual_seed(cfg.seed)
         self.model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min,
                                    cfg.depth_max, cfg.width).to(self.device)

@@ -250,6 +250,17 @@ def test_predict_without_a_model_file_sweeps_over_depth(photos, tmp_path, capsys
     assert "--focused" in capsys.readouterr().err
 
 
+def test_predict_runs_on_the_chosen_device(photos, tmp_path, device):
+    """`--device` (CUDA where present): the same depth as on the CPU, written from host memory."""
+    args = photos()[1:]
+    common = [*args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
+              "--depth-range", "1", "8"]
+    assert main(["predict", *common, "--device", str(device), "--out", str(tmp_path / "d")]) == 0
+    assert main(["predict", *common, "--device", "cpu", "--out", str(tmp_path / "c")]) == 0
+    here, cpu = (np.load(tmp_path / name / "depth.npy") for name in ("d", "c"))
+    assert np.median(np.abs(here - cpu) / cpu) < 1e-3
+
+
 def test_predict_says_when_it_narrows_the_stated_range(photos, tmp_path, capsys):
     """0.3-20 m for a scene at 1.5-6 m: the blur at 0.3 m would shrink the photos; the second
     pass works over the scene's own range."""

@@ -50,6 +50,8 @@ BAD_INPUT = {
     "predict missing": ["predict", "missing.pt", "--image", "missing.png"],
     "predict missing image": ["predict", "{ck}", "--image", "missing.png"],
     "predict focused count": ["predict", "{ck}", "--image", "photo.png"],
+    "predict device missing": ["predict", "--image", "photo.png", "--device", "cuda:99"],
+    "predict device name": ["predict", "--image", "photo.png", "--device", "gpu"],
     "render focus 0": ["render", "--focus", "0", "--scale", "0.1"],
     "render scale 0": ["render", "--scale", "0"],
     "render f-number 0": ["render", "--f-number", "0", "--scale", "0.1"],

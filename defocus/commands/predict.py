@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="nearest and farthest depth of the scene, metres (camera-general "
                              "model); a range wider than the scene costs a second pass, not "
                              "resolution: the depth is computed again over the scene's own range")
+    parser.add_argument("--device", default="auto",
+                        help="where to compute: 'auto' (the GPU when CUDA is available, else the "
+                             "CPU), 'cpu' or 'cuda[:N]'")
     parser.add_argument("--out", type=Path, default=Path("runs/predict"),
                         help="output folder: depth.npy (metres), depth_mm.png (16-bit "
                              "millimetres), confidence.png, figure.png")
@@ -57,16 +60,21 @@ def run(args: argparse.Namespace) -> int:
     from models.plotting import plot_prediction
     from models.pretrained import is_weights_file, load_weights
     from models.sweep import SweepDepth
-    from models.training import Trainer
+    from models.training import Trainer, check_device, select_device
     from optics import CameraSettings
 
+    try:
+        check_device(args.device)
+    except ValueError as error:
+        raise CommandError(f"--device: {error}") from None
+    device = select_device(args.device)
     # the model first: a file that is no model is refused before any photo is read
     if args.checkpoint is None:
         model, general = SweepDepth(progress=True), True
     elif is_weights_file(args.checkpoint):
-        model, general = load_weights(args.checkpoint), True
+        model, general = load_weights(args.checkpoint).to(device), True
     else:
-        model, general = Trainer.from_checkpoint(args.checkpoint), False
+        model, general = Trainer.from_checkpoint(args.checkpoint, device=str(device)), False
     image, _ = read_photo(args.image)
     photos = [read_photo(path) for path in args.focused]
     for path, (photo, _) in zip(args.focused, photos, strict=True):
@@ -82,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
                               args.f_number, args.focal_length, args.pixel_pitch,
                               calibration) if photos else None
     if general:
-        depth, confidence, depth_range = _camera_general(args, model, image, focused, settings)
+        depth, confidence, depth_range = _camera_general(
+            args, model, image.to(device), focused.to(device) if photos else None, settings)
     else:
         depth, confidence, depth_range = _checkpoint(model, image, focused, settings)
     if not bool(torch.isfinite(depth).all()):
@@ -125,7 +134,7 @@ def _camera_general(args, model, image, focused, settings):
               f"{near:g}-{far:g} m: depth computed again over that range, at a finer resolution")
     print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned: moved by "
           f"{moved} (pixels down, right; magnification; rotation, clockwise)")
-    return out["depth"], out["confidence"], (near, far)
+    return out["depth"].cpu(), out["confidence"].cpu(), (near, far)
 
 
 def _checkpoint(trainer, image, focused, settings):
