@@ -24,6 +24,7 @@ Usage:
     python benchmarks/cameras.py --no-direct   # the sweep only (a minute)
     python benchmarks/cameras.py --weights runs/pretrain/dfd_general.pt   # everything
     python benchmarks/cameras.py --weights W.pt --no-direct --oracle   # and a perfect reader
+    python benchmarks/cameras.py --cameras demo --photos perfect   # what imperfections cost
 """
 
 from __future__ import annotations
@@ -65,16 +66,23 @@ CAMERAS = {
 }
 #: The depth range a user would state for the scene (metres).
 DEPTH_RANGE = (1.0, 15.0)
+#: `--photos`: how perfect the camera is (what each imperfection costs each method).
+PHOTOS = {
+    "real": CaptureNoise(),
+    "noise-only": CaptureNoise(exposure=0.0, white_balance=0.0, shift_px=0.0),
+    "perfect": CaptureNoise.none(),
+}
 
 
-def photograph(name: str, seed: int = 0, scale: float = 1.0) -> dict:
+def photograph(name: str, seed: int = 0, scale: float = 1.0,
+               noise: CaptureNoise = PHOTOS["real"]) -> dict:
     """The motorcycle through camera `name`: photos, settings and ground truth."""
     f, n, focus, sensor_width, psf = CAMERAS[name]
     if name.startswith("demo"):  # the demo's own resolution: 185x125 at 180 um
         scale = 0.25
     image, depth, mask = (t[0] for t in motorcycle_scene(scale))
     settings = CameraSettings(f, n, list(focus), sensor_width / image.shape[-1], aperture=psf)
-    aif, focused = capture(image, depth, settings, np.random.default_rng(seed), CaptureNoise())
+    aif, focused = capture(image, depth, settings, np.random.default_rng(seed), noise)
     return {"image": aif, "focused": focused, "settings": settings.to(torch.float32),
             "depth": depth, "mask": mask}
 
@@ -129,6 +137,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--oracle", action="store_true",
                         help="add the solve fed the true blur (the bound of a perfect reader)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the photo imperfections")
+    parser.add_argument("--photos", choices=sorted(PHOTOS), default="real",
+                        help="real: every imperfection (the evaluation); noise-only: shot and "
+                             "read noise and 8-bit sRGB, the shots otherwise identical; "
+                             "perfect: none")
+    parser.add_argument("--cameras", nargs="+", default=None, metavar="PREFIX",
+                        help="only the cameras whose names start with these (e.g. demo 200mm)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     from models.pretrained import load_weights
@@ -149,8 +163,13 @@ def main(argv: list[str] | None = None) -> int:
     ratios: dict[str, list[float]] = {name: [] for name in methods}
     demo: dict[str, float] = {}
     demo_seconds: dict[str, float] = {}
-    for camera, spec in CAMERAS.items():
-        shot = photograph(camera, args.seed)
+    cameras = {name: spec for name, spec in CAMERAS.items()
+               if args.cameras is None or name.startswith(tuple(args.cameras))}
+    if not cameras:
+        parser.error(f"--cameras {' '.join(args.cameras)}: no camera's name starts with these; "
+                     f"the cameras are: {', '.join(CAMERAS)}")
+    for camera, spec in cameras.items():
+        shot = photograph(camera, args.seed, noise=PHOTOS[args.photos])
         target, mask = shot["depth"][None], shot["mask"][None]
         constant = best_constant_depth(target=target, mask=mask)
         base = depth_metrics(pred=torch.full_like(target, constant), target=target, mask=mask)

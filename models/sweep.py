@@ -5,10 +5,11 @@ pixels, and the all-in-focus photo blurred by the camera's PSF at that blur shou
 focused photo. `sweep_cost` measures how well at every pixel: for every candidate and shot it
 blurs the all-in-focus photo (a whole-image product in the Fourier domain, the photo transformed
 once per shot), keeps the local squared error against the focused photo and sums over the shots.
-`models.blur.select_depth` then picks the cheapest candidate after aggregating over windows, and
-a median filter removes isolated wrong picks. The errors carry their own weighting: where the
-all-in-focus photo has no texture every candidate costs the same, and the coarse windows fill in
-from the textured neighbours.
+`models.blur.select_depth` then picks the cheapest candidate after aggregating the costs of
+neighbouring pixels (semi-globally along scan lines, `models.semi_global`, by default), and a
+median filter removes isolated wrong picks. The errors carry their own weighting: where the
+all-in-focus photo has no texture every candidate costs the same, and the textured neighbours
+decide.
 
 Two imperfections of real photos bias such a sweep toward more blur, and both are removed:
 
@@ -46,6 +47,7 @@ from .blur import (
     texture_weight,
     thin_lens_blur,
 )
+from .semi_global import SCALE_STRIDE, cost_scale, semi_global_cost
 from .smoothing import edge_aware_smooth
 from .tiling import apply_in_tiles, check_tiling
 
@@ -62,6 +64,11 @@ MEDIAN_PX = 9
 SMOOTHING_STRENGTH = 10.0
 SMOOTHING_SIGMA = 0.1
 CONFIDENCE_FLOOR = 0.01
+#: Context (pixels) a tile sees beyond its centre under semi-global aggregation, whose scan lines
+#: cross the whole tile: past this distance a pixel's costs rarely change another's pick.
+SEMI_GLOBAL_CONTEXT_PX = 128
+#: How `SweepDepth` aggregates the costs of neighbouring pixels.
+AGGREGATIONS = ("semi-global", "windows")
 
 # Immerkaer's noise operator: zero on any plane, on white noise of variance s^2 its response has
 # variance 36 s^2.
@@ -238,7 +245,8 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
 
 
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
-               far: float, n_candidates: int = 96, noise: Tensor | None = None) -> Tensor:
+               far: float, n_candidates: int = 96, noise: Tensor | None = None,
+               every: int = 1) -> Tensor:
     """Cost `(B,K,H,W)` of the `K = n_candidates` depths of `candidate_inverse_depths`: summed
     over shots, the `blur_errors` of each shot at the blur the thin lens gives that shot at that
     depth. (Each candidate's blur is rendered: interpolating between a coarser grid of blurs
@@ -255,10 +263,14 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
         n_candidates: candidate depths.
         noise: `(B,2)` `noise_model` coefficients of the photos; by default measured on all of
             them.
+        every: cost only every this many candidates (`K = ceil(n_candidates / every)`; the
+            same values as `sweep_cost(...)[:, ::every]`).
     """
     check_shape("focused", focused, ["B", "F", "3", "H", "W"])
     b, n, _, h, w = focused.shape
-    x = candidate_inverse_depths(near, far, n_candidates, image)
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every must be a positive integer, got {every!r}")
+    x = candidate_inverse_depths(near, far, n_candidates, image)[::every]
     settings = settings.batched(b).to(device=image.device, dtype=image.dtype)
     if settings.n_shots != n:
         raise ValueError(f"focused holds {n} shots but settings {settings.n_shots}")
@@ -266,7 +278,7 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
     aperture = settings.aperture_module()
     if noise is None:  # every photo: one sensor
         noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
-    cost = torch.zeros(b, n_candidates, h, w, dtype=image.dtype, device=image.device)
+    cost = torch.zeros(b, x.numel(), h, w, dtype=image.dtype, device=image.device)
     for j in range(b):
         for i in range(n):
             cost[j] += blur_errors(image[j:j + 1], focused[j:j + 1, i], aperture, predicted[j, i],
@@ -286,6 +298,12 @@ class SweepDepth(nn.Module):
         n_candidates: candidate depths, evenly spaced in inverse depth.
         tile: largest tile side in pixels.
         progress: show a progress bar over the tiles of a large photo.
+        aggregation: how the costs of neighbouring pixels are combined before each pixel picks
+            its depth: `"semi-global"` (`models.semi_global.semi_global_cost`: along scan
+            lines, depth edges kept where the photo has edges) or `"windows"` (sums over
+            square windows, `models.blur.aggregate_cost`; tiles then give exactly the untiled
+            result, while semi-global tiles see `SEMI_GLOBAL_CONTEXT_PX` of context and agree
+            with the untiled result at nearly every pixel).
         smoothing: strength of the edge-aware smoothing of the inverse depth by the texture
             confidence (`models.smoothing.edge_aware_smooth`, whole image, after the tiles):
             depth read on textured pixels spreads to their untextured neighbours of similar
@@ -305,10 +323,13 @@ class SweepDepth(nn.Module):
     max_coc_px = 20.0
 
     def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False,
-                 smoothing: float = SMOOTHING_STRENGTH):
+                 smoothing: float = SMOOTHING_STRENGTH, aggregation: str = "semi-global"):
         super().__init__()
         if n_candidates < 3:
             raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
+        if aggregation not in AGGREGATIONS:
+            raise ValueError(f"aggregation must be one of {AGGREGATIONS}, got {aggregation!r}")
+        self.aggregation = aggregation
         if not smoothing >= 0:
             raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
         check_tiling(tile, 0)
@@ -328,25 +349,37 @@ class SweepDepth(nn.Module):
                                for i in range(focused.shape[1])], 1)
         noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
 
-        def depth_of(image: Tensor, focused: Tensor) -> Tensor:
+        def depth_of(image: Tensor, focused: Tensor, scale: Tensor | None = None) -> Tensor:
             cost = sweep_cost(image, focused, settings, near, far, self.n_candidates, noise)
-            return kornia.filters.median_blur(select_depth(aggregate_cost(cost), near, far),
-                                              MEDIAN_PX)
+            if self.aggregation == "semi-global":
+                cost = semi_global_cost(cost, image, scale=scale)
+            else:
+                cost = aggregate_cost(cost)
+            return kornia.filters.median_blur(select_depth(cost, near, far), MEDIAN_PX)
 
-        # context for an exact result: the largest PSF, then the error and aggregation windows
+        # context around a tile: the largest PSF, the error window, the aggregation (exact for
+        # windows) and the median filter
         largest = settings.largest_coc_px(near, far)
+        spread = (SEMI_GLOBAL_CONTEXT_PX if self.aggregation == "semi-global"
+                  else max(WINDOWS) // 2)
         reach = settings.aperture_module().kernel_size(largest) // 2 + math.ceil(
-            4 * FLOOR_SIGMA_PX) + ERROR_WINDOW_PX // 2 + max(WINDOWS) // 2 + MEDIAN_PX // 2 + 2
-        if max(image.shape[-2:]) <= self.tile + 2 * reach:
+            4 * FLOOR_SIGMA_PX) + ERROR_WINDOW_PX // 2 + spread + MEDIAN_PX // 2 + 2
+        # a photo no larger than one tile with its context is swept whole
+        if image.shape[-2] * image.shape[-1] <= (self.tile + 2 * reach) ** 2:
             depth = depth_of(image, focused)
         else:
             from tqdm.auto import tqdm
 
             h, w = image.shape[-2:]
+            scale = None
+            if self.aggregation == "semi-global":  # the whole photo's, from a few candidates
+                scale = cost_scale(sweep_cost(image, focused, settings, near, far,
+                                              self.n_candidates, noise, every=SCALE_STRIDE),
+                                   stride=1)
             tiles = math.ceil(h / self.tile) * math.ceil(w / self.tile)
             with tqdm(total=tiles, desc="depth sweep (tiles)", disable=not self.progress) as bar:
                 def tile_depth(image: Tensor, focused: Tensor) -> Tensor:
-                    out = depth_of(image, focused)
+                    out = depth_of(image, focused, scale)
                     bar.update()
                     return out
 

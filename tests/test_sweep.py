@@ -7,9 +7,11 @@ from skimage import data
 
 from datasets.capture import CaptureNoise, capture, random_camera
 from datasets.synthetic import generate_scene
+from models import sweep
 from models.blur import predict_depth, scene_range
 from models.metrics import best_constant_depth, depth_metrics
-from models.sweep import SweepDepth, blur_errors, noise_model
+from models.semi_global import cost_scale, semi_global_cost
+from models.sweep import SweepDepth, blur_errors, noise_model, sweep_cost
 from optics import CameraSettings, Disk, render_defocus, translate, warp
 
 
@@ -205,11 +207,51 @@ def test_sweep_refuses_bad_arguments():
 
 
 def test_tiles_give_the_untiled_depth():
+    """Window sums reach a known distance: tiles with that much context are exact."""
     aif, focused, settings, _ = _photographed_planes([2.5, 4.5], seed=3, focus=(1.5, 8.0))
     aif, focused = aif.double()[None], focused.double()[None]
-    whole = SweepDepth()(aif, focused, settings, 1.0, 10.0)["depth"]
-    tiled = SweepDepth(tile=24)(aif, focused, settings, 1.0, 10.0)["depth"]
+    whole = SweepDepth(aggregation="windows")(aif, focused, settings, 1.0, 10.0)["depth"]
+    tiled = SweepDepth(tile=24, aggregation="windows")(aif, focused, settings, 1.0, 10.0)["depth"]
     torch.testing.assert_close(tiled, whole, rtol=1e-6, atol=0)
+
+
+def test_semi_global_tiles_share_the_whole_photos_cost_scale(monkeypatch):
+    """Every tile's penalties are relative to the whole photo's cost scale (`cost_scale` of the
+    untiled cost volume), not to its own."""
+    aif, focused, settings, _ = _photographed_planes([2.5, 4.5], seed=3, focus=(1.5, 8.0))
+    aif, focused = aif.double()[None], focused.double()[None]
+    received, volumes = [], []
+
+    def recording(cost, image, scale=None):
+        received.append(scale)
+        volumes.append(cost)
+        return semi_global_cost(cost, image, scale=scale)
+
+    monkeypatch.setattr(sweep, "semi_global_cost", recording)
+    SweepDepth()(aif, focused, settings, 1.0, 10.0)
+    assert received == [None]  # one tile: its own volume is the photo's
+    whole = cost_scale(volumes[0])
+    monkeypatch.setattr(sweep, "SEMI_GLOBAL_CONTEXT_PX", 0)  # small enough to tile 96x128
+    received.clear()
+    SweepDepth(tile=24)(aif, focused, settings, 1.0, 10.0)
+    assert len(received) == 4 * 6
+    for scale in received:
+        torch.testing.assert_close(scale, whole, rtol=1e-6, atol=0)
+
+
+def test_sweep_cost_every_few_candidates_is_a_subset():
+    aif, focused, settings, _ = _photographed_planes([3.0], seed=2)
+    aif, focused = aif[None], focused[None]
+    full = sweep_cost(aif, focused, settings, 1.0, 10.0, n_candidates=10)
+    torch.testing.assert_close(sweep_cost(aif, focused, settings, 1.0, 10.0, n_candidates=10,
+                                          every=4), full[:, ::4], rtol=1e-4, atol=1e-7)
+    with pytest.raises(ValueError, match="every"):
+        sweep_cost(aif, focused, settings, 1.0, 10.0, every=0)
+
+
+def test_sweep_refuses_an_unknown_aggregation():
+    with pytest.raises(ValueError, match="aggregation"):
+        SweepDepth(aggregation="boxes")
 
 
 def test_blur_errors_gradcheck():
