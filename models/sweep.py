@@ -291,8 +291,11 @@ class SweepDepth(nn.Module):
     sweep over depth (`sweep_cost`, then `models.blur.select_depth`). No weights: it is the
     default model of `defocus predict`. Same call as `models.blur.DepthFromDefocus`.
 
-    Large photos are swept in tiles (the cost volume of a whole 1.5-megapixel photo would take
-    gigabytes), each with enough context around it that the result is the untiled one.
+    Photos larger in pixels than one tile with its context are swept in tiles (the cost volume
+    of a whole 1.5-megapixel photo would take gigabytes), each with context around it: exactly
+    the untiled result with `aggregation="windows"`; with the semi-global aggregation every tile
+    uses the whole photo's cost scale and at 741x500 (tile 200) 0.5 % of the pixels differ
+    from the untiled depth by more than 1 % (at most 2.2 %).
 
     Args:
         n_candidates: candidate depths, evenly spaced in inverse depth.
