@@ -250,6 +250,17 @@ def test_predict_without_a_model_file_sweeps_over_depth(photos, tmp_path, capsys
     assert "--focused" in capsys.readouterr().err
 
 
+def test_predict_sweeps_with_the_chosen_aggregation(photos, tmp_path):
+    """`--aggregation windows` runs the sweep of `SweepDepth(aggregation="windows")`."""
+    args = photos()[1:]
+    common = [*args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
+              "--depth-range", "1", "8"]
+    assert main(["predict", *common, "--aggregation", "windows", "--out", str(tmp_path / "w")]) == 0
+    assert main(["predict", *common, "--out", str(tmp_path / "s")]) == 0
+    windows, semi_global = (np.load(tmp_path / name / "depth.npy") for name in ("w", "s"))
+    assert np.isfinite(windows).all() and not np.allclose(windows, semi_global)
+
+
 def test_predict_runs_on_the_chosen_device(photos, tmp_path, device):
     """`--device` (CUDA where present): the same depth as on the CPU, written from host memory."""
     args = photos()[1:]

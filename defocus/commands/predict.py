@@ -40,6 +40,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="nearest and farthest depth of the scene, metres (camera-general "
                              "model); a range wider than the scene costs a second pass, not "
                              "resolution: the depth is computed again over the scene's own range")
+    parser.add_argument("--aggregation", default=None,
+                        help="without a model file: how the sweep combines neighbouring "
+                             "pixels' costs, 'semi-global' (default: along scan lines, depth "
+                             "edges kept at the photo's edges) or 'windows' (sums over square "
+                             "windows, the sweep before 2026-11-23)")
     parser.add_argument("--device", default="auto",
                         help="where to compute: 'auto' (the GPU when CUDA is available, else the "
                              "CPU), 'cpu' or 'cuda[:N]'")
@@ -69,8 +74,15 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--device: {error}") from None
     device = select_device(args.device)
     # the model first: a file that is no model is refused before any photo is read
+    if args.aggregation is not None and args.checkpoint is not None:
+        raise CommandError("--aggregation chooses how the sweep works: give it without a model "
+                           f"file (got {args.checkpoint})")
     if args.checkpoint is None:
-        model, general = SweepDepth(progress=True), True
+        try:
+            model = SweepDepth(progress=True, aggregation=args.aggregation or "semi-global")
+        except ValueError as error:
+            raise CommandError(f"--aggregation: {error}") from None
+        general = True
     elif is_weights_file(args.checkpoint):
         model, general = load_weights(args.checkpoint).to(device), True
     else:
