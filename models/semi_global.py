@@ -111,7 +111,8 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
     The costs are first made scale-free: each pixel's minimum is subtracted (it shifts all its
     candidates alike) and the volume is divided by `cost_scale` (the median over pixels of the
     gap between a pixel's mean and lowest cost), so the penalties mean the same for dark and
-    bright, noisy and clean photos. A pixel without texture keeps nearly flat costs, and its neighbours decide.
+    bright, noisy and clean photos. A pixel without texture keeps nearly flat costs, and its
+    neighbours decide.
 
     Args:
         cost: `(B,K,H,W)` costs, candidate `k` next to `k +- 1` (e.g. `models.sweep.sweep_cost`).

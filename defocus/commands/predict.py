@@ -78,8 +78,9 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("--aggregation chooses how the sweep works: give it without a model "
                            f"file (got {args.checkpoint})")
     if args.checkpoint is None:
+        options = {} if args.aggregation is None else {"aggregation": args.aggregation}
         try:
-            model = SweepDepth(progress=True, aggregation=args.aggregation or "semi-global")
+            model = SweepDepth(progress=True, **options)
         except ValueError as error:
             raise CommandError(f"--aggregation: {error}") from None
         general = True
