@@ -214,6 +214,28 @@ def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half,
 
 
 @_jit
+def _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W, half, PLANES: tl.constexpr,
+                 CP: tl.constexpr, GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr,
+                 BLOCK_W: tl.constexpr):
+    """This program's tile of `sum_q w_q(p - q) xn(q)` over its channels (group `program_id(2)`
+    of `CP` of the `PLANES` channel planes; a lone group where the grid has no axis 2).
+
+    Returns `(acc, b, HW, ch, pix, inside)`: the `(BLOCK_H, CP, BLOCK_W)` sums, the image, its
+    plane size, the channels `(1,CP,1)`, the pixels' offsets in a plane and which lie on it.
+    """
+    b = tl.program_id(1).to(tl.int64)
+    HW = H * W
+    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CP)
+    ch = tl.program_id(2) * CP + ch
+    limit = tl.load(limit_ptr)  # unused by the Gaussian
+    acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
+    acc = _spread_taps(acc, xn_ptr + b * PLANES * HW + ch * HW, param_ptr + b * HW, table_ptr,
+                       limit, row0, r, col, ch < PLANES, H, W, half, GAUSSIAN, BLOCK_H)
+    row = row0 + r
+    return acc, b, HW, ch, row * W + col, (row < H) & (col < W)
+
+
+@_jit
 def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, W, half,
                     C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
                     BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
@@ -221,18 +243,8 @@ def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, 
 
     Clamp: offsets farther than the largest rho (`limit_ptr`) weigh nothing and are skipped.
     """
-    b = tl.program_id(1).to(tl.int64)
-    HW = H * W
-    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CP)
-    xn_base = xn_ptr + b * (C + 1) * HW + ch * HW
-    param_base = param_ptr + b * HW
-    limit = tl.load(limit_ptr)  # unused by the Gaussian
-    acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
-    acc = _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, ch <= C, H, W,
-                       half, GAUSSIAN, BLOCK_H)
-    row = row0 + r
-    inside = (row < H) & (col < W)
-    pix = row * W + col
+    acc, b, HW, ch, pix, inside = _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W,
+                                               half, C + 1, CP, GAUSSIAN, BLOCK_H, BLOCK_W)
     den = tl.sum(tl.where(ch == C, acc, 0.0), axis=1)[:, None, :]
     safe = tl.where(inside, den, 1.0)  # pixels off the image are not stored
     tl.store(y_ptr + b * C * HW + ch * HW + pix, acc / safe, mask=inside & (ch < C))
@@ -282,20 +294,9 @@ def _spread_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, H, W, half,
 
     Clamp: offsets farther than the largest rho (`limit_ptr`) weigh nothing and are skipped.
     """
-    b = tl.program_id(1).to(tl.int64)
-    HW = H * W
-    row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CG)
-    ch = tl.program_id(2) * CG + ch
-    used = ch < C
-    xn_base = xn_ptr + b * C * HW + ch * HW
-    param_base = param_ptr + b * HW
-    limit = tl.load(limit_ptr)  # unused by the Gaussian
-    acc = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
-    acc = _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, used, H, W, half,
-                       GAUSSIAN, BLOCK_H)
-    row = row0 + r
-    inside = (row < H) & (col < W)
-    tl.store(y_ptr + b * C * HW + ch * HW + row * W + col, acc, mask=inside & used)
+    acc, b, HW, ch, pix, inside = _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W,
+                                               half, C, CG, GAUSSIAN, BLOCK_H, BLOCK_W)
+    tl.store(y_ptr + b * C * HW + ch * HW + pix, acc, mask=inside & (ch < C))
 
 
 @_jit
