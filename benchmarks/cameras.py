@@ -16,7 +16,9 @@ was used to choose the model's settings. For each camera it prints abs rel and d
 next to the best constant depth (an oracle chosen on the ground truth), the ratio to it, and the
 seconds each took (one thread). `--oracle` adds the bound of the blur-reading network's design:
 the thin-lens solve (`models.blur.solve_depth`) fed the true blur of every shot at the working
-resolution, i.e. what a perfect blur reader would reach. Goal: abs rel <= 0.3x the constant's for
+resolution, i.e. what a perfect blur reader would reach. For the methods with a confidence map
+it also prints how well that ranks the errors: the mean error of the more confident half of the
+pixels over the mean error (1 is no better than chance). Goal: abs rel <= 0.3x the constant's for
 every camera, <= 0.06 at the demo camera, inference under 1 s at 185x125 on one thread.
 
 Usage:
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -87,10 +90,20 @@ def photograph(name: str, seed: int = 0, scale: float = 1.0,
             "depth": depth, "mask": mask}
 
 
-def run_model(model, shot: dict) -> tuple[torch.Tensor, float]:
+def run_model(model, shot: dict) -> tuple[torch.Tensor, float, torch.Tensor]:
+    """`(depth, seconds, confidence)` of `predict_depth` with `model`."""
     started = time.perf_counter()
     out = predict_depth(model, shot["image"], shot["focused"], shot["settings"], *DEPTH_RANGE)
-    return out["depth"], time.perf_counter() - started
+    return out["depth"], time.perf_counter() - started, out["confidence"]
+
+
+def confident_half_error(depth: torch.Tensor, confidence: torch.Tensor, shot: dict) -> float:
+    """Mean abs rel error of the more confident half of the valid pixels over that of all of
+    them: how well the confidence ranks the errors (1: no better than chance)."""
+    valid = shot["mask"].bool()
+    error = ((depth - shot["depth"]).abs() / shot["depth"])[valid]
+    top = confidence[valid].argsort(descending=True)[: max(1, error.numel() // 2)]
+    return float(error[top].mean() / error.mean())
 
 
 def working_resolution(shot: dict, max_coc_px: float) -> tuple[torch.Tensor, CameraSettings,
@@ -114,7 +127,7 @@ def run_oracle(shot: dict) -> torch.Tensor:
                                            mode="bilinear")[0]
 
 
-def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float]:
+def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float, None]:
     from models.direct import fit_depth_direct
 
     stack, small, _ = working_resolution(shot, SweepDepth.max_coc_px)
@@ -124,7 +137,7 @@ def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float]:
     depth = fit_depth_direct(stack[:1], focused, small, *DEPTH_RANGE, steps=steps)
     elapsed = time.perf_counter() - started
     depth = torch.nn.functional.interpolate(depth, size=(h, w), mode="bilinear")[0]
-    return depth, elapsed
+    return depth, elapsed, None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -154,13 +167,14 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_direct:
         methods["direct"] = lambda shot: run_direct(shot, args.direct_steps)
     if args.oracle:
-        methods["oracle"] = lambda shot: (run_oracle(shot), float("nan"))
+        methods["oracle"] = lambda shot: (run_oracle(shot), float("nan"), None)
     header = "| camera | PSF | constant abs rel |"
     for name in methods:
         header += f" {name} abs rel | ratio | d1 | s |"
     print(header)
     print("|---|---|---|" + "---|---|---|---|" * len(methods))
     ratios: dict[str, list[float]] = {name: [] for name in methods}
+    ranking: dict[str, list[float]] = {name: [] for name in methods}
     demo: dict[str, float] = {}
     demo_seconds: dict[str, float] = {}
     cameras = {name: spec for name, spec in CAMERAS.items()
@@ -175,7 +189,9 @@ def main(argv: list[str] | None = None) -> int:
         base = depth_metrics(pred=torch.full_like(target, constant), target=target, mask=mask)
         row = f"| {camera} | {spec[4]} | {base['abs_rel']:.3f} |"
         for name, method in methods.items():
-            depth, seconds = method(shot)
+            depth, seconds, confidence = method(shot)
+            if confidence is not None:
+                ranking[name].append(confident_half_error(depth, confidence, shot))
             m = depth_metrics(pred=depth[None], target=target, mask=mask)
             ratios[name].append(m["abs_rel"] / base["abs_rel"])
             demo.setdefault(name, m["abs_rel"])
@@ -184,6 +200,11 @@ def main(argv: list[str] | None = None) -> int:
                     f"{m['delta1']:.3f} | {seconds:.2f} |")
         print(row, flush=True)
     print()
+    for name, values in ranking.items():
+        if values:
+            print(f"{name} confidence: the more confident half of the pixels has "
+                  f"{statistics.median(values):.2f} of the mean error (median over the cameras, "
+                  f"{min(values):.2f}-{max(values):.2f}; 1 is no better than chance)")
     for name in methods:
         worst = max(ratios[name])
         print(f"{name}: ratio <= 0.30 for every camera: {'met' if worst <= 0.3 else 'unmet'} "

@@ -64,6 +64,9 @@ MEDIAN_PX = 9
 SMOOTHING_STRENGTH = 10.0
 SMOOTHING_SIGMA = 0.1
 CONFIDENCE_FLOOR = 0.01
+#: The returned confidence halves every `BLUR_SPAN_PX * ln 2` pixels by which the blur read
+#: varies within an error window (`depth_edge_confidence`).
+BLUR_SPAN_PX = 0.5
 #: Context (pixels) a tile sees beyond its centre under semi-global aggregation, whose scan lines
 #: cross the whole tile: past this distance a pixel's costs rarely change another's pick.
 SEMI_GLOBAL_CONTEXT_PX = 128
@@ -244,6 +247,30 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
     return _box(stacked, ERROR_WINDOW_PX)
 
 
+def depth_edge_confidence(blur: Tensor, window: int = ERROR_WINDOW_PX,
+                          span_px: float = BLUR_SPAN_PX) -> Tensor:
+    """How well the sweep's model holds at each pixel, in (0, 1] `(B,1,H,W)`: the sweep compares
+    each error window with one blur, which fails across a depth edge (the window sees two
+    blurs). From the blur maps `(B,F,H,W)` (pixels) of the depth found: `exp(-r / span_px)`, `r`
+    the largest range (max - min) of any shot's blur over a `window x window` neighbourhood.
+
+    Example:
+        >>> blur = torch.zeros(1, 2, 1, 10)
+        >>> blur[..., 5:] = 1.0  # a depth edge: the blur jumps by one pixel
+        >>> [round(v, 2) for v in depth_edge_confidence(blur)[0, 0, 0].tolist()]
+        [1.0, 1.0, 1.0, 0.14, 0.14, 0.14, 0.14, 1.0, 1.0, 1.0]
+    """
+    check_shape("blur", blur, ["B", "F", "H", "W"])
+    if not (isinstance(window, int) and window >= 1 and window % 2 == 1):
+        raise ValueError(f"window must be an odd number of pixels >= 1, got {window!r}")
+    if not span_px > 0:
+        raise ValueError(f"span_px must be > 0 pixels, got {span_px!r}")
+    pad = window // 2
+    padded = F.pad(blur, (pad, pad, pad, pad), mode="replicate")
+    spread = F.max_pool2d(padded, window, 1) + F.max_pool2d(-padded, window, 1)
+    return torch.exp(-spread.amax(1, keepdim=True) / span_px)
+
+
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
                far: float, n_candidates: int = 96, noise: Tensor | None = None,
                every: int = 1) -> Tensor:
@@ -341,8 +368,10 @@ class SweepDepth(nn.Module):
 
     def forward(self, image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
                 far: float) -> dict[str, Tensor]:
-        """Depth `(B,1,H,W)` metres, confidence `(B,1,H,W)` in [0, 1] (texture to read) and the
-        blur `(B,F,H,W)` pixels the thin lens gives each shot at that depth."""
+        """Depth `(B,1,H,W)` metres, confidence `(B,1,H,W)` in [0, 1] and the blur `(B,F,H,W)`
+        pixels the thin lens gives each shot at that depth. The confidence is low where there is
+        no texture to read (or the photo is saturated) and across depth edges
+        (`depth_edge_confidence`)."""
         check_shape("image", image, ["B", "3", "H", "W"])
         check_shape("focused", focused, ["B", "F", "3", "H", "W"])
         check_finite("image", image)
@@ -387,10 +416,11 @@ class SweepDepth(nn.Module):
                     return out
 
                 depth = apply_in_tiles(tile_depth, [image, focused], self.tile, reach)
-        confidence = _box(texture_weight(image), 5).clamp(0, 1)
+        texture = _box(texture_weight(image), 5).clamp(0, 1)
         if self.smoothing > 0:
-            weight = kornia.filters.median_blur(confidence, MEDIAN_PX) + CONFIDENCE_FLOOR
+            weight = kornia.filters.median_blur(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
             inverse = edge_aware_smooth(1 / depth, weight, image, self.smoothing, SMOOTHING_SIGMA)
             depth = 1 / inverse.clamp(1 / far, 1 / near)
-        return {"depth": depth, "confidence": confidence,
-                "blur": thin_lens_blur(settings, 1 / depth)}
+        blur = thin_lens_blur(settings, 1 / depth)
+        return {"depth": depth, "confidence": texture * depth_edge_confidence(blur),
+                "blur": blur}

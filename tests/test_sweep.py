@@ -1,5 +1,7 @@
 """Depth from defocus by a sweep over depth (models.sweep): no network, any camera."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
@@ -349,3 +351,58 @@ def test_sweep_sees_through_a_turned_camera():
     inner = (0, slice(8, -8), slice(8, -8))
     error = [float(((o["depth"][inner] - 3.0).abs() / 3.0).mean()) for o in (out, raw)]
     assert error[0] < 0.02 and error[1] > 3 * error[0], error
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_depth_edge_confidence_is_the_closed_form(dtype):
+    blur = torch.full((2, 3, 9, 16), 4.0, dtype=dtype)
+    torch.testing.assert_close(sweep.depth_edge_confidence(blur), torch.ones(2, 1, 9, 16,
+                                                                               dtype=dtype))
+    blur[:, 1, :, 8:] += 1.5  # shot 1's blur jumps by 1.5 px between columns 7 and 8
+    got = sweep.depth_edge_confidence(blur, window=5, span_px=0.5)
+    expected = torch.ones(16, dtype=dtype)
+    expected[6:10] = math.exp(-1.5 / 0.5)  # within 2 px of the jump
+    torch.testing.assert_close(got, expected.expand(2, 1, 9, 16))
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"window": 4}, "window"), ({"window": 0}, "window"), ({"span_px": 0.0}, "span_px"),
+    ({"span_px": float("nan")}, "span_px")])
+def test_depth_edge_confidence_refuses_bad_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        sweep.depth_edge_confidence(torch.zeros(1, 2, 8, 8), **kwargs)
+
+
+def test_sweep_confidence_is_low_across_a_depth_edge():
+    aif, focused, settings, _ = _photographed_planes([2.5, 4.5], seed=1, focus=(1.5, 8.0))
+    confidence = predict_depth(SweepDepth(), aif, focused, settings, 1.0, 10.0)["confidence"][0]
+    edge = confidence[16:-16, 62:66].mean()
+    planes = torch.cat([confidence[16:-16, 16:48], confidence[16:-16, 80:112]], 1).mean()
+    assert float(edge) < 0.5 * float(planes)
+
+
+def test_sweep_confidence_ranks_its_errors_on_held_out_scenes():
+    """On procedural scenes under random cameras (none used to choose `BLUR_SPAN_PX`), the more
+    confident half of the pixels has a lower mean error than all of them, and lower than the
+    texture-only confidence's half (measured on these six: median 0.71 of the mean error,
+    texture alone 0.89; no worse on any scene)."""
+    ranked, texture_only = [], []
+    for i in range(6):
+        rng = np.random.default_rng([55, i])
+        near = float(np.exp(rng.uniform(np.log(0.5), np.log(4))))
+        far = near * float(np.exp(rng.uniform(np.log(2), np.log(6))))
+        image, depth = generate_scene((96, 128), rng, (near, far))
+        settings = random_camera(rng, near, far, 2, (3.0, 20.0))
+        aif, focused = capture(image, depth, settings, rng, CaptureNoise())
+        out = predict_depth(SweepDepth(), aif, focused, settings.to(torch.float32), near * 0.8,
+                            far * 1.25)
+        error = ((out["depth"] - depth).abs() / depth).flatten()
+        texture = torch.nn.functional.interpolate(
+            sweep._box(sweep.texture_weight(aif[None]), 5).clamp(0, 1), size=depth.shape[-2:])
+        for confidence, scores in ((out["confidence"], ranked), (texture, texture_only)):
+            top = confidence.flatten().argsort(descending=True)[: error.numel() // 2]
+            scores.append(float(error[top].mean() / error.mean()))
+    assert float(np.median(ranked)) < 0.8, ranked
+    assert float(np.median(ranked)) < float(np.median(texture_only)) - 0.1, (ranked, texture_only)
+    assert all(a <= b + 0.02 for a, b in zip(ranked, texture_only, strict=True)), (ranked,
+                                                                                  texture_only)
