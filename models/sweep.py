@@ -257,8 +257,8 @@ def depth_edge_confidence(blur: Tensor, window: int = ERROR_WINDOW_PX,
     Example:
         >>> blur = torch.zeros(1, 2, 1, 10)
         >>> blur[..., 5:] = 1.0  # a depth edge: the blur jumps by one pixel
-        >>> [round(v, 2) for v in depth_edge_confidence(blur)[0, 0, 0].tolist()]
-        [1.0, 1.0, 1.0, 0.14, 0.14, 0.14, 0.14, 1.0, 1.0, 1.0]
+        >>> tuple(round(v, 2) for v in depth_edge_confidence(blur)[0, 0, 0].tolist())
+        (1.0, 1.0, 1.0, 0.14, 0.14, 0.14, 0.14, 1.0, 1.0, 1.0)
     """
     check_shape("blur", blur, ["B", "F", "H", "W"])
     if not (isinstance(window, int) and window >= 1 and window % 2 == 1):
