@@ -1,9 +1,10 @@
-"""Your own photos: read a JPEG/PNG upright, with the camera values its EXIF holds.
+"""Your own photos: read a JPEG/PNG/TIFF upright, with the camera values its EXIF holds.
 
 `read_photo` applies the EXIF orientation (a portrait shot stored sideways comes out upright) and
 returns the focal length, f-number and pixel pitch where the file states them. The pixel pitch
 comes from the focal-plane resolution tags, scaled to the stored image size (a downscaled JPEG
-has a larger effective pitch than the sensor).
+has a larger effective pitch than the sensor). 16-bit colour TIFFs and PNGs (what raw developers
+export) keep all 16 bits: Pillow would cut them to 8, so `tifffile` and `pypng` read those.
 """
 
 from __future__ import annotations
@@ -71,11 +72,63 @@ def _exif_info(path: Path, image) -> PhotoInfo:
                      _positive(detail.get(_F_NUMBER)), pitch, orientation)
 
 
+def _is_tiff(path: Path) -> bool:
+    with open(path, "rb") as file:
+        return file.read(4) in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+
+
+def _deep_colour(path: Path, opened) -> np.ndarray | None:
+    """The samples of a colour TIFF or PNG with more than 8 bits per sample, as stored
+    (`(H,W,C)` uint16), which Pillow would cut to 8 bits; None for any other photo."""
+    if _is_tiff(path) and (opened is None or opened.mode not in ("L", "P", "1", "I;16")):
+        import tifffile
+
+        try:
+            array = tifffile.imread(path, key=0)
+        except Exception as error:  # noqa: BLE001 (tifffile raises many kinds)
+            raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
+        if not np.issubdtype(array.dtype, np.integer):
+            raise DataFormatError(
+                f"{str(path)!r}: holds {array.dtype} samples; save it as an 8- or 16-bit photo "
+                "(floating-point TIFFs say nothing of their encoding)")
+        if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[-1] not in (3, 4):
+            array = np.moveaxis(array, 0, -1)  # stored plane by plane
+        return array if array.dtype.itemsize > 1 and array.ndim == 3 else None
+    if opened is not None and opened.format == "PNG" and opened.mode in ("RGB", "RGBA"):
+        import png
+
+        reader = png.Reader(filename=str(path))
+        width, height, rows, meta = reader.asDirect()
+        if meta["bitdepth"] <= 8:
+            return None
+        planes = meta["planes"]
+        return np.vstack([np.asarray(row, np.uint16) for row in rows]).reshape(
+            height, width, planes)
+    return None
+
+
+#: EXIF orientation -> the turn that shows the stored `(H,W,C)` array upright.
+_UPRIGHT = {
+    1: lambda a: a,
+    2: lambda a: a[:, ::-1],
+    3: lambda a: a[::-1, ::-1],
+    4: lambda a: a[::-1],
+    5: lambda a: a.transpose(1, 0, 2),
+    6: lambda a: np.rot90(a, -1),
+    7: lambda a: a.transpose(1, 0, 2)[::-1, ::-1],
+    8: lambda a: np.rot90(a, 1),
+}
+
+
+def _orient(array: np.ndarray, orientation: int) -> np.ndarray:
+    return _UPRIGHT.get(orientation, _UPRIGHT[1])(array)
+
+
 def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Tensor, PhotoInfo]:
     """Read an 8- or 16-bit RGB photo upright as linear intensity `(3,H,W)` in [0, 1].
 
     Args:
-        path: JPEG, PNG or TIFF file.
+        path: JPEG, PNG or TIFF file (16-bit colour TIFFs and PNGs keep all 16 bits).
         dtype: floating dtype of the result.
 
     Returns:
@@ -101,11 +154,19 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
     try:
         with Image.open(path) as opened:
             info = _exif_info(path, opened)
-            upright = ImageOps.exif_transpose(opened)
-            array = np.array(upright.convert("RGB") if upright.mode not in ("RGB", "I;16")
-                               else upright)
+            deep = _deep_colour(path, opened)
+            if deep is None:
+                upright = ImageOps.exif_transpose(opened)
+                array = np.array(upright.convert("RGB") if upright.mode not in ("RGB", "I;16")
+                                 else upright)
     except (UnidentifiedImageError, OSError, ValueError) as error:
-        raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
+        # Pillow reads no floating-point colour TIFF: tifffile says what it holds
+        deep = _deep_colour(path, None) if _is_tiff(path) else None
+        if deep is None:
+            raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
+        info = PhotoInfo(path)
+    if deep is not None:
+        array = _orient(deep, info.orientation)
     if array.ndim == 2:
         array = np.repeat(array[..., None], 3, axis=2)
     scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0

@@ -17,6 +17,7 @@ from datasets.capture import (
     capture,
     random_camera,
 )
+from datasets.io import DataFormatError
 from datasets.photos import read_photo
 from datasets.synthetic import generate_scene
 from defocus.cli import main
@@ -196,6 +197,50 @@ def test_read_photo_applies_exif_orientation_and_values(tmp_path):
     assert float(image[:, :, -5:].mean()) > 0.8 and float(image[:, :, :5].mean()) < 0.1
     assert info.orientation == 6
     assert info.focal_length == pytest.approx(0.05) and info.f_number == pytest.approx(2.8)
+
+
+def _deep_photo(seed=0, shape=(12, 18, 3)):
+    return np.random.default_rng(seed).integers(0, 65536, shape, dtype=np.uint16)
+
+
+def test_read_photo_keeps_all_16_bits_of_a_colour_tiff_and_png(tmp_path):
+    import png
+    import tifffile
+    from kornia.color import rgb_to_linear_rgb
+
+    stored = _deep_photo()
+    expected = rgb_to_linear_rgb(torch.from_numpy(stored.astype(np.float64) / 65535)
+                                 .permute(2, 0, 1))
+    tifffile.imwrite(tmp_path / "p.tif", stored, photometric="rgb")
+    png.from_array(stored.reshape(12, -1), "RGB;16").save(tmp_path / "p.png")
+    for name in ("p.tif", "p.png"):
+        image, _ = read_photo(tmp_path / name, dtype=torch.float64)
+        torch.testing.assert_close(image, expected, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("orientation", range(1, 9))
+def test_a_16_bit_tiff_is_turned_upright_as_pillow_turns_an_8_bit_one(tmp_path, orientation):
+    import tifffile
+
+    stored = (_deep_photo(orientation) // 257).astype(np.uint8)
+    tag = [(274, "H", 1, orientation, True)]
+    tifffile.imwrite(tmp_path / "8.tif", stored, photometric="rgb", extratags=tag)
+    tifffile.imwrite(tmp_path / "16.tif", stored.astype(np.uint16) * 257, photometric="rgb",
+                     extratags=tag)
+    eight, info = read_photo(tmp_path / "8.tif", dtype=torch.float64)
+    sixteen, _ = read_photo(tmp_path / "16.tif", dtype=torch.float64)
+    assert info.orientation == orientation
+    assert eight.shape[1:] == ((18, 12) if orientation >= 5 else (12, 18))  # Pillow turned it
+    torch.testing.assert_close(sixteen, eight, rtol=0, atol=1e-12)
+
+
+def test_read_photo_refuses_a_floating_point_tiff_clearly(tmp_path):
+    import tifffile
+
+    tifffile.imwrite(tmp_path / "f.tif", np.random.default_rng(0).random((8, 8, 3), np.float32),
+                     photometric="rgb")
+    with pytest.raises(DataFormatError, match=r"f\.tif.*float32.*8- or 16-bit"):
+        read_photo(tmp_path / "f.tif")
 
 
 @pytest.fixture()
