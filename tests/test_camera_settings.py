@@ -69,6 +69,7 @@ def test_json_round_trip(tmp_path):
     ({"focal_length": -0.05}, "focal_length"),
     ({"f_number": float("nan")}, "f_number"),
     ({"focus_distance": 0.01}, "focus_distance must be > focal_length"),
+    ({"focal_length": 50.0}, r"focal_length .*did you give millimetres\? 50 mm is 0\.05 m"),
     ({"pixel_pitch": "5e-6"}, "pixel_pitch must be a number"),
     ({"focus_distance": []}, "F >= 1"),
     ({"focus_distance": [[[2.0]]]}, r"\(F,\) or \(B, F\)"),
