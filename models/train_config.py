@@ -1,0 +1,267 @@
+"""The configuration of a training run: `TrainConfig` (every field checked when it is built,
+YAML in and out, `key=value` overrides) and the devices a run may name (`check_device`,
+`select_device`). `models.training.Trainer` runs it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+import yaml
+
+from optics import parse_aperture
+from optics.render import MODES as RENDER_MODES
+
+from .networks import INPUT_MODES, NETWORKS
+
+#: values of `TrainConfig.supervision`: through the renderer (no depth labels) or on depth
+SUPERVISIONS = ("self", "depth")
+#: values of `TrainConfig.resume` (see its field comment)
+RESUME_MODES = ("auto", "resume", "overwrite")
+#: config keys that may differ between a run and its continuation (they do not change the
+#: numbers: where it runs, what it shows and how often it saves)
+RUN_CONTROL_KEYS = ("out_dir", "resume", "device", "progress", "checkpoint_every",
+                    "checkpoint_minutes", "keep_checkpoints")
+
+
+@dataclass
+class TrainConfig:
+    """Everything a training run depends on (lengths in metres).
+
+    Load from YAML with `from_yaml`, change fields with `override`
+    (`["steps=100", "lr=3e-4"]`), save with `to_yaml`.
+
+    Example:
+        >>> cfg = TrainConfig(steps=10).override(["lr=3e-4", "input_mode=aif"])
+        >>> cfg.steps, cfg.lr, cfg.input_mode
+        (10, 0.0003, 'aif')
+    """
+
+    #: optimisation steps
+    steps: int = 300
+    #: samples per step and per process
+    batch_size: int = 8
+    #: Adam learning rate (the paper: 2e-5 for its large network)
+    lr: float = 1e-3
+    #: "small" (CPU encoder-decoder) or "paper" (ResNet-50 + dense ASPP + attention + DeepLabV3+)
+    network: str = "small"
+    #: "aif+focused" (depth from defocus at test time) or "aif" (monocular at test time)
+    input_mode: str = "aif+focused"
+    #: "self" (rendered vs real focused images, no depth labels) or "depth" (supervised baseline)
+    supervision: str = "self"
+    #: output folder (logs, checkpoints, figures)
+    out_dir: Path = Path("runs/train")
+    #: random seed (weights, batch order)
+    seed: int = 0
+    #: nearest depth the network can output, metres
+    depth_min: float = 1.0
+    #: farthest depth the network can output, metres
+    depth_max: float = 10.0
+    #: focused images per sample
+    n_focus: int = 2
+    #: first-scale channels of the small network
+    width: int = 32
+    #: AdamW weight decay
+    weight_decay: float = 0.0
+    #: "cosine" (decay to 0 over steps) or "constant"
+    lr_schedule: str = "cosine"
+    #: gradient-norm clipping (0: off)
+    grad_clip: float = 1.0
+    #: SSIM share of the photometric loss
+    ssim_weight: float = 0.85
+    #: weight of the sharpness-map L1 term
+    sharpness_weight: float = 0.1
+    #: weight of the edge-aware depth smoothness
+    smoothness_weight: float = 0.001
+    #: SSIM window width, pixels
+    ssim_window: int = 7
+    #: PSF used to render in the loss, a spec of optics.aperture_spec: "gaussian" (sigma = CoC/2),
+    #: "gaussian:S", "disk", "polygon:N"
+    aperture: str = "gaussian"
+    #: renderer semantics: "scatter", "gather" or "layered"
+    render_mode: str = "scatter"
+    #: largest PSF window, pixels
+    max_kernel_size: int = 63
+    #: random horizontal flips of the training samples
+    flip: bool = True
+    #: write a train_log.csv row every this many steps (>= 1)
+    log_every: int = 1
+    #: save a checkpoint every this many steps (0: off; see checkpoint_minutes). Checkpoints are
+    #: also written at the end, on SIGINT/SIGTERM (then the run stops) and when a step fails
+    checkpoint_every: int = 0
+    #: save a checkpoint when this many minutes passed since the last one (0: off)
+    checkpoint_minutes: float = 10.0
+    #: keep only the newest this many step_XXXXXX.pt checkpoints (0: keep all; last.pt is kept)
+    keep_checkpoints: int = 3
+    #: evaluate on the validation set every this many steps (0: only at the end)
+    val_every: int = 0
+    #: write a figure every this many steps (0: only at the end)
+    figure_every: int = 0
+    #: what to do when out_dir already holds a run: "auto" (continue it when its config is the
+    #: same, else refuse and name the keys that differ), "resume" (continue it, also with a larger
+    #: steps; refused when anything else differs or there is no run; `defocus train --resume`) or
+    #: "overwrite" (delete its config, logs, checkpoints and figures, then start at step 0;
+    #: `--overwrite`). true means "auto", false "overwrite". device, progress, out_dir and the
+    #: checkpoint settings may always differ
+    resume: str = "auto"
+    #: "auto" (CUDA when available), "cpu", "cuda", ... (refused when this machine lacks it)
+    device: str = "auto"
+    #: tqdm progress bar
+    progress: bool = True
+    #: extra keys for your own code (kept in config.yaml)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.out_dir = Path(self.out_dir)
+        if isinstance(self.resume, bool):
+            self.resume = "auto" if self.resume else "overwrite"
+        for item in dataclasses.fields(self):
+            _check_type(item.name, getattr(self, item.name), item.type)
+        for name in ("lr", "depth_min", "depth_max", "weight_decay", "grad_clip", "ssim_weight",
+                     "sharpness_weight", "smoothness_weight", "checkpoint_minutes"):
+            setattr(self, name, float(getattr(self, name)))
+        choices = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
+                   "supervision": SUPERVISIONS, "lr_schedule": ("cosine", "constant"),
+                   "render_mode": RENDER_MODES, "resume": RESUME_MODES}
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        try:
+            parse_aperture(self.aperture)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"aperture {self.aperture!r} is not a PSF spec: {error}") from None
+        for name, low in (("steps", 1), ("batch_size", 1), ("n_focus", 1), ("width", 1),
+                          ("log_every", 1), ("seed", 0), ("checkpoint_every", 0),
+                          ("keep_checkpoints", 0), ("val_every", 0), ("figure_every", 0)):
+            if getattr(self, name) < low:
+                raise ValueError(f"{name} must be an integer >= {low}, got {getattr(self, name)!r}")
+        for name in ("ssim_window", "max_kernel_size"):
+            value = getattr(self, name)
+            if value < 1 or value % 2 == 0:
+                raise ValueError(f"{name} must be a positive odd number of pixels, got {value!r}")
+        for name in ("lr", "depth_min", "depth_max"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {getattr(self, name)!r}")
+        if not self.depth_min < self.depth_max:
+            raise ValueError(f"need 0 < depth_min < depth_max metres, got {self.depth_min!r} "
+                             f"and {self.depth_max!r}")
+        for name in ("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
+                     "checkpoint_minutes"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0 (0: off), got "
+                                 f"{getattr(self, name)!r}")
+        if not 0 <= self.ssim_weight <= 1:
+            raise ValueError(f"ssim_weight must be in [0, 1], got {self.ssim_weight!r}")
+        check_device(self.device)
+
+    def to_dict(self) -> dict[str, Any]:
+        data = dataclasses.asdict(self)
+        data["out_dir"] = str(self.out_dir)
+        return data
+
+    def to_yaml(self, path: str | Path) -> None:
+        Path(path).write_text(yaml.safe_dump(self.to_dict(), sort_keys=False))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> TrainConfig:
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown config keys {unknown}; allowed: {sorted(known)}")
+        return cls(**{k: _coerce(cls, k, v) for k, v in data.items()})
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> TrainConfig:
+        """Load a config from a YAML mapping of field names to values."""
+        data = yaml.safe_load(Path(path).read_text()) or {}
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{path} must hold a YAML mapping of config keys, got {type(data)}")
+        return cls.from_dict(data)
+
+    def override(self, assignments: Sequence[str]) -> TrainConfig:
+        """A copy with `key=value` assignments applied (values parsed as YAML)."""
+        data = self.to_dict()
+        for item in assignments:
+            key, sep, value = item.partition("=")
+            if not sep:
+                raise ValueError(f"overrides must look like key=value, got {item!r}")
+            data[key.strip()] = yaml.safe_load(value)
+        return TrainConfig.from_dict(data)
+
+
+def _check_type(name: str, value: Any, kind: Any) -> None:
+    """Raise `ValueError` unless `value` has the field type `kind` (ints are floats too)."""
+    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
+    allowed = {"int": (int,), "float": (int, float), "bool": (bool,), "str": (str,),
+               "Path": (Path,)}.get(kind)
+    if kind.startswith("dict"):
+        allowed = (dict,)
+    if allowed is None:
+        return
+    if isinstance(value, bool) and kind in ("int", "float"):
+        allowed = ()
+    if not isinstance(value, allowed):
+        raise ValueError(f"config key {name} must be of type {kind}, got {value!r}")
+
+
+def check_device(name: str) -> None:
+    """Raise `ValueError` unless `name` is "auto" or a device this machine has."""
+    if name == "auto":
+        return
+    try:
+        device = torch.device(name)
+    except (RuntimeError, ValueError):
+        raise ValueError(f"device must be 'auto' or a torch device such as 'cpu' or 'cuda:0', "
+                         f"got {name!r}") from None
+    if device.type == "cuda":
+        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
+        if (device.index or 0) >= count:
+            raise ValueError(f"device {name!r} is not available: this machine has {count} CUDA "
+                             "device(s); use 'auto' or 'cpu'")
+    elif device.type == "mps" and not torch.backends.mps.is_available():
+        raise ValueError(f"device {name!r} is not available here; use 'auto' or 'cpu'")
+    elif device.type not in ("cpu", "cuda", "mps", "xpu", "meta"):
+        raise ValueError(f"device must be 'auto', 'cpu', 'cuda[:N]' or 'mps', got {name!r}")
+
+
+def _coerce(cls: type, name: str, value: Any) -> Any:
+    """Convert a YAML value to the type of field `name`."""
+    kind = {f.name: f.type for f in dataclasses.fields(cls)}.get(name)
+    kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
+    if name == "resume" and isinstance(value, bool):
+        return value  # true / false: mapped to "auto" / "overwrite"
+    try:
+        if kind in ("int", "float") and isinstance(value, bool):
+            raise ValueError
+        if kind == "int":
+            if isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return int(value)
+        if kind == "float":
+            return float(value)
+        if kind == "bool":
+            if not isinstance(value, bool):
+                raise ValueError
+            return value
+        if kind == "Path":
+            return Path(value)
+        if kind == "str":
+            return str(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"config key {name} must be of type {kind}, got {value!r}") from None
+    return value
+
+
+def select_device(name: str) -> torch.device:
+    """`name`, or for `"auto"` this process's GPU when CUDA is available, else the CPU."""
+    if name == "auto":
+        available = torch.cuda.is_available()
+        name = f"cuda:{int(os.environ.get('LOCAL_RANK', 0))}" if available else "cpu"
+    return torch.device(name)
