@@ -9,6 +9,7 @@ export) keep all 16 bits: Pillow would cut them to 8, so `tifffile` and `pypng` 
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,13 +81,21 @@ def _is_tiff(path: Path) -> bool:
 def _deep_colour(path: Path, opened) -> np.ndarray | None:
     """The samples of a colour TIFF or PNG with more than 8 bits per sample, as stored
     (`(H,W,C)` uint16), which Pillow would cut to 8 bits; None for any other photo."""
-    if _is_tiff(path) and (opened is None or opened.mode not in ("L", "P", "1", "I;16")):
+    if _is_tiff(path) and (opened is None or (
+            opened.mode not in ("L", "P", "1", "I;16")
+            and max(opened.tag_v2.get(258, (8,)), default=8) > 8)):
         import tifffile
 
         try:
             array = tifffile.imread(path, key=0)
         except Exception as error:  # noqa: BLE001 (tifffile raises many kinds)
-            raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
+            if opened is None:
+                raise DataFormatError(
+                    f"{str(path)!r}: cannot be read as a photo ({error})") from None
+            warnings.warn(f"{path}: read with 8 bits per channel only, tifffile cannot decode it "
+                          f"({error}); with the imagecodecs package installed all 16 are kept",
+                          UserWarning, stacklevel=3)
+            return None
         if not np.issubdtype(array.dtype, np.integer):
             raise DataFormatError(
                 f"{str(path)!r}: holds {array.dtype} samples; save it as an 8- or 16-bit photo "

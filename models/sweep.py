@@ -261,7 +261,8 @@ def depth_edge_confidence(blur: Tensor, window: int = ERROR_WINDOW_PX,
         (1.0, 1.0, 1.0, 0.14, 0.14, 0.14, 0.14, 1.0, 1.0, 1.0)
     """
     check_shape("blur", blur, ["B", "F", "H", "W"])
-    if not (isinstance(window, int) and window >= 1 and window % 2 == 1):
+    if isinstance(window, bool) or not (isinstance(window, int) and window >= 1
+                                         and window % 2 == 1):
         raise ValueError(f"window must be an odd number of pixels >= 1, got {window!r}")
     if not span_px > 0:
         raise ValueError(f"span_px must be > 0 pixels, got {span_px!r}")

@@ -234,6 +234,22 @@ def test_a_16_bit_tiff_is_turned_upright_as_pillow_turns_an_8_bit_one(tmp_path, 
     torch.testing.assert_close(sixteen, eight, rtol=0, atol=1e-12)
 
 
+def test_a_16_bit_tiff_tifffile_cannot_decode_is_read_by_pillow_with_a_warning(tmp_path,
+                                                                                monkeypatch):
+    import tifffile
+
+    stored = _deep_photo()
+    tifffile.imwrite(tmp_path / "p.tif", stored, photometric="rgb")
+
+    def no_codec(*args, **kwargs):
+        raise KeyError("<COMPRESSION.LZW: 5> requires the 'imagecodecs' package")
+
+    monkeypatch.setattr(tifffile, "imread", no_codec)
+    with pytest.warns(UserWarning, match="8 bits per channel only.*imagecodecs"):
+        image, _ = read_photo(tmp_path / "p.tif", dtype=torch.float64)
+    assert image.shape == (3, 12, 18)
+
+
 def test_read_photo_refuses_a_floating_point_tiff_clearly(tmp_path):
     import tifffile
 
