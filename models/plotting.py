@@ -21,10 +21,11 @@ def linear_to_srgb(linear: Tensor) -> Tensor:
 def plot_prediction(
     path: str | Path, image: Tensor, depth: Tensor, focused: Tensor | None = None,
     target: Tensor | None = None, mask: Tensor | None = None, title: str = "",
-    depth_range: tuple[float, float] | None = None,
+    depth_range: tuple[float, float] | None = None, confidence: Tensor | None = None,
 ) -> Path:
     """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
-    ground-truth depth and the relative error `|d - g| / g` (masked pixels grey).
+    its confidence, ground-truth depth and the relative error `|d - g| / g` (masked pixels
+    grey); the panels whose data are given.
 
     Args:
         path: PNG file to write (folders are created).
@@ -35,6 +36,7 @@ def plot_prediction(
         mask: optional valid-depth mask `(1,H,W)`.
         title: figure title.
         depth_range: colour range of the depth maps in metres (default: that of the data).
+        confidence: optional confidence `(1,H,W)` in [0, 1] (e.g. `SweepDepth`'s).
 
     Returns:
         the path written.
@@ -50,6 +52,8 @@ def plot_prediction(
         for i, f in enumerate(focused.detach().float().cpu()):
             panels.append((f"focused image {i + 1}", f, "rgb"))
     panels.append(("predicted depth (m)", depth[0], "depth"))
+    if confidence is not None:
+        panels.append(("confidence", confidence.detach().float().cpu()[0], "confidence"))
     if target is not None:
         target = target.detach().float().cpu()
         valid = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.cpu().bool()
@@ -65,9 +69,10 @@ def plot_prediction(
         if kind == "rgb":
             ax.imshow(linear_to_srgb(data).permute(1, 2, 0).numpy())
         else:
-            cmap = matplotlib.colormaps["magma_r" if kind == "depth" else "viridis"]
+            cmap = matplotlib.colormaps[{"depth": "magma_r", "confidence": "gray"}.get(kind,
+                                                                                       "viridis")]
             cmap = cmap.with_extremes(bad="0.6")
-            limits = depth_range if kind == "depth" else (0.0, 0.5)
+            limits = {"depth": depth_range, "confidence": (0.0, 1.0)}.get(kind, (0.0, 0.5))
             shown = ax.imshow(data.numpy(), cmap=cmap, vmin=limits[0], vmax=limits[1])
             fig.colorbar(shown, ax=ax, shrink=0.75)
         ax.set_title(name, fontsize=9)

@@ -84,3 +84,17 @@ def test_every_figure_leaves_backend_and_pyplot_alone(tmp_path):
         assert all((tmp_path / n).stat().st_size > 1000 for n in ("sweep.png", "p.png", "c.png"))
     finally:
         matplotlib.use(before)
+
+
+def test_prediction_figure_shows_the_confidence_when_given(tmp_path):
+    from PIL import Image
+
+    from datasets.middlebury import motorcycle_sample
+    from models.plotting import plot_prediction
+
+    sample = motorcycle_sample(0.1)
+    plot_prediction(tmp_path / "a.png", sample["image"], sample["depth"], sample["focused"])
+    plot_prediction(tmp_path / "b.png", sample["image"], sample["depth"], sample["focused"],
+                    confidence=torch.rand(1, *sample["depth"].shape[-2:]))
+    width = {n: Image.open(tmp_path / n).size[0] for n in ("a.png", "b.png")}
+    assert width["b.png"] - width["a.png"] == pytest.approx(2.8 * 90, abs=2)  # one more panel

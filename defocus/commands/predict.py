@@ -120,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
         written.append("confidence.png")
     plot_prediction(args.out / "figure.png", image, depth,
                     None if focused is None else focused, title=str(args.image.name),
-                    depth_range=depth_range)
+                    depth_range=depth_range, confidence=confidence)
     print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m; wrote "
           f"{', '.join(written)} and figure.png under {args.out}")
     return 0
@@ -147,7 +147,7 @@ def _camera_general(args, model, image, focused, settings):
               f"{near:g}-{far:g} m: depth computed again over that range, at a finer resolution")
     print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned: moved by "
           f"{moved} (pixels down, right; magnification; rotation, clockwise)")
-    return out["depth"].cpu(), out["confidence"].cpu(), (near, far)
+    return out["depth"].cpu(), out["confidence"].cpu(), tuple(swept)  # the figure's colours
 
 
 def _checkpoint(trainer, image, focused, settings):
