@@ -170,7 +170,7 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
                                  else upright)
     except (UnidentifiedImageError, OSError, ValueError) as error:
         # Pillow reads no floating-point colour TIFF: tifffile says what it holds
-        deep = _deep_colour(path, None) if _is_tiff(path) else None
+        deep = _deep_colour(path, None)
         if deep is None:
             raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
         info = PhotoInfo(path)
