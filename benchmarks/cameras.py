@@ -53,7 +53,11 @@ from models.blur import (  # noqa: E402
     to_working_resolution,
     working_scale,
 )
-from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
+from models.metrics import (  # noqa: E402
+    best_constant_depth,
+    confident_half_error,
+    depth_metrics,
+)
 from models.sweep import SweepDepth  # noqa: E402
 from optics import CameraSettings, align_shots  # noqa: E402
 
@@ -97,13 +101,11 @@ def run_model(model, shot: dict) -> tuple[torch.Tensor, float, torch.Tensor]:
     return out["depth"], time.perf_counter() - started, out["confidence"]
 
 
-def confident_half_error(depth: torch.Tensor, confidence: torch.Tensor, shot: dict) -> float:
-    """Mean abs rel error of the more confident half of the valid pixels over that of all of
-    them: how well the confidence ranks the errors (1: no better than chance)."""
+def ranking_of(depth: torch.Tensor, confidence: torch.Tensor, shot: dict) -> float:
+    """`models.metrics.confident_half_error` of the abs rel errors over the valid pixels."""
     valid = shot["mask"].bool()
     error = ((depth - shot["depth"]).abs() / shot["depth"])[valid]
-    top = confidence[valid].argsort(descending=True)[: max(1, error.numel() // 2)]
-    return float(error[top].mean() / error.mean())
+    return confident_half_error(error, confidence[valid])
 
 
 def working_resolution(shot: dict, max_coc_px: float) -> tuple[torch.Tensor, CameraSettings,
@@ -191,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, method in methods.items():
             depth, seconds, confidence = method(shot)
             if confidence is not None:
-                ranking[name].append(confident_half_error(depth, confidence, shot))
+                ranking[name].append(ranking_of(depth, confidence, shot))
             m = depth_metrics(pred=depth[None], target=target, mask=mask)
             ratios[name].append(m["abs_rel"] / base["abs_rel"])
             demo.setdefault(name, m["abs_rel"])

@@ -207,6 +207,24 @@ def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
     return float(g[min(index, g.numel() - 1)])
 
 
+def confident_half_error(error: Tensor, confidence: Tensor) -> float:
+    """How well a confidence map ranks per-pixel errors: the mean `error` over the more
+    confident half of the pixels divided by the mean over all of them (1: no better than
+    chance; 0: the confident half holds no error). Both tensors hold the same pixels, any shape.
+
+    Example:
+        >>> confident_half_error(torch.tensor([0.0, 0.0, 1.0, 3.0]),
+        ...                      torch.tensor([0.9, 0.8, 0.2, 0.1]))
+        0.0
+    """
+    if error.shape != confidence.shape or error.numel() == 0:
+        raise ValueError(f"error and confidence must be non-empty and of one shape, got "
+                         f"{tuple(error.shape)} and {tuple(confidence.shape)}")
+    error, confidence = error.detach().flatten().double(), confidence.detach().flatten()
+    top = confidence.argsort(descending=True)[: max(1, error.numel() // 2)]
+    return float(error[top].mean() / error.mean())
+
+
 def format_table(results: Mapping[str, Mapping[str, float]],
                  metrics: Sequence[str] = METRIC_NAMES) -> str:
     """A paper-style Markdown table: one row per method, one column per metric.

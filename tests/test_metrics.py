@@ -8,6 +8,7 @@ import torch
 from models.metrics import (
     METRIC_NAMES,
     best_constant_depth,
+    confident_half_error,
     crop_mask,
     depth_metrics,
     format_table,
@@ -102,3 +103,11 @@ def test_format_table_rows_and_arrows():
     assert len(lines) == 4
     assert "abs rel ↓" in lines[0] and "d<1.25 ↑" in lines[0]
     assert "0.250" in lines[3] and "-" in lines[3]
+
+
+def test_confident_half_error_is_the_mean_over_the_confident_half():
+    error = torch.tensor([[1.0, 2.0], [3.0, 4.0]])
+    assert confident_half_error(error, -error) == pytest.approx(1.5 / 2.5)  # trusts the small
+    assert confident_half_error(error, error) == pytest.approx(3.5 / 2.5)  # trusts the large
+    with pytest.raises(ValueError, match="one shape"):
+        confident_half_error(error, error.flatten())

@@ -11,7 +11,7 @@ from datasets.capture import CaptureNoise, capture, random_camera
 from datasets.synthetic import generate_scene
 from models import sweep
 from models.blur import predict_depth, scene_range
-from models.metrics import best_constant_depth, depth_metrics
+from models.metrics import best_constant_depth, confident_half_error, depth_metrics
 from models.semi_global import cost_scale, semi_global_cost
 from models.sweep import SweepDepth, blur_errors, noise_model, sweep_cost
 from optics import CameraSettings, Disk, render_defocus, translate, warp
@@ -400,8 +400,7 @@ def test_sweep_confidence_ranks_its_errors_on_held_out_scenes():
         texture = torch.nn.functional.interpolate(
             sweep._box(sweep.texture_weight(aif[None]), 5).clamp(0, 1), size=depth.shape[-2:])
         for confidence, scores in ((out["confidence"], ranked), (texture, texture_only)):
-            top = confidence.flatten().argsort(descending=True)[: error.numel() // 2]
-            scores.append(float(error[top].mean() / error.mean()))
+            scores.append(confident_half_error(error, confidence.flatten()))
     assert float(np.median(ranked)) < 0.8, ranked
     assert float(np.median(ranked)) < float(np.median(texture_only)) - 0.1, (ranked, texture_only)
     assert all(a <= b + 0.02 for a, b in zip(ranked, texture_only, strict=True)), (ranked,
