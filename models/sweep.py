@@ -247,6 +247,13 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
     return _box(stacked, ERROR_WINDOW_PX)
 
 
+def texture_confidence(image: Tensor) -> Tensor:
+    """How much texture the sweep can read around each pixel, in [0, 1] `(B,1,H,W)`: the
+    photo's `models.blur.texture_weight` averaged over 5x5 pixels. It weighs the smoothing and
+    is one factor of `SweepDepth`'s confidence."""
+    return _box(texture_weight(image), 5).clamp(0, 1)
+
+
 def depth_edge_confidence(blur: Tensor, window: int = ERROR_WINDOW_PX,
                           span_px: float = BLUR_SPAN_PX) -> Tensor:
     """How well the sweep's model holds at each pixel, in (0, 1] `(B,1,H,W)`: the sweep compares
@@ -417,7 +424,7 @@ class SweepDepth(nn.Module):
                     return out
 
                 depth = apply_in_tiles(tile_depth, [image, focused], self.tile, reach)
-        texture = _box(texture_weight(image), 5).clamp(0, 1)
+        texture = texture_confidence(image)
         if self.smoothing > 0:
             weight = kornia.filters.median_blur(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
             inverse = edge_aware_smooth(1 / depth, weight, image, self.smoothing, SMOOTHING_SIGMA)

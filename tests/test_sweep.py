@@ -397,8 +397,7 @@ def test_sweep_confidence_ranks_its_errors_on_held_out_scenes():
         out = predict_depth(SweepDepth(), aif, focused, settings.to(torch.float32), near * 0.8,
                             far * 1.25)
         error = ((out["depth"] - depth).abs() / depth).flatten()
-        texture = torch.nn.functional.interpolate(
-            sweep._box(sweep.texture_weight(aif[None]), 5).clamp(0, 1), size=depth.shape[-2:])
+        texture = sweep.texture_confidence(aif[None])
         for confidence, scores in ((out["confidence"], ranked), (texture, texture_only)):
             scores.append(confident_half_error(error, confidence.flatten()))
     assert float(np.median(ranked)) < 0.8, ranked
