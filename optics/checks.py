@@ -131,14 +131,22 @@ def no_unit_warnings() -> Iterator[None]:
         _UNIT_WARNINGS.reset(token)
 
 
+def implausible_length(name: str, value: Tensor) -> float | None:
+    """The largest of `value` (metres) where it exceeds `UNIT_LIMITS[name]`, so probably was
+    given in millimetres; None where it does not, or `name` has no limit."""
+    limit = UNIT_LIMITS.get(name)
+    largest = float(value.detach().max())
+    return largest if limit is not None and largest > limit else None
+
+
 def warn_unit(name: str, value: Tensor) -> None:
     """Warn (`UserWarning`) when a length is implausibly large for metres: a focal length over
     2 m or a pixel pitch over 1 mm ("did you give millimetres?"). Other names are not checked."""
-    limit = UNIT_LIMITS.get(name)
-    if limit is None or not _UNIT_WARNINGS.get() or is_tracing(value):
+    if name not in UNIT_LIMITS or not _UNIT_WARNINGS.get() or is_tracing(value):
         return
-    largest = float(value.detach().max())
-    if largest > limit:
+    largest = implausible_length(name, value)
+    if largest is not None:
+        limit = UNIT_LIMITS[name]
         warnings.warn(
             f"{name} is {largest:.6g} m, more than {limit:g} m: did you give millimetres? "
             f"Lengths are in metres (e.g. {name}={largest * 1e-3:.6g} for {largest:.6g} mm)",

@@ -22,7 +22,7 @@ from torch import Tensor
 from .aperture import Aperture
 from .aperture_spec import aperture_from_json, aperture_spec, parse_aperture
 from .camera import Camera
-from .checks import UNIT_LIMITS, check_positive, is_tracing
+from .checks import check_positive, implausible_length, is_tracing
 from .lens import ThinLens
 from .sensor import Sensor
 
@@ -116,9 +116,9 @@ class CameraSettings:
         for name in SETTING_FIELDS:
             check_positive(name, getattr(self, name).detach(), _UNITS[name])
         if bool(torch.any(self.focus_distance <= self.focal_length)):
-            largest = float(self.focal_length.detach().max())
-            hint = (f": did you give millimetres? {largest:.6g} mm is {largest * 1e-3:.6g} m"
-                    if largest > UNIT_LIMITS["focal_length"] else "")
+            largest = implausible_length("focal_length", self.focal_length)
+            hint = ("" if largest is None else
+                    f": did you give millimetres? {largest:.6g} mm is {largest * 1e-3:.6g} m")
             raise ValueError(
                 f"focus_distance must be > focal_length (metres), got focus_distance "
                 f"{self.focus_distance.tolist()} and focal_length {self.focal_length.tolist()}"
