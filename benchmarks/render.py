@@ -275,7 +275,8 @@ def goals(device, rounds: int, memory: bool) -> list[tuple[str, float | str, str
             spread, "<= 1.25", spread <= 1.25))
     for aperture in ("Gaussian", "disk"):
         floor = paired_ratio(times, f"{aperture.lower()}/{FLOOR}", f"{aperture.lower()}/scatter")
-        print(f"reference: {aperture} scatter of {2 * (SHAPE[1] + 1) - 1} channels (the layered "
+        channels = jobs[f"{aperture.lower()}/{FLOOR}"].inputs[0].shape[1]
+        print(f"reference: {aperture} scatter of {channels} channels (the layered "
               f"mode's two layers a source, no indexing: its arithmetic floor) / {aperture} "
               f"scatter: {floor:.2f}")
     medians = {name: statistics.median(t) * 1e3 for name, t in times.items()}
