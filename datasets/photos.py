@@ -3,7 +3,9 @@
 `read_photo` applies the EXIF orientation (a portrait shot stored sideways comes out upright) and
 returns the focal length, f-number and pixel pitch where the file states them. The pixel pitch
 comes from the focal-plane resolution tags, scaled to the stored image size (a downscaled JPEG
-has a larger effective pitch than the sensor). 16-bit colour TIFFs and PNGs (what raw developers
+has a larger effective pitch than the sensor); where a camera leaves those out (most phones do),
+from the 35 mm equivalent focal length: the stored image's diagonal spans the full-frame
+diagonal (43.27 mm) divided by the crop factor, `f_35mm / f`. 16-bit colour TIFFs and PNGs (what raw developers
 export) keep all 16 bits: Pillow would cut them to 8, so `tifffile` and `pypng` read those.
 """
 
@@ -25,6 +27,9 @@ from .io import DataFormatError, require_file
 #: EXIF tag numbers (the Exif IFD).
 _FOCAL_LENGTH, _F_NUMBER = 37386, 33437
 _FOCAL_PLANE_X_RES, _FOCAL_PLANE_UNIT = 41486, 41488
+_FOCAL_LENGTH_35MM = 41989
+#: Diagonal of a 36 x 24 mm frame, metres: what a 35 mm equivalent focal length is defined on.
+FULL_FRAME_DIAGONAL = float(np.hypot(0.036, 0.024))
 _EXIF_IFD = 0x8769
 _METRES_PER_UNIT = {2: 0.0254, 3: 0.01, 4: 0.001, 5: 1e-6}
 
@@ -39,6 +44,9 @@ class PhotoInfo:
         f_number: dimensionless.
         pixel_pitch: effective pixel pitch of the stored (upright) image, metres.
         orientation: the EXIF orientation that was applied (1 = none).
+        pixel_pitch_source: which tags gave `pixel_pitch`: `"focal-plane resolution"` or
+            `"35 mm equivalent"` (files round that focal length to whole millimetres: up to 2 %
+            off at 26 mm).
     """
 
     path: Path
@@ -46,6 +54,7 @@ class PhotoInfo:
     f_number: float | None = None
     pixel_pitch: float | None = None
     orientation: int = 1
+    pixel_pitch_source: str | None = None
 
 
 def _positive(value) -> float | None:
@@ -61,16 +70,23 @@ def _exif_info(path: Path, image) -> PhotoInfo:
     detail = exif.get_ifd(_EXIF_IFD) if exif else {}
     orientation = int(exif.get(274, 1)) if exif else 1
     focal = _positive(detail.get(_FOCAL_LENGTH))
-    pitch = None
+    pitch, source = None, None
     resolution = _positive(detail.get(_FOCAL_PLANE_X_RES))
+    equivalent = _positive(detail.get(_FOCAL_LENGTH_35MM))
     if resolution is not None:
         unit = _METRES_PER_UNIT.get(int(detail.get(_FOCAL_PLANE_UNIT, 2)), 0.0254)
         pitch = unit / resolution  # at the sensor's full width...
         sensor_width = detail.get(40962)  # PixelXDimension: the stored image's width
         if _positive(sensor_width) is not None and image.width:
             pitch *= float(sensor_width) / image.width
+        source = "focal-plane resolution"
+    elif focal is not None and equivalent is not None and image.width and image.height:
+        # the crop factor f_35mm / f shrinks the full-frame diagonal to the stored image's
+        pitch = FULL_FRAME_DIAGONAL * focal / equivalent / float(np.hypot(image.width,
+                                                                         image.height))
+        source = "35 mm equivalent"
     return PhotoInfo(path, None if focal is None else focal / 1000.0,
-                     _positive(detail.get(_F_NUMBER)), pitch, orientation)
+                     _positive(detail.get(_F_NUMBER)), pitch, orientation, source)
 
 
 def _is_tiff(path: Path) -> bool:
@@ -187,6 +203,7 @@ def photo_settings(
     infos: list[PhotoInfo], focus_distances: list[float], f_numbers: list[float] | None = None,
     focal_length: float | None = None, pixel_pitch: float | None = None,
     calibration: CameraSettings | None = None, aperture: str = "disk",
+    sources: dict[str, str] | None = None,
 ) -> CameraSettings:
     """The `(F,)` `CameraSettings` of focused photos, from what the user gave, else the
     calibration, else the photos' EXIF.
@@ -200,6 +217,9 @@ def photo_settings(
             EXIF focal-plane resolution).
         calibration: a `CameraSettings` from `defocus calibrate` (`CameraSettings.from_json`).
         aperture: PSF spec when no calibration gives one.
+        sources: a dict that, when given, is filled with where each of `focal_length`,
+            `f_number` and `pixel_pitch` came from: `"given"`, `"calibration"` or `"EXIF"`
+            (for the pitch, with the tags it came from).
 
     Raises:
         ValueError: naming every value that is missing and how to give it.
@@ -211,13 +231,21 @@ def photo_settings(
         raise ValueError(f"give --focus-distance with one value per focused photo ({n}), "
                          f"got {len(focus_distances)}")
 
+    found = {} if sources is None else sources
+
     def pick(name: str, given, unit: str):
         if given is not None:
+            found[name] = "given"
             return given
         if calibration is not None:
+            found[name] = "calibration"
             return getattr(calibration, name).reshape(-1)[0].item()
         values = [getattr(info, name) for info in infos]
         if all(v is not None for v in values):
+            found[name] = "EXIF"
+            if name == "pixel_pitch":
+                tags = sorted({str(info.pixel_pitch_source) for info in infos})
+                found[name] = f"EXIF {' and '.join(tags)}"
             return values
         missing = [str(info.path) for info, v in zip(infos, values, strict=True) if v is None]
         raise ValueError(f"{name} is unknown: {', '.join(missing)} do(es) not state it in EXIF; "
@@ -232,3 +260,24 @@ def photo_settings(
     pitch = pick("pixel_pitch", pixel_pitch, "metres, e.g. 4e-6")
     spec = calibration.aperture if calibration is not None else aperture
     return CameraSettings(focal, f_number, list(focus_distances), pitch, aperture=spec)
+
+
+def describe_settings(settings: CameraSettings, sources: dict[str, str] | None = None) -> str:
+    """One line for a person: the `(F,)` shots' focal length, f-number, pixel pitch and focus
+    distances, each with where it came from (`photo_settings`'s `sources`) when known.
+
+    Example:
+        >>> describe_settings(CameraSettings(0.05, 2.0, [1.0, 3.0], 4e-6), {"f_number": "EXIF"})
+        'camera: focal length 50.0 mm, f/2 (EXIF), pixel pitch 4.00 um, focused at 1, 3 m'
+    """
+    sources = sources or {}
+
+    def values(name: str, scale: float, fmt: str, unit: str = "") -> str:
+        unique = sorted({round(float(v) * scale, 6) for v in getattr(settings, name).reshape(-1)})
+        text = "/".join(format(v, fmt) for v in unique) + unit
+        return f"{text} ({sources[name]})" if name in sources else text
+
+    focus = ", ".join(format(float(d), "g") for d in settings.focus_distance.reshape(-1))
+    return (f"camera: focal length {values('focal_length', 1e3, '.1f', ' mm')}, "
+            f"f/{values('f_number', 1.0, 'g')}, pixel pitch "
+            f"{values('pixel_pitch', 1e6, '.2f', ' um')}, focused at {focus} m")

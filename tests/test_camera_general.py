@@ -175,10 +175,10 @@ def test_weights_round_trip_and_hash(tmp_path):
     assert not is_weights_file(tmp_path / "photo.png")
 
 
-def _write_jpeg(path, array, orientation=1, focal_mm=None, f_number=None):
+def _write_jpeg(path, array, orientation=1, focal_mm=None, f_number=None, **tags):
     exif = Image.Exif()
     exif[274] = orientation
-    detail = {}
+    detail = {int(tag.lstrip("_")): value for tag, value in tags.items()}
     if focal_mm is not None:
         detail[37386] = float(focal_mm)
     if f_number is not None:
@@ -197,6 +197,25 @@ def test_read_photo_applies_exif_orientation_and_values(tmp_path):
     assert float(image[:, :, -5:].mean()) > 0.8 and float(image[:, :, :5].mean()) < 0.1
     assert info.orientation == 6
     assert info.focal_length == pytest.approx(0.05) and info.f_number == pytest.approx(2.8)
+
+
+def test_read_photo_pixel_pitch_from_the_35mm_equivalent_focal_length(tmp_path):
+    # a phone: 4.2 mm lens, "26 mm" equivalent, no focal-plane resolution; 40x30 pixels stored
+    stored = np.zeros((30, 40, 3), np.uint8)
+    sensor_diagonal = 0.0432666 * 4.2 / 26  # metres: full frame's diagonal over the crop factor
+    for orientation in (1, 6):  # turning the photo upright changes no pixel's size
+        _write_jpeg(tmp_path / "p.jpg", stored, orientation, focal_mm=4.2, _41989=26)
+        _, info = read_photo(tmp_path / "p.jpg")
+        assert info.pixel_pitch == pytest.approx(sensor_diagonal / 50, rel=1e-5)
+        assert info.pixel_pitch_source == "35 mm equivalent"
+    # the focal-plane resolution, where given, is read first: 1000 pixels per centimetre
+    _write_jpeg(tmp_path / "p.jpg", stored, focal_mm=4.2, _41989=26, _41486=1000.0, _41488=3)
+    _, info = read_photo(tmp_path / "p.jpg")
+    assert info.pixel_pitch == pytest.approx(1e-5) and info.pixel_pitch_source == \
+        "focal-plane resolution"
+    # without the real focal length the equivalent alone gives no pitch
+    _write_jpeg(tmp_path / "p.jpg", stored, _41989=26)
+    assert read_photo(tmp_path / "p.jpg")[1].pixel_pitch is None
 
 
 def _deep_photo(seed=0, shape=(12, 18, 3)):
@@ -281,10 +300,13 @@ def photos(tmp_path):
     return make
 
 
-def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path):
+def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path, capsys):
     args = photos()
     assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
                  "--depth-range", "1", "8", "--out", str(tmp_path / "a")]) == 0
+    # it says which camera it used, and where each value came from
+    assert ("camera: focal length 50.0 mm (EXIF), f/1.4 (EXIF), pixel pitch 180.00 um (given), "
+            "focused at 2, 6 m") in capsys.readouterr().out
     a = np.load(tmp_path / "a" / "depth.npy")
     assert a.shape == (48, 64) and np.isfinite(a).all() and 1 <= a.min() and a.max() <= 8
     mm = np.asarray(Image.open(tmp_path / "a" / "depth_mm.png"))
@@ -294,6 +316,7 @@ def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path):
     CameraSettings(0.05, 1.4, [2.0, 6.0], 180e-6, "disk").to_json(tmp_path / "fit.json")
     assert main(["predict", *args, "--camera", str(tmp_path / "fit.json"),
                  "--depth-range", "1", "8", "--out", str(tmp_path / "b")]) == 0
+    assert "50.0 mm (calibration), f/1.4 (calibration)" in capsys.readouterr().out
     np.testing.assert_allclose(np.load(tmp_path / "b" / "depth.npy"), a, rtol=1e-5)
 
 

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from PIL import Image
 
-    from datasets.photos import photo_settings, read_photo
+    from datasets.photos import describe_settings, photo_settings, read_photo
     from defocus.cli import CommandError
     from models.plotting import plot_prediction
     from models.pretrained import is_weights_file, load_weights
@@ -99,9 +99,12 @@ def run(args: argparse.Namespace) -> int:
                           stacklevel=1)
     focused = torch.stack([p for p, _ in photos]) if photos else None
     calibration = CameraSettings.from_json(args.camera) if args.camera else None
+    sources: dict[str, str] = {}
     settings = photo_settings([info for _, info in photos], args.focus_distance,
                               args.f_number, args.focal_length, args.pixel_pitch,
-                              calibration) if photos else None
+                              calibration, sources=sources) if photos else None
+    if settings is not None:
+        print(describe_settings(settings, sources))
     if general:
         depth, confidence, depth_range = _camera_general(
             args, model, image.to(device), focused.to(device) if photos else None, settings)
