@@ -149,10 +149,13 @@ def test_sigint_saves_and_the_run_resumes_exactly(tmp_path):
     log's steps strictly increase and its losses equal those of an uninterrupted run."""
     env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1", MKL_NUM_THREADS="1")
     env.pop("DEFOCUS_DEBUG", None)
+    total_steps = 300
 
+    # 300 steps of about 2 ms: the signal, sent once two steps are logged, must land before the
+    # last one (30 steps left a window of about 60 ms, which a busy machine missed)
     def command(out: Path, *extra: str) -> list[str]:
         return [sys.executable, "-m", "defocus.cli", "train", "--out", str(out), "--scenes", "4",
-                "--size", "16", "16", *extra, "--set", "steps=30", "batch_size=1", "width=4",
+                "--size", "16", "16", *extra, "--set", f"steps={total_steps}", "batch_size=1", "width=4",
                 "progress=false", "supervision=depth", "checkpoint_minutes=0"]
 
     interrupted = tmp_path / "interrupted"
@@ -170,7 +173,7 @@ def test_sigint_saves_and_the_run_resumes_exactly(tmp_path):
     assert "defocus train: interrupted: stopped by SIGINT after step" in err, err
     assert "Traceback" not in err
     saved = load_checkpoint(interrupted / "checkpoints" / "last.pt")
-    assert 2 <= saved["step"] < 30
+    assert 2 <= saved["step"] < total_steps
     assert _log_steps(interrupted) == list(range(1, saved["step"] + 1))
     assert not list((interrupted / "checkpoints").glob(".*"))  # no stray temporaries
 
@@ -181,7 +184,7 @@ def test_sigint_saves_and_the_run_resumes_exactly(tmp_path):
                                text=True, timeout=300)
     assert reference.returncode == 0, reference.stderr
     steps = _log_steps(interrupted)
-    assert steps == list(range(1, 31))  # strictly increasing, no duplicates
+    assert steps == list(range(1, total_steps + 1))  # strictly increasing, no duplicates
     assert _log_column(interrupted, "loss") == _log_column(tmp_path / "reference", "loss")
 
 
