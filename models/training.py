@@ -529,6 +529,11 @@ class Trainer:
                     signum = self._stop_requested()
                     if signum:
                         raise TrainingInterrupted(signum, self.step, self._save_once())
+            # a signal caught after the last step's check (the loop had ended) still stops the
+            # run: it is not swallowed
+            signum = self._stop_requested()
+            if signum:
+                raise TrainingInterrupted(signum, self.step, self._save_once())
         except TrainingInterrupted:
             raise
         except BaseException:

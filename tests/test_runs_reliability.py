@@ -313,6 +313,27 @@ def test_sigterm_in_process_saves_and_raises(tmp_path, scenes):
     assert _log_steps(cfg.out_dir) == [1, 2]
 
 
+def test_a_signal_after_the_last_steps_check_still_stops_the_run(tmp_path, scenes):
+    """SIGTERM caught between the last step's check and the end of the loop (simulated: the
+    flag is set right after that check) stops the run instead of being ignored."""
+    from models.training import TrainingInterrupted
+
+    cfg = _tiny(tmp_path / "run", steps=3, checkpoint_minutes=0)
+    trainer = Trainer(cfg, scenes)
+    check = trainer._stop_requested
+
+    def late_signal() -> int:
+        signum = check()
+        if trainer.step == 3 and trainer._stop_signal is None:
+            trainer._stop_signal = signal.SIGTERM  # arrives just after this check
+        return signum
+
+    trainer._stop_requested = late_signal
+    with pytest.raises(TrainingInterrupted, match="stopped by SIGTERM after step 3"):
+        trainer.fit()
+    assert load_checkpoint(cfg.out_dir / "checkpoints" / "last.pt")["step"] == 3
+
+
 def test_cli_reports_an_interrupted_run_in_one_line(capsys, monkeypatch):
     import defocus.commands.train as train
     from models.training import TrainingInterrupted
