@@ -27,11 +27,13 @@ Usage:
     python benchmarks/cameras.py --weights runs/pretrain/dfd_general.pt   # everything
     python benchmarks/cameras.py --weights W.pt --no-direct --oracle   # and a perfect reader
     python benchmarks/cameras.py --cameras demo --photos perfect   # what imperfections cost
+    python benchmarks/cameras.py --no-direct --jpeg 90   # photos saved as JPEGs of quality 90
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import statistics
 import sys
@@ -156,9 +158,16 @@ def main(argv: list[str] | None = None) -> int:
                         help="real: every imperfection (the evaluation); noise-only: shot and "
                              "read noise and 8-bit sRGB, the shots otherwise identical; "
                              "perfect: none")
+    parser.add_argument("--jpeg", type=int, default=0, metavar="QUALITY",
+                        help="save every photo as a JPEG of this quality (1-95, 4:2:0 chroma, "
+                             "as cameras and phones do) and read it back; 0: lossless")
     parser.add_argument("--cameras", nargs="+", default=None, metavar="PREFIX",
                         help="only the cameras whose names start with these (e.g. demo 200mm)")
     args = parser.parse_args(argv)
+    try:
+        photos = dataclasses.replace(PHOTOS[args.photos], jpeg_quality=args.jpeg)
+    except ValueError as error:
+        parser.error(f"--jpeg: {error}")
     torch.set_num_threads(1)
     from models.pretrained import load_weights
 
@@ -185,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--cameras {' '.join(args.cameras)}: no camera's name starts with these; "
                      f"the cameras are: {', '.join(CAMERAS)}")
     for camera, spec in cameras.items():
-        shot = photograph(camera, args.seed, noise=PHOTOS[args.photos])
+        shot = photograph(camera, args.seed, noise=photos)
         target, mask = shot["depth"][None], shot["mask"][None]
         constant = best_constant_depth(target=target, mask=mask)
         base = depth_metrics(pred=torch.full_like(target, constant), target=target, mask=mask)

@@ -6,7 +6,8 @@ that must work on real photos from any camera:
 - the PSF shape: a disk or an iris polygon (5-9 blades), not only a Gaussian;
 - occlusion at depth edges (the layered renderer: blurred background does not leak over a sharp
   foreground);
-- shot (Poisson-like) and read noise, then 8-bit sRGB quantisation;
+- shot (Poisson-like) and read noise, then 8-bit sRGB quantisation (and, optionally, JPEG
+  compression);
 - small exposure and white-balance differences between shots, and a pixel or so of misalignment.
 
 `random_camera` draws camera settings whose largest CoC over a scene hits a target in pixels;
@@ -44,6 +45,8 @@ class CaptureNoise:
         white_balance: largest relative difference of one channel's gain between shots.
         shift_px: largest misalignment between shots, pixels.
         bits: quantisation of the sRGB-encoded photo (0: none).
+        jpeg_quality: the photos saved as JPEGs of this quality (1-95, Pillow's scale, 4:2:0
+            chroma as cameras save them) and read back; 0: not compressed. Needs `bits=8`.
     """
 
     read: float = 0.004
@@ -52,6 +55,16 @@ class CaptureNoise:
     white_balance: float = 0.02
     shift_px: float = 1.0
     bits: int = 8
+    jpeg_quality: int = 0
+
+    def __post_init__(self):
+        quality = self.jpeg_quality
+        if isinstance(quality, bool) or not isinstance(quality, int) or not 0 <= quality <= 95:
+            raise ValueError(f"jpeg_quality must be an integer in 1-95 (0: no JPEG), got "
+                             f"{quality!r}")
+        if quality and self.bits != 8:
+            raise ValueError(f"jpeg_quality={quality} needs bits=8 (JPEGs hold 8 bits), got "
+                             f"bits={self.bits!r}")
 
     @staticmethod
     def none() -> CaptureNoise:
@@ -94,6 +107,22 @@ def _srgb_quantise(linear: Tensor, bits: int) -> Tensor:
     levels = 2**bits - 1
     encoded = torch.round(linear_rgb_to_rgb(linear.clamp(0, 1)) * levels) / levels
     return rgb_to_linear_rgb(encoded)
+
+
+def _jpeg(linear: Tensor, quality: int) -> Tensor:
+    """`linear` `(3,H,W)` (8-bit sRGB levels) saved as a JPEG of `quality` and read back."""
+    import io
+
+    from PIL import Image
+
+    encoded = linear_rgb_to_rgb(linear.clamp(0, 1)).permute(1, 2, 0).double().numpy()
+    buffer = io.BytesIO()
+    Image.fromarray(np.round(encoded * 255).astype(np.uint8)).save(buffer, "JPEG",
+                                                                    quality=quality)
+    buffer.seek(0)
+    with Image.open(buffer) as decoded:
+        array = np.asarray(decoded.convert("RGB"), dtype=np.float64) / 255
+    return rgb_to_linear_rgb(torch.from_numpy(array).permute(2, 0, 1)).to(linear.dtype)
 
 
 def _shift(image: Tensor, dy: float, dx: float) -> Tensor:
@@ -157,7 +186,8 @@ def take_photos(
             sigma = torch.sqrt(noise.read**2 + noise.shot * shot.clamp_min(0))
             gaussian = torch.from_numpy(generator.standard_normal(shot.shape)).to(shot.dtype)
             shot = shot + sigma * gaussian
-        out.append(_srgb_quantise(shot, noise.bits))
+        shot = _srgb_quantise(shot, noise.bits)
+        out.append(_jpeg(shot, noise.jpeg_quality) if noise.jpeg_quality else shot)
     return out[0], torch.stack(out[1:])
 
 

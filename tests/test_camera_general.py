@@ -60,6 +60,41 @@ def test_capture_without_imperfections_is_the_render():
     torch.testing.assert_close(focused[1], expected, atol=1e-5, rtol=0)
 
 
+def test_capture_saves_jpegs_as_pillow_does(tmp_path):
+    from kornia.color import linear_rgb_to_rgb, rgb_to_linear_rgb
+
+    from datasets.capture import take_photos
+
+    rng = np.random.default_rng(0)
+    image, _ = generate_scene((32, 48), rng, (1.5, 6.0))
+    perfect = CaptureNoise.none()
+    eight_bit = CaptureNoise(0.0, 0.0, 0.0, 0.0, 0.0, 8)
+    jpeg = CaptureNoise(0.0, 0.0, 0.0, 0.0, 0.0, 8, jpeg_quality=80)
+    stored, _ = take_photos(image, image[None], rng, eight_bit)
+    compressed, focused = take_photos(image, image[None], rng, jpeg)
+    # independently: the 8-bit photo through Pillow's JPEG at quality 80, decoded
+    levels = np.round(linear_rgb_to_rgb(stored).permute(1, 2, 0).double().numpy() * 255)
+    Image.fromarray(levels.astype(np.uint8)).save(tmp_path / "p.jpg", quality=80)
+    decoded = torch.from_numpy(np.asarray(Image.open(tmp_path / "p.jpg"), dtype=np.float64) / 255)
+    torch.testing.assert_close(compressed, rgb_to_linear_rgb(decoded.permute(2, 0, 1)).float(),
+                               rtol=0, atol=1e-6)
+    torch.testing.assert_close(focused[0], compressed)  # every shot is saved alike
+    error = (compressed - take_photos(image, image[None], rng, perfect)[0]).abs().mean()
+    assert 0 < float(error) < 0.02  # lossy, but close
+
+
+@pytest.mark.parametrize(("fields", "message"), [
+    ({"jpeg_quality": 96}, "jpeg_quality must be an integer in 1-95"),
+    ({"jpeg_quality": -1}, "jpeg_quality must be an integer in 1-95"),
+    ({"jpeg_quality": 90.0}, "jpeg_quality must be an integer in 1-95"),
+    ({"jpeg_quality": True}, "jpeg_quality must be an integer in 1-95"),
+    ({"jpeg_quality": 90, "bits": 0}, "jpeg_quality=90 needs bits=8"),
+])
+def test_capture_noise_refuses_an_impossible_jpeg(fields, message):
+    with pytest.raises(ValueError, match=message):
+        CaptureNoise(**fields)
+
+
 @pytest.mark.parametrize("depth_value", [1.3, 2.5, 4.0, 7.5])
 def test_solve_recovers_depth_from_exact_blurs(depth_value):
     s = CameraSettings(0.05, 1.4, [2.0, 6.0], 1e-4)
@@ -433,3 +468,20 @@ def test_pretrain_runs_from_a_config_with_photo_imperfections(tmp_path, capsys):
     config.write_text(config.read_text().replace("shift_px", "shfit_px"))
     assert main(["pretrain", "--config", str(config), "--out", str(tmp_path / "bad")]) == 2
     assert "shfit_px" in capsys.readouterr().err
+
+
+def test_the_cameras_benchmark_runs_on_jpeg_photos(capsys):
+    """`benchmarks/cameras.py` end to end on the demo camera, its photos saved as JPEGs."""
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        import cameras
+    finally:
+        sys.path.pop(0)
+    assert cameras.main(["--cameras", "demo", "--no-direct", "--jpeg", "90"]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| demo"))
+    ratio = float(row.split("|")[5])
+    assert 0 < ratio < 1  # better than a constant, even through JPEG
+    assert "sweep: ratio <= 0.30 for every camera" in out

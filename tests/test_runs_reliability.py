@@ -151,16 +151,19 @@ def test_sigint_saves_and_the_run_resumes_exactly(tmp_path):
     env.pop("DEFOCUS_DEBUG", None)
     total_steps = 300
 
-    # 300 steps of about 2 ms: the signal, sent once two steps are logged, must land before the
-    # last one (30 steps left a window of about 60 ms, which a busy machine missed)
+    # 300 steps of about 2 ms: the signal, sent once two steps are logged, lands before the last
+    # one even when this loop is slow to see the log
     def command(out: Path, *extra: str) -> list[str]:
         return [sys.executable, "-m", "defocus.cli", "train", "--out", str(out), "--scenes", "4",
                 "--size", "16", "16", *extra, "--set", f"steps={total_steps}", "batch_size=1", "width=4",
                 "progress=false", "supervision=depth", "checkpoint_minutes=0"]
 
     interrupted = tmp_path / "interrupted"
+    # SIGINT as a terminal delivers it: a shell that started these tests in the background
+    # (`cmd &` without job control) left SIGINT ignored, which the child would inherit and keep
     proc = subprocess.Popen(command(interrupted), env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     log = interrupted / "train_log.csv"
     deadline = time.monotonic() + 120
     while proc.poll() is None and time.monotonic() < deadline:
