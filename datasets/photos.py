@@ -32,6 +32,12 @@ _FOCAL_LENGTH_35MM = 41989
 FULL_FRAME_DIAGONAL = float(np.hypot(0.036, 0.024))
 _EXIF_IFD = 0x8769
 _METRES_PER_UNIT = {2: 0.0254, 3: 0.01, 4: 0.001, 5: 1e-6}
+#: Pillow formats whose pixels are not the camera's (MPO: the multi-picture JPEG of some cameras).
+_LOSSY_FORMATS = ("JPEG", "MPO")
+#: Above this working scale (working / photo resolution) JPEG compression costs the sweep
+#: accuracy: measured on the motorcycle (`benchmarks/cameras.py --jpeg 90`), cameras swept at
+#: scale 1 lost up to 3x in abs rel, those at 0.50 and 0.56 nothing.
+JPEG_SCALE_LIMIT = 0.75
 
 
 @dataclass(frozen=True)
@@ -47,6 +53,7 @@ class PhotoInfo:
         pixel_pitch_source: which tags gave `pixel_pitch`: `"focal-plane resolution"` or
             `"35 mm equivalent"` (files round that focal length to whole millimetres: up to 2 %
             off at 26 mm).
+        compressed: the file is a JPEG (lossy: see `compression_warning`).
     """
 
     path: Path
@@ -55,6 +62,7 @@ class PhotoInfo:
     pixel_pitch: float | None = None
     orientation: int = 1
     pixel_pitch_source: str | None = None
+    compressed: bool = False
 
 
 def _positive(value) -> float | None:
@@ -86,7 +94,8 @@ def _exif_info(path: Path, image) -> PhotoInfo:
                                                                          image.height))
         source = "35 mm equivalent"
     return PhotoInfo(path, None if focal is None else focal / 1000.0,
-                     _positive(detail.get(_F_NUMBER)), pitch, orientation, source)
+                     _positive(detail.get(_F_NUMBER)), pitch, orientation, source,
+                     image.format in _LOSSY_FORMATS)
 
 
 def _is_tiff(path: Path) -> bool:
@@ -281,3 +290,20 @@ def describe_settings(settings: CameraSettings, sources: dict[str, str] | None =
     return (f"camera: focal length {values('focal_length', 1e3, '.1f', ' mm')}, "
             f"f/{values('f_number', 1.0, 'g')}, pixel pitch "
             f"{values('pixel_pitch', 1e6, '.2f', ' um')}, focused at {focus} m")
+
+
+def compression_warning(infos: list[PhotoInfo], scale: float) -> str | None:
+    """A warning for a person when JPEG photos are read at `scale` (working / photo resolution)
+    above `JPEG_SCALE_LIMIT`, where the compression reads as blur; None otherwise.
+
+    Example:
+        >>> from pathlib import Path
+        >>> compression_warning([PhotoInfo(Path("a.jpg"), compressed=True)], 0.3) is None
+        True
+    """
+    lossy = [info.path.name for info in infos if info.compressed]
+    if not lossy or not scale > JPEG_SCALE_LIMIT:
+        return None
+    return (f"{', '.join(lossy)}: JPEG photos read at {scale:.2f} of their resolution, where the "
+            "compression reads as blur (up to 3x the depth error, measured at qualities 75-95); "
+            "PNG or TIFF photos (from the raw files, if the camera keeps them) avoid this")

@@ -253,6 +253,19 @@ def test_read_photo_pixel_pitch_from_the_35mm_equivalent_focal_length(tmp_path):
     assert read_photo(tmp_path / "p.jpg")[1].pixel_pitch is None
 
 
+def test_jpeg_photos_are_known_as_compressed_and_warned_of_when_read_at_full_size(tmp_path):
+    from datasets.photos import JPEG_SCALE_LIMIT, compression_warning
+
+    stored = np.zeros((8, 8, 3), np.uint8)
+    _write_jpeg(tmp_path / "a.jpg", stored)
+    Image.fromarray(stored).save(tmp_path / "b.png")
+    jpeg, png = read_photo(tmp_path / "a.jpg")[1], read_photo(tmp_path / "b.png")[1]
+    assert jpeg.compressed and not png.compressed
+    assert compression_warning([png], 1.0) is None
+    assert compression_warning([png, jpeg], JPEG_SCALE_LIMIT) is None  # downscaled enough
+    assert compression_warning([png, jpeg], 1.0).startswith("a.jpg: JPEG photos read at 1.00")
+
+
 def _deep_photo(seed=0, shape=(12, 18, 3)):
     return np.random.default_rng(seed).integers(0, 65536, shape, dtype=np.uint16)
 
@@ -337,8 +350,11 @@ def photos(tmp_path):
 
 def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path, capsys):
     args = photos()
-    assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
-                 "--depth-range", "1", "8", "--out", str(tmp_path / "a")]) == 0
+    # 48x64 JPEGs are read at their full resolution: the compression would read as blur
+    with pytest.warns(UserWarning, match=r"shot0_1.jpg, shot1_1.jpg, shot2_1.jpg: JPEG photos "
+                                         r"read at 1.00 of their resolution"):
+        assert main(["predict", *args, "--focus-distance", "2", "6", "--pixel-pitch", "180e-6",
+                     "--depth-range", "1", "8", "--out", str(tmp_path / "a")]) == 0
     # it says which camera it used, and where each value came from
     assert ("camera: focal length 50.0 mm (EXIF), f/1.4 (EXIF), pixel pitch 180.00 um (given), "
             "focused at 2, 6 m") in capsys.readouterr().out

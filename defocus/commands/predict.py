@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
         model, general = load_weights(args.checkpoint).to(device), True
     else:
         model, general = Trainer.from_checkpoint(args.checkpoint, device=str(device)), False
-    image, _ = read_photo(args.image)
+    image, image_info = read_photo(args.image)
     photos = [read_photo(path) for path in args.focused]
     for path, (photo, _) in zip(args.focused, photos, strict=True):
         if photo.shape != image.shape:
@@ -107,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
         print(describe_settings(settings, sources))
     if general:
         depth, confidence, depth_range = _camera_general(
-            args, model, image.to(device), focused.to(device) if photos else None, settings)
+            args, model, image.to(device), focused.to(device) if photos else None, settings,
+            [image_info, *(info for _, info in photos)])
     else:
         depth, confidence, depth_range = _checkpoint(model, image, focused, settings)
     if not bool(torch.isfinite(depth).all()):
@@ -129,7 +130,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _camera_general(args, model, image, focused, settings):
+def _camera_general(args, model, image, focused, settings, infos):
+    import warnings
+
+    from datasets.photos import compression_warning
     from defocus.cli import CommandError
     from models.blur import predict_depth
 
@@ -150,6 +154,9 @@ def _camera_general(args, model, image, focused, settings):
               f"{near:g}-{far:g} m: depth computed again over that range, at a finer resolution")
     print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned: moved by "
           f"{moved} (pixels down, right; magnification; rotation, clockwise)")
+    jpeg = compression_warning(infos, out["scale"])
+    if jpeg is not None:
+        warnings.warn(jpeg, stacklevel=1)
     return out["depth"].cpu(), out["confidence"].cpu(), tuple(swept)  # the figure's colours
 
 
