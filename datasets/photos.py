@@ -5,8 +5,9 @@ returns the focal length, f-number and pixel pitch where the file states them. T
 comes from the focal-plane resolution tags, scaled to the stored image size (a downscaled JPEG
 has a larger effective pitch than the sensor); where a camera leaves those out (most phones do),
 from the 35 mm equivalent focal length: the stored image's diagonal spans the full-frame
-diagonal (43.27 mm) divided by the crop factor, `f_35mm / f`. 16-bit colour TIFFs and PNGs (what raw developers
-export) keep all 16 bits: Pillow would cut them to 8, so `tifffile` and `pypng` read those.
+diagonal (43.27 mm) divided by the crop factor, `f_35mm / f`. 16-bit colour TIFFs and PNGs
+(what raw developers export) keep all 16 bits: Pillow would cut them to 8, so `tifffile` and
+`pypng` read those.
 """
 
 from __future__ import annotations
@@ -223,7 +224,7 @@ def photo_settings(
         f_numbers: one per photo or one for all (else the calibration, else EXIF).
         focal_length: metres (else the calibration, else EXIF).
         pixel_pitch: effective pitch of the photos as stored, metres (else the calibration, else
-            EXIF focal-plane resolution).
+            EXIF: the focal-plane resolution or the 35 mm equivalent focal length).
         calibration: a `CameraSettings` from `defocus calibrate` (`CameraSettings.from_json`).
         aperture: PSF spec when no calibration gives one.
         sources: a dict that, when given, is filled with where each of `focal_length`,
