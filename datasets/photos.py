@@ -29,6 +29,7 @@ from .io import DataFormatError, require_file
 _FOCAL_LENGTH, _F_NUMBER = 37386, 33437
 _FOCAL_PLANE_X_RES, _FOCAL_PLANE_UNIT = 41486, 41488
 _FOCAL_LENGTH_35MM = 41989
+_SUBJECT_DISTANCE = 37382
 #: Diagonal of a 36 x 24 mm frame, metres: what a 35 mm equivalent focal length is defined on.
 FULL_FRAME_DIAGONAL = float(np.hypot(0.036, 0.024))
 _EXIF_IFD = 0x8769
@@ -55,6 +56,8 @@ class PhotoInfo:
             `"35 mm equivalent"` (files round that focal length to whole millimetres: up to 2 %
             off at 26 mm).
         compressed: the file is a JPEG (lossy: see `compression_warning`).
+        focus_distance: metres, from the SubjectDistance tag, which the cameras that write it
+            fill from their focus (an estimate: check it against the lens's focus scale).
     """
 
     path: Path
@@ -64,6 +67,7 @@ class PhotoInfo:
     orientation: int = 1
     pixel_pitch_source: str | None = None
     compressed: bool = False
+    focus_distance: float | None = None
 
 
 def _positive(value) -> float | None:
@@ -94,9 +98,12 @@ def _exif_info(path: Path, image) -> PhotoInfo:
         pitch = FULL_FRAME_DIAGONAL * focal / equivalent / float(np.hypot(image.width,
                                                                          image.height))
         source = "35 mm equivalent"
+    distance = _positive(detail.get(_SUBJECT_DISTANCE))
+    if distance is not None and distance >= 0xFFFFFFFF:  # the tag's "infinity"
+        distance = None
     return PhotoInfo(path, None if focal is None else focal / 1000.0,
                      _positive(detail.get(_F_NUMBER)), pitch, orientation, source,
-                     image.format in _LOSSY_FORMATS)
+                     image.format in _LOSSY_FORMATS, distance)
 
 
 def _is_tiff(path: Path) -> bool:
@@ -220,28 +227,36 @@ def photo_settings(
 
     Args:
         infos: the `PhotoInfo` of each focused photo (`read_photo`).
-        focus_distances: one per photo, metres (cameras rarely record it; `--focus-distance`).
+        focus_distances: one per photo, metres (`--focus-distance`); else the calibration's,
+            else EXIF's SubjectDistance where every photo states it (few cameras do).
         f_numbers: one per photo or one for all (else the calibration, else EXIF).
         focal_length: metres (else the calibration, else EXIF).
         pixel_pitch: effective pitch of the photos as stored, metres (else the calibration, else
             EXIF: the focal-plane resolution or the 35 mm equivalent focal length).
         calibration: a `CameraSettings` from `defocus calibrate` (`CameraSettings.from_json`).
         aperture: PSF spec when no calibration gives one.
-        sources: a dict that, when given, is filled with where each of `focal_length`,
-            `f_number` and `pixel_pitch` came from: `"given"`, `"calibration"` or `"EXIF"`
+        sources: a dict that, when given, is filled with where each of `focus_distance`,
+            `focal_length`, `f_number` and `pixel_pitch` came from: `"given"`, `"calibration"` or `"EXIF"`
             (for the pitch, with the tags it came from).
 
     Raises:
         ValueError: naming every value that is missing and how to give it.
     """
     n = len(infos)
+    found = {} if sources is None else sources
+    found["focus_distance"] = "given"
     if len(focus_distances) == 0 and calibration is not None and calibration.n_shots == n:
         focus_distances = calibration.focus_distance.tolist()
+        found["focus_distance"] = "calibration"
+    elif len(focus_distances) == 0 and all(info.focus_distance for info in infos):
+        focus_distances = [info.focus_distance for info in infos]
+        found["focus_distance"] = "EXIF"
     if len(focus_distances) != n:
         raise ValueError(f"give --focus-distance with one value per focused photo ({n}), "
+                         f"got {len(focus_distances)} (none of the photos' EXIF states it)"
+                         if len(focus_distances) == 0 else
+                         f"give --focus-distance with one value per focused photo ({n}), "
                          f"got {len(focus_distances)}")
-
-    found = {} if sources is None else sources
 
     def pick(name: str, given, unit: str):
         if given is not None:
@@ -287,10 +302,12 @@ def describe_settings(settings: CameraSettings, sources: dict[str, str] | None =
         text = "/".join(format(v, fmt) for v in unique) + unit
         return f"{text} ({sources[name]})" if name in sources else text
 
-    focus = ", ".join(format(float(d), "g") for d in settings.focus_distance.reshape(-1))
+    focus = ", ".join(format(float(d), "g") for d in settings.focus_distance.reshape(-1)) + " m"
+    if "focus_distance" in sources:
+        focus += f" ({sources['focus_distance']})"
     return (f"camera: focal length {values('focal_length', 1e3, '.1f', ' mm')}, "
             f"f/{values('f_number', 1.0, 'g')}, pixel pitch "
-            f"{values('pixel_pitch', 1e6, '.2f', ' um')}, focused at {focus} m")
+            f"{values('pixel_pitch', 1e6, '.2f', ' um')}, focused at {focus}")
 
 
 def compression_warning(infos: list[PhotoInfo], scale: float) -> str | None:

@@ -329,7 +329,7 @@ def test_read_photo_refuses_a_floating_point_tiff_clearly(tmp_path):
 @pytest.fixture()
 def photos(tmp_path):
     """A scene photographed through a 50 mm f/1.4 camera, as JPEGs, and a weights file."""
-    def make(orientation=1):
+    def make(orientation=1, distances=None):
         rng = np.random.default_rng(0)
         image, depth = generate_scene((48, 64), rng, (1.5, 6.0))
         settings = CameraSettings(0.05, 1.4, [2.0, 6.0], 180e-6, "disk")
@@ -340,7 +340,9 @@ def photos(tmp_path):
         for i, linear in enumerate([aif, *focused]):
             srgb = (linear_rgb_to_rgb(linear.clamp(0, 1)).permute(1, 2, 0).numpy() * 255).round()
             path = tmp_path / f"shot{i}_{orientation}.jpg"
-            _write_jpeg(path, srgb.astype(np.uint8), orientation, focal_mm=50, f_number=1.4)
+            tags = {} if distances is None or i == 0 else {"_37382": distances[i - 1]}
+            _write_jpeg(path, srgb.astype(np.uint8), orientation, focal_mm=50, f_number=1.4,
+                        **tags)
             paths.append(str(path))
         torch.manual_seed(0)
         save_weights(DepthFromDefocus(BlurNet(width=4)), tmp_path / "w.pt")
@@ -357,7 +359,7 @@ def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path, capsys):
                      "--depth-range", "1", "8", "--out", str(tmp_path / "a")]) == 0
     # it says which camera it used, and where each value came from
     assert ("camera: focal length 50.0 mm (EXIF), f/1.4 (EXIF), pixel pitch 180.00 um (given), "
-            "focused at 2, 6 m") in capsys.readouterr().out
+            "focused at 2, 6 m (given)") in capsys.readouterr().out
     a = np.load(tmp_path / "a" / "depth.npy")
     assert a.shape == (48, 64) and np.isfinite(a).all() and 1 <= a.min() and a.max() <= 8
     mm = np.asarray(Image.open(tmp_path / "a" / "depth_mm.png"))
@@ -369,6 +371,28 @@ def test_predict_reads_exif_and_a_calibration_json(photos, tmp_path, capsys):
                  "--depth-range", "1", "8", "--out", str(tmp_path / "b")]) == 0
     assert "50.0 mm (calibration), f/1.4 (calibration)" in capsys.readouterr().out
     np.testing.assert_allclose(np.load(tmp_path / "b" / "depth.npy"), a, rtol=1e-5)
+
+
+def test_predict_takes_focus_distances_from_exif_where_every_photo_states_them(photos, tmp_path,
+                                                                              capsys):
+    common = ["--pixel-pitch", "180e-6", "--depth-range", "1", "8"]
+    given = photos()[1:]  # no weights: the sweep
+    assert main(["predict", *given, "--focus-distance", "2", "6", *common,
+                 "--out", str(tmp_path / "given")]) == 0
+    # photos that do not state it: one line saying what to give
+    assert main(["predict", *given, *common, "--out", str(tmp_path / "none")]) == 2
+    assert "give --focus-distance with one value per focused photo (2), got 0 (none of the " \
+           "photos' EXIF states it)" in capsys.readouterr().err
+    # the same photos (rewritten) stating SubjectDistance 2 m and 6 m
+    stated = photos(distances=[2.0, 6.0])[1:]
+    assert main(["predict", *stated, *common, "--out", str(tmp_path / "exif")]) == 0
+    assert "focused at 2, 6 m (EXIF)" in capsys.readouterr().out
+    np.testing.assert_array_equal(np.load(tmp_path / "exif" / "depth.npy"),
+                                  np.load(tmp_path / "given" / "depth.npy"))
+    # the command line wins over EXIF
+    assert main(["predict", *stated, "--focus-distance", "2.5", "6", *common,
+                 "--out", str(tmp_path / "over")]) == 0
+    assert "focused at 2.5, 6 m (given)" in capsys.readouterr().out
 
 
 def test_predict_without_a_model_file_sweeps_over_depth(photos, tmp_path, capsys):

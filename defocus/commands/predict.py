@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--focused", type=Path, nargs="*", default=[],
                         help="focused photos of the same view (2-5, each focused elsewhere)")
     parser.add_argument("--focus-distance", type=float, nargs="*", default=[],
-                        help="focus distance of each focused photo, metres")
+                        help="focus distance of each focused photo, metres (default: --camera, "
+                             "else EXIF SubjectDistance where every photo states it)")
     parser.add_argument("--f-number", type=float, nargs="*", default=[],
                         help="f-number of each focused photo (one value is repeated; "
                              "default: --camera, else EXIF)")
