@@ -166,11 +166,36 @@ def _orient(array: np.ndarray, orientation: int) -> np.ndarray:
     return _UPRIGHT.get(orientation, _UPRIGHT[1])(array)
 
 
+#: File name endings read as raw photos (`optics.read_raw`), not as images.
+RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".rw2",
+                ".raw", ".rwl", ".orf", ".raf", ".pef", ".srw", ".x3f", ".mrw", ".3fr", ".iiq",
+                ".erf", ".kdc", ".dcr", ".mos", ".mef")
+
+
+def _read_raw_photo(path: Path, dtype: torch.dtype) -> tuple[Tensor, PhotoInfo]:
+    """A raw photo as linear sRGB, upright, and what its metadata says."""
+    from optics.raw import RawReadError, read_raw
+
+    try:
+        # daylight white balance: the same gains for every shot (as-shot ones may differ
+        # between shots), divided by the largest so that only saturated photosites reach 1
+        image, meta = read_raw(path, white_balance="daylight", colour_space="srgb", dtype=dtype)
+    except RawReadError as error:
+        raise DataFormatError(str(error)) from None
+    image = (image[0] / max(meta.white_balance)).clamp(0, 1)
+    upright = _orient(image.permute(1, 2, 0).numpy(), meta.orientation)
+    info = PhotoInfo(path, meta.focal_length, meta.f_number, meta.pixel_pitch, meta.orientation,
+                     None if meta.pixel_pitch is None else "focal-plane resolution")
+    return torch.from_numpy(np.ascontiguousarray(upright)).permute(2, 0, 1), info
+
+
 def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Tensor, PhotoInfo]:
-    """Read an 8- or 16-bit RGB photo upright as linear intensity `(3,H,W)` in [0, 1].
+    """Read an RGB photo upright as linear intensity `(3,H,W)` in [0, 1].
 
     Args:
-        path: JPEG, PNG or TIFF file (16-bit colour TIFFs and PNGs keep all 16 bits).
+        path: JPEG, PNG or TIFF file (16-bit colour TIFFs and PNGs keep all 16 bits), or a raw
+            photo (`RAW_SUFFIXES`: DNG, CR2, NEF, ARW, ...), decoded by LibRaw to linear sRGB
+            with daylight white balance: no compression, no tone curve, the camera's own bits.
         dtype: floating dtype of the result.
 
     Returns:
@@ -193,6 +218,8 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
 
     path = Path(path)
     require_file(path, "a photo")
+    if path.suffix.lower() in RAW_SUFFIXES:
+        return _read_raw_photo(path, dtype)
     try:
         with Image.open(path) as opened:
             info = _exif_info(path, opened)

@@ -72,6 +72,9 @@ class RawMetadata:
         colour_space: colour space of the returned image (`"camera"`, `"srgb"`, `"xyz"`).
         binning: factor by which the returned image is smaller than the sensor grid.
         raw_size: `(height, width)` of the sensor area LibRaw reports as visible.
+        orientation: how to turn the returned image upright, as an EXIF orientation (1: as
+            is, 3: half a turn, 6: a quarter turn clockwise, 8: counter-clockwise); the image
+            itself is returned as the sensor recorded it.
     """
 
     path: str
@@ -94,6 +97,7 @@ class RawMetadata:
     colour_space: str = "camera"
     binning: int = 1
     raw_size: tuple[int, int] | None = None
+    orientation: int = 1
 
     def sensor(self, pixel_pitch: float | None = None) -> Sensor:
         """A `Sensor` for the returned images (their binning sets `downsample`).
@@ -289,6 +293,11 @@ def read_raw_metadata(path: str | PathLike) -> RawMetadata:
             raise _read_error(path, error) from None
 
 
+#: LibRaw's `flip` (0, 3: 180 degrees, 5: 90 counter-clockwise, 6: 90 clockwise) as the EXIF
+#: orientation that turns the image upright.
+_LIBRAW_FLIP_TO_EXIF = {0: 1, 3: 3, 5: 8, 6: 6}
+
+
 def _metadata(path: Path, raw: Any) -> RawMetadata:
     tags = _exif(path)
     other, lens = raw.other, raw.lens
@@ -321,6 +330,7 @@ def _metadata(path: Path, raw: Any) -> RawMetadata:
         colour_matrix=matrix.tolist() if bool((matrix != 0).any()) else None,
         xyz_to_camera=xyz_cam.tolist() if bool((xyz_cam != 0).any()) else None,
         raw_size=(int(sizes.height), int(sizes.width)),
+        orientation=_LIBRAW_FLIP_TO_EXIF.get(int(sizes.flip), 1),
     )
 
 

@@ -62,6 +62,7 @@ def mosaic_with_noise(
 def write_dng(
     path: Path, raw: np.ndarray, f_number: float | None = 4.0, focal_length_mm: float = 25.0,
     pixel_pitch: float | None = 5e-6, lens: str = "Synthetic 25mm", noise_free: bool = False,
+    orientation: int = 1,
 ) -> Path:
     """Write an RGGB mosaic (uint16) as an uncompressed 16-bit DNG with lens metadata."""
     from pidng.core import RAW2DNG, DNGTags, Tag
@@ -73,7 +74,7 @@ def write_dng(
     t.set(Tag.ImageLength, h)
     t.set(Tag.TileWidth, w)
     t.set(Tag.TileLength, h)
-    t.set(Tag.Orientation, 1)
+    t.set(Tag.Orientation, orientation)
     t.set(Tag.PhotometricInterpretation, PhotometricInterpretation.Color_Filter_Array)
     t.set(Tag.SamplesPerPixel, 1)
     t.set(Tag.BitsPerSample, 16)

@@ -185,3 +185,51 @@ def test_stack_and_bad_options(tmp_path):
     not_raw.write_bytes(b"not a raw file at all")
     with pytest.raises(RawReadError, match="x.dng"):
         read_raw(not_raw)
+
+
+def test_read_photo_reads_raw_files_upright_with_their_metadata(tmp_path):
+    """`datasets.photos.read_photo` decodes a raw file (not its embedded preview) and turns it
+    upright by the file's orientation."""
+    from _synthetic_dng import mosaic_with_noise, texture
+
+    from datasets.photos import read_photo
+
+    scene = texture(96, seed=3)[..., :, :80]  # 96 x 80: not square
+    mosaic = mosaic_with_noise(scene, 1)
+    write_dng(tmp_path / "a.dng", mosaic, f_number=2.8)
+    write_dng(tmp_path / "b.dng", mosaic, f_number=2.8, orientation=6)
+    stored, info = read_photo(tmp_path / "a.dng")
+    turned, turned_info = read_photo(tmp_path / "b.dng")
+    assert stored.shape == (3, 96, 80) and turned.shape == (3, 80, 96)
+    torch.testing.assert_close(turned, torch.rot90(stored, -1, (1, 2)))  # a quarter turn clockwise
+    assert turned_info.orientation == 6 and not info.compressed
+    assert info.focal_length == pytest.approx(0.025) and info.f_number == pytest.approx(2.8)
+    assert info.pixel_pitch == pytest.approx(5e-6) and float(stored.max()) <= 1.0
+    # linear: the texture's contrast survives (a gamma-encoded preview would compress it)
+    green = stored[1].double()
+    truth = scene[0, 1]
+    assert float(torch.corrcoef(torch.stack([green.flatten(), truth.flatten()]))[0, 1]) > 0.9
+    ratio = green / truth
+    assert float(ratio.std() / ratio.mean()) < 0.1  # one gain everywhere: no tone curve
+
+
+def test_predict_reads_raw_photos(tmp_path, capsys):
+    """`defocus predict` on DNGs of a textured plane at 3 m, focused at 1.5 m and 6 m."""
+    from _synthetic_dng import mosaic_with_noise, render_plane, synthetic_camera, texture
+
+    from defocus.cli import main
+
+    crop = 12
+    scene = texture(96 + 2 * crop, seed=5)
+    paths = [write_dng(tmp_path / "aif.dng", mosaic_with_noise(scene[..., crop:-crop, crop:-crop],
+                                                               1), f_number=16.0)]
+    for focus in (1.5, 6.0):
+        shot = render_plane(scene, synthetic_camera(focus=focus), 3.0, crop)
+        paths.append(write_dng(tmp_path / f"at{focus}.dng", mosaic_with_noise(shot, 2)))
+    assert main(["predict", "--image", str(paths[0]), "--focused", *map(str, paths[1:]),
+                 "--focus-distance", "1.5", "6", "--depth-range", "1", "10",
+                 "--out", str(tmp_path / "out")]) == 0
+    assert ("camera: focal length 25.0 mm (EXIF), f/4 (EXIF), pixel pitch 5.00 um (EXIF "
+            "focal-plane resolution)") in capsys.readouterr().out
+    depth = np.load(tmp_path / "out" / "depth.npy")
+    assert abs(float(np.median(depth[16:-16, 16:-16])) / 3.0 - 1) < 0.05

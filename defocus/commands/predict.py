@@ -19,7 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "`defocus pretrain` (camera-general); default: no network, a "
                              "sweep over depth (needs --focused photos and --depth-range)")
     parser.add_argument("--image", type=Path, required=True,
-                        help="all-in-focus photo (sRGB JPEG/PNG; small aperture, e.g. f/11)")
+                        help="all-in-focus photo (raw file, TIFF, PNG or JPEG; small aperture, "
+                             "e.g. f/11)")
     parser.add_argument("--focused", type=Path, nargs="*", default=[],
                         help="focused photos of the same view (2-5, each focused elsewhere)")
     parser.add_argument("--focus-distance", type=float, nargs="*", default=[],
