@@ -233,3 +233,14 @@ def test_predict_reads_raw_photos(tmp_path, capsys):
             "focal-plane resolution)") in capsys.readouterr().out
     depth = np.load(tmp_path / "out" / "depth.npy")
     assert abs(float(np.median(depth[16:-16, 16:-16])) / 3.0 - 1) < 0.05
+
+
+@needs_samples
+def test_read_photo_decodes_a_real_dng_not_its_preview():
+    from datasets.photos import read_photo
+
+    image, info = read_photo(SAMPLES / "canon_eos_6d.dng")
+    assert image.shape == (3, 816, 1224) and image.dtype == torch.float32
+    assert info.focal_length == pytest.approx(0.065) and info.f_number == pytest.approx(5.6)
+    assert 0 <= float(image.min()) and float(image.max()) <= 1
+    assert len(torch.unique(image[1])) > 4096  # more levels than any 8-bit preview holds
