@@ -526,14 +526,10 @@ class Trainer:
                     if self.step_callback is not None:
                         self.step_callback(self, self.step, losses)
                     self._periodic_tasks()
-                    signum = self._stop_requested()
-                    if signum:
-                        raise TrainingInterrupted(signum, self.step, self._save_once())
+                    self._stop_if_asked()
             # a signal caught after the last step's check (the loop had ended) still stops the
             # run: it is not swallowed
-            signum = self._stop_requested()
-            if signum:
-                raise TrainingInterrupted(signum, self.step, self._save_once())
+            self._stop_if_asked()
         except TrainingInterrupted:
             raise
         except BaseException:
@@ -607,6 +603,12 @@ class Trainer:
         finally:
             for sig, old in previous.items():
                 signal.signal(sig, old)
+
+    def _stop_if_asked(self) -> None:
+        """Save and raise `TrainingInterrupted` when a signal asked the run to stop."""
+        signum = self._stop_requested()
+        if signum:
+            raise TrainingInterrupted(signum, self.step, self._save_once())
 
     def _stop_requested(self) -> int:
         """The signal that asks to stop (0: none), agreed by all processes."""
