@@ -101,28 +101,31 @@ def random_camera(
     return unit.replace(pixel_pitch=pitch)
 
 
-def _srgb_quantise(linear: Tensor, bits: int) -> Tensor:
+def _srgb_quantise(linear: Tensor, bits: int, jpeg_quality: int = 0) -> Tensor:
+    """`linear` `(3,H,W)` as a photo stores it: sRGB-encoded to `bits` (0: not quantised) and,
+    with `jpeg_quality`, those 8-bit levels saved as a JPEG and read back; linear again."""
     if bits <= 0:
         return linear.clamp(0, 1)
     levels = 2**bits - 1
-    encoded = torch.round(linear_rgb_to_rgb(linear.clamp(0, 1)) * levels) / levels
-    return rgb_to_linear_rgb(encoded)
+    encoded = torch.round(linear_rgb_to_rgb(linear.clamp(0, 1)) * levels)
+    if jpeg_quality:
+        encoded = _jpeg(encoded, jpeg_quality)
+    return rgb_to_linear_rgb(encoded / levels)
 
 
-def _jpeg(linear: Tensor, quality: int) -> Tensor:
-    """`linear` `(3,H,W)` (8-bit sRGB levels) saved as a JPEG of `quality` and read back."""
+def _jpeg(levels: Tensor, quality: int) -> Tensor:
+    """8-bit sRGB `levels` `(3,H,W)` (0-255) saved as a JPEG of `quality`, as decoded."""
     import io
 
     from PIL import Image
 
-    encoded = linear_rgb_to_rgb(linear.clamp(0, 1)).permute(1, 2, 0).double().numpy()
     buffer = io.BytesIO()
-    Image.fromarray(np.round(encoded * 255).astype(np.uint8)).save(buffer, "JPEG",
-                                                                    quality=quality)
+    Image.fromarray(levels.permute(1, 2, 0).to(torch.uint8).numpy()).save(buffer, "JPEG",
+                                                                           quality=quality)
     buffer.seek(0)
     with Image.open(buffer) as decoded:
-        array = np.asarray(decoded.convert("RGB"), dtype=np.float64) / 255
-    return rgb_to_linear_rgb(torch.from_numpy(array).permute(2, 0, 1)).to(linear.dtype)
+        array = np.asarray(decoded.convert("RGB"))
+    return torch.from_numpy(array.copy()).permute(2, 0, 1).to(levels.dtype)
 
 
 def _shift(image: Tensor, dy: float, dx: float) -> Tensor:
@@ -186,8 +189,7 @@ def take_photos(
             sigma = torch.sqrt(noise.read**2 + noise.shot * shot.clamp_min(0))
             gaussian = torch.from_numpy(generator.standard_normal(shot.shape)).to(shot.dtype)
             shot = shot + sigma * gaussian
-        shot = _srgb_quantise(shot, noise.bits)
-        out.append(_jpeg(shot, noise.jpeg_quality) if noise.jpeg_quality else shot)
+        out.append(_srgb_quantise(shot, noise.bits, noise.jpeg_quality))
     return out[0], torch.stack(out[1:])
 
 
