@@ -279,11 +279,9 @@ def photo_settings(
         focus_distances = [info.focus_distance for info in infos]
         found["focus_distance"] = "EXIF"
     if len(focus_distances) != n:
+        hint = "" if focus_distances else " (none of the photos' EXIF states it)"
         raise ValueError(f"give --focus-distance with one value per focused photo ({n}), "
-                         f"got {len(focus_distances)} (none of the photos' EXIF states it)"
-                         if len(focus_distances) == 0 else
-                         f"give --focus-distance with one value per focused photo ({n}), "
-                         f"got {len(focus_distances)}")
+                         f"got {len(focus_distances)}{hint}")
 
     def pick(name: str, given, unit: str):
         if given is not None:
@@ -294,10 +292,9 @@ def photo_settings(
             return getattr(calibration, name).reshape(-1)[0].item()
         values = [getattr(info, name) for info in infos]
         if all(v is not None for v in values):
-            found[name] = "EXIF"
-            if name == "pixel_pitch":
-                tags = sorted({str(info.pixel_pitch_source) for info in infos})
-                found[name] = f"EXIF {' and '.join(tags)}"
+            found[name] = ("EXIF " + " and ".join(sorted({str(info.pixel_pitch_source)
+                                                          for info in infos}))
+                           if name == "pixel_pitch" else "EXIF")
             return values
         missing = [str(info.path) for info, v in zip(infos, values, strict=True) if v is None]
         raise ValueError(f"{name} is unknown: {', '.join(missing)} do(es) not state it in EXIF; "
