@@ -6,16 +6,17 @@ the occlusion-aware layered renderer, shot and read noise, 8-bit sRGB, small exp
 white-balance differences and up to a pixel of misalignment between shots. None of these cameras
 was used to choose the model's settings. For each camera it prints abs rel and delta1 of
 
-- `sweep`: `models.sweep.SweepDepth`, the default of `defocus predict` (no network), through
-  `models.blur.predict_depth` (the working resolution chosen from the camera and the depth
-  range, the shots aligned first),
-- `pretrained`: the camera-general weights of `defocus pretrain` (`--weights`), the same way, and
+- `sweep`: `models.depth_from_photos.SweepDepth`, the default of `defocus predict` (no
+  network), through `estimate_depth` (the working resolution chosen from the camera and the
+  depth range, the shots aligned first),
+- `pretrained`: the experimental camera-general network's weights (`--weights`, written by
+  `examples/blur_net.py`), the same way, and
 - `direct`: `models.direct.fit_depth_direct` through the renderer at the sweep's resolution, told
   the camera and the PSF, the shots aligned first (no network; slow),
 
 next to the best constant depth (an oracle chosen on the ground truth), the ratio to it, and the
 seconds each took (one thread). `--oracle` adds the bound of the blur-reading network's design:
-the thin-lens solve (`models.blur.solve_depth`) fed the true blur of every shot at the working
+the thin-lens solve (`models.depth_from_photos.solve_depth`) fed the true blur of every shot at the working
 resolution, i.e. what a perfect blur reader would reach. For the methods with a confidence map
 it also prints how well that ranks the errors: the mean error of the more confident half of the
 pixels over the mean error (1 is no better than chance). Goal: abs rel <= 0.3x the constant's for
@@ -24,7 +25,7 @@ every camera, <= 0.06 at the demo camera, inference under 1 s at 185x125 on one 
 Usage:
 
     python benchmarks/cameras.py --no-direct   # the sweep only (a minute)
-    python benchmarks/cameras.py --weights runs/pretrain/dfd_general.pt   # everything
+    python benchmarks/cameras.py --weights runs/blur_net/dfd_general.pt   # everything
     python benchmarks/cameras.py --weights W.pt --no-direct --oracle   # and a perfect reader
     python benchmarks/cameras.py --cameras demo --photos perfect   # what imperfections cost
     python benchmarks/cameras.py --no-direct --jpeg 90   # photos saved as JPEGs of quality 90
@@ -47,20 +48,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from datasets.capture import CaptureNoise, capture  # noqa: E402
 from datasets.middlebury import motorcycle_scene  # noqa: E402
-from models.blur import (  # noqa: E402
+from models.depth_from_photos import (  # noqa: E402
     DepthFromDefocus,
-    predict_depth,
+    SweepDepth,
+    estimate_depth,
     solve_depth,
     texture_weight,
-    to_working_resolution,
     working_scale,
 )
+from models.depth_from_photos.resolution import to_working_resolution  # noqa: E402
 from models.metrics import (  # noqa: E402
     best_constant_depth,
     confident_half_error,
     depth_metrics,
 )
-from models.sweep import SweepDepth  # noqa: E402
 from optics import CameraSettings, align_shots  # noqa: E402
 
 #: name -> (focal length m, f-number, focus distances m, sensor width m (full 741 px), PSF)
@@ -97,9 +98,10 @@ def photograph(name: str, seed: int = 0, scale: float = 1.0,
 
 
 def run_model(model, shot: dict) -> tuple[torch.Tensor, float, torch.Tensor]:
-    """`(depth, seconds, confidence)` of `predict_depth` with `model`."""
+    """`(depth, seconds, confidence)` of `estimate_depth` with `model`."""
     started = time.perf_counter()
-    out = predict_depth(model, shot["image"], shot["focused"], shot["settings"], *DEPTH_RANGE)
+    out = estimate_depth(shot["focused"], shot["settings"], DEPTH_RANGE, image=shot["image"],
+                         model=model)
     return out["depth"], time.perf_counter() - started, out["confidence"]
 
 
@@ -112,7 +114,7 @@ def ranking_of(depth: torch.Tensor, confidence: torch.Tensor, shot: dict) -> flo
 
 def working_resolution(shot: dict, max_coc_px: float) -> tuple[torch.Tensor, CameraSettings,
                                                               tuple[int, int]]:
-    """The all-in-focus and focused photos `(1+F,3,h,w)` at `predict_depth`'s working resolution
+    """The all-in-focus and focused photos `(1+F,3,h,w)` at `estimate_depth`'s working resolution
     for a model reading blurs up to `max_coc_px`, the settings there and that size."""
     scale = working_scale(shot["settings"], *DEPTH_RANGE, tuple(shot["image"].shape[-2:]),
                           max_coc_px)
@@ -147,7 +149,7 @@ def run_direct(shot: dict, steps: int) -> tuple[torch.Tensor, float, None]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--weights", type=Path, default=None,
-                        help="camera-general weights written by `defocus pretrain` (adds the "
+                        help="camera-general weights written by `examples/blur_net.py` (adds the "
                              "`pretrained` columns)")
     parser.add_argument("--no-direct", action="store_true", help="skip the direct fits")
     parser.add_argument("--direct-steps", type=int, default=150, help="Adam steps of a direct fit")

@@ -28,9 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "calibrate": ("defocus.commands.calibrate", "fit a camera from raw photo pairs (sharp, defocused)"),
     "train": ("defocus.commands.train", "train a depth network (config YAML + key=value overrides)"),
     "evaluate": ("defocus.commands.evaluate", "depth metrics of a checkpoint on a dataset"),
-    "pretrain": ("defocus.commands.pretrain",
-                 "train the shipped camera-general model from scratch (config + seed)"),
-    "predict": ("defocus.commands.predict", "depth of your own photos with a checkpoint"),
+    "predict": ("defocus.commands.predict", "depth of your own photos (no network needed)"),
     "convert-checkpoint": ("defocus.commands.convert_checkpoint",
                            "rewrite a trusted old checkpoint so that it opens without running code"),
 }

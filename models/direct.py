@@ -52,7 +52,7 @@ def fit_depth_direct(
         >>> abs(float(depth.median()) - 4.0) < 0.4
         True
     """
-    from tqdm.auto import tqdm
+    from optics.progress import progress_bar
 
     check_shape("image", image, ["B", "3", "H", "W"])
     check_shape("focused", focused, ["B", "F", "3", "H", "W"])
@@ -71,7 +71,7 @@ def fit_depth_direct(
         z = F.interpolate(z, size=(h, w), mode="bilinear", align_corners=False)
         return depth_min + (depth_max - depth_min) * torch.sigmoid(z)
 
-    for _ in tqdm(range(int(steps)), desc="direct fit", disable=not progress):
+    for _ in progress_bar(range(int(steps)), desc="direct fit", disable=not progress):
         optimizer.zero_grad(set_to_none=True)
         total = loss(depth_of(logits), image, focused, settings)["loss"]
         total.backward()

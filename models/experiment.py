@@ -20,11 +20,10 @@ import torch
 from torch import Tensor
 from torch.utils.data import Subset, default_collate
 
-from .blur import predict_depth
+from .depth_from_photos import estimate_depth
+from .depth_from_photos.tiling import apply_in_tiles, check_tiling
 from .direct import fit_depth_direct
 from .metrics import best_constant_depth, depth_metrics
-from .sweep import SweepDepth
-from .tiling import apply_in_tiles, check_tiling
 from .training import TrainConfig, Trainer
 
 #: Whole images above this many pixels are predicted tile by tile (`predict_tiled`).
@@ -361,8 +360,8 @@ def compare_on_scene(
 
     `self_supervised` and `supervised`: the network of `config` trained without and with depth
     labels (same budget); `direct_optimisation`: `fit_depth_direct` through the renderer, no
-    network; `sweep`: `models.sweep.SweepDepth` (no network, no training, any camera; the default
-    of `defocus predict`); `constant`: the best constant depth of the scene's own ground truth (an
+    network; `sweep`: `estimate_depth(method="sweep")` (no network, no training, any camera; the
+    default of `defocus predict`); `constant`: the best constant depth of the scene's own ground truth (an
     oracle).
 
     Args:
@@ -393,8 +392,9 @@ def compare_on_scene(
     results["direct_optimisation"] = depth_metrics(pred=direct, target=target, mask=mask)
     predictions["direct_optimisation"] = direct[0]
     print("\n[sweep] sweeping over depth (no network)")
-    swept = predict_depth(SweepDepth(), sample["image"], sample["focused"], sample["camera"],
-                          config.depth_min, config.depth_max)["depth"]
+    swept = estimate_depth(sample["focused"], sample["camera"],
+                           (config.depth_min, config.depth_max), image=sample["image"],
+                           method="sweep")["depth"]
     results["sweep"] = depth_metrics(pred=swept[None], target=target, mask=mask)
     predictions["sweep"] = swept
     constant = best_constant_depth(target=target, mask=mask)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import torch
 
-from .blur import BlurNet, DepthFromDefocus
+from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
 
 WEIGHTS_DIR = Path(__file__).with_name("weights")
 #: name -> (file under `WEIGHTS_DIR`, sha256 of the file)

@@ -504,7 +504,7 @@ class Trainer:
             FloatingPointError: a non-finite loss or gradient (the last good step is saved).
             TrainingInterrupted: SIGINT or SIGTERM arrived (the last step is saved).
         """
-        from tqdm.auto import tqdm
+        from optics.progress import progress_bar
 
         cfg = self.config
         if self.sampler.is_map_style() and len(self.train_set) == 0:
@@ -513,8 +513,8 @@ class Trainer:
         self.warnings = []
         if self.is_main:
             self._prepare_out_dir()
-        bar = tqdm(total=until, initial=self.step, desc="train", unit="step",
-                   disable=not (cfg.progress and self.is_main))
+        bar = progress_bar(total=until, initial=self.step, desc="train", unit="step",
+                           disable=not (cfg.progress and self.is_main))
         started = time.perf_counter()
         self._last_save = time.monotonic()
         try:

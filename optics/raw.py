@@ -481,13 +481,13 @@ def read_raw_stack(
     Raises:
         ValueError: if `paths` is empty or the images differ in size (the message names both).
     """
-    from tqdm.auto import tqdm
+    from .progress import progress_bar
 
     paths = list(paths)
     if not paths:
         raise ValueError("paths must name at least one raw file, got an empty list")
     images, metas = [], []
-    for path in tqdm(paths, desc="reading raw", disable=not progress):
+    for path in progress_bar(paths, desc="reading raw", disable=not progress):
         image, meta = read_raw(path, **kwargs)
         if images and image.shape != images[0].shape:
             raise ValueError(

@@ -1,12 +1,12 @@
-"""Semi-global aggregation of a cost volume (models.semi_global)."""
+"""Semi-global aggregation of a cost volume (models.depth_from_photos.semi_global)."""
 
 import itertools
 
 import pytest
 import torch
 
-from models.blur import aggregate_cost
-from models.semi_global import cost_scale, semi_global_cost, semi_global_paths
+from models.depth_from_photos import aggregate_cost
+from models.depth_from_photos.semi_global import cost_scale, semi_global_cost, semi_global_paths
 
 
 def _chain_minima(cost, p1, p2):

@@ -1,11 +1,11 @@
-"""Edge-aware weighted least-squares smoothing (models.smoothing)."""
+"""Edge-aware weighted least-squares smoothing (models.depth_from_photos.smoothing)."""
 
 import math
 
 import pytest
 import torch
 
-from models.smoothing import edge_aware_smooth, guide_affinities
+from models.depth_from_photos.smoothing import edge_aware_smooth, guide_affinities
 
 
 def _dense_solution(values, weight, guide, strength, sigma):

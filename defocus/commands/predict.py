@@ -1,10 +1,9 @@
 """`defocus predict`: depth of your own photos.
 
-With no model file it sweeps over depth (`models.sweep.SweepDepth`: no network, any camera). A
-model file is a checkpoint of `defocus train` (a network for the camera it was trained with) or
-the weights of `defocus pretrain` (the camera-general network: it reads the blur of each focused
-photo in pixels and solves the thin lens of your camera). Camera values not given are read from
-`--camera fit.json` (written by `defocus calibrate`) or from the photos' EXIF.
+It reads the photos and the camera (options, `--camera fit.json` written by `defocus calibrate`,
+or the photos' EXIF) and calls `models.depth_from_photos.estimate_depth`: with no model file the
+label-free sweep over depth (no network, any camera), with a checkpoint of `defocus train` that
+network (for the camera it was trained with).
 """
 
 from __future__ import annotations
@@ -15,38 +14,41 @@ from pathlib import Path
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
-                        help="model file: a checkpoint of `defocus train` or the weights of "
-                             "`defocus pretrain` (camera-general); default: no network, a "
-                             "sweep over depth (needs --focused photos and --depth-range)")
+                        help="model file, a checkpoint of `defocus train` (a network for the "
+                             "camera it was trained with); without one, a sweep over depth "
+                             "(no network, any camera; needs --focused photos and --depth-range)")
     parser.add_argument("--image", type=Path, required=True,
                         help="all-in-focus photo (raw file, TIFF, PNG or JPEG; small aperture, "
                              "e.g. f/11)")
-    parser.add_argument("--focused", type=Path, nargs="*", default=[],
-                        help="focused photos of the same view (2-5, each focused elsewhere)")
-    parser.add_argument("--focus-distance", type=float, nargs="*", default=[],
+    parser.add_argument("--focused", type=Path, nargs="*", default=[], metavar="PHOTO",
+                        help="focused photos of the same view (2-5, each focused elsewhere; "
+                             "default: none)")
+    parser.add_argument("--focus-distance", type=float, nargs="*", default=[], metavar="M",
                         help="focus distance of each focused photo, metres (default: --camera, "
                              "else EXIF SubjectDistance where every photo states it)")
-    parser.add_argument("--f-number", type=float, nargs="*", default=[],
+    parser.add_argument("--f-number", type=float, nargs="*", default=[], metavar="N",
                         help="f-number of each focused photo (one value is repeated; "
                              "default: --camera, else EXIF)")
-    parser.add_argument("--focal-length", type=float, default=None,
+    parser.add_argument("--focal-length", type=float, default=None, metavar="M",
                         help="focal length, metres, e.g. 0.05 for 50 mm (default: --camera, "
                              "else EXIF)")
-    parser.add_argument("--pixel-pitch", type=float, default=None,
+    parser.add_argument("--pixel-pitch", type=float, default=None, metavar="M",
                         help="effective pixel pitch of the photos as stored, metres (sensor "
                              "pitch times the downscaling; default: --camera, else EXIF)")
-    parser.add_argument("--camera", type=Path, default=None,
-                        help="camera settings JSON written by `defocus calibrate`")
+    parser.add_argument("--camera", type=Path, default=None, metavar="JSON",
+                        help="camera settings JSON written by `defocus calibrate` (default: "
+                             "none)")
     parser.add_argument("--depth-range", type=float, nargs=2, default=None,
                         metavar=("NEAR", "FAR"),
-                        help="nearest and farthest depth of the scene, metres (camera-general "
-                             "model); a range wider than the scene costs a second pass, not "
-                             "resolution: the depth is computed again over the scene's own range")
-    parser.add_argument("--aggregation", default=None,
+                        help="nearest and farthest depth of the scene, metres (needed without "
+                             "a model file); a range wider than the scene costs a second pass, "
+                             "not resolution: the depth is computed again over the scene's own "
+                             "range")
+    parser.add_argument("--aggregation", default="semi-global",
                         help="without a model file: how the sweep combines neighbouring "
-                             "pixels' costs, 'semi-global' (default: along scan lines, depth "
-                             "edges kept at the photo's edges) or 'windows' (sums over square "
-                             "windows, the sweep before 2026-11-23)")
+                             "pixels' costs, along scan lines with depth edges kept at the "
+                             "photo's edges ('semi-global') or sums over square windows "
+                             "('windows')")
     parser.add_argument("--device", default="auto",
                         help="where to compute: 'auto' (the GPU when CUDA is available, else the "
                              "CPU), 'cpu' or 'cuda[:N]'")
@@ -64,10 +66,11 @@ def run(args: argparse.Namespace) -> int:
 
     from datasets.photos import describe_settings, photo_settings, read_photo
     from defocus.cli import CommandError
+    from models.depth_from_photos import TrainedNetwork, estimate_depth
+    from models.depth_from_photos.sweep import AGGREGATIONS
     from models.plotting import plot_prediction
     from models.pretrained import is_weights_file, load_weights
-    from models.sweep import SweepDepth
-    from models.training import Trainer, check_device, select_device
+    from models.training import check_device, load_model, select_device
     from optics import CameraSettings
 
     try:
@@ -76,20 +79,20 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"--device: {error}") from None
     device = select_device(args.device)
     # the model first: a file that is no model is refused before any photo is read
-    if args.aggregation is not None and args.checkpoint is not None:
-        raise CommandError("--aggregation chooses how the sweep works: give it without a model "
-                           f"file (got {args.checkpoint})")
-    if args.checkpoint is None:
-        options = {} if args.aggregation is None else {"aggregation": args.aggregation}
-        try:
-            model = SweepDepth(progress=True, **options)
-        except ValueError as error:
-            raise CommandError(f"--aggregation: {error}") from None
-        general = True
-    elif is_weights_file(args.checkpoint):
-        model, general = load_weights(args.checkpoint).to(device), True
-    else:
-        model, general = Trainer.from_checkpoint(args.checkpoint, device=str(device)), False
+    model = None
+    if args.aggregation not in AGGREGATIONS:
+        raise CommandError(f"--aggregation must be one of {', '.join(AGGREGATIONS)}, got "
+                           f"{args.aggregation!r}")
+    if args.checkpoint is not None:
+        if args.aggregation != "semi-global":
+            raise CommandError("--aggregation chooses how the sweep works: give it without a "
+                               f"model file (got {args.checkpoint})")
+        if is_weights_file(args.checkpoint):  # the experimental camera-general network
+            model = load_weights(args.checkpoint).to(device)
+        else:
+            network, config = load_model(args.checkpoint, device)
+            model = TrainedNetwork(network, config.input_mode, config.n_focus,
+                                   (config.depth_min, config.depth_max))
     image, image_info = read_photo(args.image)
     photos = [read_photo(path) for path in args.focused]
     for path, (photo, _) in zip(args.focused, photos, strict=True):
@@ -99,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
         if torch.equal(photo, image):
             warnings.warn(f"{path} is identical to {args.image}: there is no defocus to read",
                           stacklevel=1)
-    focused = torch.stack([p for p, _ in photos]) if photos else None
+    # without focused photos only a network that reads the all-in-focus photo alone runs
+    focused = torch.stack([p for p, _ in photos]) if photos else image[None]
     calibration = CameraSettings.from_json(args.camera) if args.camera else None
     sources: dict[str, str] = {}
     settings = photo_settings([info for _, info in photos], args.focus_distance,
@@ -107,12 +111,26 @@ def run(args: argparse.Namespace) -> int:
                               calibration, sources=sources) if photos else None
     if settings is not None:
         print(describe_settings(settings, sources))
-    if general:
-        depth, confidence, depth_range = _camera_general(
-            args, model, image.to(device), focused.to(device) if photos else None, settings,
-            [image_info, *(info for _, info in photos)])
+    if model is None or not isinstance(model, TrainedNetwork):
+        if not photos:
+            raise CommandError("depth from defocus needs --focused photos (2 or more, each "
+                               "focused at its own --focus-distance)")
+        if args.depth_range is None:
+            raise CommandError("give --depth-range NEAR FAR (metres): the thin lens has two "
+                               "depths for each blur, the range picks the right one")
+        depth_range = tuple(args.depth_range)
     else:
-        depth, confidence, depth_range = _checkpoint(model, image, focused, settings)
+        depth_range = model.depth_range
+        if model.input_mode == "aif+focused" and len(photos) != model.n_focus:
+            raise CommandError(f"this network needs {model.n_focus} --focused photos, got "
+                               f"{len(photos)}")
+    options = {"aggregation": args.aggregation} if model is None else None
+    out = estimate_depth(focused.to(device), settings, depth_range, image=image.to(device),
+                         model=model, options=options, progress=True)
+    if "shifts" in out:
+        _report_working_resolution(out, depth_range, [image_info, *(i for _, i in photos)])
+    depth = out["depth"].cpu()
+    confidence = None if out["confidence"] is None else out["confidence"].cpu()
     if not bool(torch.isfinite(depth).all()):
         raise CommandError("the prediction is not finite; nothing written")
     args.out.mkdir(parents=True, exist_ok=True)
@@ -124,29 +142,20 @@ def run(args: argparse.Namespace) -> int:
         Image.fromarray((confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(
             args.out / "confidence.png")
         written.append("confidence.png")
-    plot_prediction(args.out / "figure.png", image, depth,
-                    None if focused is None else focused, title=str(args.image.name),
-                    depth_range=depth_range, confidence=confidence)
+    plot_prediction(args.out / "figure.png", image, depth, focused if photos else None,
+                    title=str(args.image.name), depth_range=tuple(out["depth_range"]),
+                    confidence=confidence)
     print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m; wrote "
           f"{', '.join(written)} and figure.png under {args.out}")
     return 0
 
 
-def _camera_general(args, model, image, focused, settings, infos):
+def _report_working_resolution(out, depth_range, infos) -> None:
     import warnings
 
     from datasets.photos import compression_warning
-    from defocus.cli import CommandError
-    from models.blur import predict_depth
 
-    if focused is None or len(focused) < 1:
-        raise CommandError("depth from defocus needs --focused photos (2 or more, each "
-                           "focused at its own --focus-distance)")
-    if args.depth_range is None:
-        raise CommandError("give --depth-range NEAR FAR (metres): the thin lens has two depths "
-                           "for each blur, the range picks the right one")
-    near, far = args.depth_range
-    out = predict_depth(model, image, focused, settings.to(image.dtype), near, far)
+    near, far = depth_range
     moved = ", ".join(f"({dy:+.1f}, {dx:+.1f}, x{zoom:.4f}, {turn:+.2f} deg)"
                       for (dy, dx), zoom, turn in zip(out["shifts"].tolist(), out["zooms"].tolist(),
                                                       out["rotations"].tolist(), strict=True))
@@ -159,18 +168,3 @@ def _camera_general(args, model, image, focused, settings, infos):
     jpeg = compression_warning(infos, out["scale"])
     if jpeg is not None:
         warnings.warn(jpeg, stacklevel=1)
-    return out["depth"].cpu(), out["confidence"].cpu(), tuple(swept)  # the figure's colours
-
-
-def _checkpoint(trainer, image, focused, settings):
-    from defocus.cli import CommandError
-
-    config = trainer.config
-    if config.input_mode == "aif+focused":
-        n = 0 if focused is None else len(focused)
-        if n != config.n_focus:
-            raise CommandError(f"this network needs {config.n_focus} --focused photos, got {n}")
-        depth = trainer.predict(image[None], focused[None], settings.to(image.dtype))[0]
-    else:
-        depth = trainer.predict(image[None])[0]
-    return depth.cpu(), None, (config.depth_min, config.depth_max)

@@ -34,10 +34,10 @@ def optimise(loss: Callable[[Tensor], Tensor], theta0: Tensor, adam_steps: int,
              lbfgs_steps: int, progress: bool = False) -> Tensor:
     """Minimise `loss` from `theta0`: `adam_steps` of Adam, then up to `lbfgs_steps` L-BFGS
     iterations (strong Wolfe line search). Returns the detached minimiser."""
-    from tqdm.auto import tqdm
+    from ..progress import progress_bar
 
     theta = theta0.clone().requires_grad_(True)
-    bar = tqdm(total=adam_steps + lbfgs_steps, desc="calibrating", disable=not progress)
+    bar = progress_bar(total=adam_steps + lbfgs_steps, desc="calibrating", disable=not progress)
     adam = torch.optim.Adam([theta], lr=ADAM_LR)
     for _ in range(adam_steps):
         adam.zero_grad()

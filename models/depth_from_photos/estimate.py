@@ -1,0 +1,127 @@
+"""`estimate_depth`: depth from photos, one entry point for every method.
+
+A method is a small `nn.Module` called as `method(image, focused, settings, near, far)`, with
+`image` `(B,3,H,W)` the all-in-focus photo (or None where the method needs none), `focused`
+`(B,F,3,H,W)` the focused shots and `settings` their `(B,F)` `CameraSettings`, returning a dict
+with at least `depth` `(B,1,H,W)` metres. Its class attributes say how to run it: `max_coc_px`
+(the largest blur it reads well, which sets the working resolution), `needs_image`, and
+`native_resolution` (a network trained for one camera runs on the photos as they are).
+
+| method | photos | what it does |
+|---|---|---|
+| `"sweep"` (`SweepDepth`) | all-in-focus + `F >= 1` focused | a sweep over depth: the all-in-focus photo blurred by the thin lens's PSF must reproduce each focused one |
+| `model=` any method object | as the method needs | e.g. `TrainedNetwork` (a `defocus train` checkpoint) or the experimental `DepthFromDefocus` |
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from typing import Any
+
+from torch import Tensor, nn
+
+from optics import CameraSettings
+from optics.checks import check_finite, check_shape
+
+from .resolution import run_at_working_resolution
+from .sweep import SweepDepth
+
+#: name -> the method's class, built with `progress=...`.
+METHODS: dict[str, Callable[..., nn.Module]] = {"sweep": SweepDepth}
+
+
+def choose_method(has_image: bool) -> str:
+    """The method `estimate_depth(method="auto")` runs for these photos.
+
+    Example:
+        >>> choose_method(has_image=True)
+        'sweep'
+    """
+    if has_image:
+        return "sweep"
+    raise ValueError("depth from focused photos alone (no all-in-focus image) has no method "
+                     f"yet; give image, an all-in-focus photo (methods: {sorted(METHODS)})")
+
+
+def estimate_depth(
+    focused: Tensor, settings: CameraSettings | None, depth_range: tuple[float, float], *,
+    image: Tensor | None = None, method: str = "auto", model: nn.Module | None = None,
+    options: Mapping[str, Any] | None = None, max_coc_px: float | None = None, max_pixels: int = 1_500_000, align: bool = True,
+    refine_range: bool = True, progress: bool = False,
+) -> dict[str, Tensor | float | tuple[float, float] | None]:
+    """Depth of one scene from its photos and their camera settings.
+
+    Args:
+        focused: `(F,3,H,W)` photos, each focused at its own distance, linear intensity (`F`
+            may be 0 only for a network that reads the all-in-focus photo alone).
+        settings: their `(F,)` settings at the photos' resolution (effective pixel pitch);
+            None only where `F` is 0.
+        depth_range: `(near, far)` metres the scene lies within: the thin lens has two depths
+            for each blur, and the range picks the right one.
+        image: the all-in-focus photo `(3,H,W)` (a small aperture), linear, where there is one.
+        method: a name of `METHODS`, or `"auto"`: the one that suits the photos
+            (`choose_method`).
+        model: a method object to run instead of `method` (see the module docstring).
+        options: keyword arguments of the method's class (e.g. `{"aggregation": "windows"}`
+            for the sweep); not with `model`.
+        max_coc_px: the largest blur (pixels) at the working resolution; by default the
+            method's `max_coc_px`.
+        max_pixels: the most pixels of the working resolution.
+        align: align the focused photos to the all-in-focus one first (a misalignment would
+            read as blur).
+        refine_range: compute again over the scene's own narrower depth range, finer.
+        progress: show progress bars on long work.
+
+    Returns:
+        dict with `depth` `(1,H,W)` metres, `confidence` `(1,H,W)` in [0, 1] (None where the
+        method has none), `depth_range` `(near, far)` metres of the pass kept, and, for methods
+        run at a working resolution, `blur` `(F,h,w)`, `scale`, `shifts`, `zooms` and
+        `rotations` (see `run_at_working_resolution`).
+
+    Raises:
+        ValueError: for photos of other shapes or sizes, non-finite values, a bad depth range or
+            method, or a method that needs an all-in-focus photo without one.
+
+    Example:
+        >>> import torch
+        >>> settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+        >>> out = estimate_depth(torch.rand(2, 3, 24, 24), settings, (1.0, 10.0),
+        ...                      image=torch.rand(3, 24, 24))
+        >>> out["depth"].shape, out["confidence"].shape
+        (torch.Size([1, 24, 24]), torch.Size([1, 24, 24]))
+    """
+    check_shape("focused", focused, ["F", "3", "H", "W"])
+    check_finite("focused", focused)
+    if image is not None:
+        check_shape("image", image, ["3", "H", "W"])
+        check_finite("image", image)
+        if focused.shape[-2:] != image.shape[-2:]:
+            raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
+                             f"all-in-focus photo is {tuple(image.shape[-2:])}")
+    near, far = (float(d) for d in depth_range)
+    if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
+        raise ValueError(f"depth_range must be finite metres (near, far) with 0 < near < far, "
+                         f"got {tuple(depth_range)!r}")
+    if model is None:
+        if method == "auto":
+            method = choose_method(image is not None)
+        if method not in METHODS:
+            raise ValueError(f"method must be 'auto' or one of {sorted(METHODS)}, got {method!r}")
+        model = METHODS[method](progress=progress, **dict(options or {}))
+    elif options:
+        raise ValueError(f"options configure a method by name; give them to the model's class "
+                         f"instead (got model={type(model).__name__} and options={dict(options)})")
+    if getattr(model, "needs_image", True) and image is None:
+        raise ValueError(f"{type(model).__name__} needs an all-in-focus photo: give image")
+    if getattr(model, "native_resolution", False):
+        shots = None if settings is None else settings.to(focused.dtype)
+        out = model(image[None], focused[None], shots, near, far)
+        confidence = out.get("confidence")
+        return {"depth": out["depth"][0], "confidence": None if confidence is None
+                else confidence[0], "depth_range": getattr(model, "depth_range", (near, far))}
+    if len(focused) == 0 or settings is None:
+        raise ValueError(f"{type(model).__name__} reads depth from defocus: give one or more "
+                         "focused photos with their settings")
+    return run_at_working_resolution(model, image, focused, settings, near, far,
+                                     max_coc_px, max_pixels, align, refine_range)

@@ -1,0 +1,157 @@
+"""The working resolution: blur in a readable range of pixels, at a bounded cost.
+
+Depth from defocus reads blur in pixels, and reads it well only within a range (about 0.5 to 20
+pixels for the sweep). A 12-megapixel photo of a fast lens blurs by a hundred pixels and more, and
+its cost volume would take gigabytes. So every method runs at a working resolution: the photos
+area-averaged down until the largest blur over the stated depth range is what the method reads
+well and the pixel count is bounded (`working_scale`), with the pixel pitch grown by the same
+factor (`to_working_resolution`). `run_at_working_resolution` aligns the shots there, runs the
+method, brings the depth back to the photos' size, and, where the scene holds a narrower range
+of depths than stated, runs again over that range at a finer resolution (`scene_range`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor, nn
+
+from optics import CameraSettings, align_shots
+from optics.checks import check_finite, check_shape
+
+
+def working_scale(settings: CameraSettings, near: float, far: float, shape: tuple[int, int],
+                  max_coc_px: float = 12.0, max_pixels: int = 1_500_000) -> float:
+    """The downscale factor (<= 1) of the photos for `DepthFromDefocus`: the largest CoC over
+    `[near, far]` at most `max_coc_px` pixels (what `BlurNet` reads well) and at most
+    `max_pixels` pixels (time and memory).
+
+    Example:
+        >>> s = CameraSettings(0.05, 1.4, [2.0, 6.0], 6e-6)  # 50 mm f/1.4, 6 um pixels
+        >>> round(working_scale(s, 1.0, 10.0, (3000, 4000)), 3)
+        0.048
+    """
+    largest = settings.largest_coc_px(near, far)
+    return min(1.0, max_coc_px / max(largest, 1e-9), math.sqrt(max_pixels / (shape[0] * shape[1])))
+
+
+def run_at_working_resolution(
+    model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
+    near: float, far: float, max_coc_px: float | None = None, max_pixels: int = 1_500_000,
+    align: bool = True, refine_range: bool = True,
+) -> dict[str, Tensor | float]:
+    """Depth of one scene at the photos' resolution, computed at the working resolution.
+
+    Args:
+        model: a method of `estimate_depth` (e.g. `SweepDepth`), called as
+            `model(image, focused, settings, near, far)` at the working resolution.
+        image: all-in-focus photo `(3,H,W)`, linear.
+        focused: `(F,3,H,W)` focused photos, linear, `F >= 2` (1 works but stays ambiguous
+            around the focus plane).
+        settings: their `(F,)` settings at the photos' resolution (effective pixel pitch).
+        near: nearest depth of the scene, metres.
+        far: farthest depth, metres.
+        max_coc_px: see `working_scale`; by default the model's `max_coc_px` (the largest blur
+            it reads well).
+        max_pixels: see `working_scale`.
+        align: move (and, for a lens that breathes, scale) each focused photo onto the
+            all-in-focus one first (`optics.align_shots`, at the working resolution): a
+            misalignment would read as blur.
+        refine_range: a stated range wider than the scene costs resolution: the largest blur
+            over `[near, far]` sets the working resolution, and a scene much farther than
+            `near` never blurs that much. With this on, a first pass finds the depths the scene
+            holds (`scene_range`); if that range allows a working resolution at least
+            `REFINE_GAIN` times finer, the depth is computed again there, over that range.
+
+    Returns:
+        dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
+        resolution, `scale` (working / photo resolution), `depth_range` (the `(near, far)`
+        metres of the pass kept), `shifts` `(F,2)`, `zooms` `(F,)` and `rotations` `(F,)`: how
+        far each focused photo had moved `(dy, dx)`, in the photos' pixels, how much it was
+        magnified and how far it was turned, in degrees, clockwise on screen (zero, one and zero
+        without `align`).
+    """
+    check_shape("image", image, ["3", "H", "W"])
+    check_shape("focused", focused, ["F", "3", "H", "W"])
+    check_finite("image", image)
+    check_finite("focused", focused)
+    if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
+        raise ValueError(f"near and far must be finite metres with 0 < near < far, got "
+                         f"near={near!r}, far={far!r}")
+    if max_coc_px is not None and not (math.isfinite(max_coc_px) and max_coc_px > 0):
+        raise ValueError(f"max_coc_px must be a positive number of pixels, got {max_coc_px!r}")
+    if not max_pixels >= 64:
+        raise ValueError(f"max_pixels must be >= 64 (8x8 pixels), got {max_pixels!r}")
+    if focused.shape[-2:] != image.shape[-2:]:
+        raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
+                         f"all-in-focus photo is {tuple(image.shape[-2:])}")
+    h, w = image.shape[-2:]
+    max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
+    scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
+    out = _run_at(model, image, focused, settings, near, far, scale, align)
+    if refine_range:
+        inner = scene_range(out["depth"], near, far)
+        finer = working_scale(settings, *inner, (h, w), max_coc_px, max_pixels)
+        if finer >= REFINE_GAIN * scale:
+            out = _run_at(model, image, focused, settings, *inner, finer, align)
+    return out
+
+
+#: How much finer (ratio of working scales) the scene's own depth range must allow before
+#: `run_at_working_resolution` computes the depth a second time.
+REFINE_GAIN = 1.25
+
+
+def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
+                margin: float = 0.15) -> tuple[float, float]:
+    """The depths `(near, far)` metres a depth map holds, within `[near, far]`: its `tail` and
+    `1 - tail` quantiles in inverse depth, widened by `margin` times their span on each side
+    (a coarse first estimate is off by some of it), and by at least 2 % of the stated range's
+    inverse-depth span (a map of one depth still gets a range).
+
+    Example:
+        >>> depth = torch.linspace(2.0, 5.0, 1000).reshape(1, 1, 20, 50)
+        >>> tuple(round(d, 2) for d in scene_range(depth, 1.0, 15.0, tail=0.0))
+        (1.83, 6.45)
+    """
+    inverse = 1 / depth.detach().flatten().double()
+    inverse = inverse[:: max(1, inverse.numel() // 100_000)]
+    quantiles = torch.tensor([tail, 1 - tail], dtype=inverse.dtype, device=inverse.device)
+    lo, hi = torch.quantile(inverse, quantiles).tolist()
+    pad = max(margin * (hi - lo), 0.02 * (1 / near - 1 / far))
+    return 1 / min(hi + pad, 1 / near), 1 / max(lo - pad, 1 / far)
+
+
+def to_working_resolution(image: Tensor, focused: Tensor, settings: CameraSettings,
+                          scale: float) -> tuple[Tensor, CameraSettings]:
+    """The all-in-focus photo `(3,H,W)` and the focused ones `(F,3,H,W)` stacked `(1+F,3,h,w)`
+    at `scale` (`working_scale`; area-averaged, at least 8x8 pixels), and their settings there
+    (the effective pixel pitch grows by the same factor)."""
+    h, w = image.shape[-2:]
+    size = (max(8, round(h * scale)), max(8, round(w * scale)))
+    stack = torch.cat([image[None], focused])
+    small = F.interpolate(stack, size=size, mode="area") if scale < 1 else stack
+    return small, settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
+
+
+def _run_at(model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
+                near: float, far: float, scale: float, align: bool) -> dict[str, Tensor | float]:
+    """`run_at_working_resolution`'s pass over `[near, far]` at the working `scale`."""
+    h, w = image.shape[-2:]
+    small, effective = to_working_resolution(image, focused, settings, scale)
+    size = small.shape[-2:]
+    identity = torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=small.dtype,
+                            device=small.device).expand(1, len(focused), 4)
+    shots, motions = align_shots(small[:1], small[1:][None]) if align \
+        else (small[1:][None], identity)
+    with torch.no_grad():
+        out = model(small[:1], shots, effective.to(small.dtype), near, far)
+    depth = F.interpolate(out["depth"], size=(h, w), mode="bilinear", align_corners=False)
+    confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",
+                               align_corners=False)
+    return {"depth": depth[0], "confidence": confidence[0], "blur": out["blur"][0],
+            "scale": size[1] / w, "depth_range": (near, far),
+            "shifts": motions[0, :, :2] * (w / size[1]), "zooms": motions[0, :, 2],
+            "rotations": torch.rad2deg(motions[0, :, 3])}

@@ -1,0 +1,102 @@
+"""The thin-lens cost machinery every method of depth from photos shares.
+
+For a thin lens the signed CoC diameter in pixels is linear in inverse depth,
+`c_i(D) = A_i (1 - D_f,i / D)`, with `A_i` the CoC of a point at infinity (see
+`CameraSettings.coc_at_infinity_px`). Every method here tries `K` candidate depths evenly spaced
+in inverse depth (`candidate_inverse_depths`), predicts each shot's blur there
+(`thin_lens_blur`), scores the candidates per pixel in a cost volume `(B,K,H,W)`, combines the
+costs of neighbouring pixels (`aggregate_cost`, or `semi_global.semi_global_cost`) and keeps the
+cheapest candidate, refined to a fraction of a candidate (`select_depth`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import kornia
+import torch
+from torch import Tensor
+
+from optics import CameraSettings
+
+#: Side (pixels) of the window local errors between photos are first summed over.
+ERROR_WINDOW_PX = 5
+#: Default windows (pixels) -> weights of `aggregate_cost`: fine windows dominate where there is
+#: texture, coarse ones fill in where there is none.
+WINDOWS = {5: 1.0, 17: 0.3, 49: 0.1}
+
+
+def box_filter(x: Tensor, size: int) -> Tensor:
+    """Mean of `x` `(B,C,H,W)` over `size x size` windows, borders replicated (unlike reflect,
+    valid for windows larger than the image).
+
+    Example:
+        >>> box_filter(torch.ones(1, 1, 4, 4), 9).unique()
+        tensor([1.])
+    """
+    return kornia.filters.box_blur(x, (size, size), border_type="replicate")
+
+
+def candidate_inverse_depths(near: float, far: float, n_candidates: int, like: Tensor) -> Tensor:
+    """The `n_candidates` inverse depths (1/metres) of `select_depth`, evenly spaced in
+    `[1/far, 1/near]`, with the dtype and device of `like`.
+
+    Example:
+        >>> candidate_inverse_depths(1.0, 4.0, 4, torch.zeros(1))
+        tensor([0.2500, 0.5000, 0.7500, 1.0000])
+    """
+    if not 0 < near < far:
+        raise ValueError(f"need 0 < near < far metres, got near={near!r}, far={far!r}")
+    return torch.linspace(1 / far, 1 / near, n_candidates, dtype=like.dtype, device=like.device)
+
+
+def thin_lens_blur(settings: CameraSettings, inverse_depth: Tensor) -> Tensor:
+    """The blur `|c_i| = |A_i (1 - D_f,i x)|` pixels that the thin lens gives each shot of
+    `settings` `(B,F)` at inverse depths `x` (1/metres) shaped `(B or 1, F or 1, ...)`:
+    `(B,F,...)`.
+
+    Example:
+        >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).batched(1)  # sharp at 2 m and 6 m
+        >>> thin_lens_blur(s, torch.tensor([[[1 / 2.0, 1 / 6.0]]])).round(decimals=2)
+        tensor([[[0.0000, 4.2700],
+                 [4.2000, 0.0000]]], dtype=torch.float64)
+    """
+    trailing = (1,) * (inverse_depth.dim() - 2)
+    a = settings.coc_at_infinity_px().reshape(*settings.shape, *trailing)
+    focus = settings.focus_distance.reshape(*settings.shape, *trailing)
+    return (a * (1 - focus * inverse_depth)).abs()
+
+
+def aggregate_cost(cost: Tensor, windows: Mapping[int, float] | None = None) -> Tensor:
+    """`cost` `(B,K,H,W)` summed over square windows of each size with its weight (`WINDOWS` by
+    default).
+
+    Example:
+        >>> cost = torch.rand(1, 3, 8, 8)
+        >>> aggregate_cost(cost, {1: 1.0}).equal(cost)
+        True
+    """
+    return sum(s * box_filter(cost, k) for k, s in (windows or WINDOWS).items())
+
+
+def select_depth(cost: Tensor, near: float, far: float) -> Tensor:
+    """Depth `(B,1,H,W)` metres of the cheapest of the `K` candidates of `cost` `(B,K,H,W)`,
+    candidate `k` at inverse depth `1/far + k (1/near - 1/far) / (K - 1)`, refined by a parabola
+    through the neighbouring costs.
+
+    Example:
+        >>> cost = torch.tensor([3.0, 1.0, 0.0, 1.0, 3.0]).reshape(1, 5, 1, 1)
+        >>> round(select_depth(cost, 1.0, 4.0).item(), 4)  # candidate 2: inverse depth 0.625
+        1.6
+    """
+    n_candidates = cost.shape[1]
+    best = cost.argmin(1, keepdim=True)
+    lo = cost.gather(1, (best - 1).clamp(0, n_candidates - 1))
+    mid = cost.gather(1, best)
+    hi = cost.gather(1, (best + 1).clamp(0, n_candidates - 1))
+    curvature = (lo + hi - 2 * mid).clamp_min(torch.finfo(cost.dtype).tiny)
+    offset = (0.5 * (lo - hi) / curvature).clamp(-0.5, 0.5)
+    inside = (best > 0) & (best < n_candidates - 1)
+    index = best.to(cost.dtype) + torch.where(inside, offset, torch.zeros_like(offset))
+    inverse = 1 / far + index * (1 / near - 1 / far) / (n_candidates - 1)
+    return (1 / inverse).clamp(near, far)

@@ -1,0 +1,79 @@
+"""A network trained for one camera (`defocus train`) as a method of `estimate_depth`.
+
+Such a network has learnt the blur of its training camera at its training resolution, so it runs
+on the photos as they are (no working resolution) and answers depth within the range it was
+trained for.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from optics import CameraSettings
+
+from .tiling import apply_in_tiles, check_tiling
+
+
+class TrainedNetwork(nn.Module):
+    """A depth network of `defocus train` (`models.training.load_model`), called like every
+    method of `estimate_depth`.
+
+    Args:
+        network: the trained network: `network(image)` or, for `input_mode="aif+focused"`,
+            `network(image, focused, settings)`, depth `(B,1,H,W)` metres.
+        input_mode: `"aif"` (the all-in-focus photo only) or `"aif+focused"`.
+        n_focus: focused photos the network reads in `"aif+focused"` mode.
+        depth_range: `(near, far)` metres the network was trained for.
+        max_pixels: photos up to this many pixels go through whole; larger ones in tiles of
+            `tile` pixels square with `overlap` pixels of context (memory stays bounded; the
+            networks' group normalisation sees each tile's statistics, so seams may show).
+        tile: side of a tile's kept centre, pixels.
+        overlap: context around each tile, pixels.
+
+    Example:
+        >>> net = lambda image: image.mean(1, keepdim=True) + 1
+        >>> model = TrainedNetwork(net, "aif", 0, (1.0, 10.0))
+        >>> model(torch.zeros(1, 3, 4, 4), None, None, 1.0, 10.0)["depth"].unique()
+        tensor([1.])
+    """
+
+    #: It runs on the photos at their own resolution.
+    native_resolution = True
+    #: It needs an all-in-focus photo.
+    needs_image = True
+
+    def __init__(self, network: nn.Module, input_mode: str, n_focus: int,
+                 depth_range: tuple[float, float], max_pixels: int = 2_000_000,
+                 tile: int = 1024, overlap: int = 64):
+        super().__init__()
+        check_tiling(tile, overlap)
+        self.max_pixels, self.tile, self.overlap = int(max_pixels), int(tile), int(overlap)
+        if input_mode not in ("aif", "aif+focused"):
+            raise ValueError(f"input_mode must be 'aif' or 'aif+focused', got {input_mode!r}")
+        self.network, self.input_mode, self.n_focus = network, input_mode, int(n_focus)
+        self.depth_range = (float(depth_range[0]), float(depth_range[1]))
+
+    def forward(self, image: Tensor | None, focused: Tensor | None,
+                settings: CameraSettings | None, near: float, far: float) -> dict[str, Tensor]:
+        """Depth `(B,1,H,W)` metres of the all-in-focus `image` `(B,3,H,W)` and, in
+        `"aif+focused"` mode, the `focused` photos `(B,F,3,H,W)` with their settings; `near`
+        and `far` are not used (the network answers within its trained range)."""
+        if image is None:
+            raise ValueError("this network reads an all-in-focus photo: give image")
+        if self.input_mode == "aif":
+            focused = None
+        else:
+            n = 0 if focused is None else focused.shape[1]
+            if n != self.n_focus:
+                raise ValueError(f"this network needs {self.n_focus} focused photos, got {n}")
+
+        def run(image: Tensor, focused: Tensor | None) -> Tensor:
+            if focused is None:
+                return self.network(image)
+            return self.network(image, focused, settings)
+
+        with torch.no_grad():
+            if image.shape[-2] * image.shape[-1] <= self.max_pixels:
+                return {"depth": run(image, focused)}
+            return {"depth": apply_in_tiles(run, [image, focused], self.tile, self.overlap)}
