@@ -34,7 +34,7 @@ from torch.utils.data import Dataset
 from optics import Aperture, CameraSettings
 
 from .focus import CameraPreset, cached_focal_stack, resolve_cache_dir
-from .transforms import JointAugment, _check_size, crop_sample, resize_sample
+from .transforms import JointAugment, check_size, crop_sample, resize_sample
 
 
 class _MemoryCache:
@@ -122,7 +122,7 @@ class DepthDataset(Dataset):
         if not float(memory_cache_mb) >= 0:
             raise ValueError(f"memory_cache_mb must be >= 0 MiB, got {memory_cache_mb!r}")
         self.preset = preset
-        self.size = _check_size("size", size)
+        self.size = check_size("size", size)
         self.crop = None if crop is None else tuple(int(c) for c in crop)
         self.augment = augment
         self.cache_dir = resolve_cache_dir(cache_dir)

@@ -25,7 +25,14 @@ import torch.nn.functional as F
 SPATIAL_KEYS = ("image", "focused", "depth", "mask")
 
 
-def _check_size(name: str, size: Sequence[int] | None) -> tuple[int, int] | None:
+def check_size(name: str, size: Sequence[int] | None) -> tuple[int, int] | None:
+    """`size` as `(height, width)` pixels, both > 0 (None stays None); a `ValueError` that
+    names the argument `name` otherwise.
+
+    Example:
+        >>> check_size("crop_size", [96, 128])
+        (96, 128)
+    """
     if size is None:
         return None
     if len(size) != 2 or any(int(s) <= 0 for s in size):
@@ -72,7 +79,7 @@ def resize_sample(sample: dict[str, Any], size: Sequence[int]) -> dict:
         >>> r["image"].shape, r["camera"].pixel_pitch
         (torch.Size([3, 4, 4]), tensor([2.0000e-05]))
     """
-    height, width = _check_size("size", size)
+    height, width = check_size("size", size)
     h, w = sample["image"].shape[-2:]
     if (h, w) == (height, width):
         return dict(sample)
@@ -130,7 +137,7 @@ class JointAugment:
     gain: float = 0.0
 
     def __post_init__(self) -> None:
-        self.crop_size = _check_size("crop_size", self.crop_size)
+        self.crop_size = check_size("crop_size", self.crop_size)
         if not 0.0 <= self.hflip <= 1.0:
             raise ValueError(f"hflip must be a probability in [0, 1], got {self.hflip}")
         if not 0.0 <= self.gain < 1.0:

@@ -11,14 +11,13 @@ from .calibrate import (
     fit_thin_lens_curve,
     measure_blur,
 )
-from .camera import Camera
+from .camera import Camera, CameraSettings
 from .focal_stack import render_focal_stack
 from .lens import ThinLens
 from .plotting import plot_calibration
 from .raw import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
-from .settings import CameraSettings
 
 __all__ = [
     "APERTURE_FAMILIES",

@@ -37,7 +37,6 @@ from typing import Any
 
 import torch
 
-from .calibration.measure import _ConstantBlur as _ConstantBlur  # noqa: F401 (tests use it)
 from .calibration.measure import fit_thin_lens_curve, measure_blur
 from .calibration.model import ResidualModel
 from .calibration.optimise import Fit, gauss_newton, optimise

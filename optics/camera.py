@@ -1,19 +1,32 @@
-"""A camera: a lens, a sensor and an aperture shape, composed."""
+"""A camera: one shot (`Camera`: a lens, a sensor and an aperture shape, composed) and the F
+shots of a scene (`CameraSettings`, the one type every package passes).
+
+A scene is photographed `F` times (e.g. focused at 2 m and at 6 m). Dataset samples, camera
+presets, raw-photo metadata, calibration results, losses, networks, the direct fit and
+`defocus predict` all describe those shots with one `CameraSettings`: four tensors of shape `(F,)`
+for one scene or `(B, F)` for a batch, plus the aperture's spec string (see
+`optics.aperture_spec`). A shot of it is a `Camera` (`CameraSettings.shot`), and a `Camera`'s
+settings are a `CameraSettings` of one shot (`Camera.settings`): the two convert into each other,
+so they share this module. The thin-lens maths lives in `ThinLens`.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import json
+from collections.abc import Mapping, Sequence
 from os import PathLike
-from typing import TYPE_CHECKING, Any
+from pathlib import Path
+from typing import Any
 
+import torch
 from torch import Tensor, nn
 
 from .aperture import Aperture, Gaussian
-from .aperture_spec import aperture_spec
+from .aperture_spec import aperture_from_json, aperture_spec, parse_aperture
+from .checks import check_positive, implausible_length, is_tracing
 from .lens import ThinLens
 from .sensor import Sensor
-
-if TYPE_CHECKING:
-    from .settings import CameraSettings
 
 
 class Camera(nn.Module):
@@ -54,8 +67,6 @@ class Camera(nn.Module):
             >>> Camera(ThinLens(0.035, 2.8, 2.0), Sensor(5.6e-6), Disk()).settings().aperture
             'disk'
         """
-        from .settings import CameraSettings
-
         return CameraSettings(
             self.lens.focal_length, self.lens.f_number, self.lens.focus_distance,
             self.sensor.effective_pixel_pitch, aperture=aperture_spec(self.aperture),
@@ -77,8 +88,6 @@ class Camera(nn.Module):
             >>> Camera.from_json(path).lens.f_number
             tensor(2.8000, dtype=torch.float64)
         """
-        from .settings import CameraSettings
-
         settings = CameraSettings.from_json(path)
         if settings.n_shots != 1:
             raise ValueError(f"{path}: holds {settings.n_shots} shots; read it with "
@@ -118,3 +127,284 @@ class Camera(nn.Module):
 
         return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)
 
+
+#: The tensor fields of `CameraSettings`, each in metres except the f-number.
+SETTING_FIELDS = ("focal_length", "f_number", "focus_distance", "pixel_pitch")
+_UNITS = {"focal_length": "metres", "f_number": "", "focus_distance": "metres",
+          "pixel_pitch": "metres"}
+
+
+def _as_tensor(name: str, value: Any) -> Tensor:
+    if isinstance(value, Tensor):
+        tensor = value
+    elif isinstance(value, bool) or isinstance(value, str):
+        raise TypeError(f"{name} must be a number, a sequence of numbers or a tensor, "
+                        f"got {type(value).__name__} {value!r}")
+    else:
+        try:
+            tensor = torch.as_tensor(value, dtype=torch.float64)
+        except (TypeError, ValueError, RuntimeError):
+            raise TypeError(f"{name} must be a number, a sequence of numbers or a tensor, "
+                            f"got {value!r}") from None
+    if not tensor.is_floating_point():
+        tensor = tensor.to(torch.get_default_dtype())
+    return tensor
+
+
+@dataclasses.dataclass
+class CameraSettings:
+    """Settings of the `F` shots of one scene (`(F,)` tensors) or of a batch (`(B, F)`).
+
+    Numbers and sequences are accepted and broadcast against each other: one focal length for
+    every shot, one focus distance per shot, and so on. Python numbers become float64 tensors;
+    move the result with `.to()`.
+
+    Args:
+        focal_length: metres, > 0.
+        f_number: dimensionless, > 0.
+        focus_distance: metres, > `focal_length`.
+        pixel_pitch: the *effective* pixel pitch of the images in metres (sensor pitch times
+            the downsampling from sensor to image), > 0.
+        aperture: the PSF shape as a spec string (`"gaussian"`, `"disk"`, `"polygon:6"`, see
+            `optics.aperture_spec`); the same for every shot.
+
+    Example:
+        >>> settings = CameraSettings(0.05, 1.4, [2.0, 6.0], 180e-6)
+        >>> settings.n_shots, tuple(settings.shape)
+        (2, (2,))
+        >>> settings.shot(1).lens.focus_distance
+        tensor(6., dtype=torch.float64)
+        >>> batch = torch.utils.data.default_collate([settings, settings])
+        >>> tuple(batch.focus_distance.shape)
+        (2, 2)
+    """
+
+    focal_length: Tensor
+    f_number: Tensor
+    focus_distance: Tensor
+    pixel_pitch: Tensor
+    aperture: str = "gaussian:0.5"
+
+    def __post_init__(self) -> None:
+        values = [_as_tensor(name, getattr(self, name)) for name in SETTING_FIELDS]
+        dtype = values[0].dtype
+        for v in values[1:]:
+            dtype = torch.promote_types(dtype, v.dtype)
+        try:
+            values = torch.broadcast_tensors(*(v.to(dtype) for v in values))
+        except RuntimeError:
+            shapes = {n: tuple(v.shape) for n, v in zip(SETTING_FIELDS, values, strict=True)}
+            raise ValueError(f"camera settings must broadcast to one (F,) or (B, F) shape, "
+                             f"got shapes {shapes}") from None
+        if values[0].ndim == 0:
+            values = [v.reshape(1) for v in values]
+        if values[0].ndim > 2 or values[0].numel() == 0:
+            raise ValueError(f"camera settings must have shape (F,) or (B, F) with F >= 1, "
+                             f"got {tuple(values[0].shape)}")
+        for name, value in zip(SETTING_FIELDS, values, strict=True):
+            object.__setattr__(self, name, value)
+        if not isinstance(self.aperture, str):
+            raise TypeError(f"aperture must be a spec string such as 'gaussian' or 'disk', got "
+                            f"{type(self.aperture).__name__}; pass an Aperture object to the "
+                            f"renderer instead")
+        if not is_tracing(*values):  # a traced graph cannot read tensor values
+            self.aperture = aperture_spec(self.aperture)
+            self.check()
+
+    def check(self) -> None:
+        """Raise `ValueError` unless every value is finite and positive and every focus
+        distance lies beyond the focal length (called on construction; call it again after
+        changing a tensor in place)."""
+        for name in SETTING_FIELDS:
+            check_positive(name, getattr(self, name).detach(), _UNITS[name])
+        if bool(torch.any(self.focus_distance <= self.focal_length)):
+            largest = implausible_length("focal_length", self.focal_length)
+            hint = ("" if largest is None else
+                    f": did you give millimetres? {largest:.6g} mm is {largest * 1e-3:.6g} m")
+            raise ValueError(
+                f"focus_distance must be > focal_length (metres), got focus_distance "
+                f"{self.focus_distance.tolist()} and focal_length {self.focal_length.tolist()}"
+                f"{hint}"
+            )
+
+    # ---- shape -------------------------------------------------------------------------------
+    @property
+    def shape(self) -> torch.Size:
+        """`(F,)` or `(B, F)`."""
+        return self.focus_distance.shape
+
+    @property
+    def n_shots(self) -> int:
+        """`F`, the number of shots (focus settings)."""
+        return int(self.shape[-1])
+
+    @property
+    def is_batched(self) -> bool:
+        return len(self.shape) == 2
+
+    def tensors(self) -> dict[str, Tensor]:
+        """The four tensors by field name."""
+        return {name: getattr(self, name) for name in SETTING_FIELDS}
+
+    def _map(self, fn) -> CameraSettings:
+        return dataclasses.replace(self, **{k: fn(v) for k, v in self.tensors().items()})
+
+    def to(self, *args: Any, **kwargs: Any) -> CameraSettings:
+        """Move or cast every tensor, as `Tensor.to`."""
+        return self._map(lambda t: t.to(*args, **kwargs))
+
+    def replace(self, **changes: Any) -> CameraSettings:
+        """A copy with some fields changed (checked again).
+
+        Example:
+            >>> CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-5).replace(f_number=4.0).f_number
+            tensor([4., 4.], dtype=torch.float64)
+        """
+        return dataclasses.replace(self, **changes)
+
+    def batched(self, batch_size: int = 1) -> CameraSettings:
+        """`(F,)` settings repeated into `(batch_size, F)` (batched settings are returned as they are)."""
+        if self.is_batched:
+            return self
+        return self._map(lambda t: t.expand(batch_size, -1))
+
+    def __getitem__(self, index: Any) -> CameraSettings:
+        """Index the batch (the first dimension of `(B, F)` settings; keeps `(B', F)` or `(F,)`)."""
+        if not self.is_batched:
+            raise IndexError("index unbatched (F,) settings with .shot(i); [] indexes a batch")
+        return self._map(lambda t: t[index])
+
+    def select_shots(self, index: Any) -> CameraSettings:
+        """Keep some shots (the last dimension), e.g. `select_shots([0, 2])`."""
+        picked = self._map(lambda t: t[..., index])
+        if picked.focus_distance.ndim < len(self.shape):
+            raise IndexError("select_shots needs a slice or a list of shots; use .shot(i) for one")
+        return picked
+
+    # ---- cameras -----------------------------------------------------------------------------
+    def aperture_module(self) -> Aperture:
+        """The `Aperture` this spec names."""
+        return parse_aperture(self.aperture)
+
+    def shot(self, index: int, aperture: Aperture | None = None) -> Camera:
+        """The `Camera` of shot `index` (scalar parameters, or `(B,)` for batched settings).
+
+        Args:
+            index: shot number in `[0, F)`.
+            aperture: override the settings' aperture (e.g. a measured `Mask`).
+        """
+        if not -self.n_shots <= index < self.n_shots:
+            raise IndexError(f"shot index {index} is out of range for {self.n_shots} shots")
+        values = {k: v[..., index] for k, v in self.tensors().items()}
+        return self._camera(values, aperture)
+
+    def camera(self, aperture: Aperture | None = None) -> Camera:
+        """One `Camera` over every shot, flattened in row-major order: `(B * F,)` parameters
+        (or `(F,)`). Render a batch expanded the same way through it."""
+        values = {k: v.reshape(-1) for k, v in self.tensors().items()}
+        return self._camera(values, aperture)
+
+    def _camera(self, values: Mapping[str, Tensor], aperture: Aperture | None) -> Camera:
+        lens = ThinLens(values["focal_length"], values["f_number"], values["focus_distance"])
+        return Camera(lens, Sensor.from_effective_pitch(values["pixel_pitch"]),
+                      aperture if aperture is not None else self.aperture_module())
+
+    def coc_at_infinity_px(self) -> Tensor:
+        """Signed CoC diameter in pixels of a point at infinity for every shot, `A` in
+        `c(D) = A (1 - D_f / D)` (same shape as the settings)."""
+        lens = ThinLens(self.focal_length.reshape(-1), self.f_number.reshape(-1),
+                        self.focus_distance.reshape(-1))
+        coc = Sensor.from_effective_pitch(self.pixel_pitch.reshape(-1)).to_pixels(lens.coc_at_infinity())
+        return coc.reshape(self.shape)
+
+    def largest_coc_px(self, near: float, far: float) -> float:
+        """The largest |CoC| diameter in pixels of any shot over depths `[near, far]` metres
+        (reached at one of the two ends: the CoC is linear in inverse depth).
+
+        Example:
+            >>> round(CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).largest_coc_px(1.0, 10.0), 3)
+            10.504
+        """
+        a = self.coc_at_infinity_px().abs().reshape(-1)
+        df = self.focus_distance.reshape(-1)
+        edges = torch.stack([(1 - df / near).abs(), (1 - df / far).abs()])
+        return float((a * edges).max())
+
+    # ---- JSON ----------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """Plain numbers and lists (metres), and the aperture spec under `psf`."""
+        data: dict[str, Any] = {}
+        for name, value in self.tensors().items():
+            values = value.detach().cpu().tolist()
+            data[name] = values[0] if value.numel() == 1 else values
+        data["psf"] = self.aperture
+        return data
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "camera settings") -> CameraSettings:
+        """Inverse of `to_dict`; also reads the older `{"family": ...}` `psf` objects.
+
+        Example:
+            >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-5, "disk")
+            >>> CameraSettings.from_dict(s.to_dict()) == s
+            True
+        """
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{source}: expected a JSON object of camera settings")
+        missing = [k for k in SETTING_FIELDS if data.get(k) is None]
+        if missing:
+            raise ValueError(f"{source}: missing {missing}; expected the keys "
+                             f"{list(SETTING_FIELDS)} (metres) and optionally 'psf'")
+        try:
+            aperture = aperture_spec(aperture_from_json(data.get("psf", "gaussian")))
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{source}: bad 'psf' entry {data.get('psf')!r}: {error}") from None
+        return cls(*(data[k] for k in SETTING_FIELDS), aperture=aperture)
+
+    def to_json(self, path: str | PathLike, **extra: Any) -> None:
+        """Write `to_dict()` and any `extra` JSON values to `path`."""
+        data = self.to_dict()
+        data.update(extra)
+        Path(path).write_text(json.dumps(data, indent=2) + "\n")
+
+    @classmethod
+    def from_json(cls, path: str | PathLike) -> CameraSettings:
+        """Read settings written by `to_json` (or by `defocus calibrate`)."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, json.JSONDecodeError) as error:
+            raise ValueError(f"{path}: cannot read camera settings: {error}") from None
+        return cls.from_dict(data, source=str(path))
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, CameraSettings):
+            return NotImplemented
+        return self.aperture == other.aperture and all(
+            a.shape == b.shape and bool(torch.equal(a.to(b), b))
+            for a, b in zip(self.tensors().values(), other.tensors().values(), strict=True)
+        )
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def collate_settings(batch: Sequence[CameraSettings], **_: Any) -> CameraSettings:
+    """Stack `(F,)` settings of `B` samples into `(B, F)` (registered with `default_collate`)."""
+    specs = {s.aperture for s in batch}
+    if len(specs) > 1:
+        raise ValueError(f"cannot batch samples with different apertures {sorted(specs)}")
+    shapes = {tuple(s.shape) for s in batch}
+    if len(shapes) > 1:
+        raise ValueError(f"cannot batch camera settings of different shapes {sorted(shapes)} "
+                         "(samples with different numbers of shots)")
+    stacked = {k: torch.stack([s.tensors()[k] for s in batch]) for k in SETTING_FIELDS}
+    return CameraSettings(**stacked, aperture=batch[0].aperture)
+
+
+def _register() -> None:
+    from torch.utils.data._utils.collate import default_collate_fn_map
+
+    default_collate_fn_map[CameraSettings] = collate_settings
+    torch.export.register_dataclass(CameraSettings, serialized_type_name="optics.CameraSettings")
+
+
+_register()

@@ -7,9 +7,9 @@ from typing import Any
 from torch import Tensor
 
 from .aperture import Aperture
+from .camera import CameraSettings
 from .checks import check_finite, check_shape
 from .lens import compute_dtype
-from .settings import CameraSettings
 
 
 def render_focal_stack(

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
     from .calibration.result import CalibrationResult
-    from .settings import CameraSettings
+    from .camera import CameraSettings
 
 __all__ = ["plot_calibration", "plot_focus_sweep"]
 

@@ -27,8 +27,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .camera import CameraSettings
 from .sensor import Sensor
-from .settings import CameraSettings
 
 #: White-balance choices of `read_raw`.
 WHITE_BALANCES = ("camera", "daylight", "none")

@@ -89,3 +89,117 @@ def test_the_checker_resolves_relative_imports():
     assert "optics.checks" in names
     names = [name for _, name in imported_modules(ROOT / "optics" / "__init__.py", "optics")]
     assert "optics.lens.ThinLens" in names
+
+
+#: The most lines a Python file of the packages may have.
+MAX_LINES = 500
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def module_graph() -> dict[str, set[str]]:
+    """Module -> the package modules it imports (anywhere in it, also inside functions); a name
+    imported from a package is an edge to the module that defines it, where there is one."""
+    modules = {module_name(path): path for package in PACKAGES
+               for path in sorted((ROOT / package).rglob("*.py"))}
+    graph: dict[str, set[str]] = {name: set() for name in modules}
+    for name, path in modules.items():
+        for _, imported in imported_modules(path, name.split(".")[0]):
+            # "a.b.c" may be module a.b.c or name c of module a.b: keep the longest module
+            while imported and imported not in modules:
+                imported = imported.rpartition(".")[0]
+            # `from . import sibling` also names the package itself: not an edge to its __init__
+            if imported and imported != name and not name.startswith(imported + "."):
+                graph[name].add(imported)
+    return graph
+
+
+def import_cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles = []
+
+    def visit(node: str) -> None:
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        for other in graph[node]:
+            if other not in index:
+                visit(other)
+                low[node] = min(low[node], low[other])
+            elif other in stack:
+                low[node] = min(low[node], index[other])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                top = stack.pop()
+                component.append(top)
+                if top == node:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for node in graph:
+        if node not in index:
+            visit(node)
+    return cycles
+
+
+def test_no_import_cycles():
+    """No module imports, directly or through others, a module that imports it back (lazy
+    imports inside functions count too: they only hide a circle)."""
+    cycles = import_cycles(module_graph())
+    assert not cycles, "import circles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_cycle_finder_finds_a_circle():
+    assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert import_cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_python_file_is_over_the_line_limit():
+    long = [f"{path.relative_to(ROOT)}: {n} lines" for package in PACKAGES
+            for path in sorted((ROOT / package).rglob("*.py"))
+            if (n := len(path.read_text().splitlines())) > MAX_LINES]
+    assert not long, f"files over {MAX_LINES} lines (split them by concept):\n" + "\n".join(long)
+
+
+def concept(module: str) -> str:
+    """The concept a module belongs to: a subpackage is one (`models.depth_from_photos`); a
+    module of a package is its own, and private modules named after it are part of it
+    (`optics._render_ops` and `optics._render_cpp` serve `optics.render`).
+
+    Example: `concept("optics._render_ops") == concept("optics.render") == "optics.render"`.
+    """
+    parts = module.split(".")
+    if len(parts) < 2 or (ROOT / parts[0] / parts[1]).is_dir():
+        return ".".join(parts[:2])
+    return f"{parts[0]}.{parts[1].lstrip('_').split('_')[0]}"
+
+
+def test_private_names_stay_inside_their_concept():
+    """No module imports a private name (`_name`) from a module of another concept: what a
+    concept shares is public. A subpackage (e.g. `models.depth_from_photos`) is one concept."""
+    bad = []
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            here = module_name(path)
+            for line, imported in imported_modules(path, package):
+                module, _, name = imported.rpartition(".")
+                if not (name.startswith("_") and not name.startswith("__")):
+                    continue
+                if module.count(".") == 0:  # `from . import _private_module`
+                    module = imported
+                if module.split(".")[0] in PACKAGES and concept(module) != concept(here):
+                    bad.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
+    assert not bad, "private names used outside their concept:\n" + "\n".join(bad)
+
+
+def test_concepts_group_private_modules_with_their_public_one():
+    assert concept("optics._render_ops") == concept("optics.render") == "optics.render"
+    assert concept("models.depth_from_photos.sweep") == "models.depth_from_photos"
+    assert concept("models.training") != concept("models.checkpoints")

@@ -12,6 +12,7 @@ from _synthetic_dng import synthetic_camera, write_pairs
 from optics import (
     CalibrationPair,
     Camera,
+    CameraSettings,
     Disk,
     Gaussian,
     Sensor,
@@ -22,8 +23,7 @@ from optics import (
     plot_calibration,
     read_raw,
 )
-from optics.calibrate import _ConstantBlur
-from optics.settings import CameraSettings
+from optics.calibration.measure import _ConstantBlur
 
 DISTANCES = (1.2, 1.5, 4.0)
 

@@ -7,8 +7,17 @@ import json
 import pytest
 import torch
 
-from optics import CalibrationPair, Camera, Disk, Gaussian, Polygon, Sensor, ThinLens, calibrate
-from optics.settings import CameraSettings
+from optics import (
+    CalibrationPair,
+    Camera,
+    CameraSettings,
+    Disk,
+    Gaussian,
+    Polygon,
+    Sensor,
+    ThinLens,
+    calibrate,
+)
 
 DISTANCES = (1.2, 1.5, 4.0)
 

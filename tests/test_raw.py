@@ -10,8 +10,14 @@ import pytest
 import torch
 from _synthetic_dng import BLACK, WB, WHITE, write_dng
 
-from optics import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
-from optics.settings import CameraSettings
+from optics import (
+    CameraSettings,
+    RawMetadata,
+    RawReadError,
+    read_raw,
+    read_raw_metadata,
+    read_raw_stack,
+)
 
 SAMPLES = Path(os.environ.get("DEFOCUS_RAW_SAMPLES", Path(__file__).parents[2] / "shared/data/raw"))
 needs_samples = pytest.mark.skipif(

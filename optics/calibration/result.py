@@ -12,8 +12,7 @@ from torch import Tensor
 
 from ..aperture import Aperture, Polygon
 from ..aperture_spec import aperture_spec
-from ..camera import Camera
-from ..settings import SETTING_FIELDS, CameraSettings
+from ..camera import SETTING_FIELDS, Camera, CameraSettings
 from .problem import PARAMETERS, make_aperture
 
 _UNITS = {"focus_distance": "m", "focal_length": "m", "pixel_pitch": "m"}
