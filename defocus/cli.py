@@ -34,6 +34,21 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 
 
+class DefaultsOnceFormatter(argparse.HelpFormatter):
+    """Help that ends each option with its default once: not where the help text already says
+    what the default is, and not for defaults that mean "not given" (None, an empty list, an
+    unset flag)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        unset = action.default is None or action.default is False or action.default == [] \
+            or action.default is argparse.SUPPRESS
+        if unset or "default" in text.lower() or not (action.option_strings or action.nargs
+                                                      in (argparse.OPTIONAL, argparse.ZERO_OR_MORE)):
+            return text
+        return f"{text} (default: %(default)s)"
+
+
 class CommandError(Exception):
     """A problem with the user's input that a command reports in one line (exit code 2)."""
 
@@ -58,7 +73,7 @@ def build_parser() -> argparse.ArgumentParser:
             name,
             help=help_text,
             description=help_text,
-            formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+            formatter_class=DefaultsOnceFormatter,
         )
         importlib.import_module(module).add_arguments(command)
         command.set_defaults(_module=module)

@@ -31,9 +31,9 @@ def arrow(ax, start, end, colour="#333333", style="-|>", width=1.4, dashed=False
 
 
 def draw() -> Figure:
-    fig = Figure(figsize=(10.6, 6.4), dpi=90)
+    fig = Figure(figsize=(15.4, 6.4), dpi=90)
     ax = fig.add_axes((0, 0, 1, 1))
-    ax.set_xlim(0, 10.6)
+    ax.set_xlim(0, 15.4)
     ax.set_ylim(0, 6.4)
     ax.axis("off")
 
@@ -41,7 +41,7 @@ def draw() -> Figure:
     ax.text(2.0, 6.1, "Layers (imports point down)", ha="center", fontsize=12, weight="bold")
     box(ax, 0.3, 4.75, 3.4, 0.9, "defocus\ncommand line, __version__\n(nothing imports it)",
         LAYER_COLOURS["defocus"], weight="bold")
-    box(ax, 0.3, 2.85, 1.45, 1.1, "models\nnetworks, losses,\nmetrics, training", LAYER_COLOURS["models"])
+    box(ax, 0.3, 2.85, 1.45, 1.1, "models\nnetworks, training,\ndepth_from_photos", LAYER_COLOURS["models"])
     box(ax, 2.25, 2.85, 1.45, 1.1, "datasets\nloaders, synthetic\nscenes, focus", LAYER_COLOURS["datasets"])
     box(ax, 0.3, 0.7, 3.4, 1.3, "optics\nThinLens, Sensor, apertures, Camera,\nCameraSettings, render_defocus,\n"
         "raw photos, calibration, checks", LAYER_COLOURS["optics"])
@@ -76,6 +76,24 @@ def draw() -> Figure:
     ax.text(6.8, 0.28, "gradients flow back from the loss through the renderer and the CoC\n"
             "to the network (and to the camera parameters when calibrating)", ha="center", fontsize=8.5, style="italic",
             color="#444444")
+
+    # far right: depth from photos (what `defocus predict` runs)
+    ax.text(12.95, 6.1, "Depth from photos (predict)", ha="center", fontsize=12, weight="bold")
+    steps = [
+        "photos + CameraSettings\n(options, --camera JSON or EXIF)",
+        "estimate_depth(method=\"auto\")\npicks a method by the photos",
+        "working resolution, aligned shots\ndepth_from_photos.resolution",
+        "cost per candidate depth\nsweep: thin-lens blur vs photo",
+        "aggregate, select, smooth\nthin_lens, semi_global, smoothing",
+    ]
+    for i, text in enumerate(steps):
+        y = top - i * (height + gap)
+        box(ax, 10.75, y, 4.4, height, text, LAYER_COLOURS["models"], size=9.5)
+        if i:
+            arrow(ax, (12.95, y + height + gap), (12.95, y + height))
+    ax.text(12.95, 0.28, "models.depth_from_photos: no network, no training;\n"
+            "each method a small class with one call signature", ha="center", fontsize=8.5,
+            style="italic", color="#444444")
     return fig
 
 

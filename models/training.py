@@ -34,7 +34,9 @@ without saving non-finite weights, and warns (`DepthCollapseWarning`) when most 
 sit at `depth_min` or `depth_max`.
 
 The pieces: `models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint
-files that open without running code, `CheckpointStore`), `models.run_log` (CSV logs) and
+files that open without running code, `CheckpointStore`), `models.training_state` (what a
+checkpoint holds, exact resume), `models.run_folder` (one run per folder), `models.interruption`
+(SIGINT and SIGTERM), `models.sample_checks`, `models.run_log` (CSV logs) and
 `models.plotting` (figures); `Trainer` runs the loop. Checkpoints hold only tensors and plain
 data and are read with `torch.load(..., weights_only=True)`: a file holding anything else is
 refused with `CheckpointError` (see `docs/security.md`).
@@ -42,15 +44,10 @@ refused with `CheckpointError` (see `docs/security.md`).
 
 from __future__ import annotations
 
-import contextlib
 import logging
-import math
-import os
-import signal
-import threading
 import time
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -62,18 +59,19 @@ from torch.utils.data import default_collate
 from optics import CameraSettings, parse_aperture
 
 from .checkpoints import (
-    CHECKPOINT_FORMAT,
     CheckpointError,
     CheckpointStore,
     load_checkpoint,
-    save_checkpoint,
     to_plain,
 )
+from .interruption import InterruptibleMixin, TrainingInterrupted
 from .losses import DefocusLoss, supervised_depth_loss
 from .metrics import METRIC_NAMES, depth_metrics
 from .networks import build_network
 from .plotting import plot_prediction
+from .run_folder import RunFolderMixin, run_files  # noqa: F401  (public here too)
 from .run_log import RunLog
+from .sample_checks import SampleChecksMixin
 from .sampling import StepSampler, random_flip
 from .train_config import (  # noqa: F401  (public here too: models.training.TrainConfig, ...)
     RESUME_MODES,
@@ -83,6 +81,16 @@ from .train_config import (  # noqa: F401  (public here too: models.training.Tra
     check_device,
     select_device,
 )
+from .training_state import (  # noqa: F401  (public here too: models.training.load_model, ...)
+    CheckpointingMixin,
+    build_scheduler,
+    config_from_state,
+    load_model,
+    process_rank,
+    rng_state,
+    set_rng_state,
+    to_device,
+)
 
 _log = logging.getLogger(__name__)
 #: a prediction within this share of (depth_max - depth_min) of a limit counts as at the limit
@@ -91,109 +99,12 @@ LIMIT_TOLERANCE = 1e-3
 COLLAPSE_FRACTION = 0.9
 
 
-def _distributed() -> tuple[int, int]:
-    """(rank, world size), initialising the process group under `torchrun`."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world > 1 and not dist.is_initialized():
-        backend = "nccl" if torch.cuda.is_available() else "gloo"
-        dist.init_process_group(backend)
-    if dist.is_initialized():
-        return dist.get_rank(), dist.get_world_size()
-    return 0, 1
-
-
-def _build_scheduler(optimizer: torch.optim.Optimizer,
-                     cfg: TrainConfig) -> torch.optim.lr_scheduler.LRScheduler:
-    """Cosine decay to 0 over `cfg.steps`, or a constant learning rate."""
-    if cfg.lr_schedule == "cosine":
-        return torch.optim.lr_scheduler.LambdaLR(
-            optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps) / cfg.steps)))
-    return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: 1.0)
-
-
-def rng_state() -> dict[str, Any]:
-    """The global torch random states (CPU and CUDA) as `uint8` tensors (checkpoint data)."""
-    state: dict[str, Any] = {"torch": torch.get_rng_state()}
-    if torch.cuda.is_available() and torch.cuda.is_initialized():
-        state["cuda"] = torch.cuda.get_rng_state_all()
-    return state
-
-
-def set_rng_state(state: Mapping[str, Any]) -> None:
-    """Restore states saved by `rng_state` (tensors may have been loaded onto a GPU)."""
-    if "torch" in state:
-        torch.set_rng_state(state["torch"].cpu())
-    if "cuda" in state and torch.cuda.is_available():
-        states = [s.cpu() for s in state["cuda"]]
-        if len(states) == torch.cuda.device_count():
-            torch.cuda.set_rng_state_all(states)
-
-
-def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None) -> Any:
-    """Move every tensor of a (nested) batch to `device` (floating tensors to `dtype`)."""
-    if isinstance(batch, Tensor):
-        if dtype is not None and batch.is_floating_point():
-            return batch.to(device=device, dtype=dtype)
-        return batch.to(device)
-    if isinstance(batch, Mapping):
-        return {k: to_device(v, device, dtype) for k, v in batch.items()}
-    if isinstance(batch, list | tuple):
-        return type(batch)(to_device(v, device, dtype) for v in batch)
-    if isinstance(batch, CameraSettings):
-        return batch.to(device=device, dtype=dtype) if dtype is not None else batch.to(device)
-    return batch
-
-
-class TrainingInterrupted(KeyboardInterrupt):
-    """Training stopped on SIGINT or SIGTERM, after the step under way and a checkpoint.
-
-    Attributes:
-        signal: the signal number.
-        step: the last completed step (saved in `checkpoint`).
-        checkpoint: the path of `last.pt`, or `None` where nothing could be saved.
-    """
-
-    def __init__(self, signum: int, step: int, checkpoint: Path | None):
-        self.signal, self.step, self.checkpoint = signum, step, checkpoint
-        saved = f"saved {checkpoint}" if checkpoint else "no checkpoint saved"
-        super().__init__(f"stopped by {signal.Signals(signum).name} after step {step} ({saved}); "
-                         "continue with the same config (resume='auto') or `defocus train "
-                         "--resume`")
-
-
 class DepthCollapseWarning(UserWarning):
     """Most predicted pixels sit at `depth_min` or `depth_max`: the network collapsed to its
     depth limits (often a too large learning rate) and its metrics mean little."""
 
 
-#: the files of a run in `out_dir` besides `checkpoints/*.pt` and `figures/step_*.png`
-RUN_FILES = ("config.yaml", "train_log.csv", "val_log.csv", "warnings.log")
-
-
-def run_files(out_dir: str | Path) -> list[Path]:
-    """The files of a training run in `out_dir`: config, logs, checkpoints (and stray
-    temporaries) and figures; other files in the folder are not the run's."""
-    out_dir = Path(out_dir)
-    files = [out_dir / name for name in RUN_FILES if (out_dir / name).is_file()]
-    for folder, patterns in (("checkpoints", ("*.pt", ".*.tmp")), ("figures", ("step_*.png",))):
-        if (out_dir / folder).is_dir():
-            for pattern in patterns:
-                files += sorted((out_dir / folder).glob(pattern))
-    return files
-
-
-def _config_diff(old: TrainConfig, new: TrainConfig) -> dict[str, tuple[Any, Any]]:
-    """`{key: (old value, new value)}` for the keys (not in `RUN_CONTROL_KEYS`) that differ."""
-    a, b = to_plain(old.to_dict(), "config"), to_plain(new.to_dict(), "config")
-    return {key: (a[key], b[key]) for key in a
-            if key not in RUN_CONTROL_KEYS and a[key] != b[key]}
-
-
-def _describe(diff: Mapping[str, tuple[Any, Any]]) -> str:
-    return ", ".join(f"{key} (there {old!r}, here {new!r})" for key, (old, new) in diff.items())
-
-
-class Trainer:
+class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, CheckpointingMixin):
     """Trains a depth network on samples in the sample format.
 
     The loop lives here; the batches of each step come from `models.sampling.StepSampler`,
@@ -244,7 +155,7 @@ class Trainer:
         to_plain(cfg.to_dict(), "config")  # a config that a checkpoint cannot hold fails now
         self.train_set, self.val_set = train_set, val_set
         self.step_callback = step_callback
-        self.rank, self.world_size = _distributed()
+        self.rank, self.world_size = process_rank()
         self.is_main = self.rank == 0
         self.device = select_device(cfg.device)
         torch.manual_seed(cfg.seed)
@@ -256,7 +167,7 @@ class Trainer:
             self.ddp_model = nn.parallel.DistributedDataParallel(self.model, device_ids=ids)
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr,
                                            weight_decay=cfg.weight_decay)
-        self.scheduler = _build_scheduler(self.optimizer, cfg)
+        self.scheduler = build_scheduler(self.optimizer, cfg)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
                                    cfg.ssim_window, parse_aperture(cfg.aperture),
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size)
@@ -289,135 +200,6 @@ class Trainer:
     def _indices(self, step: int) -> list[int]:
         """Dataset indices of this process's part of the batch of `step` (0-based)."""
         return self.sampler.indices(step)
-
-    # -- the run folder and the data -----------------------------------------------------------
-    def _open_run(self) -> None:
-        """Apply `config.resume` to what `out_dir` holds: continue, refuse, or plan to delete."""
-        cfg = self.config
-        files = run_files(cfg.out_dir)
-        if cfg.resume == "overwrite":
-            self._removals = files
-            return
-        if not files:
-            if cfg.resume == "resume":
-                raise ValueError(f"resume='resume' (--resume) but out_dir {cfg.out_dir} holds no "
-                                 "run to continue; check the folder, or start a new run without "
-                                 "--resume")
-            return
-        state = None
-        if self.checkpoints.exists():
-            source: Path = self.checkpoints.last
-            state = load_checkpoint(source, map_location=self.device)
-            saved = _config_from(state, source, device="auto", resume="auto")
-        elif (cfg.out_dir / "config.yaml").is_file():
-            source = cfg.out_dir / "config.yaml"
-            try:
-                saved = TrainConfig.from_yaml(source)
-            except (TypeError, ValueError) as error:
-                raise ValueError(f"{source} of the run in out_dir holds an invalid config "
-                                 f"({error}); start over with --overwrite (resume='overwrite') "
-                                 "or choose another out_dir") from None
-        else:
-            names = ", ".join(str(p.relative_to(cfg.out_dir)) for p in files[:3])
-            raise ValueError(f"out_dir {cfg.out_dir} holds files of a training run ({names}) "
-                             "without its config.yaml or checkpoints/last.pt; start over with "
-                             "--overwrite (resume='overwrite') or choose another out_dir")
-        step = int(state["step"]) if state is not None else 0
-        diff = _config_diff(saved, cfg)
-        if cfg.resume == "resume":
-            if "steps" in diff and cfg.steps >= saved.steps:
-                del diff["steps"]
-            if diff:
-                raise ValueError(
-                    f"cannot resume the run in {cfg.out_dir} (step {step}): its config differs "
-                    f"in {_describe(diff)}; only a larger steps may differ when resuming "
-                    "(besides device, progress and the checkpoint settings); start over with "
-                    "--overwrite (resume='overwrite') or choose another out_dir")
-        elif diff:
-            raise ValueError(
-                f"out_dir {cfg.out_dir} holds another run (step {step}) whose config differs in "
-                f"{_describe(diff)}; continue it with --resume (resume='resume'; only a larger "
-                "steps may differ), start over with --overwrite (resume='overwrite'), or choose "
-                "another out_dir")
-        if state is not None:
-            self.load_state_dict(state)
-            self._saved_step = self.step
-        self.resumed_from = source
-        self._truncate_logs = self.step
-        _log.info("continuing the run in %s from step %d", cfg.out_dir, self.step)
-
-    def _prepare_out_dir(self) -> None:
-        """At the start of `fit` (rank 0): delete an overwritten run's files or cut a resumed
-        run's logs, checkpoints and figures back to its step; write `config.yaml`."""
-        cfg = self.config
-        if self._removals:
-            for path in self._removals:
-                path.unlink(missing_ok=True)
-            _log.warning("deleted the previous run's %d files in %s (resume='overwrite')",
-                         len(self._removals), cfg.out_dir)
-            self._removals = []
-        self.checkpoints.remove_temporaries()
-        if self._truncate_logs is not None:
-            step = self._truncate_logs
-            self.log.truncate(step)
-            for path in self.checkpoints.list():
-                if int(path.stem.split("_")[1]) > step:
-                    path.unlink(missing_ok=True)
-            for path in (cfg.out_dir / "figures").glob("step_[0-9]*.png"):
-                if path.stem.split("_")[1].isdigit() and int(path.stem.split("_")[1]) > step:
-                    path.unlink(missing_ok=True)
-            self._truncate_logs = None
-        cfg.out_dir.mkdir(parents=True, exist_ok=True)
-        cfg.to_yaml(cfg.out_dir / "config.yaml")
-
-    def _needs(self) -> list[str]:
-        """The sample keys that training with this config reads."""
-        cfg = self.config
-        keys = ["image"]
-        if cfg.input_mode == "aif+focused" or cfg.supervision == "self":
-            keys += ["focused", "camera"]
-        if cfg.supervision == "depth":
-            keys.append("depth")
-        return keys
-
-    def _check_first_sample(self) -> None:
-        """Refuse a map-style train_set whose first sample does not fit the config."""
-        if not self.sampler.is_map_style() or len(self.train_set) == 0:
-            return
-        sample = self.train_set[0]
-        name = repr(sample.get("id", "#0")) if isinstance(sample, Mapping) else "#0"
-        if not isinstance(sample, Mapping):
-            raise TypeError(f"train_set[0] must be a sample mapping (image, focused, camera, "
-                            f"depth, mask), got a {type(sample).__name__}")
-        missing = [key for key in self._needs() if key not in sample]
-        if missing:
-            raise ValueError(f"sample {name} has no {missing}, which input_mode="
-                             f"{self.config.input_mode!r} with supervision="
-                             f"{self.config.supervision!r} needs; it has {sorted(sample)}")
-        focused = sample.get("focused")
-        if "focused" in self._needs() and isinstance(focused, Tensor):
-            n = focused.shape[0] if focused.ndim == 4 else -1
-            if n != self.config.n_focus:
-                raise ValueError(f"n_focus is {self.config.n_focus} but sample {name} holds "
-                                 f"focused images of shape {tuple(focused.shape)} (F, 3, H, W); "
-                                 f"set n_focus to its number of focused images")
-
-    def _check_depth(self, samples: Sequence[Mapping[str, Any]], step: int) -> None:
-        """Refuse ground-truth depth that is not finite and > 0 where the mask says valid."""
-        indices = self.sampler.indices(step) if self.sampler.is_map_style() else None
-        for i, sample in enumerate(samples):
-            depth = sample["depth"]
-            mask = sample.get("mask")
-            valid = torch.ones_like(depth, dtype=torch.bool) if mask is None else mask.bool()
-            bad = valid & ~(torch.isfinite(depth) & (depth > 0))
-            if bool(bad.any()):
-                where = f"train_set[{indices[i]}]" if indices is not None else "a train_set sample"
-                name = sample.get("id", where)
-                raise ValueError(
-                    f"sample {name!r} ({where}) has ground-truth depth that is not finite and > 0 "
-                    f"at {int(bad.sum())} of its valid pixels (e.g. {float(depth[bad][0])!r}); "
-                    "depth must be positive metres wherever its mask is valid: fix the data or "
-                    "mark those pixels invalid in its mask")
 
     # -- model -----------------------------------------------------------------------------
     def predict(self, image: Tensor, focused: Tensor | None = None,
@@ -579,65 +361,6 @@ class Trainer:
         if due or late:
             self._save_once()
 
-    @contextlib.contextmanager
-    def _signals_caught(self) -> Iterator[None]:
-        """While training: SIGINT and SIGTERM ask the loop to save and stop after the step under
-        way (a second SIGINT stops at once). Only in the main thread; an ignored signal stays
-        ignored."""
-        self._stop_signal = None
-        if threading.current_thread() is not threading.main_thread():
-            yield
-            return
-
-        def handler(signum: int, frame: Any) -> None:
-            if self._stop_signal is not None and signum == signal.SIGINT:
-                raise KeyboardInterrupt
-            self._stop_signal = signum
-
-        previous = {}
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            if signal.getsignal(sig) is not signal.SIG_IGN:
-                previous[sig] = signal.signal(sig, handler)
-        try:
-            yield
-        finally:
-            for sig, old in previous.items():
-                signal.signal(sig, old)
-
-    def _stop_if_asked(self) -> None:
-        """Save and raise `TrainingInterrupted` when a signal asked the run to stop."""
-        signum = self._stop_requested()
-        if signum:
-            raise TrainingInterrupted(signum, self.step, self._save_once())
-
-    def _stop_requested(self) -> int:
-        """The signal that asks to stop (0: none), agreed by all processes."""
-        signum = self._stop_signal or 0
-        if self.world_size > 1:
-            flag = torch.tensor([signum], device=self.device)
-            dist.all_reduce(flag, op=dist.ReduceOp.MAX)
-            signum = int(flag.item())
-        return signum
-
-    def _save_once(self) -> Path | None:
-        """`save_checkpoint()` unless this step is saved already; returns `last.pt`."""
-        if self._saved_step == self.step and self.checkpoints.exists():
-            return self.checkpoints.last
-        return self.save_checkpoint()
-
-    def _save_after_failure(self) -> None:
-        """After an exception: save the last completed step (with the random state it started
-        the failed step with), unless it is saved, half-done or not finite."""
-        if not self.is_main or self._in_update or self.step == 0 or self._saved_step == self.step:
-            return
-        try:
-            state = self.state_dict()
-            if self._rng_at_step is not None:
-                state["rng"] = self._rng_at_step
-            self._write_checkpoint(state)
-        except Exception as error:  # never hide the original error
-            _log.warning("could not save a checkpoint after the failure: %s", error)
-
     def _check_collapse(self) -> None:
         """Warn when most predicted pixels sit at a depth limit (validation, else the last
         training batch)."""
@@ -721,49 +444,6 @@ class Trainer:
                                title=f"{sample.get('id', '')} step {self.step}",
                                depth_range=(self.config.depth_min, self.config.depth_max))
 
-    # -- checkpoints -------------------------------------------------------------------------
-    def state_dict(self) -> dict[str, Any]:
-        """Everything exact resume needs, as tensors and plain data only (see
-        `models.checkpoints`)."""
-        return {"format": CHECKPOINT_FORMAT, "model": self.model.state_dict(),
-                "optimizer": self.optimizer.state_dict(),
-                "scheduler": self.scheduler.state_dict(), "step": self.step,
-                "config": to_plain(self.config.to_dict(), "config"),
-                "history": [dict(row) for row in self.history], "rng": rng_state()}
-
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore what `state_dict` returned (also older checkpoints without `rng`)."""
-        self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.scheduler.load_state_dict(state["scheduler"])
-        self.step = int(state["step"])
-        self.history = [dict(row) for row in state.get("history", [])]
-        set_rng_state(state.get("rng", {}))
-
-    def save_checkpoint(self, path: str | Path | None = None) -> Path | None:
-        """Save model, optimiser, scheduler, step, config, history and random states (rank 0
-        only; atomic). Without `path`: `step_XXXXXX.pt` and `last.pt` in
-        `checkpoint_dir`, pruned to `config.keep_checkpoints`. Returns the path written."""
-        if not self.is_main:
-            return None
-        if path is not None:
-            return save_checkpoint(self._finite(self.state_dict()), path)
-        return self._write_checkpoint(self.state_dict())
-
-    def _write_checkpoint(self, state: dict[str, Any]) -> Path:
-        """Write `state` as this step's checkpoint and `last.pt` (finite weights only)."""
-        path = self.checkpoints.save(self._finite(state), self.step)
-        self._saved_step, self._last_save = self.step, time.monotonic()
-        return path
-
-    def _finite(self, state: dict[str, Any]) -> dict[str, Any]:
-        """`state`, after checking that the model's weights are finite."""
-        tensors = [t for t in state["model"].values() if t.is_floating_point()]
-        if tensors and not bool(torch.stack([torch.isfinite(t).all() for t in tensors]).all()):
-            raise FloatingPointError(f"not saving a checkpoint of step {self.step}: the weights "
-                                     "are not finite")
-        return state
-
     @classmethod
     def from_checkpoint(cls, path: str | Path, train_set: Iterable[Mapping[str, Any]] = (),
                         device: str = "auto") -> Trainer:
@@ -774,7 +454,7 @@ class Trainer:
                 data (refused without running anything).
         """
         state = load_checkpoint(path)
-        cfg = _config_from(state, path, resume="overwrite", progress=False, device=device)
+        cfg = config_from_state(state, path, resume="overwrite", progress=False, device=device)
         trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
         trainer.load_state_dict(state)
         trainer._removals, trainer._truncate_logs = [], trainer.step  # fit() would continue it
@@ -791,31 +471,6 @@ class Trainer:
         self.load_state_dict(load_checkpoint(path, map_location=self.device))
         if self.is_main and restore_logs:
             self.log.truncate(self.step)
-
-
-def _config_from(state: Mapping[str, Any], path: str | Path, **changes: Any) -> TrainConfig:
-    """The `TrainConfig` of a loaded checkpoint, with `changes`; a bad one is a
-    `CheckpointError` naming the file."""
-    try:
-        return TrainConfig.from_dict({**state["config"], **changes})
-    except (TypeError, ValueError) as error:
-        raise CheckpointError(f"checkpoint {path} holds an invalid config: {error}") from None
-
-
-def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module,
-                                                                                     TrainConfig]:
-    """The trained network (in eval mode) and its config from a checkpoint file.
-
-    Raises:
-        CheckpointError: the file is not a checkpoint or holds more than tensors and plain data
-            (refused without running anything).
-    """
-    state = load_checkpoint(checkpoint, map_location=device)
-    cfg = _config_from(state, checkpoint, device="auto")
-    model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
-                          cfg.width)
-    model.load_state_dict(state["model"])
-    return model.to(device).eval(), cfg
 
 
 __all__ = ["COLLAPSE_FRACTION", "METRIC_NAMES", "RESUME_MODES", "CheckpointError",

@@ -1,4 +1,5 @@
 import dataclasses
+import re
 
 import pytest
 
@@ -21,3 +22,24 @@ def test_every_option_has_help(command):
     for action in sub._actions:
         if action.dest != "help":
             assert action.help and len(action.help) > 5, (command, action.dest)
+
+
+@pytest.mark.parametrize("command", list(COMMANDS))
+def test_help_states_each_default_once_and_no_dates(command, capsys):
+    """Every option's default appears at most once, never as a meaningless "(default: None)",
+    and the help holds no year (dated text goes stale: it belongs in the CHANGELOG)."""
+    with pytest.raises(SystemExit):
+        build_parser().parse_args([command, "--help"])
+    text = " ".join(capsys.readouterr().out.split())  # argparse wraps lines anywhere
+    options = re.split(r"\s(?=-{1,2}[a-z])", text)
+    doubled = [o for o in options if o.count("(default") > 1]
+    assert not doubled, doubled
+    assert "(default: None)" not in text and "(default: [])" not in text
+    assert "(default: False)" not in text
+    assert not re.search(r"\b(19[5-9]\d|20[0-4]\d)\b", text), re.findall(r".{30}\b20\d\d\b.{10}",
+                                                                         text)
+
+
+def test_the_help_checker_sees_a_doubled_default():
+    options = re.split(r"\s(?=-{1,2}[a-z])", "--a X x (default: 1) (default: 1) --b Y y")
+    assert [o for o in options if o.count("(default") > 1] == ["--a X x (default: 1) (default: 1)"]

@@ -7,6 +7,7 @@ import warnings
 from pathlib import Path
 
 from datasets.registry import DATASET_NAMES
+from defocus.cli import DefaultsOnceFormatter
 
 
 def config_fields_help() -> str:
@@ -38,8 +39,8 @@ def config_fields_help() -> str:
     return "\n".join(lines)
 
 
-class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter, argparse.RawDescriptionHelpFormatter):
-    """Defaults after each option; the epilog (the config fields) kept line by line."""
+class _HelpFormatter(DefaultsOnceFormatter, argparse.RawDescriptionHelpFormatter):
+    """Defaults after each option (once); the epilog (the config fields) kept line by line."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

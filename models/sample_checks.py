@@ -1,0 +1,63 @@
+"""Checks of training samples against the run's config, before any step is taken."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import torch
+from torch import Tensor
+
+
+class SampleChecksMixin:
+    """The sample checks of `models.training.Trainer` (which holds `config`, `sampler` and
+    `train_set`)."""
+
+    def _needs(self) -> list[str]:
+        """The sample keys that training with this config reads."""
+        cfg = self.config
+        keys = ["image"]
+        if cfg.input_mode == "aif+focused" or cfg.supervision == "self":
+            keys += ["focused", "camera"]
+        if cfg.supervision == "depth":
+            keys.append("depth")
+        return keys
+
+    def _check_first_sample(self) -> None:
+        """Refuse a map-style train_set whose first sample does not fit the config."""
+        if not self.sampler.is_map_style() or len(self.train_set) == 0:
+            return
+        sample = self.train_set[0]
+        name = repr(sample.get("id", "#0")) if isinstance(sample, Mapping) else "#0"
+        if not isinstance(sample, Mapping):
+            raise TypeError(f"train_set[0] must be a sample mapping (image, focused, camera, "
+                            f"depth, mask), got a {type(sample).__name__}")
+        missing = [key for key in self._needs() if key not in sample]
+        if missing:
+            raise ValueError(f"sample {name} has no {missing}, which input_mode="
+                             f"{self.config.input_mode!r} with supervision="
+                             f"{self.config.supervision!r} needs; it has {sorted(sample)}")
+        focused = sample.get("focused")
+        if "focused" in self._needs() and isinstance(focused, Tensor):
+            n = focused.shape[0] if focused.ndim == 4 else -1
+            if n != self.config.n_focus:
+                raise ValueError(f"n_focus is {self.config.n_focus} but sample {name} holds "
+                                 f"focused images of shape {tuple(focused.shape)} (F, 3, H, W); "
+                                 f"set n_focus to its number of focused images")
+
+    def _check_depth(self, samples: Sequence[Mapping[str, Any]], step: int) -> None:
+        """Refuse ground-truth depth that is not finite and > 0 where the mask says valid."""
+        indices = self.sampler.indices(step) if self.sampler.is_map_style() else None
+        for i, sample in enumerate(samples):
+            depth = sample["depth"]
+            mask = sample.get("mask")
+            valid = torch.ones_like(depth, dtype=torch.bool) if mask is None else mask.bool()
+            bad = valid & ~(torch.isfinite(depth) & (depth > 0))
+            if bool(bad.any()):
+                where = f"train_set[{indices[i]}]" if indices is not None else "a train_set sample"
+                name = sample.get("id", where)
+                raise ValueError(
+                    f"sample {name!r} ({where}) has ground-truth depth that is not finite and > 0 "
+                    f"at {int(bad.sum())} of its valid pixels (e.g. {float(depth[bad][0])!r}); "
+                    "depth must be positive metres wherever its mask is valid: fix the data or "
+                    "mark those pixels invalid in its mask")
