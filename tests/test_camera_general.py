@@ -459,11 +459,21 @@ def test_predict_says_which_camera_value_is_missing(photos, tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model", ["network", "sweep"])
+@pytest.mark.parametrize("model", ["network", "checkpoint", "sweep"])
 def test_predict_12_megapixels_within_3_gb(tmp_path, model):
-    """A 3000x4000 photo set runs within 3 GB resident memory (working resolution and tiles); for
-    the sweep, a camera whose small blur leaves 1.5 megapixels to sweep."""
-    weights = [f"{tmp_path}/w.pt"] if model == "network" else []
+    """A 3000x4000 photo set runs within 3 GB resident memory on every path of `defocus
+    predict`: the camera-general network and the sweep at a working resolution (for the sweep, a
+    camera whose small blur leaves 1.5 megapixels to sweep), a `defocus train` network for one
+    camera at full resolution in tiles."""
+    weights = {"network": [f"{tmp_path}/w.pt"], "sweep": []}.get(model)
+    if model == "checkpoint":  # a tiny one-camera network (trained in its own process)
+        command = ["train", "--set", "steps=2", "batch_size=2", "width=8", "progress=false",
+                   "--size", "24", "24", "--scenes", "4", "--out", str(tmp_path / "run")]
+        train = subprocess.run([sys.executable, "-c", "import sys; from defocus.cli import main; "
+                                "sys.exit(main(sys.argv[1:]))", *command],
+                               capture_output=True, text=True, timeout=600)
+        assert train.returncode == 0, train.stderr[-2000:]
+        weights = [str(tmp_path / "run" / "checkpoints" / "last.pt")]
     lens = ["--f-number", "1.8", "--focal-length", "0.035"] if model == "network" \
         else ["--f-number", "8", "--focal-length", "0.018"]
     script = f"""
