@@ -303,7 +303,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
             with self._signals_caught():
                 while self.step < until:
                     losses = self._advance(until, started)
-                    bar.set_postfix(loss=f"{losses['loss']:.4f}")
+                    bar.set_postfix(loss=f"{losses['loss']:.4f}", refresh=False)
                     bar.update(1)
                     if self.step_callback is not None:
                         self.step_callback(self, self.step, losses)

@@ -232,11 +232,11 @@ def test_semi_global_tiles_share_the_whole_photos_cost_scale(monkeypatch):
         volumes.append(cost)
         return semi_global_cost(cost, image, scale=scale)
 
-    monkeypatch.setattr(sweep, "semi_global_cost", recording)
+    monkeypatch.setattr(cost_volume, "semi_global_cost", recording)
     SweepDepth()(aif, focused, settings, 1.0, 10.0)
     assert received == [None]  # one tile: its own volume is the photo's
     whole = cost_scale(volumes[0])
-    monkeypatch.setattr(sweep, "SEMI_GLOBAL_CONTEXT_PX", 0)  # small enough to tile 96x128
+    monkeypatch.setattr(cost_volume, "SEMI_GLOBAL_CONTEXT_PX", 0)  # small enough to tile 96x128
     received.clear()
     SweepDepth(tile=24)(aif, focused, settings, 1.0, 10.0)
     assert len(received) == 4 * 6

@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     from datasets.photos import describe_settings, photo_settings, read_photo
     from defocus.cli import CommandError
     from models.depth_from_photos import TrainedNetwork, estimate_depth
-    from models.depth_from_photos.sweep import AGGREGATIONS
+    from models.depth_from_photos.cost_volume import AGGREGATIONS
     from models.plotting import plot_prediction
     from models.pretrained import is_weights_file, load_weights
     from models.training import check_device, load_model, select_device

@@ -309,7 +309,7 @@ def train_blur_net(
         if log is not None:
             log.append({"step": step + 1, "loss": float(loss.detach()),
                         "lr": schedule.get_last_lr()[0]})
-        bar.set_postfix(loss=f"{float(loss.detach()):.4f}")
+        bar.set_postfix(loss=f"{float(loss.detach()):.4f}", refresh=False)
     net.eval()
     return net
 

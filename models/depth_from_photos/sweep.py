@@ -28,43 +28,17 @@ from __future__ import annotations
 
 import math
 
-import kornia
 import torch
-from torch import Tensor, nn
+from torch import Tensor
 
 from optics import Aperture, CameraSettings
 from optics.checks import check_finite, check_shape
-from optics.progress import progress_bar
 
 from .confidence import depth_edge_confidence, texture_confidence
+from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model
-from .semi_global import SCALE_STRIDE, cost_scale, semi_global_cost
-from .smoothing import edge_aware_smooth
-from .thin_lens import (
-    ERROR_WINDOW_PX,
-    WINDOWS,
-    aggregate_cost,
-    box_filter,
-    candidate_inverse_depths,
-    select_depth,
-    thin_lens_blur,
-)
-from .tiling import apply_in_tiles, check_tiling
-
-#: Side (pixels) of the median filter the depth map goes through: it removes isolated wrong
-#: picks (dark or textureless pixels whose costs are nearly flat) and keeps depth edges.
-MEDIAN_PX = 9
-#: `edge_aware_smooth` of the inverse depth afterwards: its strength, guide sigma, and the
-#: confidence every pixel keeps (where the photo has no texture at all).
-SMOOTHING_STRENGTH = 10.0
-SMOOTHING_SIGMA = 0.1
-CONFIDENCE_FLOOR = 0.01
-#: Context (pixels) a tile sees beyond its centre under semi-global aggregation, whose scan lines
-#: cross the whole tile: past this distance a pixel's costs rarely change another's pick.
-SEMI_GLOBAL_CONTEXT_PX = 128
-#: How `SweepDepth` aggregates the costs of neighbouring pixels.
-AGGREGATIONS = ("semi-global", "windows")
+from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_inverse_depths, thin_lens_blur
 
 
 def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
@@ -150,9 +124,9 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
     return cost
 
 
-class SweepDepth(nn.Module):
-    """Metric depth from an all-in-focus photo and `F >= 2` focused photos of any camera, by a
-    sweep over depth (`sweep_cost`, then `select_depth`). No weights: it is what
+class SweepDepth(CostVolumeDepth):
+    """Metric depth from an all-in-focus photo and `F >= 1` focused photos of any camera, by a
+    sweep over depth (`sweep_cost`, then `CostVolumeDepth.depth_map`). No weights: it is what
     `estimate_depth` runs when an all-in-focus photo is given (`method="sweep"`). Called like
     every method of `estimate_depth`: `(image, focused, settings, near, far)`.
 
@@ -162,20 +136,7 @@ class SweepDepth(nn.Module):
     uses the whole photo's cost scale and at 741x500 (tile 200) 0.5 % of the pixels differ
     from the untiled depth by more than 1 % (at most 2.2 %).
 
-    Args:
-        n_candidates: candidate depths, evenly spaced in inverse depth.
-        tile: largest tile side in pixels.
-        progress: show a progress bar over the tiles of a large photo.
-        aggregation: how the costs of neighbouring pixels are combined before each pixel picks
-            its depth: `"semi-global"` (`semi_global_cost`: along scan
-            lines, depth edges kept where the photo has edges) or `"windows"` (sums over
-            square windows, `aggregate_cost`; tiles then give exactly the untiled
-            result, while semi-global tiles see `SEMI_GLOBAL_CONTEXT_PX` of context and agree
-            with the untiled result at nearly every pixel).
-        smoothing: strength of the edge-aware smoothing of the inverse depth by the texture
-            confidence (`edge_aware_smooth`, whole image, after the tiles):
-            depth read on textured pixels spreads to their untextured neighbours of similar
-            colour. Zero turns it off.
+    Args: see `CostVolumeDepth`.
 
     Example:
         >>> from optics import CameraSettings
@@ -185,24 +146,6 @@ class SweepDepth(nn.Module):
         >>> out["depth"].shape, out["confidence"].shape, out["blur"].shape
         (torch.Size([1, 1, 24, 24]), torch.Size([1, 1, 24, 24]), torch.Size([1, 2, 24, 24]))
     """
-
-    #: Largest blur (pixels) at the working resolution that `estimate_depth` lets it read: the
-    #: upper end the thin-lens design covers (larger blurs cost time and gain little).
-    max_coc_px = 20.0
-
-    def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False,
-                 smoothing: float = SMOOTHING_STRENGTH, aggregation: str = "semi-global"):
-        super().__init__()
-        if n_candidates < 3:
-            raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
-        if aggregation not in AGGREGATIONS:
-            raise ValueError(f"aggregation must be one of {AGGREGATIONS}, got {aggregation!r}")
-        self.aggregation = aggregation
-        if not smoothing >= 0:
-            raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
-        check_tiling(tile, 0)
-        self.n_candidates, self.tile, self.progress = int(n_candidates), int(tile), progress
-        self.smoothing = float(smoothing)
 
     #: It needs an all-in-focus photo.
     needs_image = True
@@ -226,44 +169,13 @@ class SweepDepth(nn.Module):
                                for i in range(focused.shape[1])], 1)
         noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
 
-        def depth_of(image: Tensor, focused: Tensor, scale: Tensor | None = None) -> Tensor:
-            cost = sweep_cost(image, focused, settings, near, far, self.n_candidates, noise)
-            if self.aggregation == "semi-global":
-                cost = semi_global_cost(cost, image, scale=scale)
-            else:
-                cost = aggregate_cost(cost)
-            return kornia.filters.median_blur(select_depth(cost, near, far), MEDIAN_PX)
+        def cost(image: Tensor, focused: Tensor, every: int = 1) -> Tensor:
+            return sweep_cost(image, focused, settings, near, far, self.n_candidates, noise,
+                              every=every)
 
-        # context around a tile: the largest PSF, the error window, the aggregation (exact for
-        # windows) and the median filter
         largest = settings.largest_coc_px(near, far)
-        spread = (SEMI_GLOBAL_CONTEXT_PX if self.aggregation == "semi-global"
-                  else max(WINDOWS) // 2)
-        reach = settings.aperture_module().kernel_size(largest) // 2 + math.ceil(
-            4 * FLOOR_SIGMA_PX) + ERROR_WINDOW_PX // 2 + spread + MEDIAN_PX // 2 + 2
-        # a photo no larger than one tile with its context is swept whole
-        if image.shape[-2] * image.shape[-1] <= (self.tile + 2 * reach) ** 2:
-            depth = depth_of(image, focused)
-        else:
-            h, w = image.shape[-2:]
-            scale = None
-            if self.aggregation == "semi-global":  # the whole photo's, from a few candidates
-                scale = cost_scale(sweep_cost(image, focused, settings, near, far,
-                                              self.n_candidates, noise, every=SCALE_STRIDE),
-                                   stride=1)
-            tiles = math.ceil(h / self.tile) * math.ceil(w / self.tile)
-            with progress_bar(total=tiles, desc="depth sweep (tiles)", disable=not self.progress) as bar:
-                def tile_depth(image: Tensor, focused: Tensor) -> Tensor:
-                    out = depth_of(image, focused, scale)
-                    bar.update()
-                    return out
-
-                depth = apply_in_tiles(tile_depth, [image, focused], self.tile, reach)
-        texture = texture_confidence(image)
-        if self.smoothing > 0:
-            weight = kornia.filters.median_blur(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
-            inverse = edge_aware_smooth(1 / depth, weight, image, self.smoothing, SMOOTHING_SIGMA)
-            depth = 1 / inverse.clamp(1 / far, 1 / near)
+        reach = self.context_px(settings.aperture_module().kernel_size(largest) // 2)
+        depth = self.depth_map(cost, image, [focused], near, far, reach)
         blur = thin_lens_blur(settings, 1 / depth)
-        return {"depth": depth, "confidence": texture * depth_edge_confidence(blur),
-                "blur": blur}
+        return {"depth": depth, "confidence": texture_confidence(image)
+                * depth_edge_confidence(blur), "blur": blur}

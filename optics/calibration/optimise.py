@@ -45,7 +45,7 @@ def optimise(loss: Callable[[Tensor], Tensor], theta0: Tensor, adam_steps: int,
         value.backward()
         adam.step()
         bar.update(1)
-        bar.set_postfix(loss=f"{value.item():.3g}")
+        bar.set_postfix(loss=f"{value.item():.3g}", refresh=False)
     if lbfgs_steps > 0:
         lbfgs = torch.optim.LBFGS(
             [theta], lr=1, max_iter=lbfgs_steps, line_search_fn="strong_wolfe",

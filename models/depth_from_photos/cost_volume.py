@@ -1,0 +1,139 @@
+"""From a cost volume to a depth map: what every sweep over candidate depths shares.
+
+A method that scores `K` candidate depths per pixel (the sweep with an all-in-focus photo, the
+relative blur between shots) hands `CostVolumeDepth.depth_map` a function that computes the cost
+volume `(B,K,H,W)` of a crop of its photos. `depth_map` then combines the costs of neighbouring
+pixels (semi-globally along scan lines, or over square windows), picks the cheapest candidate
+(`select_depth`), removes isolated wrong picks with a median filter and smooths the inverse depth
+edge-aware where there is little texture. Photos larger than a tile with its context are done in
+tiles, each with that context, so the cost volume's memory stays bounded.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+
+import kornia
+from torch import Tensor, nn
+
+from optics.progress import progress_bar
+
+from .confidence import texture_confidence
+from .fourier_blur import FLOOR_SIGMA_PX
+from .semi_global import SCALE_STRIDE, cost_scale, semi_global_cost
+from .smoothing import edge_aware_smooth
+from .thin_lens import ERROR_WINDOW_PX, WINDOWS, aggregate_cost, select_depth
+from .tiling import apply_in_tiles, check_tiling
+
+#: Side (pixels) of the median filter the depth map goes through: it removes isolated wrong
+#: picks (dark or textureless pixels whose costs are nearly flat) and keeps depth edges.
+MEDIAN_PX = 9
+#: `edge_aware_smooth` of the inverse depth afterwards: its strength, guide sigma, and the
+#: confidence every pixel keeps (where the photo has no texture at all).
+SMOOTHING_STRENGTH = 10.0
+SMOOTHING_SIGMA = 0.1
+CONFIDENCE_FLOOR = 0.01
+#: Context (pixels) a tile sees beyond its centre under semi-global aggregation, whose scan lines
+#: cross the whole tile: past this distance a pixel's costs rarely change another's pick.
+SEMI_GLOBAL_CONTEXT_PX = 128
+#: How the costs of neighbouring pixels are aggregated.
+AGGREGATIONS = ("semi-global", "windows")
+
+#: `cost(guide, *photos, every=1) -> (B,K,H,W)` for crops of the photos (see `depth_map`).
+CostFunction = Callable[..., Tensor]
+
+
+class CostVolumeDepth(nn.Module):
+    """Base of the methods that sweep over candidate depths (`SweepDepth`,
+    `RelativeBlurDepth`): their options and the way from costs to depth (`depth_map`).
+
+    Args:
+        n_candidates: candidate depths, evenly spaced in inverse depth.
+        tile: largest tile side in pixels.
+        progress: show a progress bar over the tiles of a large photo.
+        smoothing: strength of the edge-aware smoothing of the inverse depth by the texture
+            confidence (`edge_aware_smooth`, whole image, after the tiles): depth read on
+            textured pixels spreads to their untextured neighbours of similar colour. Zero
+            turns it off.
+        aggregation: how the costs of neighbouring pixels are combined before each pixel picks
+            its depth: `"semi-global"` (`semi_global_cost`: along scan lines, depth edges kept
+            where the photo has edges) or `"windows"` (sums over square windows,
+            `aggregate_cost`; tiles then give exactly the untiled result, while semi-global
+            tiles see `SEMI_GLOBAL_CONTEXT_PX` of context and agree with the untiled result at
+            nearly every pixel).
+    """
+
+    #: Largest blur (pixels) at the working resolution that `estimate_depth` lets it read: the
+    #: upper end the thin-lens design covers (larger blurs cost time and gain little).
+    max_coc_px = 20.0
+
+    def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False,
+                 smoothing: float = SMOOTHING_STRENGTH, aggregation: str = "semi-global"):
+        super().__init__()
+        if n_candidates < 3:
+            raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
+        if aggregation not in AGGREGATIONS:
+            raise ValueError(f"aggregation must be one of {AGGREGATIONS}, got {aggregation!r}")
+        self.aggregation = aggregation
+        if not smoothing >= 0:
+            raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
+        check_tiling(tile, 0)
+        self.n_candidates, self.tile, self.progress = int(n_candidates), int(tile), progress
+        self.smoothing = float(smoothing)
+
+    def context_px(self, psf_half_px: int) -> int:
+        """Context (pixels) around a tile for PSFs of `psf_half_px` half-width: the PSF, the
+        floor and error window, the aggregation (exact for windows) and the median filter."""
+        spread = (SEMI_GLOBAL_CONTEXT_PX if self.aggregation == "semi-global"
+                  else max(WINDOWS) // 2)
+        return psf_half_px + math.ceil(4 * FLOOR_SIGMA_PX) + ERROR_WINDOW_PX // 2 + spread \
+            + MEDIAN_PX // 2 + 2
+
+    def depth_map(self, cost: CostFunction, guide: Tensor, photos: Sequence[Tensor],
+                  near: float, far: float, reach: int, desc: str = "depth sweep") -> Tensor:
+        """Depth `(B,1,H,W)` metres in `[near, far]` from the costs of its candidates.
+
+        Args:
+            cost: `cost(guide, *photos, every=1)` -> `(B,K,H,W)` for crops of `guide` and
+                `photos` (every `every`-th candidate only when asked: the semi-global
+                aggregation's cost scale is measured on a few).
+            guide: `(B,3,H,W)` the photo whose edges guide the aggregation and the smoothing and
+                whose texture weighs it, linear.
+            photos: the other inputs of `cost`, each `(..., H, W)` (cropped alike for tiles).
+            near: nearest depth, metres.
+            far: farthest depth, metres.
+            reach: context (pixels) a tile needs around it (`context_px`).
+            desc: the progress bar's label.
+        """
+        def depth_of(guide: Tensor, *photos: Tensor, scale: Tensor | None = None) -> Tensor:
+            volume = cost(guide, *photos)
+            if self.aggregation == "semi-global":
+                volume = semi_global_cost(volume, guide, scale=scale)
+            else:
+                volume = aggregate_cost(volume)
+            return kornia.filters.median_blur(select_depth(volume, near, far), MEDIAN_PX)
+
+        # a photo no larger than one tile with its context is done whole
+        if guide.shape[-2] * guide.shape[-1] <= (self.tile + 2 * reach) ** 2:
+            depth = depth_of(guide, *photos)
+        else:
+            h, w = guide.shape[-2:]
+            scale = None
+            if self.aggregation == "semi-global":  # the whole photo's, from a few candidates
+                scale = cost_scale(cost(guide, *photos, every=SCALE_STRIDE), stride=1)
+            tiles = math.ceil(h / self.tile) * math.ceil(w / self.tile)
+            with progress_bar(total=tiles, desc=f"{desc} (tiles)",
+                              disable=not self.progress) as bar:
+                def tile_depth(guide: Tensor, *photos: Tensor) -> Tensor:
+                    out = depth_of(guide, *photos, scale=scale)
+                    bar.update()
+                    return out
+
+                depth = apply_in_tiles(tile_depth, [guide, *photos], self.tile, reach)
+        if self.smoothing > 0:
+            texture = texture_confidence(guide)
+            weight = kornia.filters.median_blur(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
+            inverse = edge_aware_smooth(1 / depth, weight, guide, self.smoothing, SMOOTHING_SIGMA)
+            depth = 1 / inverse.clamp(1 / far, 1 / near)
+        return depth
