@@ -11,6 +11,9 @@ was used to choose the model's settings. For each camera it prints abs rel and d
   depth range, the shots aligned first),
 - `pretrained`: the experimental camera-general network's weights (`--weights`, written by
   `examples/blur_net.py`), the same way, and
+- with `--stacks`, the all-in-focus photo withheld: `pair`, the relative blur of the two shots
+  (`estimate_depth(method="relative-blur")`), `stack3`, the same with a third shot focused midway
+  in inverse depth, and `focus3`, depth from focus of those three (`method="focus"`),
 - `direct`: `models.direct.fit_depth_direct` through the renderer at the sweep's resolution, told
   the camera and the PSF, the shots aligned first (no network; slow),
 
@@ -29,6 +32,7 @@ Usage:
     python benchmarks/cameras.py --weights W.pt --no-direct --oracle   # and a perfect reader
     python benchmarks/cameras.py --cameras demo --photos perfect   # what imperfections cost
     python benchmarks/cameras.py --no-direct --jpeg 90   # photos saved as JPEGs of quality 90
+    python benchmarks/cameras.py --no-direct --stacks    # and without the all-in-focus photo
 """
 
 from __future__ import annotations
@@ -84,10 +88,18 @@ PHOTOS = {
 }
 
 
+def third_focus(focus: tuple[float, float]) -> float:
+    """The focus distance a third shot adds: midway between the two in inverse depth."""
+    return 2 / (1 / focus[0] + 1 / focus[1])
+
+
 def photograph(name: str, seed: int = 0, scale: float = 1.0,
-               noise: CaptureNoise = PHOTOS["real"]) -> dict:
-    """The motorcycle through camera `name`: photos, settings and ground truth."""
+               noise: CaptureNoise = PHOTOS["real"], shots: int = 2) -> dict:
+    """The motorcycle through camera `name`: photos, settings and ground truth; with
+    `shots=3` a third shot focused at `third_focus` (in the middle of the stack)."""
     f, n, focus, sensor_width, psf = CAMERAS[name]
+    if shots == 3:
+        focus = (focus[0], third_focus(focus), focus[1])
     if name.startswith("demo"):  # the demo's own resolution: 185x125 at 180 um
         scale = 0.25
     image, depth, mask = (t[0] for t in motorcycle_scene(scale))
@@ -101,7 +113,7 @@ def run_model(model, shot: dict) -> tuple[torch.Tensor, float, torch.Tensor]:
     """`(depth, seconds, confidence)` of `estimate_depth` with `model`."""
     started = time.perf_counter()
     out = estimate_depth(shot["focused"], shot["settings"], DEPTH_RANGE, image=shot["image"],
-                         model=model)
+                         model=model, all_in_focus=False)
     return out["depth"], time.perf_counter() - started, out["confidence"]
 
 
@@ -121,6 +133,20 @@ def working_resolution(shot: dict, max_coc_px: float) -> tuple[torch.Tensor, Cam
     stack, settings = to_working_resolution(shot["image"], shot["focused"], shot["settings"],
                                             scale)
     return stack, settings, tuple(stack.shape[-2:])
+
+
+def run_without_image(method: str, shot: dict) -> tuple[torch.Tensor, float, torch.Tensor]:
+    """`(depth, seconds, confidence)` of `estimate_depth(method=...)` with the all-in-focus
+    photo withheld."""
+    started = time.perf_counter()
+    out = estimate_depth(shot["focused"], shot["settings"], DEPTH_RANGE, method=method,
+                         all_in_focus=False)
+    return out["depth"], time.perf_counter() - started, out["confidence"]
+
+
+#: The methods without an all-in-focus photo (`--stacks`): name -> (method, shots).
+STACK_METHODS = {"pair": ("relative-blur", 2), "stack3": ("relative-blur", 3),
+                 "focus3": ("focus", 3)}
 
 
 def run_oracle(shot: dict) -> torch.Tensor:
@@ -163,6 +189,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jpeg", type=int, default=0, metavar="QUALITY",
                         help="save every photo as a JPEG of this quality (1-95, 4:2:0 chroma, "
                              "as cameras and phones do) and read it back; 0: lossless")
+    parser.add_argument("--stacks", action="store_true",
+                        help="add the methods without the all-in-focus photo: the relative blur "
+                             "of the two shots (pair), of three (stack3: a third shot focused "
+                             "midway in inverse depth) and depth from focus of the three "
+                             "(focus3)")
     parser.add_argument("--cameras", nargs="+", default=None, metavar="PREFIX",
                         help="only the cameras whose names start with these (e.g. demo 200mm)")
     args = parser.parse_args(argv)
@@ -181,6 +212,9 @@ def main(argv: list[str] | None = None) -> int:
         methods["direct"] = lambda shot: run_direct(shot, args.direct_steps)
     if args.oracle:
         methods["oracle"] = lambda shot: (run_oracle(shot), float("nan"), None)
+    if args.stacks:
+        for name, (method, _) in STACK_METHODS.items():
+            methods[name] = lambda shot, method=method: run_without_image(method, shot)
     header = "| camera | PSF | constant abs rel |"
     for name in methods:
         header += f" {name} abs rel | ratio | d1 | s |"
@@ -197,12 +231,14 @@ def main(argv: list[str] | None = None) -> int:
                      f"the cameras are: {', '.join(CAMERAS)}")
     for camera, spec in cameras.items():
         shot = photograph(camera, args.seed, noise=photos)
+        stack = photograph(camera, args.seed, noise=photos, shots=3) if args.stacks else None
         target, mask = shot["depth"][None], shot["mask"][None]
         constant = best_constant_depth(target=target, mask=mask)
         base = depth_metrics(pred=torch.full_like(target, constant), target=target, mask=mask)
         row = f"| {camera} | {spec[4]} | {base['abs_rel']:.3f} |"
         for name, method in methods.items():
-            depth, seconds, confidence = method(shot)
+            three = name in STACK_METHODS and STACK_METHODS[name][1] == 3
+            depth, seconds, confidence = method(stack if three else shot)
             if confidence is not None:
                 ranking[name].append(ranking_of(depth, confidence, shot))
             m = depth_metrics(pred=depth[None], target=target, mask=mask)
@@ -218,6 +254,17 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name} confidence: the more confident half of the pixels has "
                   f"{statistics.median(values):.2f} of the mean error (median over the cameras, "
                   f"{min(values):.2f}-{max(values):.2f}; 1 is no better than chance)")
+    if args.stacks:
+        relative = [p / s for p, s in zip(ratios["pair"], ratios["sweep"], strict=True)]
+        print(f"pair: ratio within 1.3x the sweep's (with the all-in-focus photo) at every "
+              f"camera: {'met' if max(relative) <= 1.3 else 'unmet'} ({min(relative):.2f}-"
+              f"{max(relative):.2f}x)")
+        for name in ("stack3", "focus3"):
+            others = [r for camera, r in zip(cameras, ratios[name], strict=True)
+                      if not camera.startswith("demo")]
+            if others:
+                print(f"{name}: ratio <= 0.30 at every camera but the demo one: "
+                      f"{'met' if max(others) <= 0.3 else 'unmet'} (worst {max(others):.2f})")
     for name in methods:
         worst = max(ratios[name])
         print(f"{name}: ratio <= 0.30 for every camera: {'met' if worst <= 0.3 else 'unmet'} "

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from kornia.color import rgb_to_linear_rgb
+from kornia.color import linear_rgb_to_rgb, rgb_to_linear_rgb
 from torch import Tensor
 
 from optics import CameraSettings
@@ -68,6 +68,10 @@ class PhotoInfo:
     pixel_pitch_source: str | None = None
     compressed: bool = False
     focus_distance: float | None = None
+
+
+#: How a JPEG, PNG or TIFF stores intensity (`read_photo`).
+ENCODINGS = ("srgb", "linear")
 
 
 def _positive(value) -> float | None:
@@ -189,7 +193,8 @@ def _read_raw_photo(path: Path, dtype: torch.dtype) -> tuple[Tensor, PhotoInfo]:
     return torch.from_numpy(np.ascontiguousarray(upright)).permute(2, 0, 1), info
 
 
-def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Tensor, PhotoInfo]:
+def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
+               encoding: str = "srgb") -> tuple[Tensor, PhotoInfo]:
     """Read an RGB photo upright as linear intensity `(3,H,W)` in [0, 1].
 
     Args:
@@ -197,6 +202,9 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
             photo (`RAW_SUFFIXES`: DNG, CR2, NEF, ARW, ...), decoded by LibRaw to linear sRGB
             with daylight white balance: no compression, no tone curve, the camera's own bits.
         dtype: floating dtype of the result.
+        encoding: how a JPEG, PNG or TIFF stores intensity: `"srgb"` (what cameras and phones
+            write) or `"linear"` (values proportional to the light, as scientific cameras and
+            some 16-bit exports store them). Raw photos are always linear.
 
     Returns:
         `(image, info)`: the photo and its `PhotoInfo` (EXIF values, orientation applied).
@@ -216,6 +224,8 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
     """
     from PIL import Image, ImageOps, UnidentifiedImageError
 
+    if encoding not in ENCODINGS:
+        raise ValueError(f"encoding must be one of {ENCODINGS}, got {encoding!r}")
     path = Path(path)
     require_file(path, "a photo")
     if path.suffix.lower() in RAW_SUFFIXES:
@@ -240,7 +250,34 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32) -> tuple[Te
         array = np.repeat(array[..., None], 3, axis=2)
     scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
     image = torch.from_numpy(np.ascontiguousarray(array[..., :3])).to(dtype).permute(2, 0, 1)
-    return rgb_to_linear_rgb(image / scale), info
+    image = image / scale
+    return (rgb_to_linear_rgb(image) if encoding == "srgb" else image), info
+
+
+def save_photo(path: str | Path, image: Tensor) -> Path:
+    """Write a linear image `(3,H,W)` (values in [0, 1], clipped) as a 16-bit sRGB PNG, which
+    `read_photo` reads back to within 1e-4.
+
+    Example:
+        >>> import tempfile, pathlib
+        >>> path = pathlib.Path(tempfile.mkdtemp()) / "aif.png"
+        >>> image = torch.rand(3, 4, 6)
+        >>> back, _ = read_photo(save_photo(path, image))
+        >>> bool((back - image).abs().max() < 1e-4)
+        True
+    """
+    import png
+
+    check_image = image.detach().cpu().float()
+    if check_image.dim() != 3 or check_image.shape[0] != 3:
+        raise ValueError(f"image must be (3, H, W), got {tuple(image.shape)}")
+    encoded = linear_rgb_to_rgb(check_image.clamp(0, 1)).clamp(0, 1)
+    array = (encoded.permute(1, 2, 0).numpy() * 65535 + 0.5).astype(np.uint16)
+    path = Path(path)
+    with open(path, "wb") as handle:
+        png.Writer(array.shape[1], array.shape[0], greyscale=False, bitdepth=16).write(
+            handle, array.reshape(array.shape[0], -1))
+    return path
 
 
 def photo_settings(

@@ -22,6 +22,7 @@ def plot_prediction(
     path: str | Path, image: Tensor, depth: Tensor, focused: Tensor | None = None,
     target: Tensor | None = None, mask: Tensor | None = None, title: str = "",
     depth_range: tuple[float, float] | None = None, confidence: Tensor | None = None,
+    image_label: str = "all in focus (input)",
 ) -> Path:
     """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
     its confidence, ground-truth depth and the relative error `|d - g| / g` (masked pixels
@@ -37,6 +38,7 @@ def plot_prediction(
         title: figure title.
         depth_range: colour range of the depth maps in metres (default: that of the data).
         confidence: optional confidence `(1,H,W)` in [0, 1] (e.g. `SweepDepth`'s).
+        image_label: the title of the all-in-focus panel (e.g. "all in focus (fused)").
 
     Returns:
         the path written.
@@ -47,7 +49,7 @@ def plot_prediction(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     image, depth = image.detach().float().cpu(), depth.detach().float().cpu()
-    panels: list[tuple[str, Tensor, str]] = [("all in focus (input)", image, "rgb")]
+    panels: list[tuple[str, Tensor, str]] = [(image_label, image, "rgb")]
     if focused is not None:
         for i, f in enumerate(focused.detach().float().cpu()):
             panels.append((f"focused image {i + 1}", f, "rgb"))

@@ -1,6 +1,6 @@
 """optics: differentiable thin-lens optics and per-pixel PSF rendering for PyTorch."""
 
-from .alignment import align_shots, estimate_motion, estimate_shift, translate, warp
+from .alignment import align_shots, estimate_motion, estimate_shift, translate, undo_motion, warp
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
 from .aperture_spec import APERTURE_FAMILIES, aperture_spec, parse_aperture
 from .calibrate import (
@@ -25,6 +25,7 @@ __all__ = [
     "estimate_motion",
     "estimate_shift",
     "translate",
+    "undo_motion",
     "warp",
     "CameraSettings",
     "aperture_spec",

@@ -138,7 +138,7 @@ def _lucas_kanade(reference: Tensor, moving: Tensor, motion: Tensor, iterations:
     radial_y, radial_x = (t.expand(full_h, full_w)[inner[1:]] for t in (y, x))
     for _ in range(iterations):
         # back(p) = moving(c + zoom R(angle) (p - c) + shift) ~ reference(p)
-        back = _unwarp(moving, motion)
+        back = undo_motion(moving, motion)
         grad = kornia.filters.spatial_gradient(back, normalized=True)[0, 0]  # (2: dx, dy, H, W)
         gx, gy = grad[0][inner[1:]].double(), grad[1][inner[1:]].double()
         level = back[inner][0, 0].double()
@@ -159,9 +159,18 @@ def _lucas_kanade(reference: Tensor, moving: Tensor, motion: Tensor, iterations:
     return motion
 
 
-def _unwarp(moving: Tensor, motion: Tensor) -> Tensor:
+def undo_motion(moving: Tensor, motion: Tensor) -> Tensor:
     """`moving(c + zoom R(angle) (p - c) + shift)` for `motion` `(dy, dx)` or
-    `(dy, dx, zoom, angle)`: `moving` `(1,C,H,W)` brought back onto the reference."""
+    `(dy, dx, zoom, angle)` (pixels, radians; as `estimate_motion` and `align_shots` give it):
+    `moving` `(1,C,H,W)` brought back onto the reference.
+
+    Example:
+        >>> image = torch.rand(1, 1, 8, 8)
+        >>> moved = translate(image, torch.tensor([[1.0, 0.0]]))
+        >>> back = undo_motion(moved, torch.tensor([1.0, 0.0]))
+        >>> torch.allclose(back[..., 2:-2, :], image[..., 2:-2, :])
+        True
+    """
     if len(motion) == 2:
         return translate(moving, -motion[None])
     zoom, angle = motion[2:3], motion[3:4]
@@ -280,6 +289,7 @@ def align_shots(image: Tensor, focused: Tensor) -> tuple[Tensor, Tensor]:
             motion[small, :2] = estimate_shift(image[small], focused[small, i])
             motion[small, 2:] = torch.tensor([1.0, 0.0], dtype=motion.dtype,
                                              device=motion.device)
-        aligned.append(torch.cat([_unwarp(focused[j:j + 1, i], motion[j]) for j in range(b)]))
+        aligned.append(torch.cat([undo_motion(focused[j:j + 1, i], motion[j])
+                                  for j in range(b)]))
         motions.append(motion)
     return torch.stack(aligned, 1), torch.stack(motions, 1)

@@ -1,4 +1,4 @@
-"""Depth from defocus by a sweep over depth (models.depth_from_photos.sweep): no network, any camera."""
+"""Depth from defocus by a sweep over depth (models.depth_from_photos.sweep): no network."""
 
 import math
 
@@ -9,8 +9,8 @@ from skimage import data
 
 from datasets.capture import CaptureNoise, capture, random_camera
 from datasets.synthetic import generate_scene
+from models.depth_from_photos import cost_volume, scene_range, sweep
 from models.depth_from_photos import run_at_working_resolution as predict_depth
-from models.depth_from_photos import scene_range, sweep
 from models.depth_from_photos.semi_global import cost_scale, semi_global_cost
 from models.depth_from_photos.sweep import SweepDepth, blur_errors, noise_model, sweep_cost
 from models.metrics import best_constant_depth, confident_half_error, depth_metrics

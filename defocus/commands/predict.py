@@ -2,8 +2,10 @@
 
 It reads the photos and the camera (options, `--camera fit.json` written by `defocus calibrate`,
 or the photos' EXIF) and calls `models.depth_from_photos.estimate_depth`: with no model file the
-label-free sweep over depth (no network, any camera), with a checkpoint of `defocus train` that
-network (for the camera it was trained with).
+label-free methods (no network, any camera): the sweep over depth with an all-in-focus photo
+(`--image`), the relative blur between the focused photos without one, or depth from focus of a
+stack (`--method focus`); with a checkpoint of `defocus train` that network (for the camera it
+was trained with).
 """
 
 from __future__ import annotations
@@ -17,12 +19,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model file, a checkpoint of `defocus train` (a network for the "
                              "camera it was trained with); without one, a sweep over depth "
                              "(no network, any camera; needs --focused photos and --depth-range)")
-    parser.add_argument("--image", type=Path, required=True,
+    parser.add_argument("--image", type=Path, default=None,
                         help="all-in-focus photo (raw file, TIFF, PNG or JPEG; small aperture, "
-                             "e.g. f/11)")
+                             "e.g. f/11); without it the focused photos alone are compared "
+                             "with each other")
     parser.add_argument("--focused", type=Path, nargs="*", default=[], metavar="PHOTO",
-                        help="focused photos of the same view (2-5, each focused elsewhere; "
-                             "default: none)")
+                        help="focused photos of the same view, each focused elsewhere (1-5 "
+                             "with --image, 2 or more without)")
+    parser.add_argument("--method", default="auto",
+                        help="without a model file: 'sweep' (needs --image), 'relative-blur' "
+                             "(the focused photos alone), 'focus' (depth from focus of a stack "
+                             "of 3 or more) or 'auto' (the sweep with --image, else the "
+                             "relative blur)")
     parser.add_argument("--focus-distance", type=float, nargs="*", default=[], metavar="M",
                         help="focus distance of each focused photo, metres (default: --camera, "
                              "else EXIF SubjectDistance where every photo states it)")
@@ -35,6 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pixel-pitch", type=float, default=None, metavar="M",
                         help="effective pixel pitch of the photos as stored, metres (sensor "
                              "pitch times the downscaling; default: --camera, else EXIF)")
+    parser.add_argument("--linear", action="store_true",
+                        help="the PNG, TIFF or JPEG photos store linear values (scientific "
+                             "cameras, some 16-bit exports), not sRGB; raw files are always "
+                             "read as linear")
     parser.add_argument("--camera", type=Path, default=None, metavar="JSON",
                         help="camera settings JSON written by `defocus calibrate` (default: "
                              "none)")
@@ -54,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "CPU), 'cpu' or 'cuda[:N]'")
     parser.add_argument("--out", type=Path, default=Path("runs/predict"),
                         help="output folder: depth.npy (metres), depth_mm.png (16-bit "
-                             "millimetres), confidence.png, figure.png")
+                             "millimetres), confidence.png, all_in_focus.png, figure.png")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,9 +76,9 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from PIL import Image
 
-    from datasets.photos import describe_settings, photo_settings, read_photo
+    from datasets.photos import describe_settings, photo_settings, read_photo, save_photo
     from defocus.cli import CommandError
-    from models.depth_from_photos import TrainedNetwork, estimate_depth
+    from models.depth_from_photos import METHODS, TrainedNetwork, choose_method, estimate_depth
     from models.depth_from_photos.cost_volume import AGGREGATIONS
     from models.plotting import plot_prediction
     from models.pretrained import is_weights_file, load_weights
@@ -83,24 +95,36 @@ def run(args: argparse.Namespace) -> int:
     if args.aggregation not in AGGREGATIONS:
         raise CommandError(f"--aggregation must be one of {', '.join(AGGREGATIONS)}, got "
                            f"{args.aggregation!r}")
+    if args.method not in ("auto", *METHODS):
+        raise CommandError(f"--method must be auto or one of {', '.join(METHODS)}, got "
+                           f"{args.method!r}")
     if args.checkpoint is not None:
-        if args.aggregation != "semi-global":
-            raise CommandError("--aggregation chooses how the sweep works: give it without a "
-                               f"model file (got {args.checkpoint})")
+        if args.aggregation != "semi-global" or args.method != "auto":
+            raise CommandError("--aggregation and --method choose how the label-free methods "
+                               f"work: give them without a model file (got {args.checkpoint})")
         if is_weights_file(args.checkpoint):  # the experimental camera-general network
             model = load_weights(args.checkpoint).to(device)
         else:
             network, config = load_model(args.checkpoint, device)
             model = TrainedNetwork(network, config.input_mode, config.n_focus,
                                    (config.depth_min, config.depth_max))
-    image, image_info = read_photo(args.image)
-    photos = [read_photo(path) for path in args.focused]
+    if args.image is None and (model is not None or len(args.focused) < 2):
+        raise CommandError("give --image (an all-in-focus photo), or 2 or more --focused photos "
+                           f"focused at different distances (got {len(args.focused)})")
+    if args.image is None and args.method == "sweep":
+        raise CommandError("--method sweep compares the focused photos with an all-in-focus "
+                           "photo: give --image")
+    encoding = "linear" if args.linear else "srgb"
+    image, image_info = read_photo(args.image, encoding=encoding) if args.image else (None, None)
+    photos = [read_photo(path, encoding=encoding) for path in args.focused]
+    first_path, first = (args.image, image) if image is not None \
+        else (args.focused[0], photos[0][0])
     for path, (photo, _) in zip(args.focused, photos, strict=True):
-        if photo.shape != image.shape:
-            raise CommandError(f"{path} is {tuple(photo.shape[-2:])} pixels but {args.image} is "
-                               f"{tuple(image.shape[-2:])}; all photos must have one size")
-        if torch.equal(photo, image):
-            warnings.warn(f"{path} is identical to {args.image}: there is no defocus to read",
+        if photo.shape != first.shape:
+            raise CommandError(f"{path} is {tuple(photo.shape[-2:])} pixels but {first_path} is "
+                               f"{tuple(first.shape[-2:])}; all photos must have one size")
+        if path != first_path and torch.equal(photo, first):
+            warnings.warn(f"{path} is identical to {first_path}: there is no defocus to read",
                           stacklevel=1)
     # without focused photos only a network that reads the all-in-focus photo alone runs
     focused = torch.stack([p for p, _ in photos]) if photos else image[None]
@@ -124,11 +148,16 @@ def run(args: argparse.Namespace) -> int:
         if model.input_mode == "aif+focused" and len(photos) != model.n_focus:
             raise CommandError(f"this network needs {model.n_focus} --focused photos, got "
                                f"{len(photos)}")
-    options = {"aggregation": args.aggregation} if model is None else None
-    out = estimate_depth(focused.to(device), settings, depth_range, image=image.to(device),
+    method = args.method if args.method != "auto" or model is not None \
+        else choose_method(image is not None, len(photos))
+    options = {"aggregation": args.aggregation} if method in ("sweep", "relative-blur") \
+        and model is None else None
+    out = estimate_depth(focused.to(device), settings, depth_range,
+                         image=None if image is None else image.to(device), method=method,
                          model=model, options=options, progress=True)
+    infos = ([] if image_info is None else [image_info]) + [info for _, info in photos]
     if "shifts" in out:
-        _report_working_resolution(out, depth_range, [image_info, *(i for _, i in photos)])
+        _report_working_resolution(out, depth_range, infos, method)
     depth = out["depth"].cpu()
     confidence = None if out["confidence"] is None else out["confidence"].cpu()
     if not bool(torch.isfinite(depth).all()):
@@ -142,15 +171,19 @@ def run(args: argparse.Namespace) -> int:
         Image.fromarray((confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(
             args.out / "confidence.png")
         written.append("confidence.png")
-    plot_prediction(args.out / "figure.png", image, depth, focused if photos else None,
-                    title=str(args.image.name), depth_range=tuple(out["depth_range"]),
-                    confidence=confidence)
+    fused = out["all_in_focus"].cpu()
+    save_photo(args.out / "all_in_focus.png", fused)
+    written.append("all_in_focus.png")
+    plot_prediction(args.out / "figure.png", fused, depth, focused if photos else None,
+                    title=str(first_path.name), depth_range=tuple(out["depth_range"]),
+                    confidence=confidence, image_label="all in focus (input)" if image is not None
+                    else "all in focus (fused)")
     print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m; wrote "
           f"{', '.join(written)} and figure.png under {args.out}")
     return 0
 
 
-def _report_working_resolution(out, depth_range, infos) -> None:
+def _report_working_resolution(out, depth_range, infos, method) -> None:
     import warnings
 
     from datasets.photos import compression_warning
@@ -163,8 +196,10 @@ def _report_working_resolution(out, depth_range, infos) -> None:
     if tuple(swept) != (near, far):
         print(f"the scene lies within {swept[0]:.2f}-{swept[1]:.2f} m of the stated "
               f"{near:g}-{far:g} m: depth computed again over that range, at a finer resolution")
-    print(f"working resolution {out['scale']:.3f} x the photos; focused photos aligned: moved by "
-          f"{moved} (pixels down, right; magnification; rotation, clockwise)")
+    onto = "the all-in-focus photo" if method == "sweep" else "the first"
+    print(f"method {method}; working resolution {out['scale']:.3f} x the photos; focused photos "
+          f"aligned onto {onto}: moved by {moved} (pixels down, right; magnification; "
+          "rotation, clockwise)")
     jpeg = compression_warning(infos, out["scale"])
     if jpeg is not None:
         warnings.warn(jpeg, stacklevel=1)

@@ -10,17 +10,25 @@ it picks a method by what the photos are and runs it at a working resolution. Th
 | `photometry` | exposure matching between shots, the photos' noise |
 | `confidence` | texture to read, depth edges |
 | `fourier_blur` | many blurs of one photo through one Fourier transform |
+| `cost_volume` | from a cost volume over candidate depths to a depth map (`CostVolumeDepth`) |
 | `sweep` | the sweep over depth with an all-in-focus photo (`SweepDepth`) |
+| `relative_blur` | depth from two or more focused shots alone, by their relative blur (`RelativeBlurDepth`) |
+| `depth_from_focus` | depth from focus for focal stacks (`DepthFromFocus`) |
+| `all_in_focus` | the all-in-focus image fused from the shots by their blur |
 | `semi_global`, `smoothing` | semi-global cost aggregation; edge-aware smoothing of the depth |
 | `resolution`, `tiling` | the working resolution; large photos in tiles |
 | `trained_network` | a `defocus train` network as a method |
 | `blur_net` | the experimental camera-general network that reads blur (`DepthFromDefocus`) |
 """
 
+from .all_in_focus import fuse_all_in_focus
 from .blur_net import BlurNet, DepthFromDefocus, solve_depth, train_blur_net
 from .confidence import depth_edge_confidence, texture_confidence, texture_weight
-from .estimate import METHODS, choose_method, estimate_depth
+from .cost_volume import CostVolumeDepth
+from .depth_from_focus import DepthFromFocus, focus_measures, focus_peak
+from .estimate import METHODS, check_shots_differ, choose_method, estimate_depth
 from .photometry import match_exposure, noise_model
+from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
 from .resolution import run_at_working_resolution, scene_range, working_scale
 from .sweep import SweepDepth, blur_errors, sweep_cost
 from .thin_lens import aggregate_cost, candidate_inverse_depths, select_depth, thin_lens_blur
@@ -29,17 +37,26 @@ from .trained_network import TrainedNetwork
 __all__ = [
     "METHODS",
     "BlurNet",
+    "CostVolumeDepth",
     "DepthFromDefocus",
+    "DepthFromFocus",
+    "RelativeBlurDepth",
     "SweepDepth",
     "TrainedNetwork",
     "aggregate_cost",
     "blur_errors",
     "candidate_inverse_depths",
+    "check_shots_differ",
     "choose_method",
     "depth_edge_confidence",
     "estimate_depth",
+    "focus_measures",
+    "focus_peak",
+    "fuse_all_in_focus",
     "match_exposure",
     "noise_model",
+    "relative_blur_cost",
+    "relative_blur_px",
     "run_at_working_resolution",
     "scene_range",
     "select_depth",

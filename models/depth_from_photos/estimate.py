@@ -10,7 +10,12 @@ with at least `depth` `(B,1,H,W)` metres. Its class attributes say how to run it
 | method | photos | what it does |
 |---|---|---|
 | `"sweep"` (`SweepDepth`) | all-in-focus + `F >= 1` focused | a sweep over depth: the all-in-focus photo blurred by the thin lens's PSF must reproduce each focused one |
+| `"relative-blur"` (`RelativeBlurDepth`) | `F >= 2` focused | a sweep over depth: of every pair of shots, the sharper one blurred by the relative PSF must reproduce the blurrier one |
+| `"focus"` (`DepthFromFocus`) | `F >= 3` focused (a stack) | depth from focus: the peak of each pixel's sharpness over the stack |
 | `model=` any method object | as the method needs | e.g. `TrainedNetwork` (a `defocus train` checkpoint) or the experimental `DepthFromDefocus` |
+
+`method="auto"` runs the sweep with an all-in-focus photo and the relative blur without one
+(which measured better than depth from focus on every camera of `benchmarks/cameras.py`).
 """
 
 from __future__ import annotations
@@ -19,36 +24,82 @@ import math
 from collections.abc import Callable, Mapping
 from typing import Any
 
+import torch
 from torch import Tensor, nn
 
 from optics import CameraSettings
 from optics.checks import check_finite, check_shape
 
+from .all_in_focus import fuse_all_in_focus
+from .depth_from_focus import DepthFromFocus
+from .relative_blur import RelativeBlurDepth
 from .resolution import run_at_working_resolution
 from .sweep import SweepDepth
+from .thin_lens import candidate_inverse_depths, thin_lens_blur
 
 #: name -> the method's class, built with `progress=...`.
-METHODS: dict[str, Callable[..., nn.Module]] = {"sweep": SweepDepth}
+METHODS: dict[str, Callable[..., nn.Module]] = {
+    "sweep": SweepDepth, "relative-blur": RelativeBlurDepth, "focus": DepthFromFocus}
+#: The least change (pixels, at the photos' resolution) of some shot's blur over the depth
+#: range for the shots to tell depths apart.
+READABLE_DIFFERENCE_PX = 0.5
 
 
-def choose_method(has_image: bool) -> str:
-    """The method `estimate_depth(method="auto")` runs for these photos.
+def choose_method(has_image: bool, n_shots: int = 2) -> str:
+    """The method `estimate_depth(method="auto")` runs for these photos: the sweep with an
+    all-in-focus photo, the relative blur between the shots without one.
 
     Example:
-        >>> choose_method(has_image=True)
-        'sweep'
+        >>> choose_method(has_image=True), choose_method(has_image=False, n_shots=3)
+        ('sweep', 'relative-blur')
     """
     if has_image:
         return "sweep"
-    raise ValueError("depth from focused photos alone (no all-in-focus image) has no method "
-                     f"yet; give image, an all-in-focus photo (methods: {sorted(METHODS)})")
+    if n_shots < 2:
+        raise ValueError(f"depth from focused photos alone needs 2 or more shots, each focused "
+                         f"elsewhere, got {n_shots}; or give image, an all-in-focus photo")
+    return "relative-blur"
+
+
+def check_shots_differ(settings: CameraSettings, near: float, far: float) -> None:
+    """Refuse shots that cannot tell depths in `[near, far]` metres apart: two shots with the
+    same focus distance and f-number (the same blur at every depth), or a range over which no
+    shot's blur changes by `READABLE_DIFFERENCE_PX` (at the settings' pixel pitch: the range
+    lies far from every focus plane, where the blur hardly changes with depth).
+
+    Example:
+        >>> check_shots_differ(CameraSettings(0.05, 2.0, [1.5, 4.0], 5e-6), 1.0, 10.0)
+        >>> check_shots_differ(CameraSettings(0.05, 2.0, [1.5, 1.5], 5e-6), 1.0, 10.0)
+        Traceback (most recent call last):
+        ...
+        ValueError: shots 0 and 1 have the same focus distance (1.5 m) and f-number (2): the same blur at every depth; focus them at different distances
+    """
+    focus = settings.focus_distance.reshape(-1).tolist()
+    numbers = settings.f_number.reshape(-1).tolist()
+    for i in range(len(focus)):
+        for j in range(i + 1, len(focus)):
+            if math.isclose(focus[i], focus[j], rel_tol=1e-6) and \
+                    math.isclose(numbers[i], numbers[j], rel_tol=1e-6):
+                raise ValueError(f"shots {i} and {j} have the same focus distance ({focus[i]:g} "
+                                 f"m) and f-number ({numbers[i]:g}): the same blur at every "
+                                 "depth; focus them at different distances")
+    x = candidate_inverse_depths(near, far, 64, settings.focus_distance)
+    blur = thin_lens_blur(settings.batched(1), x[None, None])[0]  # (F,K)
+    change = float((blur.amax(1) - blur.amin(1)).max())
+    if change < READABLE_DIFFERENCE_PX:
+        planes = ", ".join(f"{d:g}" for d in focus)
+        raise ValueError(f"over the depth range {near:g}-{far:g} m the blur of the shots "
+                         f"(focused at {planes} m) changes by at most {change:.2f} pixels (need "
+                         f"{READABLE_DIFFERENCE_PX}): defocus cannot tell depths there apart; "
+                         "check the range, or focus the shots within or near it")
 
 
 def estimate_depth(
     focused: Tensor, settings: CameraSettings | None, depth_range: tuple[float, float], *,
     image: Tensor | None = None, method: str = "auto", model: nn.Module | None = None,
-    options: Mapping[str, Any] | None = None, max_coc_px: float | None = None, max_pixels: int = 1_500_000, align: bool = True,
-    refine_range: bool = True, progress: bool = False,
+    options: Mapping[str, Any] | None = None, max_coc_px: float | None = None,
+    max_pixels: int = 1_500_000, align: bool = True, refine_range: bool = True,
+    progress: bool = False, all_in_focus: bool = True,
 ) -> dict[str, Tensor | float | tuple[float, float] | None]:
     """Depth of one scene from its photos and their camera settings.
 
@@ -72,16 +123,21 @@ def estimate_depth(
             read as blur).
         refine_range: compute again over the scene's own narrower depth range, finer.
         progress: show progress bars on long work.
+        all_in_focus: also return the all-in-focus image: `image` where it is given, else the
+            shots fused by the blur each has at the depth found (`fuse_all_in_focus`).
 
     Returns:
         dict with `depth` `(1,H,W)` metres, `confidence` `(1,H,W)` in [0, 1] (None where the
-        method has none), `depth_range` `(near, far)` metres of the pass kept, and, for methods
-        run at a working resolution, `blur` `(F,h,w)`, `scale`, `shifts`, `zooms` and
-        `rotations` (see `run_at_working_resolution`).
+        method has none), `depth_range` `(near, far)` metres of the pass kept,
+        `all_in_focus` `(3,H,W)` (with `all_in_focus=True`), and, for methods run at a working
+        resolution, `blur` `(F,h,w)`, `scale`, `shifts`, `zooms` and `rotations` (see
+        `run_at_working_resolution`).
 
     Raises:
         ValueError: for photos of other shapes or sizes, non-finite values, a bad depth range or
-            method, or a method that needs an all-in-focus photo without one.
+            method, a method that needs an all-in-focus photo without one, fewer than two
+            shots without one, or shots that cannot tell depths in the range apart
+            (`check_shots_differ`).
 
     Example:
         >>> import torch
@@ -105,7 +161,7 @@ def estimate_depth(
                          f"got {tuple(depth_range)!r}")
     if model is None:
         if method == "auto":
-            method = choose_method(image is not None)
+            method = choose_method(image is not None, len(focused))
         if method not in METHODS:
             raise ValueError(f"method must be 'auto' or one of {sorted(METHODS)}, got {method!r}")
         model = METHODS[method](progress=progress, **dict(options or {}))
@@ -118,10 +174,27 @@ def estimate_depth(
         shots = None if settings is None else settings.to(focused.dtype)
         out = model(image[None], focused[None], shots, near, far)
         confidence = out.get("confidence")
-        return {"depth": out["depth"][0], "confidence": None if confidence is None
-                else confidence[0], "depth_range": getattr(model, "depth_range", (near, far))}
+        result = {"depth": out["depth"][0], "confidence": None if confidence is None
+                  else confidence[0], "depth_range": getattr(model, "depth_range", (near, far))}
+        if all_in_focus:
+            result["all_in_focus"] = image
+        return result
     if len(focused) == 0 or settings is None:
         raise ValueError(f"{type(model).__name__} reads depth from defocus: give one or more "
                          "focused photos with their settings")
-    return run_at_working_resolution(model, image, focused, settings, near, far,
-                                     max_coc_px, max_pixels, align, refine_range)
+    if image is None:
+        if len(focused) < 2:
+            raise ValueError(f"{type(model).__name__} compares focused photos: give 2 or more, "
+                             f"each focused elsewhere, got {len(focused)}")
+        check_shots_differ(settings, near, far)
+    out = run_at_working_resolution(model, image, focused, settings, near, far,
+                                    max_coc_px, max_pixels, align, refine_range)
+    if all_in_focus:
+        if image is not None:
+            out["all_in_focus"] = image
+        else:
+            motions = torch.cat([out["shifts"], out["zooms"][:, None],
+                                 torch.deg2rad(out["rotations"])[:, None]], 1)
+            out["all_in_focus"] = fuse_all_in_focus(focused, out["blur"],
+                                                    motions if align else None)
+    return out

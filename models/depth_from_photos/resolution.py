@@ -38,7 +38,7 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
 
 
 def run_at_working_resolution(
-    model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
+    model: nn.Module, image: Tensor | None, focused: Tensor, settings: CameraSettings,
     near: float, far: float, max_coc_px: float | None = None, max_pixels: int = 1_500_000,
     align: bool = True, refine_range: bool = True,
 ) -> dict[str, Tensor | float]:
@@ -47,9 +47,10 @@ def run_at_working_resolution(
     Args:
         model: a method of `estimate_depth` (e.g. `SweepDepth`), called as
             `model(image, focused, settings, near, far)` at the working resolution.
-        image: all-in-focus photo `(3,H,W)`, linear.
-        focused: `(F,3,H,W)` focused photos, linear, `F >= 2` (1 works but stays ambiguous
-            around the focus plane).
+        image: all-in-focus photo `(3,H,W)`, linear, or None for a method that reads the
+            focused photos alone (they are then aligned to the first).
+        focused: `(F,3,H,W)` focused photos, linear, `F >= 2` (1 works with an all-in-focus
+            photo but stays ambiguous around the focus plane).
         settings: their `(F,)` settings at the photos' resolution (effective pixel pitch).
         near: nearest depth of the scene, metres.
         far: farthest depth, metres.
@@ -73,10 +74,14 @@ def run_at_working_resolution(
         magnified and how far it was turned, in degrees, clockwise on screen (zero, one and zero
         without `align`).
     """
-    check_shape("image", image, ["3", "H", "W"])
     check_shape("focused", focused, ["F", "3", "H", "W"])
-    check_finite("image", image)
     check_finite("focused", focused)
+    if image is not None:
+        check_shape("image", image, ["3", "H", "W"])
+        check_finite("image", image)
+        if focused.shape[-2:] != image.shape[-2:]:
+            raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
+                             f"all-in-focus photo is {tuple(image.shape[-2:])}")
     if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
         raise ValueError(f"near and far must be finite metres with 0 < near < far, got "
                          f"near={near!r}, far={far!r}")
@@ -84,10 +89,7 @@ def run_at_working_resolution(
         raise ValueError(f"max_coc_px must be a positive number of pixels, got {max_coc_px!r}")
     if not max_pixels >= 64:
         raise ValueError(f"max_pixels must be >= 64 (8x8 pixels), got {max_pixels!r}")
-    if focused.shape[-2:] != image.shape[-2:]:
-        raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
-                         f"all-in-focus photo is {tuple(image.shape[-2:])}")
-    h, w = image.shape[-2:]
+    h, w = focused.shape[-2:]
     max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
     scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
     out = _run_at(model, image, focused, settings, near, far, scale, align)
@@ -136,18 +138,29 @@ def to_working_resolution(image: Tensor, focused: Tensor, settings: CameraSettin
     return small, settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
 
 
-def _run_at(model: nn.Module, image: Tensor, focused: Tensor, settings: CameraSettings,
-                near: float, far: float, scale: float, align: bool) -> dict[str, Tensor | float]:
-    """`run_at_working_resolution`'s pass over `[near, far]` at the working `scale`."""
-    h, w = image.shape[-2:]
-    small, effective = to_working_resolution(image, focused, settings, scale)
+def _run_at(model: nn.Module, image: Tensor | None, focused: Tensor, settings: CameraSettings,
+            near: float, far: float, scale: float, align: bool) -> dict[str, Tensor | float]:
+    """`run_at_working_resolution`'s pass over `[near, far]` at the working `scale`. Without
+    an all-in-focus `image` the first focused photo is the reference the others are aligned
+    to."""
+    h, w = focused.shape[-2:]
+    if image is None:
+        small, effective = to_working_resolution(focused[0], focused[1:], settings, scale)
+        first = 1  # the reference is shot 0 itself
+    else:
+        small, effective = to_working_resolution(image, focused, settings, scale)
+        first = 0
     size = small.shape[-2:]
+    moving = small[1:][None]
     identity = torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=small.dtype,
-                            device=small.device).expand(1, len(focused), 4)
-    shots, motions = align_shots(small[:1], small[1:][None]) if align \
-        else (small[1:][None], identity)
+                            device=small.device).expand(1, moving.shape[1], 4)
+    shots, motions = align_shots(small[:1], moving) if align and moving.shape[1] \
+        else (moving, identity)
+    if first:
+        shots = torch.cat([small[:1][None], shots], 1)
+        motions = torch.cat([identity[:, :1], motions], 1)
     with torch.no_grad():
-        out = model(small[:1], shots, effective.to(small.dtype), near, far)
+        out = model(None if first else small[:1], shots, effective.to(small.dtype), near, far)
     depth = F.interpolate(out["depth"], size=(h, w), mode="bilinear", align_corners=False)
     confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",
                                align_corners=False)

@@ -1,0 +1,75 @@
+"""Choose the settings of the methods without an all-in-focus photo on procedural scenes.
+
+The relative blur (`RelativeBlurDepth`) and depth from focus (`DepthFromFocus`) were tuned here,
+never on the cameras of `benchmarks/cameras.py` (the motorcycle is held out): 16 procedural scenes
+(`datasets.synthetic.generate_scene`, 128x192) under random cameras (`datasets.capture.
+random_camera`: 18-200 mm, f/1.2-f/8, disk and polygon PSFs, 2 or 3 shots), photographed with a
+real sensor's imperfections (`CaptureNoise()`). For each variant it prints the median and mean
+over scenes of the abs rel ratio to the best constant depth (lower is better).
+
+Usage:
+
+    python benchmarks/tune_focus_stack.py                       # the shipped settings
+    python benchmarks/tune_focus_stack.py --variant '{"aggregation": "windows"}'
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from datasets.capture import capture, random_camera  # noqa: E402
+from datasets.synthetic import generate_scene  # noqa: E402
+from models.depth_from_photos import estimate_depth  # noqa: E402
+from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
+
+
+def scenes(n: int, shots: int | None, seed: int = 1234):
+    """`n` procedural tuning scenes (photos, settings, depth, range), `shots` per scene (2 or 3
+    alternately when None)."""
+    rng = np.random.default_rng(seed)
+    for k in range(n):
+        near = float(rng.uniform(1.0, 3.0))
+        far = near * float(rng.uniform(2.0, 5.0))
+        image, depth = generate_scene((128, 192), rng, (near, far))
+        count = shots or 2 + k % 2
+        settings = random_camera(rng, near, far, count, (3.0, 20.0))
+        aif, focused = capture(image, depth, settings, rng)
+        yield aif, focused, settings, depth, (near * 0.8, far * 1.25)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--method", default="relative-blur", help="a method of estimate_depth")
+    parser.add_argument("--variant", default="{}", help="JSON options of the method's class")
+    parser.add_argument("--scenes", type=int, default=16)
+    parser.add_argument("--shots", type=int, default=None, help="shots per scene (default 2/3)")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(1)
+    options = json.loads(args.variant)
+    ratios = []
+    for aif, focused, settings, depth, depth_range in scenes(args.scenes, args.shots):
+        target, mask = depth[None], torch.ones_like(depth[None], dtype=torch.bool)
+        constant = best_constant_depth(target=target, mask=mask)
+        floor = depth_metrics(pred=torch.full_like(target, constant), target=target,
+                              mask=mask)["abs_rel"]
+        out = estimate_depth(focused, settings, depth_range, method=args.method,
+                             options=options, all_in_focus=False,
+                             image=aif if args.method == "sweep" else None)
+        ratios.append(depth_metrics(pred=out["depth"][None], target=target,
+                                    mask=mask)["abs_rel"] / floor)
+    print(f"{args.method} {options}: median {statistics.median(ratios):.3f} mean "
+          f"{statistics.fmean(ratios):.3f} over {len(ratios)} scenes")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
