@@ -21,7 +21,13 @@ from optics.progress import progress_bar
 
 from .confidence import texture_confidence
 from .fourier_blur import FLOOR_SIGMA_PX
-from .semi_global import SCALE_STRIDE, cost_scale, semi_global_cost
+from .semi_global import (
+    JUMP_PENALTY,
+    SCALE_STRIDE,
+    SMOOTH_PENALTY,
+    cost_scale,
+    semi_global_cost,
+)
 from .smoothing import edge_aware_smooth
 from .thin_lens import ERROR_WINDOW_PX, WINDOWS, aggregate_cost, select_depth
 from .tiling import apply_in_tiles, check_tiling
@@ -62,6 +68,9 @@ class CostVolumeDepth(nn.Module):
             `aggregate_cost`; tiles then give exactly the untiled result, while semi-global
             tiles see `SEMI_GLOBAL_CONTEXT_PX` of context and agree with the untiled result at
             nearly every pixel).
+        smooth_penalty: semi-global penalty for a change of one candidate between neighbours
+            (`semi_global_cost`).
+        jump_penalty: semi-global penalty for a larger jump away from the photo's edges.
     """
 
     #: Largest blur (pixels) at the working resolution that `estimate_depth` lets it read: the
@@ -69,8 +78,13 @@ class CostVolumeDepth(nn.Module):
     max_coc_px = 20.0
 
     def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False,
-                 smoothing: float = SMOOTHING_STRENGTH, aggregation: str = "semi-global"):
+                 smoothing: float = SMOOTHING_STRENGTH, aggregation: str = "semi-global",
+                 smooth_penalty: float = SMOOTH_PENALTY, jump_penalty: float = JUMP_PENALTY):
         super().__init__()
+        if not (smooth_penalty >= 0 and jump_penalty >= smooth_penalty):
+            raise ValueError(f"need 0 <= smooth_penalty <= jump_penalty, got {smooth_penalty!r} "
+                             f"and {jump_penalty!r}")
+        self.smooth_penalty, self.jump_penalty = float(smooth_penalty), float(jump_penalty)
         if n_candidates < 3:
             raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
         if aggregation not in AGGREGATIONS:
@@ -109,7 +123,8 @@ class CostVolumeDepth(nn.Module):
         def depth_of(guide: Tensor, *photos: Tensor, scale: Tensor | None = None) -> Tensor:
             volume = cost(guide, *photos)
             if self.aggregation == "semi-global":
-                volume = semi_global_cost(volume, guide, scale=scale)
+                volume = semi_global_cost(volume, guide, self.smooth_penalty, self.jump_penalty,
+                                          scale=scale)
             else:
                 volume = aggregate_cost(volume)
             return kornia.filters.median_blur(select_depth(volume, near, far), MEDIAN_PX)
