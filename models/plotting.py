@@ -9,6 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import torch
+import torch.nn.functional as F
 from kornia.color import linear_rgb_to_rgb
 from torch import Tensor
 
@@ -68,6 +69,7 @@ def plot_prediction(
     fig = Figure(figsize=(2.8 * len(panels), 2.8), layout="constrained")
     axes = fig.subplots(1, len(panels), squeeze=False)
     for ax, (name, data, kind) in zip(axes[0], panels, strict=True):
+        data = _for_display(data, kind == "rgb")
         if kind == "rgb":
             ax.imshow(linear_to_srgb(data).permute(1, 2, 0).numpy())
         else:
@@ -83,6 +85,23 @@ def plot_prediction(
         fig.suptitle(title, fontsize=10)
     fig.savefig(path, dpi=90)
     return path
+
+
+#: Longest side (pixels) of a panel's data: a figure panel shows a few hundred pixels, and a
+#: 12-megapixel photo held at full size by matplotlib would cost gigabytes.
+DISPLAY_PX = 1024
+
+
+def _for_display(data: Tensor, smooth: bool) -> Tensor:
+    """`data` `(3,H,W)` or `(H,W)` shrunk to at most `DISPLAY_PX` on its longer side (area
+    averaged where `smooth`, else nearest, which keeps NaNs and sharp values)."""
+    h, w = data.shape[-2:]
+    if max(h, w) <= DISPLAY_PX:
+        return data
+    size = (max(1, round(h * DISPLAY_PX / max(h, w))), max(1, round(w * DISPLAY_PX / max(h, w))))
+    batch = data[None] if data.dim() == 3 else data[None, None]
+    small = F.interpolate(batch, size=size, mode="area" if smooth else "nearest")
+    return small[0] if data.dim() == 3 else small[0, 0]
 
 
 def plot_comparison(

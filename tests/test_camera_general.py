@@ -459,13 +459,14 @@ def test_predict_says_which_camera_value_is_missing(photos, tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model", ["network", "checkpoint", "sweep"])
+@pytest.mark.parametrize("model", ["network", "checkpoint", "sweep", "stack"])
 def test_predict_12_megapixels_within_3_gb(tmp_path, model):
     """A 3000x4000 photo set runs within 3 GB resident memory on every path of `defocus
     predict`: the camera-general network and the sweep at a working resolution (for the sweep, a
     camera whose small blur leaves 1.5 megapixels to sweep), a `defocus train` network for one
-    camera at full resolution in tiles."""
-    weights = {"network": [f"{tmp_path}/w.pt"], "sweep": []}.get(model)
+    camera at full resolution in tiles, and a stack of 3 focused photos without an all-in-focus
+    one (relative blur, then the all-in-focus image fused at full resolution)."""
+    weights = {"network": [f"{tmp_path}/w.pt"], "sweep": [], "stack": []}.get(model)
     if model == "checkpoint":  # a tiny one-camera network (trained in its own process)
         command = ["train", "--set", "steps=2", "batch_size=2", "width=8", "progress=false",
                    "--size", "24", "24", "--scenes", "4", "--out", str(tmp_path / "run")]
@@ -476,6 +477,10 @@ def test_predict_12_megapixels_within_3_gb(tmp_path, model):
         weights = [str(tmp_path / "run" / "checkpoints" / "last.pt")]
     lens = ["--f-number", "1.8", "--focal-length", "0.035"] if model == "network" \
         else ["--f-number", "8", "--focal-length", "0.018"]
+    shots = (["--focused", "paths[0]", "paths[1]", "paths[2]", "--focus-distance", "1.5", "4",
+              "8"] if model == "stack" else
+             ["--image", "paths[0]", "--focused", "paths[1]", "paths[2]", "--focus-distance",
+              "1.5", "4"])
     script = f"""
 import resource, sys, numpy as np, torch
 from PIL import Image
@@ -491,8 +496,8 @@ for i in range(3):
     Image.fromarray(array).save(r"{tmp_path}/p%d.png" % i)
     paths.append(r"{tmp_path}/p%d.png" % i)
 del array
-code = main(["predict", *{weights!r}, "--image", paths[0], "--focused", *paths[1:],
-             "--focus-distance", "1.5", "4", *{lens!r},
+shots = [paths[int(a[6])] if a.startswith("paths[") else a for a in {shots!r}]
+code = main(["predict", *{weights!r}, *shots, *{lens!r},
              "--pixel-pitch", "1.5e-6", "--depth-range", "0.8", "10", "--out", r"{tmp_path}/o"])
 print("peak_mib", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "code", code)
 """
@@ -505,6 +510,8 @@ print("peak_mib", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "co
     assert np.load(tmp_path / "o" / "depth.npy").shape == (3000, 4000)
     if model == "sweep":
         assert "working resolution 0.35" in out.stdout  # 1.5 megapixels swept
+    if model == "stack":
+        assert (tmp_path / "o" / "all_in_focus.png").is_file()
 
 
 def test_the_blur_net_example_trains_from_a_config_with_photo_imperfections(tmp_path, capsys):

@@ -126,8 +126,10 @@ def run(args: argparse.Namespace) -> int:
         if path != first_path and torch.equal(photo, first):
             warnings.warn(f"{path} is identical to {first_path}: there is no defocus to read",
                           stacklevel=1)
+    del first
     # without focused photos only a network that reads the all-in-focus photo alone runs
     focused = torch.stack([p for p, _ in photos]) if photos else image[None]
+    photos = [(None, info) for _, info in photos]  # one copy of the pixels (memory)
     calibration = CameraSettings.from_json(args.camera) if args.camera else None
     sources: dict[str, str] = {}
     settings = photo_settings([info for _, info in photos], args.focus_distance,

@@ -133,8 +133,11 @@ def to_working_resolution(image: Tensor, focused: Tensor, settings: CameraSettin
     (the effective pixel pitch grows by the same factor)."""
     h, w = image.shape[-2:]
     size = (max(8, round(h * scale)), max(8, round(w * scale)))
-    stack = torch.cat([image[None], focused])
-    small = F.interpolate(stack, size=size, mode="area") if scale < 1 else stack
+    if scale < 1:  # photo by photo: no full-resolution copy of the stack
+        small = torch.cat([F.interpolate(photo[None], size=size, mode="area")
+                           for photo in (image, *focused)])
+    else:
+        small = torch.cat([image[None], focused])
     return small, settings.replace(pixel_pitch=settings.pixel_pitch * (w / size[1]))
 
 
