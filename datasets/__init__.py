@@ -4,30 +4,40 @@ Not Hugging Face's `datasets`: never install that package in this environment.
 """
 
 from .base import DepthDataset
+from .ddff12 import DDFF12
 from .dslr import DSLR
 from .focus import CameraPreset, cached_focal_stack
+from .fod500 import FoD500
 from .io import DataFormatError
 from .kitti import KITTI
 from .lightfield import LightField, LightFieldCalibration, refocus
 from .make3d import Make3D
 from .middlebury import Middlebury
+from .mobile_depth import MobileDepth
 from .nyu import NYUv2
 from .presets import PRESETS
+from .stacks import FocalStackDataset
 from .transforms import JointAugment
+from .zedd import ZEDD
 
 __all__ = [
+    "DDFF12",
     "DSLR",
     "KITTI",
     "PRESETS",
     "CameraPreset",
     "DataFormatError",
     "DepthDataset",
+    "FoD500",
+    "FocalStackDataset",
     "JointAugment",
     "LightField",
     "LightFieldCalibration",
     "Make3D",
     "Middlebury",
+    "MobileDepth",
     "NYUv2",
+    "ZEDD",
     "cached_focal_stack",
     "refocus",
 ]

@@ -20,7 +20,22 @@ def dataset_classes() -> dict[str, type]:
     from .synthetic import SyntheticScenes
 
     return {"synthetic": SyntheticScenes, "dslr": DSLR, "nyu": NYUv2, "kitti": KITTI,
-            "make3d": Make3D, "middlebury": Middlebury, "lightfield": LightField}
+            "make3d": Make3D, "middlebury": Middlebury, "lightfield": LightField,
+            **stack_dataset_classes()}
+
+
+def stack_dataset_classes() -> dict[str, type]:
+    """Name -> class of the focal-stack benchmarks (real shots, each with its settings)."""
+    from .ddff12 import DDFF12
+    from .fod500 import FoD500
+    from .mobile_depth import MobileDepth
+    from .zedd import ZEDD
+
+    return {"ddff12": DDFF12, "fod500": FoD500, "zedd": ZEDD, "mobile_depth": MobileDepth}
+
+
+#: Names of the focal-stack benchmarks (`defocus evaluate --dataset NAME`).
+STACK_DATASET_NAMES = ("ddff12", "fod500", "zedd", "mobile_depth")
 
 
 #: Names accepted by `build_dataset`.
@@ -53,3 +68,31 @@ def build_dataset(name: str, root: str | Path | None = None, split: str = "train
     if root is None:
         raise ValueError(f"dataset {name!r} needs root, the dataset folder")
     return cls(root, split=split, size=tuple(size), **kwargs)
+
+
+def build_stack_dataset(name: str, root: str | Path, split: str | None = None,
+                        **kwargs: Any) -> DepthDataset:
+    """The focal-stack benchmark called `name` (one of `STACK_DATASET_NAMES`) read from `root`.
+
+    Args:
+        name: `"ddff12"`, `"fod500"`, `"zedd"` or `"mobile_depth"`.
+        root: the dataset folder in its release layout.
+        split: the benchmark's evaluation split when None (DDFF-12 `val`, FoD500 `test`,
+            ZEDD `val`); Mobile Depth has none.
+        **kwargs: passed to the dataset class.
+
+    Example:
+        >>> build_stack_dataset("kitti", "data")
+        Traceback (most recent call last):
+        ...
+        ValueError: unknown focal-stack benchmark 'kitti'; expected one of ddff12, fod500, zedd, mobile_depth
+    """
+    if name not in STACK_DATASET_NAMES:
+        raise ValueError(f"unknown focal-stack benchmark {name!r}; expected one of "
+                         f"{', '.join(STACK_DATASET_NAMES)}")
+    cls = stack_dataset_classes()[name]
+    if name == "mobile_depth":
+        if split not in (None, "all"):
+            raise ValueError(f"mobile_depth has no splits (got split {split!r})")
+        return cls(root, **kwargs)
+    return cls(root, **kwargs) if split is None else cls(root, split=split, **kwargs)

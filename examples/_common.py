@@ -248,3 +248,75 @@ def run_example(
     if evaluate_kwargs.get("has_depth", True):
         evaluate_kwargs.setdefault("constant_set", whole)
     return train_and_evaluate(name, args, train, test, depth_range=depth_range, **evaluate_kwargs)
+
+
+# ---- focal-stack benchmarks: score a method with the benchmark's own protocol -----------------
+
+#: Defaults per device kind for the benchmark examples: samples scored, working pixels.
+BENCHMARK_DEFAULTS = {"cpu": {"max_samples": 8, "max_pixels": 250_000},
+                      "cuda": {"max_samples": None, "max_pixels": 1_500_000}}
+
+
+def build_benchmark_parser(description: str, split: str | None) -> argparse.ArgumentParser:
+    """Arguments of the focal-stack benchmark examples (`--root` plus the method's knobs)."""
+    parser = argparse.ArgumentParser(
+        description=description, formatter_class=argparse.ArgumentDefaultsHelpFormatter
+    )
+    parser.add_argument("--root", type=Path, required=True, help="dataset folder (see the header)")
+    if split is not None:
+        parser.add_argument("--split", default=split, help="the split to score")
+    parser.add_argument("--device", default="auto",
+                        help="'auto' (CUDA when available), 'cpu', 'cuda', 'cuda:1', ...")
+    parser.add_argument("--method", choices=["auto", "sweep", "relative-blur", "focus"],
+                        default="auto", help="label-free method (auto: the sweep with an "
+                        "all-in-focus photo, the relative blur without)")
+    parser.add_argument("--max-samples", type=int, default=None,
+                        help="score at most this many samples (default: CPU 8, GPU all)")
+    parser.add_argument("--max-pixels", type=int, default=None,
+                        help="most pixels of the method's working resolution (default: CPU "
+                             "250000, GPU 1500000); metrics use the native resolution")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="CPU threads of PyTorch (0: its default)")
+    parser.add_argument("--json", type=Path, default=None, help="also write the metrics here")
+    return parser
+
+
+def run_benchmark_example(name: str, args: argparse.Namespace, dataset: Dataset,
+                          protocol: str | None) -> dict[str, float] | None:
+    """Score `args.method` on `dataset` with `protocol` (`models.metrics.PROTOCOLS`) through
+    `models.benchmarks.evaluate_benchmark` and print the paper-style table; with no protocol
+    (no ground truth) print the depth range of each scene instead. Returns the metrics."""
+    import json
+
+    from models.benchmarks import evaluate_benchmark, label_free_method
+    from models.metrics import PROTOCOLS, format_table
+
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    kind = device_kind(args.device)
+    defaults = BENCHMARK_DEFAULTS[kind]
+    device = kind if args.device == "auto" else args.device
+    count = args.max_samples if args.max_samples is not None else defaults["max_samples"]
+    count = len(dataset) if count is None else min(count, len(dataset))
+    method = label_free_method(dataset.depth_range, args.method, device=device,
+                               max_pixels=args.max_pixels or defaults["max_pixels"])
+    print(f"{name}: scoring {count} of {len(dataset)} samples with the {method.name} method on "
+          f"{device}")
+    samples = (dataset[i] for i in range(count))
+    if protocol is None:
+        for i, sample in enumerate(samples):
+            depth = method(sample)
+            print(f"  {sample['id']}: depth {float(depth.min()):.3g}-{float(depth.max()):.3g} m "
+                  f"({i + 1}/{count}); no ground truth: judge the depth maps by eye")
+        return None
+
+    def report(index: int, sample_id: str, values: dict[str, float]) -> None:
+        print(f"  {index + 1}/{count} {sample_id}: abs rel {values['abs_rel']:.4g}", flush=True)
+
+    metrics = evaluate_benchmark(samples, method, protocol, report=report)
+    print(format_table({f"{method.name} (label-free)": metrics},
+                       metrics=PROTOCOLS[protocol].metrics, number_format="{:.4g}"))
+    print(f"protocol: {PROTOCOLS[protocol].source}")
+    if args.json:
+        args.json.write_text(json.dumps(metrics, indent=2))
+    return metrics

@@ -1,4 +1,5 @@
-"""`defocus evaluate`: metrics of a trained checkpoint on a dataset or the motorcycle scene."""
+"""`defocus evaluate`: metrics of a trained checkpoint on a dataset or the motorcycle scene, or
+of a method on a focal-stack benchmark with the benchmark's own protocol (`--dataset`)."""
 
 from __future__ import annotations
 
@@ -6,13 +7,33 @@ import argparse
 import json
 from pathlib import Path
 
+from datasets.registry import STACK_DATASET_NAMES
+
 from .train import add_data_arguments, build_dataset
+
+BENCHMARKS = STACK_DATASET_NAMES
+#: Label-free methods (`models.depth_from_photos.METHODS`, listed here so that the help is
+#: built without importing the models) and "auto".
+METHOD_NAMES = ("auto", "sweep", "relative-blur", "focus")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("checkpoint", type=Path, help="checkpoint file (.pt) written by training")
+    parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
+                        help="checkpoint file (.pt) written by training; optional with --dataset "
+                             "(then a label-free method is scored)")
     add_data_arguments(parser, extra_choices=("motorcycle",), default="motorcycle")
-    parser.set_defaults(split="test")
+    parser.set_defaults(split=None)
+    parser.add_argument("--dataset", choices=BENCHMARKS, default=None,
+                        help="a focal-stack benchmark in its release layout under --root, scored "
+                             "with its paper's protocol (replaces --data)")
+    parser.add_argument("--method", choices=METHOD_NAMES, default="auto",
+                        help="label-free method for --dataset without a checkpoint (auto: the "
+                             "sweep with an all-in-focus photo, the relative blur without)")
+    parser.add_argument("--max-samples", type=int, default=None,
+                        help="--dataset: score at most this many samples")
+    parser.add_argument("--max-pixels", type=int, default=1_500_000,
+                        help="--dataset: most pixels of the label-free method's working "
+                             "resolution (metrics are computed at the native resolution)")
     parser.add_argument("--scale", type=float, default=0.25,
                         help="downscale factor of the motorcycle scene (--data motorcycle)")
     parser.add_argument("--depth-cap", type=float, default=None,
@@ -27,6 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from defocus.cli import CommandError
+
+    if args.dataset is not None:
+        return run_benchmark(args)
+    if args.checkpoint is None:
+        raise CommandError("give a checkpoint file, or --dataset NAME --root FOLDER to score a "
+                           "label-free method on a focal-stack benchmark")
     from models.metrics import format_table
     from models.training import COLLAPSE_FRACTION, Trainer
 
@@ -36,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
 
         test_set = [motorcycle_sample(args.scale)]
     else:
-        test_set = build_dataset(args, split=args.split, seed_offset=1_000)
+        test_set = build_dataset(args, split=args.split or "test", seed_offset=1_000)
     metrics = trainer.evaluate(test_set, depth_cap=args.depth_cap, crop=args.crop,
                                median_scaling=args.median_scaling, min_depth=args.min_depth)
     print(format_table({args.checkpoint.parent.parent.name or "model": metrics}))
@@ -47,4 +75,49 @@ def run(args: argparse.Namespace) -> int:
               "network collapsed to its depth limits; these metrics mean little")
     if args.json:
         args.json.write_text(json.dumps(metrics, indent=2))
+    return 0
+
+
+def run_benchmark(args: argparse.Namespace) -> int:
+    """`--dataset NAME --root FOLDER`: the benchmark's protocol table of one method."""
+    from datasets.registry import build_stack_dataset
+    from defocus.cli import CommandError
+    from models.benchmarks import evaluate_benchmark, label_free_method
+    from models.metrics import PROTOCOLS, format_table
+
+    if args.root is None:
+        raise CommandError(f"--dataset {args.dataset} needs --root, the dataset folder")
+    if args.max_samples is not None and args.max_samples < 1:
+        raise CommandError(f"--max-samples must be >= 1, got {args.max_samples}")
+    if args.max_pixels < 1024:
+        raise CommandError(f"--max-pixels must be >= 1024, got {args.max_pixels}")
+    dataset = build_stack_dataset(args.dataset, args.root, split=args.split)
+    if args.dataset not in PROTOCOLS:
+        print(f"{args.dataset}: {len(dataset)} scenes read from {args.root}; it has no "
+              "ground-truth depth, so it is judged by eye: nothing is scored (see "
+              f"examples/{args.dataset}.py for the depth maps)")
+        return 0
+    model = None
+    if args.checkpoint is not None:
+        from models.depth_from_photos import TrainedNetwork
+        from models.training import load_model
+
+        network, config = load_model(args.checkpoint, "cpu")
+        model = TrainedNetwork(network, config.input_mode, config.n_focus,
+                               (config.depth_min, config.depth_max))
+    method = label_free_method(dataset.depth_range, args.method, model=model,
+                               max_pixels=args.max_pixels)
+    count = len(dataset) if args.max_samples is None else min(args.max_samples, len(dataset))
+    samples = (dataset[i] for i in range(count))
+    protocol = PROTOCOLS[args.dataset]
+
+    def report(index: int, sample_id: str, values: dict[str, float]) -> None:
+        print(f"  {index + 1}/{count} {sample_id}: abs rel {values['abs_rel']:.4g}", flush=True)
+
+    metrics = evaluate_benchmark(samples, method, protocol, report=report)
+    name = args.checkpoint.name if args.checkpoint is not None else method.name
+    print(format_table({name: metrics}, metrics=protocol.metrics, number_format="{:.4g}"))
+    print(f"{args.dataset}: {metrics['images']:.0f} images; protocol: {protocol.source}")
+    if args.json:
+        args.json.write_text(json.dumps({"protocol": args.dataset, **metrics}, indent=2))
     return 0

@@ -1,0 +1,46 @@
+"""Depth from focus on the Mobile Depth stacks (phone photos, no ground truth: judged by eye).
+
+Data: Mobile Depth of Suwajanakorn et al., "Depth from Focus with Your Mobile Phone" (CVPR
+2015): 13 scenes filmed while the phone sweeps its focus. Download depth_from_focus_data2.zip
+from supasorn.com/dffdownload.html and give the folder of scene folders as ``--root``::
+
+    <scene>/a00.jpg, a01.jpg, ...   aligned frames in capture order
+    <scene>/focus_dpth.txt          optional calibrated focus value per frame (relative)
+
+The focus distances are not metric (the calibration recovers them up to an affine map of inverse
+distance): they are spread over ``--focus-range``. No depth comes with the data, so nothing is
+scored: the example prints each scene's depth range for a look at the maps.
+
+CPU (default; 8 scenes, 5 frames each, a few minutes)::
+
+    python examples/mobile_depth.py --root data/mobile_depth
+
+GPU (every scene, every frame)::
+
+    python examples/mobile_depth.py --root data/mobile_depth --device cuda --frames 0
+"""
+
+from __future__ import annotations
+
+import sys
+
+from _common import build_benchmark_parser, run_benchmark_example
+
+from datasets import MobileDepth
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_benchmark_parser(__doc__.splitlines()[0], split=None)
+    parser.add_argument("--focus-range", type=float, nargs=2, metavar=("NEAR", "FAR"),
+                        default=[0.1, 1.0], help="metres the frames' focus is spread over")
+    parser.add_argument("--frames", type=int, default=5,
+                        help="frames per scene, evenly spaced (0: all)")
+    args = parser.parse_args(argv)
+    dataset = MobileDepth(args.root, focus_range=tuple(args.focus_range),
+                          n_shots=args.frames or None)
+    run_benchmark_example("Mobile Depth", args, dataset, None)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
