@@ -262,3 +262,38 @@ def test_predict_on_the_real_breakfast_pair(tmp_path):
                for name, (y0, y1, x0, x1) in regions.items()}
     for name in ("bread", "cup", "table front"):
         assert medians["background"] > medians[name] * 1.2, medians
+
+
+def test_a_nearly_sharp_image_is_one_more_shot_with_its_own_settings():
+    """An f/8 photo beside f/2 ones focused at the same distance and another (as in the real
+    DSLR set): with `image_settings` it is one more shot of the relative blur, not a perfect
+    all-in-focus photo, and the depth beats the best constant."""
+    rng = np.random.default_rng(9)
+    image, depth = generate_scene((96, 128), rng, (1.5, 5.0))
+    shots = CameraSettings(0.05, [8.0, 2.0, 2.0], [1.4, 1.4, 4.5], 1e-4, aperture="disk")
+    _, photos = capture(image, depth, shots, rng, CaptureNoise())
+    settings, f8 = shots.select_shots([1, 2]), shots.select_shots([0])
+    out = estimate_depth(photos[1:], settings, (1.0, 8.0), image=photos[0], image_settings=f8)
+    assert out["blur"].shape[0] == 3  # the f/8 photo counted as a shot
+    error = ((out["depth"] - depth).abs() / depth).mean()
+    constant = ((depth.median() - depth).abs() / depth).mean()
+    assert float(error) < 0.6 * float(constant)
+    with pytest.raises(ValueError, match="1 shot"):
+        estimate_depth(photos[1:], settings, (1.0, 8.0), image=photos[0], image_settings=shots)
+
+
+def test_predict_with_a_nearly_sharp_image(tmp_path, capsys):
+    settings = CameraSettings(0.05, 2.0, [1.4, 4.5], 1e-4, aperture="disk")
+    paths = _write_pngs(tmp_path, settings)
+    out = tmp_path / "out"
+    assert main(["predict", "--image", paths[0], "--image-f-number", "8", "--focused",
+                 *paths, "--focus-distance", "1.4", "4.5", "--f-number", "2",
+                 "--focal-length", "0.05", "--pixel-pitch", "1e-4", "--depth-range", "1", "8",
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "--image is one more shot: f/8, focused at 1.4 m" in printed
+    assert "method relative-blur" in printed
+    assert main(["predict", "--image", paths[0], "--image-f-number", "8", "--method", "sweep",
+                 "--focused", *paths, "--focus-distance", "1.4", "4.5", "--out",
+                 str(tmp_path / "no")]) == 2
+    assert "--image-f-number" in capsys.readouterr().err

@@ -23,6 +23,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="all-in-focus photo (raw file, TIFF, PNG or JPEG; small aperture, "
                              "e.g. f/11); without it the focused photos alone are compared "
                              "with each other")
+    parser.add_argument("--image-f-number", type=float, default=None, metavar="N",
+                        help="the --image photo's f-number where it is only nearly sharp (e.g. "
+                             "8 beside f/2.8 shots): it then counts as one more shot with its "
+                             "own blur, compared by the relative blur (default: a perfect "
+                             "all-in-focus photo)")
+    parser.add_argument("--image-focus-distance", type=float, default=None, metavar="M",
+                        help="with --image-f-number: where --image was focused, metres "
+                             "(default: as the first focused photo)")
     parser.add_argument("--focused", type=Path, nargs="*", default=[], metavar="PHOTO",
                         help="focused photos of the same view, each focused elsewhere (1-5 "
                              "with --image, 2 or more without)")
@@ -111,6 +119,13 @@ def run(args: argparse.Namespace) -> int:
     if args.image is None and (model is not None or len(args.focused) < 2):
         raise CommandError("give --image (an all-in-focus photo), or 2 or more --focused photos "
                            f"focused at different distances (got {len(args.focused)})")
+    if args.image_focus_distance is not None and args.image_f_number is None:
+        raise CommandError("--image-focus-distance goes with --image-f-number (the --image "
+                           "photo as one more shot)")
+    if args.image_f_number is not None and (args.image is None or model is not None
+                                            or args.method in ("sweep", "focus")):
+        raise CommandError("--image-f-number makes --image one more shot of the relative blur: "
+                           "give --image, no model file, and --method auto or relative-blur")
     if args.image is None and args.method == "sweep":
         raise CommandError("--method sweep compares the focused photos with an all-in-focus "
                            "photo: give --image")
@@ -150,14 +165,25 @@ def run(args: argparse.Namespace) -> int:
         if model.input_mode == "aif+focused" and len(photos) != model.n_focus:
             raise CommandError(f"this network needs {model.n_focus} --focused photos, got "
                                f"{len(photos)}")
+    image_settings = None
+    if args.image_f_number is not None:
+        focus = args.image_focus_distance or float(settings.focus_distance.reshape(-1)[0])
+        image_settings = settings.select_shots([0]).replace(
+            f_number=torch.tensor([args.image_f_number], dtype=torch.float64),
+            focus_distance=torch.tensor([focus], dtype=torch.float64))
     method = args.method if args.method != "auto" or model is not None \
-        else choose_method(image is not None, len(photos))
+        else choose_method(image is not None and image_settings is None,
+                           len(photos) + (image_settings is not None))
     options = {"aggregation": args.aggregation} if method in ("sweep", "relative-blur") \
         and model is None else None
     out = estimate_depth(focused.to(device), settings, depth_range,
-                         image=None if image is None else image.to(device), method=method,
+                         image=None if image is None else image.to(device),
+                         image_settings=image_settings, method=method,
                          model=model, options=options, progress=True)
     infos = ([] if image_info is None else [image_info]) + [info for _, info in photos]
+    if image_settings is not None:
+        print(f"--image is one more shot: f/{args.image_f_number:g}, focused at "
+              f"{float(image_settings.focus_distance[0]):g} m")
     if "shifts" in out:
         _report_working_resolution(out, depth_range, infos, method)
     depth = out["depth"].cpu()

@@ -26,7 +26,7 @@ from .blur_net import BlurNet, DepthFromDefocus, solve_depth, train_blur_net
 from .confidence import depth_edge_confidence, texture_confidence, texture_weight
 from .cost_volume import CostVolumeDepth
 from .depth_from_focus import DepthFromFocus, focus_measures, focus_peak
-from .estimate import METHODS, check_shots_differ, choose_method, estimate_depth
+from .estimate import METHODS, check_shots_differ, choose_method, estimate_depth, join_shots
 from .photometry import match_exposure, noise_model
 from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
 from .resolution import run_at_working_resolution, scene_range, working_scale
@@ -53,6 +53,7 @@ __all__ = [
     "focus_measures",
     "focus_peak",
     "fuse_all_in_focus",
+    "join_shots",
     "match_exposure",
     "noise_model",
     "relative_blur_cost",

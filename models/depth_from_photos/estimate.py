@@ -61,6 +61,24 @@ def choose_method(has_image: bool, n_shots: int = 2) -> str:
     return "relative-blur"
 
 
+def join_shots(first: CameraSettings, second: CameraSettings) -> CameraSettings:
+    """The `(F1 + F2,)` settings of the shots of `first` then those of `second` (one scene, one
+    aperture: `second`'s).
+
+    Example:
+        >>> joined = join_shots(CameraSettings(0.035, 8.0, [1.7], 5.6e-5),
+        ...                     CameraSettings(0.035, 2.8, [1.7], 5.6e-5))
+        >>> joined.f_number.tolist()
+        [8.0, 2.8]
+    """
+    if first.is_batched or second.is_batched:
+        raise ValueError("join_shots joins the shots of one scene: give unbatched (F,) settings")
+    fields = {name: torch.cat([first.tensors()[name].reshape(-1),
+                               second.tensors()[name].reshape(-1).to(first.tensors()[name])])
+              for name in first.tensors()}
+    return CameraSettings(**fields, aperture=second.aperture)
+
+
 def check_shots_differ(settings: CameraSettings, near: float, far: float) -> None:
     """Refuse shots that cannot tell depths in `[near, far]` metres apart: two shots with the
     same focus distance and f-number (the same blur at every depth), or a range over which no
@@ -96,7 +114,8 @@ def check_shots_differ(settings: CameraSettings, near: float, far: float) -> Non
 
 def estimate_depth(
     focused: Tensor, settings: CameraSettings | None, depth_range: tuple[float, float], *,
-    image: Tensor | None = None, method: str = "auto", model: nn.Module | None = None,
+    image: Tensor | None = None, image_settings: CameraSettings | None = None,
+    method: str = "auto", model: nn.Module | None = None,
     options: Mapping[str, Any] | None = None, max_coc_px: float | None = None,
     max_pixels: int = 1_500_000, align: bool = True, refine_range: bool = True,
     progress: bool = False, all_in_focus: bool = True,
@@ -111,6 +130,10 @@ def estimate_depth(
         depth_range: `(near, far)` metres the scene lies within: the thin lens has two depths
             for each blur, and the range picks the right one.
         image: the all-in-focus photo `(3,H,W)` (a small aperture), linear, where there is one.
+        image_settings: the `(1,)` settings of `image` where it is only nearly sharp (an f/8
+            shot beside f/2.8 ones): it then counts as one more shot with its own blur, first
+            in the stack, and the shots are compared by their relative blur; the returned
+            `blur` then holds it first.
         method: a name of `METHODS`, or `"auto"`: the one that suits the photos
             (`choose_method`).
         model: a method object to run instead of `method` (see the module docstring).
@@ -155,6 +178,15 @@ def estimate_depth(
         if focused.shape[-2:] != image.shape[-2:]:
             raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
                              f"all-in-focus photo is {tuple(image.shape[-2:])}")
+    if image_settings is not None:
+        if image is None or settings is None:
+            raise ValueError("image_settings are the settings of image: give image and the "
+                             "focused photos' settings too")
+        if image_settings.n_shots != 1:
+            raise ValueError(f"image_settings must hold 1 shot, got {image_settings.n_shots}")
+        focused = torch.cat([image[None], focused])
+        settings = join_shots(image_settings, settings)
+        image = None
     near, far = (float(d) for d in depth_range)
     if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
         raise ValueError(f"depth_range must be finite metres (near, far) with 0 < near < far, "
