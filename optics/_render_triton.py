@@ -1,10 +1,8 @@
 """Triton kernels for the fused, normalised scatter operators (`defocus::gaussian_render`,
 `defocus::clamp_render` and their backward operators) and for the unnormalised spreads they are
 built from (`defocus::gaussian_scatter`, `defocus::clamp_scatter` and their backward operators:
-the gather and layered modes), registered as their CUDA implementations.
-
-Imported by `optics._render_ops`; without Triton this module defines nothing that runs and
-registers nothing, so the operators keep their PyTorch fallback on CUDA.
+the gather and layered modes), registered as their CUDA implementations when `optics.render`
+imports this module; without Triton nothing is registered (the PyTorch fallback runs on CUDA).
 
 Each kernel is a *gather* over the window: one program owns a `BLOCK_H x BLOCK_W` tile of pixels
 and loops over the `K x K` offsets, so no atomics are needed.
@@ -21,10 +19,9 @@ and loops over the `K x K` offsets, so no atomics are needed.
   the groups afterwards, `sum_c x_c(q) sum_u w'_q(u) g_c(q + u)` (the operators' `(dx_raw, m)`).
 
 The weight `w_q(u)` is `exp(-|u|^2 / (2 sigma_q^2))` (Gaussian) or `clamp(rho_q - D(u), 0, 1)`
-(disk, polygons; `D` the `K x K` distance table). Taps outside the image are skipped, and so are,
-for the clamp, offsets farther than the largest rho (of the image in the forward, of the tile in
-the backward), whose weight and slope are zero. Float32 and float64 run natively; other floating
-dtypes are computed in float32.
+(disk, polygons; `D` the `K x K` distance table). Skipped: taps outside the image and, for the
+clamp, offsets beyond the largest rho (the image's forward, the tile's backward: zero weight and
+slope). Float32 and float64 run natively; other floating dtypes are computed in float32.
 """
 
 from __future__ import annotations
@@ -45,10 +42,9 @@ except ImportError:  # no Triton (CI): nothing to register
 #: Pixels per program: a `BLOCK_H x BLOCK_W` tile (powers of two); with `BLOCK_W = 32 NUM_WARPS`
 #: each thread holds one column of the tile, all its rows and channels.
 BLOCK_H, BLOCK_W, NUM_WARPS = 4, 128, 4
-#: Pixels per program of the per-pixel preparation pass.
-BLOCK_PREP = 256
-#: Channels per program of the unnormalised spreads (a power of two).
-CHANNEL_GROUP = 8
+#: Pixels per program of the per-pixel preparation pass; channels per program of the
+#: unnormalised spreads (a power of two).
+BLOCK_PREP, CHANNEL_GROUP = 256, 8
 
 
 def available() -> bool:
@@ -455,13 +451,12 @@ def _gaussian_render_backward(grad, y, den, x, sigma, half):
 
 
 def _clamp_render(x, rho, dist, half):
-    k = int(half)
-    return _cast(render(x, rho, k, _render_ops._window(dist, k)), x, rho)
+    return _cast(render(x, rho, int(half), _render_ops._window(dist, int(half))), x, rho)
 
 
 def _clamp_render_backward(grad, y, den, x, rho, dist, half):
-    k = int(half)
-    return _cast(render_backward(grad, y, den, x, rho, k, _render_ops._window(dist, k)), x, rho)
+    table, k = _render_ops._window(dist, int(half)), int(half)
+    return _cast(render_backward(grad, y, den, x, rho, k, table), x, rho)
 
 
 def _gaussian_scatter(x, sigma, norm, half):
@@ -473,13 +468,12 @@ def _gaussian_scatter_backward(grad, x, sigma, half):
 
 
 def _clamp_scatter(x, rho, norm, dist, half):
-    k = int(half)
-    return spread(x, rho, norm, k, _render_ops._window(dist, k)).to(x.dtype)
+    return spread(x, rho, norm, int(half), _render_ops._window(dist, int(half))).to(x.dtype)
 
 
 def _clamp_scatter_backward(grad, x, rho, dist, half):
-    k = int(half)
-    return _cast(spread_backward(grad, x, rho, k, _render_ops._window(dist, k)), x, rho)
+    table = _render_ops._window(dist, int(half))
+    return _cast(spread_backward(grad, x, rho, int(half), table), x, rho)
 
 
 #: The operators with Triton kernels and those kernels' wrappers.

@@ -36,7 +36,12 @@ import warnings
 import torch
 from torch import Tensor, nn
 
-from . import _render_cpp
+from . import (
+    _render_cpp,
+    _render_layer_ops,
+    _render_profile,
+    _render_triton,  # noqa: F401  (registers the Triton kernels of ops on CUDA)
+)
 from . import _render_ops as ops
 from .aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
 from .checks import check_depth, check_finite, check_shape
@@ -247,7 +252,7 @@ def _linear_filter(
             return ops.clamp_gather(x, rho, dist, half_t)
         return ops.clamp_scatter(x, rho, ops.clamp_norm(rho, dist, half_t), dist, half_t)
     params = [p for p in psf.parameters() if p.requires_grad]
-    return ops.ProfileFilter.apply(x, coc_px, psf, scatter, int(half), *params)
+    return _render_profile.ProfileFilter.apply(x, coc_px, psf, scatter, int(half), *params)
 
 
 def _render_paper(image: Tensor, coc_px: Tensor) -> Tensor:
@@ -309,7 +314,7 @@ def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
             param, dist = psf.sigma_px(coc_px), image.new_zeros(1, 1)
         else:
             param, dist = psf.edge_radius(coc_px) + 0.5, _distance_table(psf, half, cap, image)
-        return ops.layered_render(image, pos, param, dist, half_t, n_layers, kind)[0]
+        return _render_layer_ops.layered_render(image, pos, param, dist, half_t, n_layers, kind)[0]
     layers = split_layers(image, depth, n_layers)
     return composite_layers(_linear_filter(layers, coc_px, psf, half, True, cap), n_layers)
 
