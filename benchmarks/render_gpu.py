@@ -7,10 +7,10 @@ disk), `render_defocus(..., mode="scatter")` and `gaussian_blur2d` with the same
 forward+backward, round-robin in this process (one run of each per round, timed with CUDA events
 after a warm-up), on the inputs of `benchmarks/render.py` (a CoC map whose largest CoC needs
 exactly the `K` window). Ratios are medians of the per-round ratios. The second table runs, at
-`1x3x512x512` and `K = 15`, the gather and layered modes (8 layers; `scene` and `random` depth as
-in `benchmarks/render.py`): their unnormalised spreads run the Triton kernels
-`CHANNEL_GROUP` channels per program, the rest (layer weights, normalisation, compositing) is
-PyTorch.
+`1x3x512x512` and `K = 15`, the gather and layered modes (8 layers; the motorcycle,
+plane-and-discs and random depths as in `benchmarks/render.py`): their unnormalised spreads run
+the Triton kernels `CHANNEL_GROUP` channels per program, the rest (layer weights, normalisation,
+compositing) is PyTorch.
 
 The floor is the time to move, once, the bytes that a forward+backward must read and write:
 forward reads the image and the CoC and writes the output, backward reads the output's
@@ -45,8 +45,9 @@ SHAPES = [(1, 3, 512, 512), (8, 3, 512, 512)]
 KERNELS = [15, 31]
 METHODS = ["kornia", "gaussian/scatter", "disk/scatter"]
 #: The other modes, timed beside the two baselines.
-OTHER_METHODS = ["gaussian/gather", "disk/gather", "gaussian/layered-scene",
-                 "disk/layered-scene", "gaussian/layered", "disk/layered"]
+OTHER_METHODS = ["gaussian/gather", "disk/gather", "gaussian/layered-motorcycle",
+                 "disk/layered-motorcycle", "gaussian/layered-plane-discs",
+                 "disk/layered-plane-discs", "gaussian/layered-random", "disk/layered-random"]
 #: The goals' configuration (as in benchmarks/render.py) and their targets.
 GOAL_SHAPE, GOAL_K = (1, 3, 512, 512), 15
 
