@@ -28,12 +28,11 @@ import torch
 from torch import Tensor, nn
 
 from optics import CameraSettings
-from optics.checks import check_finite, check_shape
 
 from .all_in_focus import fuse_all_in_focus
 from .depth_from_focus import DepthFromFocus
 from .relative_blur import RelativeBlurDepth
-from .resolution import run_at_working_resolution
+from .resolution import check_photos, run_at_working_resolution
 from .sweep import SweepDepth
 from .thin_lens import candidate_inverse_depths, thin_lens_blur
 
@@ -170,14 +169,7 @@ def estimate_depth(
         >>> out["depth"].shape, out["confidence"].shape
         (torch.Size([1, 24, 24]), torch.Size([1, 24, 24]))
     """
-    check_shape("focused", focused, ["F", "3", "H", "W"])
-    check_finite("focused", focused)
-    if image is not None:
-        check_shape("image", image, ["3", "H", "W"])
-        check_finite("image", image)
-        if focused.shape[-2:] != image.shape[-2:]:
-            raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
-                             f"all-in-focus photo is {tuple(image.shape[-2:])}")
+    check_photos(focused, image)
     if image_settings is not None:
         if image is None or settings is None:
             raise ValueError("image_settings are the settings of image: give image and the "

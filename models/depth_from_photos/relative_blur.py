@@ -40,7 +40,7 @@ from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model
-from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_inverse_depths, thin_lens_blur
+from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_blurs, thin_lens_blur
 
 
 def relative_blur_px(sharper_px: Tensor, blurrier_px: Tensor) -> Tensor:
@@ -126,17 +126,11 @@ def relative_blur_cost(focused: Tensor, settings: CameraSettings, near: float, f
     b, n, _, h, w = focused.shape
     if n < 2:
         raise ValueError(f"the relative blur compares shots: focused needs 2 or more, got {n}")
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ValueError(f"every must be a positive integer, got {every!r}")
-    x = candidate_inverse_depths(near, far, n_candidates, focused)[::every]
-    settings = settings.batched(b).to(device=focused.device, dtype=focused.dtype)
-    if settings.n_shots != n:
-        raise ValueError(f"focused holds {n} shots but settings {settings.n_shots}")
-    predicted = thin_lens_blur(settings, x[None, None])  # (B,F,K)
+    predicted = candidate_blurs(settings, near, far, n_candidates, focused, n, every)  # (B,F,K)
     aperture = settings.aperture_module()
     if noise is None:
         noise = noise_model(focused.flatten(1, 2))
-    cost = torch.zeros(b, x.numel(), h, w, dtype=focused.dtype, device=focused.device)
+    cost = torch.zeros(b, predicted.shape[-1], h, w, dtype=focused.dtype, device=focused.device)
     for j in range(b):
         for p, q in itertools.combinations(range(n), 2):
             cost[j] += pair_errors(focused[j:j + 1, p], focused[j:j + 1, q], aperture,

@@ -37,6 +37,26 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
     return min(1.0, max_coc_px / max(largest, 1e-9), math.sqrt(max_pixels / (shape[0] * shape[1])))
 
 
+def check_photos(focused: Tensor, image: Tensor | None = None) -> None:
+    """Refuse photos that are not `(F,3,H,W)` focused shots and an optional `(3,H,W)`
+    all-in-focus photo of the same size, all finite.
+
+    Example:
+        >>> check_photos(torch.rand(2, 3, 8, 8), torch.rand(3, 8, 9))
+        Traceback (most recent call last):
+        ...
+        ValueError: focused photos are (8, 8) pixels but the all-in-focus photo is (8, 9)
+    """
+    check_shape("focused", focused, ["F", "3", "H", "W"])
+    check_finite("focused", focused)
+    if image is not None:
+        check_shape("image", image, ["3", "H", "W"])
+        check_finite("image", image)
+        if focused.shape[-2:] != image.shape[-2:]:
+            raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
+                             f"all-in-focus photo is {tuple(image.shape[-2:])}")
+
+
 def run_at_working_resolution(
     model: nn.Module, image: Tensor | None, focused: Tensor, settings: CameraSettings,
     near: float, far: float, max_coc_px: float | None = None, max_pixels: int = 1_500_000,
@@ -74,14 +94,7 @@ def run_at_working_resolution(
         magnified and how far it was turned, in degrees, clockwise on screen (zero, one and zero
         without `align`).
     """
-    check_shape("focused", focused, ["F", "3", "H", "W"])
-    check_finite("focused", focused)
-    if image is not None:
-        check_shape("image", image, ["3", "H", "W"])
-        check_finite("image", image)
-        if focused.shape[-2:] != image.shape[-2:]:
-            raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
-                             f"all-in-focus photo is {tuple(image.shape[-2:])}")
+    check_photos(focused, image)
     if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
         raise ValueError(f"near and far must be finite metres with 0 < near < far, got "
                          f"near={near!r}, far={far!r}")

@@ -38,7 +38,7 @@ from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model
-from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_inverse_depths, thin_lens_blur
+from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_blurs, thin_lens_blur
 
 
 def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
@@ -106,17 +106,11 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
     """
     check_shape("focused", focused, ["B", "F", "3", "H", "W"])
     b, n, _, h, w = focused.shape
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ValueError(f"every must be a positive integer, got {every!r}")
-    x = candidate_inverse_depths(near, far, n_candidates, image)[::every]
-    settings = settings.batched(b).to(device=image.device, dtype=image.dtype)
-    if settings.n_shots != n:
-        raise ValueError(f"focused holds {n} shots but settings {settings.n_shots}")
-    predicted = thin_lens_blur(settings, x[None, None])  # (B,F,K)
+    predicted = candidate_blurs(settings, near, far, n_candidates, image, n, every)  # (B,F,K)
     aperture = settings.aperture_module()
     if noise is None:  # every photo: one sensor
         noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
-    cost = torch.zeros(b, x.numel(), h, w, dtype=image.dtype, device=image.device)
+    cost = torch.zeros(b, predicted.shape[-1], h, w, dtype=image.dtype, device=image.device)
     for j in range(b):
         for i in range(n):
             cost[j] += blur_errors(image[j:j + 1], focused[j:j + 1, i], aperture, predicted[j, i],

@@ -67,6 +67,26 @@ def thin_lens_blur(settings: CameraSettings, inverse_depth: Tensor) -> Tensor:
     return (a * (1 - focus * inverse_depth)).abs()
 
 
+def candidate_blurs(settings: CameraSettings, near: float, far: float, n_candidates: int,
+                    like: Tensor, n_shots: int, every: int = 1) -> Tensor:
+    """The blur `(B,F,K)` pixels the thin lens gives each of the `n_shots` shots of `settings`
+    (`(B,F)` or `(F,)`, moved to `like`'s device and dtype, batched to `like`'s first dimension)
+    at every `every`-th of the `n_candidates` depths of `candidate_inverse_depths`.
+
+    Example:
+        >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+        >>> candidate_blurs(s, 1.0, 10.0, 8, torch.zeros(1, 1), 2).shape
+        torch.Size([1, 2, 8])
+    """
+    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
+        raise ValueError(f"every must be a positive integer, got {every!r}")
+    x = candidate_inverse_depths(near, far, n_candidates, like)[::every]
+    settings = settings.batched(like.shape[0]).to(device=like.device, dtype=like.dtype)
+    if settings.n_shots != n_shots:
+        raise ValueError(f"the photos hold {n_shots} shots but settings {settings.n_shots}")
+    return thin_lens_blur(settings, x[None, None])
+
+
 def aggregate_cost(cost: Tensor, windows: Mapping[int, float] | None = None) -> Tensor:
     """`cost` `(B,K,H,W)` summed over square windows of each size with its weight (`WINDOWS` by
     default).
