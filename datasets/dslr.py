@@ -1,22 +1,33 @@
-"""DSLR aperture pairs of Carvalho et al. 2018: real photos at f/2.8 and f/8 with depth PNGs.
+"""DSLR aperture pairs of Carvalho et al. 2018 ("DFD-indoor"): real f/2.8 and f/8 photos, depth.
 
-Folder layout (`root`)::
+The release layout (the authors' `dfd_datasets/dfd_indoor`, read as it is)::
 
-    train/f2.8/<name>.png     wide-open photos (the real focused images)
-    train/f8/<name>.png       f/8 photos of the same scenes (the near all-in-focus reference)
-    train/depth/<name>.png    16-bit depth, `stored * depth_scale` metres, 0 = unknown
-    test/...                  the same three folders
+    <root>/dfd_dataset_indoor_N2_8/rgb/<split>/<time>.JPG     f/2.8 photos (the defocused ones)
+    <root>/dfd_dataset_indoor_N8/rgb/<split>/<time>.JPG       f/8 photos, same file names
+    <root>/dfd_dataset_indoor_N2_8/depth/<split>/<time>.png   16-bit depth, millimetres, 0 = unknown
 
-Photos may be PNG or JPEG (8 or 16 bit, sRGB; decoded to linear intensity). The folder names can
-be changed with `wide`, `reference` and `depth`. Focused images are real, so no synthesis
-happens; the camera of the wide photo is `datasets.presets.DSLR` (35 mm, f/2.8, focus
-1.7 m) with the pixel pitch of the full-frame sensor scaled to the stored photo's width.
+`<time>` is an ISO time stamp (`2018-04-26T16:38:31.689710`). A depth file carries the depth
+sensor's own time stamp, a fraction of a second to a few seconds from the photos' one: each photo
+is paired with the depth file *nearest in time* (never by sorted position), within `max_gap_s`
+seconds, and no depth file serves two photos. The f/8 photo of a scene has the f/2.8 photo's file
+name (else it too is paired by nearest time).
+
+The older flat layout (`<root>/<split>/{f2.8,f8,depth}/<name>.png|jpg`, paired by name) is read
+too. Photos are 8- or 16-bit sRGB PNG or JPEG, decoded to linear intensity. The f/2.8 photo is the
+real focused image; the f/8 photo is the `image` (nearly, not fully, in focus: its own blur is
+about `2.8 / 8` of the f/2.8 one, `reference_f_number`). The camera is `datasets.presets.DSLR`
+(35 mm, f/2.8, focus 1.7 m, the full-frame pitch scaled to the stored width), or a camera JSON
+(`camera=`) such as `defocus calibrate-depth` writes.
 """
 
 from __future__ import annotations
 
+import json
+from datetime import datetime
 from pathlib import Path
 from typing import Any
+
+from optics import CameraSettings
 
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
@@ -24,32 +35,145 @@ from .focus import CameraPreset
 from .io import DataFormatError, read_depth_png, read_rgb, require_root
 from .presets import DSLR as DSLR_PRESET
 
+#: Folder of the release holding the f/2.8 photos and the depth.
+WIDE_FOLDER = "dfd_dataset_indoor_N2_8"
+#: Folder of the release holding the f/8 photos.
+REFERENCE_FOLDER = "dfd_dataset_indoor_N8"
+PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg")
 LAYOUT = (
-    "  <root>/<split>/f2.8/<name>.png|jpg   (wide-open photos)\n"
-    "  <root>/<split>/f8/<name>.png|jpg     (f/8 reference photos)\n"
-    "  <root>/<split>/depth/<name>.png      (16-bit depth, 0 = unknown)"
+    "  <root>/dfd_dataset_indoor_N2_8/rgb/<split>/<time>.JPG    (f/2.8 photos)\n"
+    "  <root>/dfd_dataset_indoor_N8/rgb/<split>/<time>.JPG      (f/8 photos)\n"
+    "  <root>/dfd_dataset_indoor_N2_8/depth/<split>/<time>.png  (16-bit depth, mm, 0 = unknown)\n"
+    "or the flat layout <root>/<split>/{f2.8,f8,depth}/<name>.png|jpg"
 )
 
 
-class DSLR(DepthDataset):
-    """Real defocus: an f/8 photo as the all-in-focus image and the f/2.8 photo as focused image.
+def time_stamp(path: Path) -> float | None:
+    """Seconds since the epoch of a file named by an ISO time stamp, else None.
+
+    Example:
+        >>> time_stamp(Path("2018-04-26T16:38:31.5.png")) - time_stamp(Path("2018-04-26T16:38:31.png"))
+        0.5
+        >>> time_stamp(Path("scene00.png")) is None
+        True
+    """
+    try:
+        return datetime.fromisoformat(path.stem).timestamp()
+    except ValueError:
+        return None
+
+
+def pair_files(photos: list[Path], candidates: list[Path], what: str,
+               max_gap_s: float) -> list[Path]:
+    """For each photo, its file among `candidates`: the same stem, else the nearest in time.
 
     Args:
-        root: dataset folder.
-        split: sub-folder, `"train"` or `"test"`.
+        photos: the photos to pair (file names are time stamps or plain names).
+        candidates: the files to pair them with.
+        what: what a candidate is, for error messages (e.g. `"depth file"`).
+        max_gap_s: the largest time difference, seconds, of a pair by time.
+
+    Returns:
+        one candidate per photo, in the photos' order.
+
+    Raises:
+        FileNotFoundError: a photo has no candidate of its name or within `max_gap_s` seconds
+            (the message names the photo and the nearest candidate), or two photos would share
+            one candidate.
+
+    Example:
+        >>> photos = [Path("2018-01-01T10:00:00.JPG"), Path("2018-01-01T10:01:00.JPG")]
+        >>> depth = [Path("2018-01-01T10:01:00.4.png"), Path("2018-01-01T09:59:59.8.png")]
+        >>> [p.name for p in pair_files(photos, depth, "depth file", 5.0)]
+        ['2018-01-01T09:59:59.8.png', '2018-01-01T10:01:00.4.png']
+    """
+    by_stem = {p.stem: p for p in candidates}
+    timed = [(t, p) for p in candidates if (t := time_stamp(p)) is not None]
+    pairs, owner = [], {}
+    for photo in photos:
+        match = by_stem.get(photo.stem)
+        stamp = time_stamp(photo)
+        if match is None and stamp is not None and timed:
+            gap, match = min(((abs(t - stamp), p) for t, p in timed), key=lambda x: x[0])
+            if gap > max_gap_s:
+                raise FileNotFoundError(
+                    f"{str(photo)!r} has no {what} within {max_gap_s:g} s (the nearest, "
+                    f"{str(match)!r}, is {gap:.1f} s away)")
+        if match is None:
+            suffix = candidates[0].suffix if candidates else ".png"
+            expected = _folder(candidates, photo) / (photo.stem + suffix)
+            raise FileNotFoundError(f"missing file {str(expected)!r}: the {what} of "
+                                    f"{str(photo)!r} (same name, or a time stamp near it)")
+        if match in owner:
+            raise FileNotFoundError(f"{str(photo)!r} and {str(owner[match])!r} both pair with "
+                                    f"the {what} {str(match)!r}: one is missing its own")
+        owner[match] = photo
+        pairs.append(match)
+    return pairs
+
+
+def _folder(candidates: list[Path], photo: Path) -> Path:
+    return candidates[0].parent if candidates else photo.parent
+
+
+def _files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)
+
+
+def read_camera_json(path: str | Path) -> tuple[CameraSettings, dict[str, Any]]:
+    """The settings and the extra values (e.g. `reference_f_number`) of a camera JSON.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "camera.json"
+        >>> CameraSettings(0.035, 2.8, [1.7], 5.6e-5).to_json(path, reference_f_number=8.5)
+        >>> settings, extra = read_camera_json(path)
+        >>> extra["reference_f_number"]
+        8.5
+    """
+    settings = CameraSettings.from_json(path)
+    extra = {k: v for k, v in json.loads(Path(path).read_text()).items()
+             if k not in settings.to_dict()}
+    return settings, extra
+
+
+class DSLR(DepthDataset):
+    """Real defocus: the f/8 photo as `image`, the f/2.8 photo as the one focused image.
+
+    Args:
+        root: dataset folder (the release's `dfd_indoor`, or the flat layout).
+        split: `"train"` or `"test"`.
         depth_scale: metres per stored depth unit (`1e-3`: millimetres).
         sensor_width_px: width in pixels of the full sensor whose pitch the preset gives (the
             Nikon D810 records 7360); the effective pitch is scaled by this over the photo width.
-        wide: sub-folder of the wide-open photos.
-        reference: sub-folder of the f/8 reference photos.
-        depth: sub-folder of the depth PNGs.
+        wide: sub-folder of the wide-open photos (flat layout).
+        reference: sub-folder of the f/8 reference photos (flat layout).
+        depth: sub-folder of the depth PNGs (flat layout).
         preset: the camera of the wide photo (`datasets.presets.DSLR` by default).
-        **kwargs: `size`, `crop`, `augment`, `dtype` of
-            `DepthDataset` (no synthesis, so no cache is needed).
+        camera: a camera JSON (`defocus calibrate-depth`, `defocus calibrate`) or settings for
+            the wide photos at the stored resolution, replacing the preset; a JSON's
+            `reference_f_number` sets `reference_f_number`.
+        max_gap_s: the largest time difference, seconds, of a photo and its depth file.
+        **kwargs: `size`, `crop`, `augment`, `dtype` of `DepthDataset`.
 
     Raises:
-        FileNotFoundError: `root`, a folder, or a photo or depth file of a scene is missing.
+        FileNotFoundError: `root` or a folder is missing, or a photo has no f/8 photo or depth
+            file (the message names the file).
         DataFormatError: an unreadable file, or photos and depth of different sizes.
+
+    Example:
+        >>> import tempfile, numpy as np, imageio.v3 as iio
+        >>> root = Path(tempfile.mkdtemp())
+        >>> for sub, name in [("dfd_dataset_indoor_N2_8/rgb", "2018-01-01T10:00:00.JPG"),
+        ...                   ("dfd_dataset_indoor_N8/rgb", "2018-01-01T10:00:00.JPG"),
+        ...                   ("dfd_dataset_indoor_N2_8/depth", "2018-01-01T10:00:00.3.png")]:
+        ...     (root / sub / "train").mkdir(parents=True)
+        ...     data = np.full((8, 8), 2000, np.uint16) if name.endswith("png") else \\
+        ...         np.full((8, 8, 3), 128, np.uint8)
+        ...     iio.imwrite(root / sub / "train" / name, data)
+        >>> sample = DSLR(root)[0]
+        >>> sample["focused"].shape, float(sample["depth"].mean())
+        (torch.Size([1, 3, 8, 8]), 2.0)
     """
 
     name = "dslr"
@@ -64,34 +188,43 @@ class DSLR(DepthDataset):
         reference: str = "f8",
         depth: str = "depth",
         preset: CameraPreset = DSLR_PRESET,
+        camera: str | Path | CameraSettings | None = None,
+        max_gap_s: float = 10.0,
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
         if not depth_scale > 0:
             raise ValueError(f"depth_scale must be > 0 metres per unit, got {depth_scale}")
+        if not max_gap_s > 0:
+            raise ValueError(f"max_gap_s must be > 0 seconds, got {max_gap_s}")
         self.root = require_root(root, "DSLR", LAYOUT)
         self.depth_scale = float(depth_scale)
         self.sensor_width_px = int(sensor_width_px)
-        folders = [self.root / split / name for name in (wide, reference, depth)]
+        self.reference_f_number = 8.0
+        self.settings: CameraSettings | None = None
+        if isinstance(camera, CameraSettings):
+            self.settings = camera
+        elif camera is not None:
+            self.settings, extra = read_camera_json(camera)
+            self.reference_f_number = float(extra.get("reference_f_number", 8.0))
+        if (self.root / WIDE_FOLDER).is_dir():
+            folders = [self.root / WIDE_FOLDER / "rgb" / split,
+                       self.root / REFERENCE_FOLDER / "rgb" / split,
+                       self.root / WIDE_FOLDER / "depth" / split]
+        else:
+            folders = [self.root / split / name for name in (wide, reference, depth)]
         for folder in folders:
             if not folder.is_dir():
                 raise FileNotFoundError(f"DSLR: missing folder {str(folder)!r}. Expected:\n{LAYOUT}")
-        self.files: list[tuple[Path, Path, Path]] = []
-        for wide_path in sorted(p for p in folders[0].iterdir() if p.suffix.lower() in
-                                (".png", ".jpg", ".jpeg")):
-            matches = [
-                [p for p in folder.glob(f"{wide_path.stem}.*")] for folder in folders[1:]
-            ]
-            for folder, found in zip(folders[1:], matches, strict=True):
-                if not found:
-                    raise FileNotFoundError(
-                        f"missing file {str(folder / (wide_path.stem + '.png'))!r}: expected the "
-                        f"{folder.name} image of scene {wide_path.stem!r}"
-                    )
-            self.files.append((wide_path, matches[0][0], matches[1][0]))
-            self.ids.append(wide_path.stem)
-        if not self.files:
+        photos = _files(folders[0], PHOTO_SUFFIXES)
+        if not photos:
             raise FileNotFoundError(f"DSLR: no photos in {str(folders[0])!r}")
+        references = pair_files(photos, _files(folders[1], PHOTO_SUFFIXES), "f/8 photo",
+                                max_gap_s)
+        depths = pair_files(photos, _files(folders[2], (".png",)), "depth file", max_gap_s)
+        self.files: list[tuple[Path, Path, Path]] = list(zip(photos, references, depths,
+                                                             strict=True))
+        self.ids.extend(p.stem for p in photos)
 
     def load(self, index: int) -> dict[str, Any]:
         wide_path, ref_path, depth_path = self.files[index]
@@ -104,10 +237,12 @@ class DSLR(DepthDataset):
                     f"{str(path)!r} is {tuple(tensor.shape[-2:])} pixels but {str(wide_path)!r} "
                     f"is {tuple(focused.shape[-2:])}; all three files of a scene must match"
                 )
-        camera = self.preset.settings(self.dtype)
-        camera = camera.replace(
-            pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / image.shape[-1])
-        )
+        if self.settings is not None:
+            camera = self.settings.to(self.dtype)
+        else:
+            camera = self.preset.settings(self.dtype)
+            camera = camera.replace(
+                pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / image.shape[-1]))
         mask = valid_depth_mask(depth)
         require_valid_depth(mask, repr(str(depth_path)))
         return {"image": image, "focused": focused[None], "camera": camera,

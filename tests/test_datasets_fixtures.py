@@ -121,6 +121,43 @@ def write_dslr(root: Path, n: int = 2, h: int = 12, w: int = 16, seed: int = 3,
     return written
 
 
+DSLR_TIMES = ("2018-04-26T16:38:31.689710", "2018-04-26T16:38:33.694566",
+              "2018-04-26T16:39:47.099665")
+
+
+def write_dslr_release(root: Path, times: tuple[str, ...] = DSLR_TIMES, h: int = 12, w: int = 16,
+                       seed: int = 6, split: str = "train",
+                       depth_lag_s: tuple[float, ...] = (0.9, -0.3, -2.5)) -> dict:
+    """The DFD-indoor release layout: ``dfd_dataset_indoor_N2_8/{rgb,depth}/<split>`` and
+    ``dfd_dataset_indoor_N8/rgb/<split>``; JPEG photos named by time stamp, depth PNGs (uint16
+    mm, 0 = unknown) named by the depth sensor's own time stamp, ``depth_lag_s`` seconds off,
+    plus one depth file with no photo a minute before the first: the sorted lists line up by
+    position nowhere (and the first two depth files sort in the other order)."""
+    from datetime import datetime, timedelta
+
+    rng = np.random.default_rng(seed)
+    wide_dir = root / "dfd_dataset_indoor_N2_8" / "rgb" / split
+    ref_dir = root / "dfd_dataset_indoor_N8" / "rgb" / split
+    depth_dir = root / "dfd_dataset_indoor_N2_8" / "depth" / split
+    for folder in (wide_dir, ref_dir, depth_dir):
+        folder.mkdir(parents=True, exist_ok=True)
+    orphan = datetime.fromisoformat(times[0]) - timedelta(seconds=60)
+    iio.imwrite(depth_dir / f"{orphan.isoformat()}.png", np.full((h, w), 1500, np.uint16))
+    written = {}
+    for stamp, lag in zip(times, depth_lag_s, strict=True):
+        wide, ref = _rgb(rng, h, w), _rgb(rng, h, w)
+        depth_mm = rng.integers(900, 6000, size=(h, w)).astype(np.uint16)
+        depth_mm[0, :3] = 0
+        iio.imwrite(wide_dir / f"{stamp}.JPG", wide, extension=".jpg", quality=95)
+        iio.imwrite(ref_dir / f"{stamp}.JPG", ref, extension=".jpg", quality=95)
+        depth_name = f"{(datetime.fromisoformat(stamp) + timedelta(seconds=lag)).isoformat()}.png"
+        iio.imwrite(depth_dir / depth_name, depth_mm)
+        written[stamp] = {"wide": iio.imread(wide_dir / f"{stamp}.JPG"),
+                          "ref": iio.imread(ref_dir / f"{stamp}.JPG"), "depth_mm": depth_mm,
+                          "depth_file": depth_name}
+    return written
+
+
 def lightfield_mosaic(views: np.ndarray, layout: str = "interleaved") -> np.ndarray:
     """Mosaic ``(n*H, n*W, 3)`` of views ``(n, n, H, W, 3)`` as a Lytro file lays them out."""
     n, _, h, w, c = views.shape
