@@ -7,14 +7,16 @@ from .calibrate import (
     CalibrationError,
     CalibrationPair,
     CalibrationResult,
+    DepthCalibration,
     calibrate,
+    calibrate_from_depth,
     fit_thin_lens_curve,
     measure_blur,
 )
 from .camera import Camera, CameraSettings
 from .focal_stack import render_focal_stack
 from .lens import ThinLens
-from .plotting import plot_calibration
+from .plotting import plot_calibration, plot_depth_calibration
 from .raw import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
@@ -46,6 +48,9 @@ __all__ = [
     "Sensor",
     "ThinLens",
     "calibrate",
+    "calibrate_from_depth",
+    "DepthCalibration",
+    "plot_depth_calibration",
     "fit_thin_lens_curve",
     "measure_blur",
     "plot_calibration",

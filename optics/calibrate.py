@@ -25,6 +25,10 @@ Uncertainties are one standard deviation from the Gauss-Newton approximation of 
 `sigma^2` the residual variance). Neighbouring pixels of demosaiced photos are correlated, so
 treat them as a lower bound.
 
+Photos with depth maps (a folder of reference / defocused pairs with registered depth) are
+calibrated by `calibrate_from_depth` instead: the blur measured in depth bins over all pairs and
+the thin lens with a floor fitted to it (`optics.calibration.blur_curve`).
+
 The steps live in `optics.calibration` (one module each); the figure is
 `optics.plotting.plot_calibration`.
 """
@@ -37,6 +41,8 @@ from typing import Any
 
 import torch
 
+from .calibration.blur_curve import (BlurCurve, BlurCurveFit, DepthCalibration,
+                                     calibrate_from_depth, fit_blur_curve, measure_blur_curve)
 from .calibration.measure import fit_thin_lens_curve, measure_blur
 from .calibration.model import ResidualModel
 from .calibration.optimise import Fit, gauss_newton, optimise
@@ -49,6 +55,12 @@ from .plotting import plot_calibration as plot_calibration  # noqa: F401 (moved,
 __all__ = [
     "PARAMETERS",
     "PSF_FAMILIES",
+    "BlurCurve",
+    "BlurCurveFit",
+    "DepthCalibration",
+    "calibrate_from_depth",
+    "fit_blur_curve",
+    "measure_blur_curve",
     "CalibrationError",
     "CalibrationPair",
     "CalibrationResult",

@@ -19,10 +19,11 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from .calibration.blur_curve import DepthCalibration
     from .calibration.result import CalibrationResult
     from .camera import CameraSettings
 
-__all__ = ["plot_calibration", "plot_focus_sweep"]
+__all__ = ["plot_calibration", "plot_depth_calibration", "plot_focus_sweep"]
 
 
 def plot_calibration(result: CalibrationResult, path: str | PathLike | None = None) -> Figure:
@@ -43,6 +44,48 @@ def plot_calibration(result: CalibrationResult, path: str | PathLike | None = No
     axes = fig.subplots(1, n + 1, gridspec_kw={"width_ratios": [1.6] + [1] * n})
     _plot_blur_curve(axes[0], result)
     _plot_residuals(fig, list(axes[1:]), result)
+    if path is not None:
+        fig.savefig(path, dpi=100)
+    return fig
+
+
+def plot_depth_calibration(calibration: DepthCalibration,
+                           path: str | PathLike | None = None) -> Figure:
+    """Figure of a calibration from photos with depth: the blur measured in each depth bin
+    (dot area: its pixels) and the fitted thin lens with its floor, against depth (log axis).
+
+    Args:
+        calibration: from `optics.calibrate_from_depth`.
+        path: where to save the figure; not saved when `None`.
+
+    Returns:
+        the `matplotlib.figure.Figure`.
+    """
+    import matplotlib.ticker
+    from matplotlib.figure import Figure
+
+    curve, fit = calibration.curve, calibration.fit
+    measured = curve.best_px()
+    kept = ~measured.isnan()
+    depth = curve.centres[kept]
+    fig = Figure(figsize=(6.0, 3.8), layout="constrained")
+    ax = fig.subplots()
+    size = 200 * curve.pixels[kept] / curve.pixels[kept].max()
+    ax.scatter(depth.numpy(), measured[kept].numpy(), s=size.numpy(), alpha=0.6,
+               label="measured (area: pixels)")
+    grid = torch.logspace(math.log10(float(depth.min()) / 1.2),
+                          math.log10(float(depth.max()) * 1.2), 300, dtype=torch.float64)
+    ax.plot(grid.numpy(), fit.blur_px(grid).numpy(), "k-",
+            label=f"thin lens: focus {fit.focus_distance:.2f} m, floor {fit.floor_px:.2f} px")
+    ax.axvline(fit.focus_distance, color="0.6", linestyle=":")
+    ax.set_xscale("log")
+    ax.xaxis.set_major_formatter(matplotlib.ticker.ScalarFormatter())
+    ax.set_xlabel("depth (m)")
+    ax.set_ylabel(f"relative blur, {curve.aperture} CoC (px)")
+    pitch = float(calibration.settings.pixel_pitch.reshape(-1)[0])
+    ax.set_title(f"f/{float(calibration.settings.f_number.reshape(-1)[0]):g}, pitch "
+                 f"{pitch * 1e6:.1f} um, rmse {fit.rmse_px:.2f} px", fontsize=10)
+    ax.legend(fontsize=8)
     if path is not None:
         fig.savefig(path, dpi=100)
     return fig

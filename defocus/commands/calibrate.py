@@ -1,9 +1,16 @@
-"""`defocus calibrate`: fit a camera from raw photo pairs (sharp reference, defocused shot).
+"""`defocus calibrate`: fit a camera from photo pairs (sharp reference, defocused shot).
 
-Each `--pair SHARP BLURRED DISTANCE` names a sharp reference, the defocused shot of the same
-planar target and the target's distance in metres. All defocused shots share the camera setting
-being calibrated. Known values come from the options, else from the defocused files' metadata;
-everything else is fitted. Writes a JSON that `optics.Camera.from_json` loads, and a figure.
+Each `--pair SHARP BLURRED DISTANCE` names a sharp reference raw file, the defocused shot of the
+same planar target and the target's distance in metres. All defocused shots share the camera
+setting being calibrated. Known values come from the options, else from the defocused files'
+metadata; everything else is fitted.
+
+`--dataset NAME --root DIR` fits instead the camera a dataset of real aperture pairs with depth
+was shot with (e.g. `dslr`: f/8 and f/2.8 photos and registered depth), from its samples
+(`datasets.calibration.calibrate_dataset`): the blur measured by depth and the thin lens with a
+floor fitted to it; the focal length and f-number are the dataset's stated ones.
+
+Writes a camera JSON (`predict --camera`, the loaders' `camera=`) and a figure.
 """
 
 from __future__ import annotations
@@ -18,10 +25,17 @@ KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
-        "--pair", nargs=3, action="append", required=True,
+        "--pair", nargs=3, action="append", default=None,
         metavar=("SHARP", "BLURRED", "DISTANCE"),
         help="sharp reference raw file, defocused raw file, target distance in metres (repeat)",
     )
+    parser.add_argument("--dataset", default=None,
+                        help="instead of --pair: a dataset of real pairs with depth, e.g. dslr")
+    parser.add_argument("--root", type=Path, default=None, help="the --dataset's folder")
+    parser.add_argument("--split", default="train", help="the --dataset's split")
+    parser.add_argument("--scenes", default=None, metavar="START:STOP",
+                        help="the --dataset's samples to fit on, a Python slice of the split "
+                             "(e.g. 0:61; default: all)")
     parser.add_argument("--out", type=Path, default=Path("fit.json"), help="JSON of the fit")
     parser.add_argument("--figure", type=Path, default=None,
                         help="figure path (default: the JSON path with .png)")
@@ -58,10 +72,59 @@ def _distance(text: str) -> float:
     return value
 
 
+def _slice(text: str | None, length: int) -> list[int]:
+    if text is None:
+        return list(range(length))
+    try:
+        parts = [int(p) if p else None for p in text.split(":")]
+        indices = list(range(length))[slice(*parts)]
+    except (ValueError, TypeError):
+        raise ValueError(f"--scenes must be a slice START:STOP[:STEP] of sample indices, got "
+                         f"{text!r}") from None
+    if not indices:
+        raise ValueError(f"--scenes {text!r} selects none of the {length} samples")
+    return indices
+
+
+def run_dataset(args: argparse.Namespace) -> int:
+    from datasets.calibration import calibrate_dataset
+    from datasets.registry import dataset_classes
+    from optics import plot_depth_calibration
+
+    if args.root is None:
+        raise ValueError("--dataset needs --root, the dataset's folder")
+    classes = dataset_classes()
+    if args.dataset not in classes or args.dataset == "synthetic":
+        raise ValueError(f"--dataset must be a dataset of real photos with depth, one of "
+                         f"{sorted(set(classes) - {'synthetic'})}, got {args.dataset!r}")
+    dataset = classes[args.dataset](args.root, split=args.split)  # full resolution
+    indices = _slice(args.scenes, len(dataset))
+    psf = "gaussian:0.5" if args.psf == "gaussian" else args.psf
+    fit = calibrate_dataset(dataset, indices, aperture=psf,
+                            focus_distance=args.focus_distance, progress=args.progress)
+    values = fit.settings.to_dict()
+    print(f"{args.dataset}: {len(indices)} samples of {args.split!r}")
+    for name in ("focus_distance", "pixel_pitch", "f_number", "focal_length", "psf"):
+        print(f"  {name}: {values[name]}")
+    for name, value in fit.extras().items():
+        print(f"  {name}: {value}")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    fit.to_json(args.out)
+    figure = args.figure or args.out.with_suffix(".png")
+    plot_depth_calibration(fit, figure)
+    print(f"wrote {args.out} and {figure}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     from defocus.cli import CommandError
     from optics import CalibrationPair, calibrate, plot_calibration, read_raw
 
+    if (args.pair is None) == (args.dataset is None):
+        raise CommandError("give either --pair SHARP BLURRED DISTANCE (repeat) or --dataset NAME "
+                           "--root DIR")
+    if args.dataset is not None:
+        return run_dataset(args)
     pairs, meta = [], None
     for sharp_path, blurred_path, distance_text in args.pair:
         distance = _distance(distance_text)

@@ -9,6 +9,7 @@
 | `model` | the residuals of a camera in log-space parameters |
 | `optimise` | Adam then L-BFGS, and the Gauss-Newton uncertainty |
 | `result` | `CalibrationResult` |
+| `blur_curve` | from photos with depth maps: the blur by depth, the thin lens with a floor |
 
 The public API is `optics.calibrate` (and `optics.plotting.plot_calibration`); import from there.
 """
