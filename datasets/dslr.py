@@ -154,6 +154,8 @@ class DSLR(DepthDataset):
             the wide photos at the stored resolution, replacing the preset; a JSON's
             `reference_f_number` sets `reference_f_number`.
         max_gap_s: the largest time difference, seconds, of a photo and its depth file.
+        scenes: keep only these scenes (indices or a slice of the split in time order, e.g.
+            `slice(0, 61)` for training and `slice(61, None)` for validation).
         **kwargs: `size`, `crop`, `augment`, `dtype` of `DepthDataset`.
 
     Raises:
@@ -190,6 +192,7 @@ class DSLR(DepthDataset):
         preset: CameraPreset = DSLR_PRESET,
         camera: str | Path | CameraSettings | None = None,
         max_gap_s: float = 10.0,
+        scenes: slice | range | list[int] | None = None,
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
@@ -224,7 +227,15 @@ class DSLR(DepthDataset):
         depths = pair_files(photos, _files(folders[2], (".png",)), "depth file", max_gap_s)
         self.files: list[tuple[Path, Path, Path]] = list(zip(photos, references, depths,
                                                              strict=True))
-        self.ids.extend(p.stem for p in photos)
+        if scenes is not None:
+            kept = list(range(len(self.files)))[scenes] if isinstance(scenes, slice) \
+                else list(scenes)
+            bad = [i for i in kept if not 0 <= i < len(self.files)]
+            if bad or not kept:
+                raise ValueError(f"scenes must select among the {len(self.files)} scenes of "
+                                 f"{str(folders[0])!r}, got {scenes!r}")
+            self.files = [self.files[i] for i in kept]
+        self.ids.extend(w.stem for w, _, _ in self.files)
 
     def load(self, index: int) -> dict[str, Any]:
         wide_path, ref_path, depth_path = self.files[index]

@@ -187,6 +187,7 @@ def train_and_evaluate(
     config = TrainConfig(
         steps=steps or 1, batch_size=args.batch_size, lr=args.lr, network=args.network,
         input_mode=args.input_mode, out_dir=args.out, seed=args.seed,
+        supervision=getattr(args, "supervision", "self"),
         depth_min=depth_range[0], depth_max=depth_range[1],
         device=kind if args.device == "auto" else args.device,
         n_focus=int(first["focused"].shape[0]), width=args.width, progress=not args.no_progress,

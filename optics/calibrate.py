@@ -41,8 +41,14 @@ from typing import Any
 
 import torch
 
-from .calibration.blur_curve import (BlurCurve, BlurCurveFit, DepthCalibration,
-                                     calibrate_from_depth, fit_blur_curve, measure_blur_curve)
+from .calibration.blur_curve import (
+    BlurCurve,
+    BlurCurveFit,
+    DepthCalibration,
+    calibrate_from_depth,
+    fit_blur_curve,
+    measure_blur_curve,
+)
 from .calibration.measure import fit_thin_lens_curve, measure_blur
 from .calibration.model import ResidualModel
 from .calibration.optimise import Fit, gauss_newton, optimise

@@ -12,8 +12,12 @@ import pytest
 import torch
 
 from optics import Camera, Disk, Gaussian, Sensor, ThinLens
-from optics.calibration.blur_curve import (BlurCurve, calibrate_from_depth, fit_blur_curve,
-                                           measure_blur_curve)
+from optics.calibration.blur_curve import (
+    BlurCurve,
+    calibrate_from_depth,
+    fit_blur_curve,
+    measure_blur_curve,
+)
 from optics.calibration.pair import CalibrationPair
 
 FOCUS, PITCH, FOCAL = 1.7, 5.6e-5, 0.035

@@ -11,7 +11,7 @@ import torch
 from test_datasets_fixtures import DSLR_TIMES, write_dslr_release
 
 from datasets import DSLR
-from datasets.dslr import pair_files
+from datasets.dslr import pair_files, read_camera_json
 from optics import CameraSettings
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "dfd_indoor"
@@ -85,3 +85,95 @@ def test_real_release_folder():
     assert 0.5 < float(depth.median()) < 8.0  # metres, not millimetres
     torch.testing.assert_close(sample["camera"].pixel_pitch,
                                torch.tensor([4.88e-6 * 7360 / 645]))
+
+
+# ---- a release rendered with a known camera: calibration and the example run on it -----------
+
+RENDER_PITCH = 4e-5  # metres: CoC at infinity about 6.6 px at f/2.8 (35 mm, focus 1.7 m)
+BAND_DEPTHS_M = (0.8, 1.0, 1.3, 1.7, 2.4, 3.5, 6.0)
+
+
+def write_rendered_release(root: Path, scenes: int = 7, h: int = 96, w: int = 144,
+                           split: str = "train") -> list[str]:
+    """The release layout with photos rendered by a known camera: two bands of constant depth
+    per scene (of `BAND_DEPTHS_M`; wide, so that little of them mixes with the other's blur), the f/8 reference itself rendered (slightly
+    blurred), both photos JPEG-compressed, depth in millimetres with the sensor's own stamps."""
+    from datetime import datetime, timedelta
+
+    import imageio.v3 as iio
+
+    from optics import Camera, Gaussian, Sensor, ThinLens
+
+    def camera(f_number: float) -> Camera:
+        return Camera(ThinLens(0.035, f_number, 1.7), Sensor(RENDER_PITCH), Gaussian(0.5))
+
+    folders = [root / "dfd_dataset_indoor_N2_8" / "rgb" / split,
+               root / "dfd_dataset_indoor_N8" / "rgb" / split,
+               root / "dfd_dataset_indoor_N2_8" / "depth" / split]
+    for folder in folders:
+        folder.mkdir(parents=True, exist_ok=True)
+    generator = torch.Generator().manual_seed(0)
+    start = datetime(2018, 4, 26, 16, 0, 0)
+    stamps = []
+    for i in range(scenes):
+        texture = torch.rand(1, 3, h // 3, w // 3, generator=generator, dtype=torch.float64)
+        sharp = torch.nn.functional.interpolate(texture, size=(h, w), mode="bicubic",
+                                                align_corners=False).clamp(0, 1)
+        n = len(BAND_DEPTHS_M)
+        halves = (BAND_DEPTHS_M[i % n], BAND_DEPTHS_M[(i + n // 2) % n])
+        depth = torch.tensor([halves[2 * r // h] for r in range(h)], dtype=torch.float64)
+        depth = depth[:, None].expand(h, w)[None, None].contiguous()
+        stamp = (start + timedelta(seconds=40 * i)).isoformat()
+        for folder, f_number in ((folders[0], 2.8), (folders[1], 8.0)):
+            photo = camera(f_number).render(sharp, depth)[0].permute(1, 2, 0)
+            # the photos are sRGB-encoded JPEGs: encode the linear render
+            encoded = torch.where(photo <= 0.0031308, 12.92 * photo,
+                                  1.055 * photo.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+            iio.imwrite(folder / f"{stamp}.JPG",
+                        (encoded.clamp(0, 1).numpy() * 255).round().astype(np.uint8),
+                        extension=".jpg", quality=90)
+        depth_stamp = (start + timedelta(seconds=40 * i + 0.7)).isoformat()
+        iio.imwrite(folders[2] / f"{depth_stamp}.png",
+                    (depth[0, 0].numpy() * 1000).round().astype(np.uint16))
+        stamps.append(stamp)
+    return stamps
+
+
+def test_scenes_select_by_time_order(tmp_path):
+    write_dslr_release(tmp_path)
+    dataset = DSLR(tmp_path, scenes=slice(1, None))
+    assert dataset.ids == sorted(DSLR_TIMES)[1:] and len(dataset) == 2
+    assert DSLR(tmp_path, scenes=[2]).ids == [sorted(DSLR_TIMES)[2]]
+    with pytest.raises(ValueError, match="scenes must select among the 3 scenes"):
+        DSLR(tmp_path, scenes=[5])
+
+
+@pytest.mark.slow
+def test_calibrate_command_recovers_the_rendering_camera(tmp_path):
+    from defocus.cli import main
+
+    write_rendered_release(tmp_path / "data")
+    out = tmp_path / "fit" / "camera.json"
+    assert main(["calibrate", "--dataset", "dslr", "--root", str(tmp_path / "data"),
+                 "--psf", "gaussian", "--out", str(out)]) == 0
+    settings, extra = read_camera_json(out)
+    assert float(settings.focus_distance[0]) == pytest.approx(1.7, rel=0.05)
+    assert float(settings.pixel_pitch[0]) == pytest.approx(RENDER_PITCH, rel=0.05)
+    # JPEG and the rows where the two bands' blurs mix read as a floor of about a pixel
+    assert extra["reference_f_number"] == 8.0 and extra["focus_floor_px"] < 1.5
+    assert out.with_suffix(".png").is_file()
+    # the loader takes the fitted camera
+    assert DSLR(tmp_path / "data", camera=out)[0]["camera"] == settings.to(torch.float32)
+
+
+def test_calibrate_command_errors(tmp_path, capsys):
+    from defocus.cli import main
+
+    assert main(["calibrate", "--out", str(tmp_path / "x.json")]) != 0
+    assert "give either --pair" in capsys.readouterr().err
+    write_dslr_release(tmp_path / "data")
+    assert main(["calibrate", "--dataset", "dslr", "--root", str(tmp_path / "data"),
+                 "--scenes", "7:9"]) != 0
+    assert "--scenes '7:9' selects none of the 3 samples" in capsys.readouterr().err
+    assert main(["calibrate", "--dataset", "synthetic", "--root", str(tmp_path)]) != 0
+    assert "--dataset must be a dataset of real photos" in capsys.readouterr().err

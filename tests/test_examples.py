@@ -9,7 +9,6 @@ from pathlib import Path
 
 import pytest
 from test_datasets_fixtures import (
-    write_dslr,
     write_kitti,
     write_lightfield,
     write_make3d,
@@ -38,7 +37,6 @@ FIXTURES = {
     "nyu": write_nyu,
     "kitti": write_kitti,
     "make3d": write_make3d,
-    "dslr": lambda root: (write_dslr(root, split="train"), write_dslr(root, split="test")),
     "lightfield": write_lightfield_splits,
     "middlebury": write_middlebury,
 }
@@ -153,3 +151,56 @@ def test_benchmark_example_help(name, monkeypatch, capsys):
         module.main(["--help"])
     assert exit_info.value.code == 0
     assert "--root" in capsys.readouterr().out
+
+
+# ---- the DSLR protocol: calibrate on the training scenes, two networks, predict, constant -------
+
+REAL_DSLR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "dfd_indoor"
+
+
+def _check_dslr_table(out: str, scenes: int) -> None:
+    assert f"DSLR validation ({scenes} scenes, never used to fit or train)" in out
+    for row in ("[self-supervised]", "[depth-supervised]", "label-free predict",
+                "best constant depth"):
+        assert row in out
+    assert out.count("x the constant's") == 4
+
+
+def test_dslr_example_help(monkeypatch, capsys):
+    module = load_example("dslr", monkeypatch)
+    with pytest.raises(SystemExit) as exit_info:
+        module.main(["--help"])
+    assert exit_info.value.code == 0
+    assert "--val" in capsys.readouterr().out and "dfd_indoor" in module.__doc__
+
+
+@pytest.mark.slow
+def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
+    """The whole protocol on a release rendered with a known camera (7 scenes, 2 held out)."""
+    from test_dslr import write_rendered_release
+
+    write_rendered_release(tmp_path / "data")
+    module = load_example("dslr", monkeypatch)
+    argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--no-progress",
+            "--device", "cpu", "--val", "2", "--steps", "2", "--batch-size", "2", "--width", "8",
+            "--calibrate-every", "1", "--crop", "48"]
+    assert module.main(argv) == 0
+    out = capsys.readouterr().out
+    _check_dslr_table(out, 2)
+    assert "camera fitted on 5 training scenes" in out
+    assert (tmp_path / "run" / "camera.json").is_file()
+    assert (tmp_path / "run" / "self" / "train_log.csv").is_file()
+    assert (tmp_path / "run" / "depth" / "train_log.csv").is_file()
+    with pytest.raises(SystemExit, match="--val must leave training scenes"):
+        module.main([*argv, "--val", "7"])
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not REAL_DSLR.is_dir(), reason="../shared/data/real/dfd_indoor is absent")
+def test_dslr_example_on_five_real_scenes(tmp_path, monkeypatch, capsys):
+    module = load_example("dslr", monkeypatch)
+    argv = ["--root", str(REAL_DSLR), "--out", str(tmp_path / "run"), "--no-progress",
+            "--device", "cpu", "--max-scenes", "5", "--val", "2", "--steps", "2",
+            "--calibrate-every", "1"]
+    assert module.main(argv) == 0
+    _check_dslr_table(capsys.readouterr().out, 2)

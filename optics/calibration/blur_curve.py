@@ -4,8 +4,8 @@ A folder of real photo pairs with depth (a sharp reference, e.g. an f/8 shot, an
 shot of the same view, e.g. at f/2.8, with a registered depth map) holds every depth at once.
 `measure_blur_curve` sorts the pixels of all pairs into depth bins and finds, per bin, the
 blur of the aperture's PSF that turns the reference into the defocused photo best (a grid of
-CoC diameters, each an FFT blur of the whole reference, the exposure gain per colour channel
-solved in closed form; sub-grid by a parabola through the three lowest errors).
+CoC diameters, each an FFT blur of the whole reference, times the pair's exposure ratio per
+colour channel (the ratio of the means: a blur keeps the mean); sub-grid by a parabola through the three lowest errors).
 `fit_blur_curve` fits the thin lens with a floor to it:
 
 $$b(D)^2 = \left(A \left|1 - \frac{D_f}{D}\right|\right)^2 + b_0^2$$
@@ -96,8 +96,8 @@ def measure_blur_curve(
 
     Args:
         pairs: `CalibrationPair`s whose `depth` is a map (metres); their photos already aligned
-            (`optics.align_shots`: a shift reads as blur). One exposure gain per pair and colour
-            channel is solved for every candidate.
+            (`optics.align_shots`: a shift reads as blur). Each pair's exposure ratio per colour
+            channel (the ratio of the photos' means) is taken out.
         aperture: the PSF's spec (`"gaussian:0.5"`: sigma = CoC / 2; `"disk"`, `"polygon:6"`).
         edges: depth bin edges, metres (default `DEFAULT_EDGES`).
         max_coc_px: the largest CoC diameter tried, pixels.
@@ -157,17 +157,14 @@ def measure_blur_curve(
         label = label.clamp(0, len(edges) - 2)
         pixels += torch.bincount(label[inside], minlength=len(edges) - 1).to(pixels)
         blur = _ConstantBlur(sharp, pad)
-        pair_gains = None
+        # the exposure ratio of the pair (a blur keeps the mean): one gain for every candidate
+        gain = (target.mean((1, 2)) / _crop(sharp, margin)[0].mean((1, 2)).clamp_min(1e-12))
         for j, coc in enumerate(candidates):
             rendered = _crop(blur(psf, float(coc)) if coc > 0 else sharp, margin)[0]
-            gain = ((rendered * target).sum((1, 2)) /
-                    (rendered * rendered).sum((1, 2)).clamp_min(1e-30))[:, None, None]
-            if j == 0:
-                pair_gains = gain.reshape(-1)
-            residual = (target - gain * rendered).pow(2).sum(0).reshape(-1)
+            residual = (target - gain[:, None, None] * rendered).pow(2).sum(0).reshape(-1)
             errors[:, j] += torch.bincount(label[inside], residual[inside],
                                            minlength=len(edges) - 1)
-        gains.append(pair_gains)
+        gains.append(gain)
     errors /= pixels.clamp_min(1)[:, None]
     return BlurCurve(edges, candidates, errors, pixels, torch.stack(gains), aperture_spec(psf),
                      min_pixels)
