@@ -108,12 +108,7 @@ def run_dataset(args: argparse.Namespace) -> int:
         print(f"  {name}: {values[name]}")
     for name, value in fit.extras().items():
         print(f"  {name}: {value}")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    fit.to_json(args.out)
-    figure = args.figure or args.out.with_suffix(".png")
-    plot_depth_calibration(fit, figure)
-    print(f"wrote {args.out} and {figure}")
-    return 0
+    return _write(args, fit.to_json, lambda path: plot_depth_calibration(fit, path))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -163,9 +158,14 @@ def run(args: argparse.Namespace) -> int:
     for name, source in sources.items():
         print(f"{name}: from the {source}")
     print(result.table())
+    return _write(args, result.save, lambda path: plot_calibration(result, path))
+
+
+def _write(args: argparse.Namespace, save, plot) -> int:
+    """Save the fit's JSON at `--out` and its figure beside it (or at `--figure`)."""
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    result.save(args.out)
+    save(args.out)
     figure = args.figure or args.out.with_suffix(".png")
-    plot_calibration(result, figure)
+    plot(figure)
     print(f"wrote {args.out} and {figure}")
     return 0
