@@ -27,7 +27,10 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from optics import CameraSettings
+import torch
+from torch import Tensor
+
+from optics import CameraSettings, render_defocus
 
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
@@ -156,6 +159,12 @@ class DSLR(DepthDataset):
         max_gap_s: the largest time difference, seconds, of a photo and its depth file.
         scenes: keep only these scenes (indices or a slice of the split in time order, e.g.
             `slice(0, 61)` for training and `slice(61, None)` for validation).
+        relative: samples whose camera is the blur *from* `image` *to* `focused`, for training
+            through the renderer: the f/8 photo's own blur taken out of the f-number
+            (`N / sqrt(1 - (N / N_ref)^2)`, exact for Gaussian PSFs) and `image` blurred by the
+            camera JSON's `focus_floor_px` (the blur the f/2.8 photos have even in focus, which
+            no depth explains). Off, the camera is the lens's own (for `estimate_depth` with the
+            f/8 photo as a shot).
         **kwargs: `size`, `crop`, `augment`, `dtype` of `DepthDataset`.
 
     Raises:
@@ -193,6 +202,7 @@ class DSLR(DepthDataset):
         camera: str | Path | CameraSettings | None = None,
         max_gap_s: float = 10.0,
         scenes: slice | range | list[int] | None = None,
+        relative: bool = False,
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
@@ -204,12 +214,15 @@ class DSLR(DepthDataset):
         self.depth_scale = float(depth_scale)
         self.sensor_width_px = int(sensor_width_px)
         self.reference_f_number = 8.0
+        self.floor_px = 0.0
+        self.relative = bool(relative)
         self.settings: CameraSettings | None = None
         if isinstance(camera, CameraSettings):
             self.settings = camera
         elif camera is not None:
             self.settings, extra = read_camera_json(camera)
             self.reference_f_number = float(extra.get("reference_f_number", 8.0))
+            self.floor_px = float(extra.get("focus_floor_px", 0.0))
         if (self.root / WIDE_FOLDER).is_dir():
             folders = [self.root / WIDE_FOLDER / "rgb" / split,
                        self.root / REFERENCE_FOLDER / "rgb" / split,
@@ -237,6 +250,18 @@ class DSLR(DepthDataset):
             self.files = [self.files[i] for i in kept]
         self.ids.extend(w.stem for w, _, _ in self.files)
 
+    def _relative(self, image: Tensor, camera: CameraSettings) -> tuple[Tensor, CameraSettings]:
+        """`image` blurred by the floor and the camera of the blur from it to the f/2.8 photo."""
+        ratio = camera.f_number / self.reference_f_number
+        if bool((ratio >= 1).any()):
+            raise ValueError(f"reference_f_number {self.reference_f_number} must exceed the "
+                             f"camera's f-number {camera.f_number.tolist()} for relative=True")
+        camera = camera.replace(f_number=camera.f_number / (1 - ratio ** 2).sqrt())
+        if self.floor_px > 0:
+            floor = torch.full((1, 1, *image.shape[-2:]), self.floor_px, dtype=image.dtype)
+            image = render_defocus(image[None], floor, psf=camera.aperture_module())[0]
+        return image, camera
+
     def load(self, index: int) -> dict[str, Any]:
         wide_path, ref_path, depth_path = self.files[index]
         focused = read_rgb(wide_path, dtype=self.dtype)
@@ -254,6 +279,8 @@ class DSLR(DepthDataset):
             camera = self.preset.settings(self.dtype)
             camera = camera.replace(
                 pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / image.shape[-1]))
+        if self.relative:
+            image, camera = self._relative(image, camera)
         mask = valid_depth_mask(depth)
         require_valid_depth(mask, repr(str(depth_path)))
         return {"image": image, "focused": focused[None], "camera": camera,

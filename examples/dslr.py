@@ -13,7 +13,8 @@ never used to fit or train):
    blur measured by depth, the thin lens with a floor; skipped with ``--camera JSON``);
 2. trains the self-supervised network (the f/8 photo rendered through the PSF layer at the
    predicted depth must reproduce the real f/2.8 photo; no depth in the loss) and its
-   depth-supervised twin on the same scenes with the same budget;
+   depth-supervised twin on the same scenes with the same budget; the render models the pair
+   as calibrated (`DSLR(relative=True)`: the f/8 photo's own blur and the floor);
 3. scores both on the validation scenes beside the label-free `predict` (no training: the f/8
    photo as one more shot, `estimate_depth(image_settings=...)`, with the fitted camera) and the
    best constant depth of the training scenes, and prints the table.
@@ -97,6 +98,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="a fitted camera JSON (default: calibrate on the training scenes)")
     parser.add_argument("--calibrate-every", type=int, default=3,
                         help="calibrate on every this many training scenes")
+    parser.add_argument("--no-relative", action="store_true",
+                        help="train with the lens's own camera and the f/8 photo taken as sharp "
+                             "(default: the relative blur from it, with the fitted floor)")
     parser.add_argument("--predict-pixels", type=int, default=300_000,
                         help="working pixels of the label-free predict")
     args = parser.parse_args(argv)
@@ -112,9 +116,13 @@ def main(argv: list[str] | None = None) -> int:
     kwargs: dict[str, Any] = {"size": None if args.size is None else tuple(args.size)}
     train = DSLR(args.root, args.split, scenes=range(0, count - args.val), **kwargs)
     camera = args.camera or calibrate(args, train)
-    train = DSLR(args.root, args.split, scenes=range(0, count - args.val), camera=camera, **kwargs)
+    relative = not args.no_relative
+    train = DSLR(args.root, args.split, scenes=range(0, count - args.val), camera=camera,
+                 relative=relative, **kwargs)
     val = DSLR(args.root, args.split, scenes=range(count - args.val, count), camera=camera,
-               **kwargs)
+               relative=relative, **kwargs)
+    lens = DSLR(args.root, args.split, scenes=range(count - args.val, count), camera=camera,
+                **kwargs)
     print(f"DSLR: {len(train)} training scenes, {len(val)} validation scenes "
           f"({val.ids[0]} to {val.ids[-1]}), camera {json.loads(Path(camera).read_text())}")
     crop = training_crop(args, train)
@@ -130,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
                 f"{name} [{'self-supervised' if supervision == 'self' else 'depth-supervised'}]"
             rows[label] = row
     args.out = out
-    rows.update(label_free_rows(val, DEPTH_RANGE, args.predict_pixels))
+    rows.update(label_free_rows(lens, DEPTH_RANGE, args.predict_pixels))
     from models.metrics import format_table
 
     constant = next(row for name, row in rows.items() if name.startswith("best constant"))

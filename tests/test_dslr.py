@@ -177,3 +177,19 @@ def test_calibrate_command_errors(tmp_path, capsys):
     assert "--scenes '7:9' selects none of the 3 samples" in capsys.readouterr().err
     assert main(["calibrate", "--dataset", "synthetic", "--root", str(tmp_path)]) != 0
     assert "--dataset must be a dataset of real photos" in capsys.readouterr().err
+
+
+def test_relative_samples_model_the_reference_blur(tmp_path):
+    """`relative=True`: the f-number of the blur from the f/8 photo to the f/2.8 one (Gaussian
+    sigmas add in quadrature) and the image blurred by the fitted floor."""
+    write_dslr_release(tmp_path / "data")
+    CameraSettings(0.035, 2.8, [1.7], 6e-5, "gaussian:0.5").to_json(
+        tmp_path / "cam.json", reference_f_number=8.0, focus_floor_px=1.5)
+    plain = DSLR(tmp_path / "data", camera=tmp_path / "cam.json")[0]
+    relative = DSLR(tmp_path / "data", camera=tmp_path / "cam.json", relative=True)[0]
+    n_eff = float(relative["camera"].f_number[0])
+    # CoC scales as 1 / N: the relative blur's CoC squared is the difference of the two shots'
+    assert (1 / n_eff) ** 2 == pytest.approx((1 / 2.8) ** 2 - (1 / 8.0) ** 2, rel=1e-5)
+    assert torch.equal(relative["focused"], plain["focused"])
+    assert relative["image"].std() < plain["image"].std()  # softened by the floor
+    torch.testing.assert_close(relative["image"].mean(), plain["image"].mean(), atol=5e-3, rtol=0)
