@@ -87,8 +87,9 @@ def pair_files(photos: list[Path], candidates: list[Path], what: str,
     Example:
         >>> photos = [Path("2018-01-01T10:00:00.JPG"), Path("2018-01-01T10:01:00.JPG")]
         >>> depth = [Path("2018-01-01T10:01:00.4.png"), Path("2018-01-01T09:59:59.8.png")]
-        >>> [p.name for p in pair_files(photos, depth, "depth file", 5.0)]
-        ['2018-01-01T09:59:59.8.png', '2018-01-01T10:01:00.4.png']
+        >>> pairs = pair_files(photos, depth, "depth file", 5.0)
+        >>> pairs[0].name, pairs[1].name
+        ('2018-01-01T09:59:59.8.png', '2018-01-01T10:01:00.4.png')
     """
     by_stem = {p.stem: p for p in candidates}
     timed = [(t, p) for p in candidates if (t := time_stamp(p)) is not None]
