@@ -125,6 +125,7 @@ def main(argv: list[str] | None = None) -> int:
                 **kwargs)
     print(f"DSLR: {len(train)} training scenes, {len(val)} validation scenes "
           f"({val.ids[0]} to {val.ids[-1]}), camera {json.loads(Path(camera).read_text())}")
+    depth_range = DEPTH_RANGE if args.depth_range is None else tuple(args.depth_range)
     crop = training_crop(args, train)
     augmented = train.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
     rows: dict[str, dict[str, float]] = {}
@@ -132,13 +133,13 @@ def main(argv: list[str] | None = None) -> int:
     for supervision in ("self", "depth"):
         args.supervision, args.out = supervision, out / supervision
         found = train_and_evaluate(f"DSLR ({supervision}-supervised)", args, augmented, val,
-                                   depth_range=DEPTH_RANGE, constant_set=train)
+                                   depth_range=depth_range, constant_set=train)
         for name, row in found.items():
             label = name if name.startswith("best constant") else \
                 f"{name} [{'self-supervised' if supervision == 'self' else 'depth-supervised'}]"
             rows[label] = row
     args.out = out
-    rows.update(label_free_rows(lens, DEPTH_RANGE, args.predict_pixels))
+    rows.update(label_free_rows(lens, depth_range, args.predict_pixels))
     from models.metrics import format_table
 
     constant = next(row for name, row in rows.items() if name.startswith("best constant"))
