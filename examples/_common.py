@@ -56,6 +56,8 @@ def build_parser(description: str, out: str) -> argparse.ArgumentParser:
                              "(default: CPU 128, GPU 256; 0: whole images)")
     parser.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
                         help="depths the network can output, metres (default: the dataset's)")
+    parser.add_argument("--depth-spacing", choices=["depth", "inverse"], default="depth",
+                        help="space the network's output evenly in depth or in inverse depth")
     parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
     parser.add_argument("--network", choices=["small", "paper"], default="small",
                         help="depth network (the paper's is large; use a GPU)")
@@ -187,7 +189,7 @@ def train_and_evaluate(
     config = TrainConfig(
         steps=steps or 1, batch_size=args.batch_size, lr=args.lr, network=args.network,
         input_mode=args.input_mode, out_dir=args.out, seed=args.seed,
-        supervision=getattr(args, "supervision", "self"),
+        supervision=getattr(args, "supervision", "self"), depth_spacing=args.depth_spacing,
         depth_min=depth_range[0], depth_max=depth_range[1],
         device=kind if args.device == "auto" else args.device,
         n_focus=int(first["focused"].shape[0]), width=args.width, progress=not args.no_progress,

@@ -103,6 +103,9 @@ def main(argv: list[str] | None = None) -> int:
                              "(default: the relative blur from it, with the fitted floor)")
     parser.add_argument("--predict-pixels", type=int, default=300_000,
                         help="working pixels of the label-free predict")
+    # the blur of this pair is linear in inverse depth and ambiguous about the focus plane: an
+    # output even in depth starts far out, where the blur no longer changes (abs rel 2.3 vs 0.63)
+    parser.set_defaults(depth_spacing="inverse")
     args = parser.parse_args(argv)
     if args.minutes is None and args.steps is None and device_kind(args.device) == "cpu":
         args.minutes = 3.5  # each of the two networks: about 10 minutes in all on 2 cores

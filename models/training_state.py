@@ -108,7 +108,7 @@ def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tu
     state = load_checkpoint(checkpoint, map_location=device)
     cfg = config_from_state(state, checkpoint, device="auto")
     model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
-                          cfg.width)
+                          cfg.width, cfg.depth_spacing)
     model.load_state_dict(state["model"])
     return model.to(device).eval(), cfg
 

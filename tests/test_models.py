@@ -101,3 +101,32 @@ def test_errors():
         net(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 3, 8, 8), _camera(1, 3))
     with pytest.raises(ValueError, match="image"):
         net(torch.rand(1, 1, 8, 8))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_depth_head_even_in_inverse_depth(dtype):
+    """`spacing="inverse"`: equal logit steps give equal steps of inverse depth, the range's ends
+    at the sigmoid's ends, the harmonic middle at zero; differentiable."""
+    from models.networks import DepthHead
+
+    head = DepthHead(0.5, 10.0, spacing="inverse")
+    logits = torch.tensor([-60.0, 0.0, 60.0], dtype=dtype)
+    torch.testing.assert_close(head(logits), torch.tensor([0.5, 2 / (2 + 0.1), 10.0], dtype=dtype))
+    sig = torch.sigmoid(torch.linspace(-3, 3, 7, dtype=torch.float64))
+    inverse = 1 / head(torch.logit(sig))
+    torch.testing.assert_close(inverse, 2.0 - (2.0 - 0.1) * sig)  # linear in the sigmoid
+    x = torch.randn(5, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(head, (x,))
+    with pytest.raises(ValueError, match="spacing must be one of"):
+        DepthHead(0.5, 10.0, spacing="log")
+
+
+def test_build_network_and_config_take_the_spacing(tmp_path):
+    from models.networks import build_network
+    from models.train_config import TrainConfig
+
+    net = build_network("small", "aif", 0, 0.5, 10.0, width=8, depth_spacing="inverse")
+    assert net.head.spacing == "inverse" and not list(net.head.parameters())
+    assert TrainConfig(depth_spacing="inverse").depth_spacing == "inverse"
+    with pytest.raises(ValueError, match="depth_spacing must be one of"):
+        TrainConfig(depth_spacing="linear")
