@@ -81,8 +81,8 @@ class DepthHead(nn.Module):
 
     Example:
         >>> head = DepthHead(0.5, 10.0, spacing="inverse")
-        >>> [round(float(d), 3) for d in head(torch.tensor([-50.0, 0.0, 50.0]))]
-        [0.5, 0.952, 10.0]
+        >>> tuple(round(float(d), 3) for d in head(torch.tensor([-50.0, 0.0, 50.0])))
+        (0.5, 0.952, 10.0)
     """
 
     def __init__(self, depth_min: float, depth_max: float, spacing: str = "depth"):
