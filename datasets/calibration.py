@@ -38,6 +38,7 @@ def depth_pairs(dataset: Sequence[dict[str, Any]], indices: Sequence[int] | None
     indices = list(range(len(dataset))) if indices is None else list(indices)
     if not indices:
         raise ValueError("no samples to calibrate from: indices is empty")
+    ids = getattr(dataset, "ids", None)
     pairs = []
     for index in progress_bar(indices, desc="aligning pairs", disable=not progress):
         sample = dataset[index]
@@ -49,7 +50,6 @@ def depth_pairs(dataset: Sequence[dict[str, Any]], indices: Sequence[int] | None
         focused = sample["focused"][:1].to(torch.float64)[None]
         if align:
             focused, _ = align_shots(image, focused)
-        ids = getattr(dataset, "ids", None)
         name = str(sample.get("id", ids[index] if ids else index))
         pairs.append(CalibrationPair(image, focused[:, 0], sample["depth"].to(torch.float64),
                                      name=name))

@@ -17,7 +17,7 @@ too. Photos are 8- or 16-bit sRGB PNG or JPEG, decoded to linear intensity. The 
 real focused image; the f/8 photo is the `image` (nearly, not fully, in focus: its own blur is
 about `2.8 / 8` of the f/2.8 one, `reference_f_number`). The camera is `datasets.presets.DSLR`
 (35 mm, f/2.8, focus 1.7 m, the full-frame pitch scaled to the stored width), or a camera JSON
-(`camera=`) such as `defocus calibrate-depth` writes.
+(`camera=`) such as `defocus calibrate --dataset dslr` writes (`datasets.calibration`).
 """
 
 from __future__ import annotations
@@ -141,6 +141,24 @@ def read_camera_json(path: str | Path) -> tuple[CameraSettings, dict[str, Any]]:
     return settings, extra
 
 
+def soften(image: Tensor, camera: CameraSettings, floor_px: float) -> Tensor:
+    """`image` `(3,H,W)` blurred by the camera's PSF at a constant `floor_px` (CoC diameter,
+    pixels): the blur the f/2.8 photos have even in focus (`focus_floor_px` of a fitted camera
+    JSON). Zero leaves it as it is.
+
+    Example:
+        >>> image = torch.rand(3, 16, 16)
+        >>> camera = CameraSettings(0.035, 2.8, [1.7], 6e-5, "gaussian:0.5")
+        >>> bool(soften(image, camera, 1.5).std() < image.std()), soften(image, camera, 0) is image
+        (True, True)
+    """
+    if floor_px <= 0:
+        return image
+    floor = torch.full((1, 1, *image.shape[-2:]), float(floor_px), dtype=image.dtype,
+                       device=image.device)
+    return render_defocus(image[None], floor, psf=camera.aperture_module())[0]
+
+
 class DSLR(DepthDataset):
     """Real defocus: the f/8 photo as `image`, the f/2.8 photo as the one focused image.
 
@@ -154,7 +172,7 @@ class DSLR(DepthDataset):
         reference: sub-folder of the f/8 reference photos (flat layout).
         depth: sub-folder of the depth PNGs (flat layout).
         preset: the camera of the wide photo (`datasets.presets.DSLR` by default).
-        camera: a camera JSON (`defocus calibrate-depth`, `defocus calibrate`) or settings for
+        camera: a camera JSON (`defocus calibrate --dataset dslr`) or settings for
             the wide photos at the stored resolution, replacing the preset; a JSON's
             `reference_f_number` sets `reference_f_number`.
         max_gap_s: the largest time difference, seconds, of a photo and its depth file.
@@ -258,10 +276,12 @@ class DSLR(DepthDataset):
             raise ValueError(f"reference_f_number {self.reference_f_number} must exceed the "
                              f"camera's f-number {camera.f_number.tolist()} for relative=True")
         camera = camera.replace(f_number=camera.f_number / (1 - ratio ** 2).sqrt())
-        if self.floor_px > 0:
-            floor = torch.full((1, 1, *image.shape[-2:]), self.floor_px, dtype=image.dtype)
-            image = render_defocus(image[None], floor, psf=camera.aperture_module())[0]
-        return image, camera
+        return soften(image, camera, self.floor_px), camera
+
+    def reference_settings(self, camera: CameraSettings) -> CameraSettings:
+        """The settings of the f/8 photo (`image`): `camera` at `reference_f_number`, e.g. for
+        `estimate_depth(image_settings=...)`."""
+        return camera.replace(f_number=torch.full_like(camera.f_number, self.reference_f_number))
 
     def load(self, index: int) -> dict[str, Any]:
         wide_path, ref_path, depth_path = self.files[index]

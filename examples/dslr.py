@@ -58,8 +58,7 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float],
     for index in progress_bar(range(len(val)), desc="label-free predict"):
         sample = val[index]
         settings = sample["camera"]
-        reference = settings.replace(f_number=torch.full_like(settings.f_number,
-                                                              val.reference_f_number))
+        reference = val.reference_settings(settings)
         with torch.no_grad():
             depth = estimate_depth(sample["focused"], settings, depth_range,
                                    image=sample["image"], image_settings=reference,

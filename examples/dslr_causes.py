@@ -29,23 +29,14 @@ import sys
 from pathlib import Path
 
 import torch
-import torch.nn.functional as F
 
 from datasets import DSLR
 from datasets.calibration import calibrate_dataset
+from datasets.dslr import soften
 from models.depth_from_photos import estimate_depth
-from optics import CameraSettings
 from optics.progress import progress_bar
 
 DEPTH_RANGE = (0.5, 10.0)
-
-
-def soften(image: torch.Tensor, settings: CameraSettings, coc_px: float) -> torch.Tensor:
-    """`image` `(3,H,W)` blurred by the settings' PSF at `coc_px` (the floor)."""
-    size = 2 * math.ceil(1.5 * coc_px) + 1
-    kernel = settings.aperture_module().kernel(torch.tensor([coc_px]), kernel_size=size)[0]
-    padded = F.pad(image[:, None], (size // 2,) * 4, mode="reflect")
-    return F.conv2d(padded, kernel.to(image)[None, None])[:, 0]
 
 
 def abs_rel(depth: torch.Tensor, sample: dict) -> float:
@@ -66,7 +57,7 @@ def run_variants(val: DSLR, stated: DSLR, floor_px: float, focus_m: float,
 
         def depth(sample: dict, shot: bool, image=None, range_=DEPTH_RANGE, **kw) -> torch.Tensor:
             settings = sample["camera"]
-            reference = settings.replace(f_number=torch.full_like(settings.f_number, 8.0))
+            reference = stated.reference_settings(settings)
             with torch.no_grad():
                 return estimate_depth(sample["focused"], settings, range_,
                                       image=sample["image"] if image is None else image,

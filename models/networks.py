@@ -111,7 +111,8 @@ class DepthHead(nn.Module):
 class _DepthNetwork(nn.Module):
     """Shared input assembly and checks; subclasses implement `_logits(x)`."""
 
-    def __init__(self, input_mode: str, n_focus: int, depth_min: float, depth_max: float):
+    def __init__(self, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
+                 depth_spacing: str = "depth"):
         super().__init__()
         if input_mode not in INPUT_MODES:
             raise ValueError(f"input_mode must be one of {INPUT_MODES}, got {input_mode!r}")
@@ -119,7 +120,7 @@ class _DepthNetwork(nn.Module):
             raise ValueError(f"n_focus must be >= 1 in 'aif+focused' mode, got {n_focus!r}")
         self.input_mode = input_mode
         self.n_focus = int(n_focus) if input_mode == "aif+focused" else 0
-        self.head = DepthHead(depth_min, depth_max)
+        self.head = DepthHead(depth_min, depth_max, depth_spacing)
 
     @property
     def in_channels(self) -> int:
@@ -177,6 +178,7 @@ class SmallDepthNet(_DepthNetwork):
         depth_min: nearest depth the head can output, metres.
         depth_max: farthest depth the head can output, metres.
         width: channels of the first scale (doubled at each of the next two).
+        depth_spacing: `"depth"` or `"inverse"`: how the head spaces its output (`DepthHead`).
 
     Example:
         >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8)
@@ -186,8 +188,9 @@ class SmallDepthNet(_DepthNetwork):
     """
 
     def __init__(self, input_mode: str = "aif+focused", n_focus: int = 2,
-                 depth_min: float = 1.0, depth_max: float = 10.0, width: int = 32):
-        super().__init__(input_mode, n_focus, depth_min, depth_max)
+                 depth_min: float = 1.0, depth_max: float = 10.0, width: int = 32,
+                 depth_spacing: str = "depth"):
+        super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing)
         w = int(width)
         self.enc1 = _conv_block(self.in_channels, w)
         self.enc2 = _conv_block(w, 2 * w, stride=2)
@@ -315,6 +318,7 @@ class PaperDepthNet(_DepthNetwork):
         n_focus: number of focused images `F` in `"aif+focused"` mode.
         depth_min: nearest depth the head can output, metres.
         depth_max: farthest depth the head can output, metres.
+        depth_spacing: `"depth"` or `"inverse"`: how the head spaces its output (`DepthHead`).
 
     Example:
         >>> net = PaperDepthNet("aif", depth_min=1.0, depth_max=10.0).eval()
@@ -323,8 +327,8 @@ class PaperDepthNet(_DepthNetwork):
     """
 
     def __init__(self, input_mode: str = "aif", n_focus: int = 2, depth_min: float = 1.0,
-                 depth_max: float = 10.0):
-        super().__init__(input_mode, n_focus, depth_min, depth_max)
+                 depth_max: float = 10.0, depth_spacing: str = "depth"):
+        super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing)
         self.backbone = ResNet50OS16(self.in_channels)
         self.aspp = DenseASPP(2048)
         self.attention = SelfAttention2d(256)
@@ -361,8 +365,5 @@ def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, de
     if name not in NETWORKS:
         raise ValueError(f"network must be one of {sorted(NETWORKS)}, got {name!r}")
     if name == "small":
-        network: _DepthNetwork = SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width)
-    else:
-        network = PaperDepthNet(input_mode, n_focus, depth_min, depth_max)
-    network.head = DepthHead(depth_min, depth_max, depth_spacing)  # no parameters
-    return network
+        return SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width, depth_spacing)
+    return PaperDepthNet(input_mode, n_focus, depth_min, depth_max, depth_spacing)

@@ -23,12 +23,10 @@ non-negative least squares. `calibrate_from_depth` turns the fit into a camera.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from os import PathLike
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -36,6 +34,7 @@ from torch import Tensor
 
 from ..aperture_spec import aperture_spec, parse_aperture
 from ..camera import CameraSettings
+from ..progress import progress_bar
 from .measure import _ConstantBlur, _crop
 from .pair import CalibrationPair
 
@@ -140,8 +139,6 @@ def measure_blur_curve(
     errors = torch.zeros(len(edges) - 1, len(candidates), dtype=torch.float64)
     pixels = torch.zeros(len(edges) - 1, dtype=torch.float64)
     gains = []
-    from ..progress import progress_bar
-
     for i, pair in enumerate(progress_bar(pairs, desc="blur by depth", disable=not progress)):
         if not isinstance(pair.depth, Tensor):
             raise ValueError(f"pairs[{i}] ({pair.name or 'unnamed'}) has one distance, not a depth "
@@ -287,13 +284,6 @@ class DepthCalibration:
     def to_json(self, path: str | PathLike) -> None:
         """Write the camera JSON (`CameraSettings.from_json` reads it; the extras ride along)."""
         self.settings.to_json(path, **self.extras())
-
-    @staticmethod
-    def read_extras(path: str | PathLike) -> dict[str, Any]:
-        """The extra values of a camera JSON (empty for a plain one)."""
-        data = json.loads(Path(path).read_text())
-        return {k: data[k] for k in ("focus_floor_px", "reference_f_number", "exposure_gain")
-                if k in data}
 
 
 def calibrate_from_depth(
