@@ -1,22 +1,30 @@
 """Mobile Depth (Suwajanakorn et al., "Depth from Focus with Your Mobile Phone", CVPR 2015):
 focal stacks of 13 scenes filmed with a phone sweeping its focus; no depth.
 
-Layout (checked against the Mobile Depth evaluation of `fuy34/DFV`, `eval_mobile_Depth.py`,
-which reads the aligned frames of `depth_from_focus_data2.zip` after its reorganisation; the
-original zip was not at hand)::
+Layouts read (checked against `fuy34/DFV` at 5a42ad1: `data_preprocess/reorganize_mobelDepth.py`
+and `eval_mobile_Depth.py`; `albert100121/AiFDepthNet` at 4fa8376:
+`data/Mobile_Depth_Gen/gen_txt_mobile.py`; the zips themselves were not at hand)::
 
-    <root>/<scene>/a00.jpg, a01.jpg, ...   the aligned frames, in capture order (the number
-                                           after `a`, without gaps)
-    <root>/<scene>/focus_dpth.txt          optional: one calibrated focus value per frame
+    depth_from_focus_data3.zip, as released:
+        <root>/Aligned/Figure<N>/<scene>/a00.jpg, a01.jpg, ...   aligned frames in capture order
+    depth_from_focus_data2.zip, as released (optional, the calibration):
+        <root>/calibration/<name>/calibrated.txt   one line "<focus value> <aperture>" per frame,
+                                                   then a last line with the focal length alone
+    or the folders after DFV's reorganisation:
+        <root>/<scene>/a00.jpg, ...                the aligned frames
+        <root>/<scene>/focus_dpth.txt              column 0 of calibrated.txt, one value a frame
 
-The dataset's calibration recovers each frame's focus only up to an affine map of inverse
-distance, so nothing here is metric. Focus distances come, in this order, from
-`focus_distances` (metres, given by the user), from `focus_dpth.txt` (its values are mapped
-affinely in inverse distance onto `focus_range`, the largest value the nearest; they must be
-strictly monotonic in frame order), or from the frame order alone (equally spaced in inverse
-distance over `focus_range`, the first frame the farthest). The phone camera's focal length,
-f-number and pitch are nominal (a 2015 phone: 4 mm, f/2.2, 1.12 um pixels of a 4128-pixel-wide
-sensor), not from the dataset. Samples have `mask` all False: the benchmark is judged by eye.
+`root` may be any folder above the scene folders (they are found up to three levels down). Four
+scenes are named differently in the calibration (`CALIBRATION_NAMES`); `bucket` and `kitchen`
+have none. The calibrated values are not metric (their units are disputed), so focus distances
+come, in this order, from `focus_distances` (metres, given by the user), from `focus_dpth.txt` or
+`calibrated.txt` (mapped affinely in inverse distance onto `focus_range`, the largest value the
+nearest, except in `REVERSED_FOCUS` where DFV's evaluation negates them; they must be strictly
+monotonic in frame order unless `sort_by_focus=True`, which orders the frames by their values as
+DFV does), or from the frame order alone (equally spaced in inverse distance over `focus_range`,
+the first frame the farthest). The phone camera's focal length, f-number and pitch are nominal
+(a 2015 phone: 4 mm, f/2.2, 1.12 um pixels of a 4128-pixel-wide sensor), not from the dataset,
+which states none. Samples have `mask` all False: the benchmark is judged by eye.
 """
 
 from __future__ import annotations
@@ -38,10 +46,61 @@ from .stacks import FocalStackDataset
 FRAME = re.compile(r"^a(\d+)\.jpe?g$", re.IGNORECASE)
 #: Nominal phone camera: focal length (m), f-number, sensor pitch (m) at the sensor width (px).
 PHONE = {"focal_length": 4.0e-3, "f_number": 2.2, "pixel_pitch": 1.12e-6, "sensor_width_px": 4128}
+#: Aligned scene name -> its folder name in the calibration zip, where they differ.
+CALIBRATION_NAMES = {"metals": "metal", "largemotion": "GTLarge", "smallmotion": "GTSmall",
+                     "zeromotion": "GT"}
+#: Scenes whose calibrated values run the other way (DFV's evaluation negates them).
+REVERSED_FOCUS = frozenset({"metals"})
+#: How deep below `root` scene folders are searched (Aligned/Figure<N>/<scene>).
+SEARCH_DEPTH = 3
 LAYOUT = (
-    "  <root>/<scene>/a00.jpg, a01.jpg, ...  aligned frames in capture order\n"
-    "  <root>/<scene>/focus_dpth.txt         optional calibrated focus value per frame"
+    "  <root>/Aligned/Figure<N>/<scene>/a00.jpg, a01.jpg, ...  aligned frames in capture order\n"
+    "  <root>/calibration/<name>/calibrated.txt  optional: '<focus value> <aperture>' a frame\n"
+    "  or <root>/<scene>/a00.jpg, ... with optional <root>/<scene>/focus_dpth.txt (DFV's)"
 )
+
+
+def find_scenes(root: Path, depth: int = SEARCH_DEPTH) -> list[Path]:
+    """Folders holding frames `a<N>.jpg` at most `depth` levels below `root`, by name.
+
+    Raises:
+        DataFormatError: two scene folders share a name (which one is meant is unknown).
+    """
+    found: dict[str, Path] = {}
+
+    def visit(folder: Path, level: int) -> None:
+        children = sorted(folder.iterdir())
+        if any(FRAME.match(p.name) for p in children if p.is_file()):
+            if folder.name in found:
+                raise DataFormatError(f"MobileDepth: two scene folders named {folder.name!r}: "
+                                      f"{str(found[folder.name])!r} and {str(folder)!r}")
+            found[folder.name] = folder
+        if level < depth:
+            for child in children:
+                if child.is_dir() and child.name != "calibration":
+                    visit(child, level + 1)
+
+    visit(root, 0)
+    return [found[name] for name in sorted(found)]
+
+
+def read_calibrated(path: Path) -> list[float]:
+    """The per-frame focus values of a release `calibrated.txt` (column 0 of every line but the
+    last, which holds the focal length alone).
+
+    Raises:
+        DataFormatError: a line that is not numbers, or no frame line.
+    """
+    rows = [line.split() for line in path.read_text().splitlines() if line.strip()]
+    try:
+        numbers = [[float(v) for v in row] for row in rows]
+    except ValueError as error:
+        raise DataFormatError(f"{str(path)!r}: not lines of numbers ({error})") from None
+    values = [row[0] for row in numbers[:-1]]
+    if not values or any(len(row) < 2 for row in numbers[:-1]):
+        raise DataFormatError(f"{str(path)!r}: expected one line '<focus value> <aperture>' a "
+                              "frame and a last line with the focal length")
+    return values
 
 
 def list_frames(scene: Path) -> list[Path]:
@@ -84,7 +143,8 @@ def focus_from_calibration(values: Sequence[float], near: float, far: float,
     steps = np.diff(v)
     if not np.isfinite(v).all() or not (np.all(steps > 0) or np.all(steps < 0)):
         raise DataFormatError(f"{source}: focus values {v.tolist()} must be finite and strictly "
-                              "increasing or decreasing in frame order (frames out of order?)")
+                              "increasing or decreasing in frame order (frames out of order? "
+                              "sort_by_focus=True orders them by value)")
     t = (v - v.min()) / (v.max() - v.min())
     return (1.0 / (1.0 / far + t * (1.0 / near - 1.0 / far))).tolist()
 
@@ -101,12 +161,31 @@ class MobileDepth(FocalStackDataset):
         n_shots: use this many frames, evenly spaced over the stack (all by default).
         camera: the phone's `focal_length`, `f_number`, `pixel_pitch` and
             `sensor_width_px` (nominal by default, see above).
+        calibration: the folder of the release's per-scene calibration folders
+            (`<name>/calibrated.txt`); by default `calibration/` in `root` or up to two
+            folders above it, where present.
+        sort_by_focus: order each scene's frames by their calibrated focus values (as DFV's
+            evaluation does) instead of failing where the values are not monotonic in frame
+            order.
         **kwargs: `size`, `crop`, `augment`, `dtype`, `memory_cache_mb` of `DepthDataset`.
 
     Raises:
         FileNotFoundError: `root` or a scene folder is missing, or a scene has no frames.
         DataFormatError: frames out of order, a focus file with a value missing (or extra) for
-            a frame, or unreadable frames.
+            a frame, focus values not monotonic in frame order (without `sort_by_focus`), two
+            scene folders of one name, or unreadable frames.
+
+    Example:
+        >>> import tempfile
+        >>> from PIL import Image
+        >>> root = Path(tempfile.mkdtemp())
+        >>> scene = root / "Aligned" / "Figure1" / "keyboard"
+        >>> scene.mkdir(parents=True)
+        >>> for n in range(3):
+        ...     Image.new("RGB", (16, 12), (40 * n, 90, 200)).save(scene / f"a{n:02d}.jpg")
+        >>> data = MobileDepth(root, focus_range=(0.1, 1.0))
+        >>> data.ids, tuple(round(d, 3) for d in data.focus[0])
+        (['keyboard'], (1.0, 0.182, 0.1))
     """
 
     name = "mobile_depth"
@@ -114,7 +193,9 @@ class MobileDepth(FocalStackDataset):
     def __init__(self, root: str | Path, scenes: Sequence[str] | None = None,
                  focus_distances: Sequence[float] | Mapping[str, Sequence[float]] | None = None,
                  focus_range: tuple[float, float] = (0.1, 1.0), n_shots: int | None = None,
-                 camera: Mapping[str, float] | None = None, **kwargs: Any):
+                 camera: Mapping[str, float] | None = None,
+                 calibration: str | Path | None = None, sort_by_focus: bool = False,
+                 **kwargs: Any):
         near, far = (float(d) for d in focus_range)
         if not 0 < near < far:
             raise ValueError(f"focus_range must be metres (near, far) with 0 < near < far, "
@@ -126,26 +207,63 @@ class MobileDepth(FocalStackDataset):
                                       (near, far), (self.phone["f_number"],), depth_cap=far),
                          **kwargs)
         self.root = require_root(root, "MobileDepth", LAYOUT)
-        folders = [self.root / s for s in scenes] if scenes is not None else sorted(
-            p for p in self.root.iterdir() if p.is_dir() and any(FRAME.match(f.name) for f in
-                                                                 p.iterdir()))
+        found = {p.name: p for p in find_scenes(self.root)}
+        if scenes is not None:
+            missing = [s for s in scenes if s not in found]
+            if missing:
+                raise FileNotFoundError(f"MobileDepth: no scene folder with frames named "
+                                        f"{missing} under {str(self.root)!r}; found "
+                                        f"{sorted(found)}")
+            folders = [found[s] for s in scenes]
+        else:
+            folders = list(found.values())
         if not folders:
             raise FileNotFoundError(f"MobileDepth: no scene folders with frames in "
                                     f"{str(self.root)!r}. Expected:\n{LAYOUT}")
         self.focus_range, self.n_shots = (near, far), n_shots
         self.depth_range = (near, far)
+        self.sort_by_focus = bool(sort_by_focus)
+        self.calibration = self._calibration_folder(calibration)
         self.frames: list[list[Path]] = []
         self.focus: list[list[float]] = []
         for folder in folders:
-            if not folder.is_dir():
-                raise FileNotFoundError(f"MobileDepth: missing scene folder {str(folder)!r}")
-            frames = list_frames(folder)
+            frames, focus = self._scene_focus(folder, list_frames(folder), focus_distances)
             self.frames.append(frames)
-            self.focus.append(self._scene_focus(folder, len(frames), focus_distances))
+            self.focus.append(focus)
             self.ids.append(folder.name)
 
-    def _scene_focus(self, folder: Path, count: int, given: Any) -> list[float]:
+    def _calibration_folder(self, given: str | Path | None) -> Path | None:
+        if given is not None:
+            folder = Path(given)
+            if not folder.is_dir():
+                raise FileNotFoundError(f"MobileDepth: calibration folder {str(folder)!r} is "
+                                        "missing (expected <name>/calibrated.txt inside)")
+            return folder
+        for above in (self.root, *list(self.root.resolve().parents)[:2]):
+            if (above / "calibration").is_dir():
+                return above / "calibration"
+        return None
+
+    def _focus_file(self, folder: Path) -> tuple[Path, list[float]] | None:
+        """The scene's calibrated focus values and their file, or None where it has none."""
+        own = folder / "focus_dpth.txt"
+        if own.is_file():
+            try:
+                return own, np.atleast_1d(np.loadtxt(own, dtype=np.float64)).tolist()
+            except ValueError as error:
+                raise DataFormatError(f"{str(own)!r}: not a list of numbers ({error})") from None
+        if self.calibration is not None:
+            name = CALIBRATION_NAMES.get(folder.name, folder.name)
+            path = self.calibration / name / "calibrated.txt"
+            if path.is_file():
+                return path, read_calibrated(path)
+        return None
+
+    def _scene_focus(self, folder: Path, frames: list[Path],
+                     given: Any) -> tuple[list[Path], list[float]]:
+        """The scene's frames (reordered by focus where `sort_by_focus`) and focus, metres."""
         near, far = self.focus_range
+        count = len(frames)
         if isinstance(given, Mapping):
             given = given.get(folder.name)
         if given is not None:
@@ -153,19 +271,20 @@ class MobileDepth(FocalStackDataset):
             if len(values) != count:
                 raise ValueError(f"focus_distances for scene {folder.name!r} must hold one value "
                                  f"per frame ({count}), got {len(values)}")
-            return values
-        calibration = folder / "focus_dpth.txt"
-        if calibration.is_file():
-            try:
-                values = np.atleast_1d(np.loadtxt(calibration, dtype=np.float64)).tolist()
-            except ValueError as error:
-                raise DataFormatError(f"{str(calibration)!r}: not a list of numbers ({error})") \
-                    from None
-            if len(values) != count:
-                raise DataFormatError(f"{str(calibration)!r}: {len(values)} focus values for "
-                                      f"{count} frames; a focus distance is missing (or extra)")
-            return focus_from_calibration(values, near, far, repr(str(calibration)))
-        return (1.0 / np.linspace(1.0 / far, 1.0 / near, count)).tolist()
+            return frames, values
+        calibrated = self._focus_file(folder)
+        if calibrated is None:
+            return frames, (1.0 / np.linspace(1.0 / far, 1.0 / near, count)).tolist()
+        path, values = calibrated
+        if len(values) != count:
+            raise DataFormatError(f"{str(path)!r}: {len(values)} focus values for {count} frames "
+                                  f"in {str(folder)!r}; a focus distance is missing (or extra)")
+        if folder.name in REVERSED_FOCUS:
+            values = [-v for v in values]
+        if self.sort_by_focus:
+            order = sorted(range(count), key=lambda i: values[i])
+            frames, values = [frames[i] for i in order], [values[i] for i in order]
+        return frames, focus_from_calibration(values, near, far, repr(str(path)))
 
     def load_stack(self, index: int) -> dict[str, Any]:
         frames, focus = self.frames[index], self.focus[index]

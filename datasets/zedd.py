@@ -3,8 +3,10 @@ photographed with a full-frame mirrorless camera at 9 calibrated focus distances
 and 5 apertures (f/1.4, 2.0, 2.8, 4.0, 5.6), plus an f/16 all-in-focus shot, with dense LiDAR
 depth at 1824x1216 pixels.
 
-Release layout (checked against the official loader `dataset/zedd.py` and the readme of
-`princeton-vl/FOSSA`, which also give the protocol; the files themselves were not at hand)::
+Release layout (checked against `princeton-vl/FOSSA` at dd7758d: its loader `dataset/zedd.py`,
+its README's file tree, `config/validation_configs.py` and the test-format check
+`zedd_test/zedd_check_format.py`, which also give the protocol; the dataset card states the 9
+focus distances, 6 apertures and the 1824x1216 depth; the files themselves were not at hand)::
 
     <root>/metadata.txt    one line per focus setting: run_<k> <TAB> <motor hex code> <TAB>
                            <focus distance, metres>, k = 1..9 ('#' starts a comment)
@@ -17,10 +19,13 @@ Release layout (checked against the official loader `dataset/zedd.py` and the re
 `split` is `"val"` or `"test"`, scenes `val_0001`, .... The default protocol (FOSSA's
 `zedd_F2_8_fixed_fd_0_2_4_6_8`) uses five shots at f/2.8 focused at settings 0, 2, 4, 6, 8
 (runs 1, 3, 5, 7, 9) and the f/16 photo of run 5 as the all-in-focus image; valid depth lies in
-[0.01, 1000] m. Photos are resized to the depth's resolution where they differ. The pixel
-pitch is the full-frame sensor width (36 mm) over the image width, and the focal length is
-`K[0][0]` times that pitch (the files give no pitch; only `f / pitch` matters for the blur
-in pixels).
+[0.01, 1000] m. Photos are resized to the depth's resolution where they differ (val). `K.txt`
+is in pixels at the depth's resolution, 1824x1216 (`DEPTH_SIZE`; the test split has no depth,
+so its K is read at that size, as FOSSA does, whatever the photos' size). The pixel pitch is the
+full-frame sensor width (36 mm, assumed: no source states the camera's sensor) over the image
+width, and the focal length is `K[0][0]` times the pitch at K's resolution (only `f / pitch`
+matters for the blur in pixels). FOSSA scores val at 480x640 (resized to 480 rows, then the
+centre 640 columns); `size=(480, 720), crop=(480, 640)` reproduces that input size.
 """
 
 from __future__ import annotations
@@ -51,6 +56,8 @@ AIF_RUN, AIF_F_NUMBER = 5, 16.0
 #: Valid ground truth of the official evaluation, metres.
 VALID_DEPTH = (0.01, 1000.0)
 SENSOR_WIDTH = 36e-3
+#: Rows and columns of the depth maps, the frame of `K.txt` (dataset card; FOSSA's test check).
+DEPTH_SIZE = (1216, 1824)
 LAYOUT = (
     "  <root>/metadata.txt  lines run_<k> TAB <hex> TAB <focus distance m>, k = 1..9\n"
     "  <root>/<split>/<scene>/focus_stack/img_run_<k>_motor_<hex>_aperture_F<N.N>.jpg\n"
@@ -196,9 +203,10 @@ class ZEDD(FocalStackDataset):
         photos = [self._resized(p, size, path) for p, path in
                   zip(photos, self._photos(scene), strict=True)]
         pitch = self.sensor_width / size[-1]
+        k_width = size[-1] if self.split == "val" else DEPTH_SIZE[1]
         focus = [self.runs[i + 1][1] for i in self.shots]
-        camera = CameraSettings(float(K[0, 0]) * pitch, self.f_number, focus, pitch,
-                                aperture="disk").to(self.dtype)
+        camera = CameraSettings(float(K[0, 0]) * self.sensor_width / k_width, self.f_number,
+                                focus, pitch, aperture="disk").to(self.dtype)
         return {"image": photos[-1], "focused": torch.stack(photos[:-1]), "camera": camera,
                 "depth": depth, "mask": mask}
 

@@ -1,11 +1,14 @@
 """Depth from focus on the Mobile Depth stacks (phone photos, no ground truth: judged by eye).
 
 Data: Mobile Depth of Suwajanakorn et al., "Depth from Focus with Your Mobile Phone" (CVPR
-2015): 13 scenes filmed while the phone sweeps its focus. Download depth_from_focus_data2.zip
-from supasorn.com/dffdownload.html and give the folder of scene folders as ``--root``::
+2015): 13 scenes filmed while the phone sweeps its focus. Download depth_from_focus_data3.zip
+(the aligned frames) and, for the calibration, depth_from_focus_data2.zip from
+supasorn.com/dffdownload.html, unzip both into one folder and give it as ``--root``::
 
-    <scene>/a00.jpg, a01.jpg, ...   aligned frames in capture order
-    <scene>/focus_dpth.txt          optional calibrated focus value per frame (relative)
+    Aligned/Figure<N>/<scene>/a00.jpg, ...   aligned frames in capture order
+    calibration/<name>/calibrated.txt        optional calibrated focus value per frame (relative)
+
+(DFV's reorganised folders, ``<scene>/a00.jpg`` with ``<scene>/focus_dpth.txt``, read as well.)
 
 The focus distances are not metric (the calibration recovers them up to an affine map of inverse
 distance): they are spread over ``--focus-range``. No depth comes with the data, so nothing is

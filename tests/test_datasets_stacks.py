@@ -236,6 +236,9 @@ def test_zedd_errors(tmp_path):
     write_zedd(tmp_path / "test", split="test", scenes=1)
     sample = ZEDD(tmp_path / "test", split="test")[0]
     assert not bool(sample["mask"].any())
+    # no depth in the test split: K is in the 1824-pixel-wide depth frame, the pitch the photo's
+    assert float(sample["camera"].focal_length[0]) == pytest.approx(20.0 * 36e-3 / 1824)
+    assert float(sample["camera"].pixel_pitch[0]) == pytest.approx(36e-3 / 18)
 
 
 # ---- Mobile Depth ------------------------------------------------------------------------------
@@ -348,3 +351,56 @@ def test_evaluate_offers_every_label_free_method():
     from models.depth_from_photos import METHODS
 
     assert set(METHOD_NAMES) == {"auto", *METHODS}
+
+
+def write_mobile_depth_release(root: Path, frames: int = 4, h: int = 12, w: int = 16) -> None:
+    """The two release zips unpacked side by side: data3's `Aligned/Figure<N>/<scene>/a<NN>.jpg`
+    and data2's `calibration/<name>/calibrated.txt` (`<focus value> <aperture>` a frame, then the
+    focal length alone)."""
+    rng = np.random.default_rng(4)
+    for figure, scene in (("Figure1", "keyboard"), ("Figure5", "metals"), ("Figure7", "bucket")):
+        folder = root / "Aligned" / figure / scene
+        folder.mkdir(parents=True)
+        for n in range(frames):
+            Image.fromarray(_texture(rng, h, w)).save(folder / f"a{n:02d}.jpg", quality=95)
+    for name, values in (("keyboard", [3.0, 2.0, 1.5, 1.0]), ("metal", [1.0, 2.0, 3.0, 4.0])):
+        folder = root / "calibration" / name
+        folder.mkdir(parents=True)
+        lines = [f"{v} 0.01" for v in values] + ["25.5"]
+        (folder / "calibrated.txt").write_text("\n".join(lines) + "\n")
+
+
+def test_mobile_depth_release_layout(tmp_path):
+    write_mobile_depth_release(tmp_path)
+    for root in (tmp_path, tmp_path / "Aligned"):  # the calibration is found from either
+        data = MobileDepth(root, focus_range=(0.1, 1.0))
+        assert data.ids == ["bucket", "keyboard", "metals"]
+        bucket, keyboard, metals = data.focus
+        # keyboard: the largest calibrated value (frame 0) is the nearest
+        assert keyboard[0] == pytest.approx(0.1) and keyboard[-1] == pytest.approx(1.0)
+        # metals reads calibration/metal, whose values run the other way (negated, as DFV does)
+        assert metals[0] == pytest.approx(0.1) and metals[-1] == pytest.approx(1.0)
+        # bucket has no calibration: frame order, far to near
+        assert bucket[0] == pytest.approx(1.0) and bucket[-1] == pytest.approx(0.1)
+        assert data.frames[1][2].name == "a02.jpg"
+    assert MobileDepth(tmp_path, scenes=["metals"])[0]["focused"].shape == (4, 3, 12, 16)
+    with pytest.raises(FileNotFoundError, match="named \\['plants'\\].*found"):
+        MobileDepth(tmp_path, scenes=["plants"])
+
+
+def test_mobile_depth_release_calibration_order(tmp_path):
+    write_mobile_depth_release(tmp_path)
+    calibrated = tmp_path / "calibration" / "keyboard" / "calibrated.txt"
+    calibrated.write_text("3.0 0.01\n1.5 0.01\n2.0 0.01\n1.0 0.01\n25.5\n")
+    with pytest.raises(DataFormatError, match="calibrated.txt.*strictly.*sort_by_focus"):
+        MobileDepth(tmp_path)
+    data = MobileDepth(tmp_path, scenes=["keyboard"], sort_by_focus=True, focus_range=(0.1, 1.0))
+    # frames ordered by value, smallest (farthest) first: a03, a01, a02, a00
+    assert [p.name for p in data.frames[0]] == ["a03.jpg", "a01.jpg", "a02.jpg", "a00.jpg"]
+    assert data.focus[0][0] == pytest.approx(1.0) and data.focus[0][-1] == pytest.approx(0.1)
+    calibrated.write_text("3.0 0.01\n2.0 0.01\n25.5\n")
+    with pytest.raises(DataFormatError, match="calibrated.txt.*2 focus values for 4 frames"):
+        MobileDepth(tmp_path, scenes=["keyboard"])
+    calibrated.write_text("3.0 0.01\n2.0 x\n1.5 0.01\n1.0 0.01\n25.5\n")
+    with pytest.raises(DataFormatError, match="calibrated.txt.*not lines of numbers"):
+        MobileDepth(tmp_path, scenes=["keyboard"])
