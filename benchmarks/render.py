@@ -53,6 +53,7 @@ import kornia  # noqa: E402
 
 from datasets.middlebury import motorcycle_scene  # noqa: E402
 from optics import Disk, Gaussian, Mask, Polygon, _render_cpp, render_defocus  # noqa: E402
+from optics.render import layer_weights  # noqa: E402
 
 APERTURES = ["gaussian", "disk", "hexagon", "mask"]
 MODES = ["scatter", "gather", "layered-motorcycle", "layered-plane-discs", "layered-random"]
@@ -115,6 +116,20 @@ def make_inputs(name: str, shape, k: int, device, depth_kind: str = "random", se
     blur = (1 / depth - 1 / focus).abs()  # the CoC of a thin lens, up to a factor
     coc = (blur / blur.max() * c_max).expand(b, 1, h, w).clone()
     return image.to(device), coc.to(device), depth.expand(b, 1, h, w).clone().to(device)
+
+
+def layers_per_window(depth: torch.Tensor, n_layers: int, k: int, block: int = 8
+                      ) -> tuple[float, float]:
+    """How many layers the exact layered mode must sum, on average: `(per source, per source
+    row of a block's window)`. A source adds to its one or two layers; a block of `block` output
+    pixels (one vector of the compiled kernel) sums, for each of the `k` source rows of its
+    window, every layer present among that row's `k + block - 1` sources."""
+    present = (layer_weights(depth, n_layers) > 0).to(torch.float32)
+    half = k // 2
+    padded = torch.nn.functional.pad(present, (half, half + block, 0, 0))
+    rows = torch.nn.functional.max_pool2d(padded, (1, k + block - 1), stride=(1, block))
+    rows = rows[..., : math.ceil(depth.shape[-1] / block)]
+    return float(present.sum(1).mean()), float(rows.sum(1).mean())
 
 
 def unfold_scatter(image: torch.Tensor, coc: torch.Tensor, k: int) -> torch.Tensor:
@@ -300,6 +315,11 @@ def goals(device, rounds: int, memory: bool) -> list[tuple[str, float | str, str
         print(f"reference: {aperture} scatter of {channels} channels (the layered "
               f"mode's two layers a source, no indexing: its arithmetic floor) / {aperture} "
               f"scatter: {floor:.2f}")
+    for mode, kind in DEPTHS.items():
+        per_source, per_row = layers_per_window(jobs[f"gaussian/{mode}"].inputs[2], 8, k)
+        print(f"layers on the {kind} depth: {per_source:.2f} a source adds to, {per_row:.2f} an "
+              f"8-pixel block sums per source row of its window (the exact kernel's work "
+              f"follows the second)")
     medians = {name: statistics.median(t) * 1e3 for name, t in times.items()}
     print("goal configuration (1 thread, 1x3x512x512, K=15, fwd+bwd, medians, ms): " + ", ".join(
         f"{name} {value:.1f}" for name, value in medians.items()))
