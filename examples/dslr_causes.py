@@ -74,6 +74,7 @@ def run_variants(val: DSLR, stated: DSLR, floor_px: float, focus_m: float,
         near = depth(fitted, True, softened, (DEPTH_RANGE[0], 0.98 * focus_m),
                      refine_range=False)
         far = depth(fitted, True, softened, (1.02 * focus_m, DEPTH_RANGE[1]), refine_range=False)
+        add("... and the depth range beyond the focus plane only", abs_rel(far, fitted))
         truth = fitted["depth"]
         oracle = torch.where((near - truth).abs() < (far - truth).abs(), near, far)
         add("... and the side of the focus plane from the true depth (oracle)",

@@ -297,3 +297,48 @@ def test_predict_with_a_nearly_sharp_image(tmp_path, capsys):
                  "--focused", *paths, "--focus-distance", "1.4", "4.5", "--out",
                  str(tmp_path / "no")]) == 2
     assert "--image-f-number" in capsys.readouterr().err
+
+
+# ---- depths the shots cannot place on one side of their focus plane --------------------------
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_mirrored_depths_is_the_span_with_an_equal_blur_elsewhere_in_the_range(dtype):
+    from models.depth_from_photos import mirrored_depths, thin_lens_blur
+
+    near, far = 1.0, 10.0
+    settings = CameraSettings(0.035, [8.0, 2.8], [2.0, 2.0], 5.6e-5).to(dtype)
+    span = mirrored_depths(settings, near, far)
+    assert span == pytest.approx((1 / 0.9, 10.0))  # closed form: 1/D' = 2/2 - 1/D
+    # independently: a depth has a twin in the range with the same blur in every shot
+    inverse = torch.linspace(1 / far, 1 / near, 2001, dtype=torch.float64)
+    blur = thin_lens_blur(settings.to(torch.float64).batched(1), inverse[None, None])[0]
+    close = (blur[:, :, None] - blur[:, None, :]).abs().amax(0) < 1e-3 * blur.max()
+    far_apart = (inverse[:, None] - inverse[None, :]).abs() > 0.02
+    has_twin = (close & far_apart).any(1)
+    depth = 1 / inverse
+    inside = (depth > span[0] * 1.02) & (depth < span[1] / 1.02) & ((inverse - 0.5).abs() > 0.02)
+    outside = (depth < span[0] / 1.02) | (depth > span[1] * 1.02)
+    assert bool(has_twin[inside].all()) and not bool(has_twin[outside].any())
+
+
+def test_mirrored_depths_none_for_two_focus_planes_or_a_focus_outside_the_range():
+    from models.depth_from_photos import mirrored_depths
+
+    assert mirrored_depths(CameraSettings(0.05, 2.0, [1.5, 4.0], 1e-4), 1.0, 10.0) is None
+    assert mirrored_depths(CameraSettings(0.05, 2.0, [0.8], 1e-4), 1.0, 10.0) is None
+    assert mirrored_depths(CameraSettings(0.05, 2.0, [12.0], 1e-4), 1.0, 10.0) is None
+
+
+def test_estimate_depth_warns_where_one_focus_plane_splits_the_range():
+    import warnings
+
+    from models.depth_from_photos.estimate import warn_mirrored
+
+    image = torch.rand(3, 24, 24)
+    one_plane = CameraSettings(0.05, 2.0, [2.0], 1e-4)
+    with pytest.warns(UserWarning, match="focused at 2 m.*between 1.11 and 10.00 m.*mirror"):
+        estimate_depth(torch.rand(1, 3, 24, 24), one_plane, (1.0, 10.0), image=image)
+    with warnings.catch_warnings():  # the range on one side, or two focus planes: no warning
+        warnings.simplefilter("error")
+        warn_mirrored(one_plane, 2.0, 10.0)
+        warn_mirrored(CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4), 1.0, 10.0)

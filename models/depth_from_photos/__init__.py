@@ -31,7 +31,13 @@ from .photometry import match_exposure, noise_model
 from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
 from .resolution import run_at_working_resolution, scene_range, working_scale
 from .sweep import SweepDepth, blur_errors, sweep_cost
-from .thin_lens import aggregate_cost, candidate_inverse_depths, select_depth, thin_lens_blur
+from .thin_lens import (
+    aggregate_cost,
+    candidate_inverse_depths,
+    mirrored_depths,
+    select_depth,
+    thin_lens_blur,
+)
 from .trained_network import TrainedNetwork
 
 __all__ = [
@@ -55,6 +61,7 @@ __all__ = [
     "fuse_all_in_focus",
     "join_shots",
     "match_exposure",
+    "mirrored_depths",
     "noise_model",
     "relative_blur_cost",
     "relative_blur_px",

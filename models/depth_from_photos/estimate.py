@@ -21,6 +21,7 @@ with at least `depth` `(B,1,H,W)` metres. Its class attributes say how to run it
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -34,7 +35,7 @@ from .depth_from_focus import DepthFromFocus
 from .relative_blur import RelativeBlurDepth
 from .resolution import check_photos, run_at_working_resolution
 from .sweep import SweepDepth
-from .thin_lens import candidate_inverse_depths, thin_lens_blur
+from .thin_lens import candidate_inverse_depths, mirrored_depths, thin_lens_blur
 
 #: name -> the method's class, built with `progress=...`.
 METHODS: dict[str, Callable[..., nn.Module]] = {
@@ -109,6 +110,22 @@ def check_shots_differ(settings: CameraSettings, near: float, far: float) -> Non
                          f"(focused at {planes} m) changes by at most {change:.2f} pixels (need "
                          f"{READABLE_DIFFERENCE_PX}): defocus cannot tell depths there apart; "
                          "check the range, or focus the shots within or near it")
+
+
+def warn_mirrored(settings: CameraSettings, near: float, far: float) -> None:
+    """Warn where the shots cannot tell a depth from its mirror image across their one focus
+    plane (`mirrored_depths`): there the depth may come out on the wrong side of it."""
+    span = mirrored_depths(settings, near, far)
+    if span is None:
+        return
+    focus = float(settings.focus_distance.reshape(-1)[0])
+    warnings.warn(
+        f"every shot is focused at {focus:g} m, inside the depth range {near:g}-{far:g} m: a "
+        f"depth between {span[0]:.2f} and {span[1]:.2f} m blurs them exactly as its mirror "
+        "image on the other side of the focus plane, so it may come out on the wrong side. "
+        f"Where the scene lies on one side, give that side as the range ({focus:g}-{far:g} m "
+        f"beyond the focus plane, {near:g}-{focus:g} m before it), or focus a shot elsewhere",
+        UserWarning, stacklevel=3)
 
 
 def estimate_depth(
@@ -211,6 +228,7 @@ def estimate_depth(
             raise ValueError(f"{type(model).__name__} compares focused photos: give 2 or more, "
                              f"each focused elsewhere, got {len(focused)}")
         check_shots_differ(settings, near, far)
+    warn_mirrored(settings, near, far)
     out = run_at_working_resolution(model, image, focused, settings, near, far,
                                     max_coc_px, max_pixels, align, refine_range)
     if all_in_focus:

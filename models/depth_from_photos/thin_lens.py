@@ -11,6 +11,7 @@ cheapest candidate, refined to a fraction of a candidate (`select_depth`).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 
 import kornia
@@ -65,6 +66,35 @@ def thin_lens_blur(settings: CameraSettings, inverse_depth: Tensor) -> Tensor:
     a = settings.coc_at_infinity_px().reshape(*settings.shape, *trailing)
     focus = settings.focus_distance.reshape(*settings.shape, *trailing)
     return (a * (1 - focus * inverse_depth)).abs()
+
+
+def mirrored_depths(settings: CameraSettings, near: float, far: float
+                    ) -> tuple[float, float] | None:
+    """The depths (metres) of `[near, far]` that the shots cannot place on either side of their
+    focus plane: `(nearest, farthest)`, or None where there are none.
+
+    Every shot's blur is `|A_i| D_f |1/D_f - 1/D|`: where all shots share one focus distance
+    `D_f` (an aperture pair, or a single focused shot beside an all-in-focus photo), a depth
+    and its mirror image in inverse depth, `1/D' = 2/D_f - 1/D`, blur every shot alike. The
+    span returned holds the depths whose mirror image is in the range too. Shots focused at
+    two or more distances have no such span.
+
+    Example:
+        >>> s = CameraSettings(0.035, 2.8, [1.7], 5.6e-5)  # one shot beside an all-in-focus photo
+        >>> tuple(round(d, 2) for d in mirrored_depths(s, 1.0, 8.0))
+        (1.0, 5.67)
+        >>> mirrored_depths(CameraSettings(0.05, 2.0, [1.5, 4.0], 1e-4), 1.0, 8.0) is None
+        True
+    """
+    focus = settings.focus_distance.reshape(-1).tolist()
+    if any(not math.isclose(d, focus[0], rel_tol=1e-6) for d in focus):
+        return None
+    x0 = 1.0 / focus[0]
+    lo = max(1.0 / far, 2 * x0 - 1.0 / near)
+    hi = min(1.0 / near, 2 * x0 - 1.0 / far)
+    if not hi > lo:
+        return None
+    return 1.0 / hi, 1.0 / lo
 
 
 def candidate_blurs(settings: CameraSettings, near: float, far: float, n_candidates: int,
