@@ -299,6 +299,24 @@ def test_predict_with_a_nearly_sharp_image(tmp_path, capsys):
     assert "--image-f-number" in capsys.readouterr().err
 
 
+def test_predict_takes_the_image_as_the_reference_shot_of_a_fitted_camera(tmp_path, capsys):
+    """A camera JSON fitted with f/8 references (`reference_f_number`) makes --image an f/8
+    shot unless the command says otherwise."""
+    settings = CameraSettings(0.05, 2.0, [1.4, 4.5], 1e-4, aperture="disk")
+    paths = _write_pngs(tmp_path, settings)
+    camera = tmp_path / "camera.json"
+    settings.to_json(camera, reference_f_number=8.0)
+    common = ["--image", paths[0], "--focused", *paths, "--camera", str(camera),
+              "--depth-range", "1", "8"]
+    assert main(["predict", *common, "--out", str(tmp_path / "a")]) == 0
+    printed = capsys.readouterr().out
+    assert "--image counts as an f/8 shot (reference_f_number of" in printed
+    assert "--image is one more shot: f/8, focused at 1.4 m" in printed
+    assert main(["predict", *common, "--method", "sweep", "--out", str(tmp_path / "b")]) == 0
+    printed = capsys.readouterr().out
+    assert "counts as an f/8 shot" not in printed and "method sweep" in printed
+
+
 # ---- depths the shots cannot place on one side of their focus plane --------------------------
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

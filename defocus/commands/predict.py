@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--image-f-number", type=float, default=None, metavar="N",
                         help="the --image photo's f-number where it is only nearly sharp (e.g. "
                              "8 beside f/2.8 shots): it then counts as one more shot with its "
-                             "own blur, compared by the relative blur (default: a perfect "
+                             "own blur, compared by the relative blur (default: the "
+                             "reference_f_number of --camera where it has one, else a perfect "
                              "all-in-focus photo)")
     parser.add_argument("--image-focus-distance", type=float, default=None, metavar="M",
                         help="with --image-f-number: where --image was focused, metres "
@@ -84,6 +85,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from PIL import Image
 
+    from datasets.dslr import read_camera_json
     from datasets.photos import describe_settings, photo_settings, read_photo, save_photo
     from defocus.cli import CommandError
     from models.depth_from_photos import METHODS, TrainedNetwork, choose_method, estimate_depth
@@ -119,6 +121,14 @@ def run(args: argparse.Namespace) -> int:
     if args.image is None and (model is not None or len(args.focused) < 2):
         raise CommandError("give --image (an all-in-focus photo), or 2 or more --focused photos "
                            f"focused at different distances (got {len(args.focused)})")
+    if args.camera and args.image is not None and args.image_f_number is None \
+            and model is None and args.method in ("auto", "relative-blur"):
+        # a camera fitted with references that were not sharp (e.g. f/8 beside f/2.8)
+        reference = read_camera_json(args.camera)[1].get("reference_f_number")
+        if reference is not None:
+            args.image_f_number = float(reference)
+            print(f"--image counts as an f/{args.image_f_number:g} shot (reference_f_number of "
+                  f"{args.camera}); --method sweep takes it as all-in-focus instead")
     if args.image_focus_distance is not None and args.image_f_number is None:
         raise CommandError("--image-focus-distance goes with --image-f-number (the --image "
                            "photo as one more shot)")
