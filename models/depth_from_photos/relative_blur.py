@@ -46,7 +46,6 @@ from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model
 from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_blurs, thin_lens_blur
 
-
 #: Floor of the expected noise variance a comparison's error is divided by (noise-free photos).
 MIN_NOISE_VARIANCE = 1e-10
 
