@@ -25,7 +25,8 @@ so its K is read at that size, as FOSSA does, whatever the photos' size). The pi
 full-frame sensor width (36 mm, assumed: no source states the camera's sensor) over the image
 width, and the focal length is `K[0][0]` times the pitch at K's resolution (only `f / pitch`
 matters for the blur in pixels). FOSSA scores val at 480x640 (resized to 480 rows, then the
-centre 640 columns); `size=(480, 720), crop=(480, 640)` reproduces that input size.
+centre 640 columns); `crop=(0, 101, 1216, 1622), size=(480, 640)` (the crop at native
+resolution, then the resize) takes the same part of the photo to within a native pixel.
 """
 
 from __future__ import annotations

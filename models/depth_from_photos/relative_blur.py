@@ -25,8 +25,9 @@ is subtracted and each window's error is divided by that expected noise variance
 per window, zero on average at the true depth), so that costs compare across that switch and
 across pairs: a comparison that keeps more noise (through a sharper relative PSF) weighs less.
 On the procedural tuning scenes of `benchmarks/tune_focus_stack.py` dividing by the noise
-lowered the median ratio to the best constant from 0.560 to 0.548 (mean 0.705 to 0.674). Where the two shots blur equally
-(between two focus planes) the pair still says something: the shots must then agree.
+lowered the median ratio to the best constant from 0.560 to 0.548 (mean 0.705 to 0.674).
+Where the two shots blur equally (between two focus planes) the pair still says something: the
+shots must then agree.
 """
 
 from __future__ import annotations
