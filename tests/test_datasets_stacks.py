@@ -404,3 +404,15 @@ def test_mobile_depth_release_calibration_order(tmp_path):
     calibrated.write_text("3.0 0.01\n2.0 x\n1.5 0.01\n1.0 0.01\n25.5\n")
     with pytest.raises(DataFormatError, match="calibrated.txt.*not lines of numbers"):
         MobileDepth(tmp_path, scenes=["keyboard"])
+
+
+def test_mobile_depth_release_bad_input(tmp_path):
+    write_mobile_depth_release(tmp_path)
+    with pytest.raises(FileNotFoundError, match="calibration folder .*nowhere.* is missing"):
+        MobileDepth(tmp_path, calibration=tmp_path / "nowhere")
+    # the same scene in two figures: which one is meant is unknown
+    twin = tmp_path / "Aligned" / "Figure3" / "keyboard"
+    twin.mkdir(parents=True)
+    Image.fromarray(np.zeros((12, 16, 3), np.uint8)).save(twin / "a00.jpg")
+    with pytest.raises(DataFormatError, match="two scene folders named 'keyboard'"):
+        MobileDepth(tmp_path)
