@@ -22,7 +22,6 @@ about `2.8 / 8` of the f/2.8 one, `reference_f_number`). The camera is `datasets
 
 from __future__ import annotations
 
-import json
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -124,23 +123,6 @@ def _files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)
 
 
-def read_camera_json(path: str | Path) -> tuple[CameraSettings, dict[str, Any]]:
-    """The settings and the extra values (e.g. `reference_f_number`) of a camera JSON.
-
-    Example:
-        >>> import tempfile
-        >>> path = Path(tempfile.mkdtemp()) / "camera.json"
-        >>> CameraSettings(0.035, 2.8, [1.7], 5.6e-5).to_json(path, reference_f_number=8.5)
-        >>> settings, extra = read_camera_json(path)
-        >>> extra["reference_f_number"]
-        8.5
-    """
-    settings = CameraSettings.from_json(path)
-    extra = {k: v for k, v in json.loads(Path(path).read_text()).items()
-             if k not in settings.to_dict()}
-    return settings, extra
-
-
 def soften(image: Tensor, camera: CameraSettings, floor_px: float) -> Tensor:
     """`image` `(3,H,W)` blurred by the camera's PSF at a constant `floor_px` (CoC diameter,
     pixels): the blur the f/2.8 photos have even in focus (`focus_floor_px` of a fitted camera
@@ -239,7 +221,7 @@ class DSLR(DepthDataset):
         if isinstance(camera, CameraSettings):
             self.settings = camera
         elif camera is not None:
-            self.settings, extra = read_camera_json(camera)
+            self.settings, extra = CameraSettings.read_json(camera)
             self.reference_f_number = float(extra.get("reference_f_number", 8.0))
             self.floor_px = float(extra.get("focus_floor_px", 0.0))
         if (self.root / WIDE_FOLDER).is_dir():

@@ -370,11 +370,28 @@ class CameraSettings:
     @classmethod
     def from_json(cls, path: str | PathLike) -> CameraSettings:
         """Read settings written by `to_json` (or by `defocus calibrate`)."""
+        return cls.read_json(path)[0]
+
+    @classmethod
+    def read_json(cls, path: str | PathLike) -> tuple[CameraSettings, dict[str, Any]]:
+        """The settings of a camera JSON and its extra values (those `to_json` was given, e.g.
+        `reference_f_number` of a fitted camera), from one reading of the file.
+
+        Example:
+            >>> import tempfile
+            >>> path = Path(tempfile.mkdtemp()) / "camera.json"
+            >>> CameraSettings(0.035, 2.8, [1.7], 5.6e-5).to_json(path, reference_f_number=8.5)
+            >>> settings, extra = CameraSettings.read_json(path)
+            >>> extra
+            {'reference_f_number': 8.5}
+        """
         try:
             data = json.loads(Path(path).read_text())
         except (OSError, json.JSONDecodeError) as error:
             raise ValueError(f"{path}: cannot read camera settings: {error}") from None
-        return cls.from_dict(data, source=str(path))
+        settings = cls.from_dict(data, source=str(path))
+        known = settings.to_dict()
+        return settings, {k: v for k, v in data.items() if k not in known}
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, CameraSettings):

@@ -11,7 +11,7 @@ import torch
 from test_datasets_fixtures import DSLR_TIMES, write_dslr_release
 
 from datasets import DSLR
-from datasets.dslr import pair_files, read_camera_json
+from datasets.dslr import pair_files
 from optics import CameraSettings
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "dfd_indoor"
@@ -156,7 +156,7 @@ def test_calibrate_command_recovers_the_rendering_camera(tmp_path):
     out = tmp_path / "fit" / "camera.json"
     assert main(["calibrate", "--dataset", "dslr", "--root", str(tmp_path / "data"),
                  "--psf", "gaussian", "--out", str(out)]) == 0
-    settings, extra = read_camera_json(out)
+    settings, extra = CameraSettings.read_json(out)
     assert float(settings.focus_distance[0]) == pytest.approx(1.7, rel=0.05)
     assert float(settings.pixel_pitch[0]) == pytest.approx(RENDER_PITCH, rel=0.05)
     # JPEG and the rows where the two bands' blurs mix read as a floor of about a pixel

@@ -85,7 +85,6 @@ def run(args: argparse.Namespace) -> int:
     import torch
     from PIL import Image
 
-    from datasets.dslr import read_camera_json
     from datasets.photos import describe_settings, photo_settings, read_photo, save_photo
     from defocus.cli import CommandError
     from models.depth_from_photos import METHODS, TrainedNetwork, choose_method, estimate_depth
@@ -121,10 +120,11 @@ def run(args: argparse.Namespace) -> int:
     if args.image is None and (model is not None or len(args.focused) < 2):
         raise CommandError("give --image (an all-in-focus photo), or 2 or more --focused photos "
                            f"focused at different distances (got {len(args.focused)})")
-    if args.camera and args.image is not None and args.image_f_number is None \
-            and model is None and args.method in ("auto", "relative-blur"):
+    calibration, extra = CameraSettings.read_json(args.camera) if args.camera else (None, {})
+    if args.image is not None and args.image_f_number is None and model is None \
+            and args.method in ("auto", "relative-blur"):
         # a camera fitted with references that were not sharp (e.g. f/8 beside f/2.8)
-        reference = read_camera_json(args.camera)[1].get("reference_f_number")
+        reference = extra.get("reference_f_number")
         if reference is not None:
             args.image_f_number = float(reference)
             print(f"--image counts as an f/{args.image_f_number:g} shot (reference_f_number of "
@@ -155,7 +155,6 @@ def run(args: argparse.Namespace) -> int:
     # without focused photos only a network that reads the all-in-focus photo alone runs
     focused = torch.stack([p for p, _ in photos]) if photos else image[None]
     photos = [(None, info) for _, info in photos]  # one copy of the pixels (memory)
-    calibration = CameraSettings.from_json(args.camera) if args.camera else None
     sources: dict[str, str] = {}
     settings = photo_settings([info for _, info in photos], args.focus_distance,
                               args.f_number, args.focal_length, args.pixel_pitch,
