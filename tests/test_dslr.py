@@ -96,11 +96,13 @@ BAND_DEPTHS_M = (0.8, 1.0, 1.3, 1.7, 2.4, 3.5, 6.0)
 def write_rendered_release(root: Path, scenes: int = 7, h: int = 96, w: int = 144,
                            split: str = "train") -> list[str]:
     """The release layout with photos rendered by a known camera: two bands of constant depth
-    per scene (of `BAND_DEPTHS_M`; wide, so that little of them mixes with the other's blur), the f/8 reference itself rendered (slightly
-    blurred), both photos JPEG-compressed, depth in millimetres with the sensor's own stamps."""
+    per scene (of `BAND_DEPTHS_M`; wide, so that little of them mixes with the other's blur),
+    the f/8 reference itself rendered (slightly blurred), both photos JPEG-compressed, depth in
+    millimetres with the sensor's own stamps."""
     from datetime import datetime, timedelta
 
     import imageio.v3 as iio
+    from kornia.color import linear_rgb_to_rgb
 
     from optics import Camera, Gaussian, Sensor, ThinLens
 
@@ -125,12 +127,10 @@ def write_rendered_release(root: Path, scenes: int = 7, h: int = 96, w: int = 14
         depth = depth[:, None].expand(h, w)[None, None].contiguous()
         stamp = (start + timedelta(seconds=40 * i)).isoformat()
         for folder, f_number in ((folders[0], 2.8), (folders[1], 8.0)):
-            photo = camera(f_number).render(sharp, depth)[0].permute(1, 2, 0)
             # the photos are sRGB-encoded JPEGs: encode the linear render
-            encoded = torch.where(photo <= 0.0031308, 12.92 * photo,
-                                  1.055 * photo.clamp_min(1e-12) ** (1 / 2.4) - 0.055)
+            photo = linear_rgb_to_rgb(camera(f_number).render(sharp, depth)[0].clamp(0, 1))
             iio.imwrite(folder / f"{stamp}.JPG",
-                        (encoded.clamp(0, 1).numpy() * 255).round().astype(np.uint8),
+                        (photo.permute(1, 2, 0).numpy() * 255).round().astype(np.uint8),
                         extension=".jpg", quality=90)
         depth_stamp = (start + timedelta(seconds=40 * i + 0.7)).isoformat()
         iio.imwrite(folders[2] / f"{depth_stamp}.png",
