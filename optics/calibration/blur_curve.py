@@ -5,7 +5,8 @@ shot of the same view, e.g. at f/2.8, with a registered depth map) holds every d
 `measure_blur_curve` sorts the pixels of all pairs into depth bins and finds, per bin, the
 blur of the aperture's PSF that turns the reference into the defocused photo best (a grid of
 CoC diameters, each an FFT blur of the whole reference, times the pair's exposure ratio per
-colour channel (the ratio of the means: a blur keeps the mean); sub-grid by a parabola through the three lowest errors).
+colour channel (the ratio of the means: a blur keeps the mean); sub-grid by a parabola through
+the three lowest errors).
 `fit_blur_curve` fits the thin lens with a floor to it:
 
 $$b(D)^2 = \left(A \left|1 - \frac{D_f}{D}\right|\right)^2 + b_0^2$$
