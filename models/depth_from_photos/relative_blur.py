@@ -92,7 +92,9 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
     floor = with_floor(torch.ones(1, 1, dtype=first.dtype, device=first.device))
     floor_energy = float((floor**2).sum())
     references = [shot.apply(shot.transfer(floor)) for shot in shots]
-    variances = [_noise_variance(first, noise), _noise_variance(second, noise)]
+    # the noise variances summed over the error windows, once (a window sum is linear)
+    variances = [box_filter(_noise_variance(photo, noise), ERROR_WINDOW_PX)
+                 for photo in (first, second)]
     first_sharper = (first_px <= second_px).tolist()
     relative = relative_blur_px(torch.minimum(first_px, second_px),
                                 torch.maximum(first_px, second_px)).tolist()
@@ -103,8 +105,8 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
         predicted = shots[s].apply(shots[s].transfer(kernel))
         squared = ((predicted - references[r]) ** 2).sum(1, keepdim=True)
         expected = variances[s] * float((kernel**2).sum()) + variances[r] * floor_energy
-        errors.append(box_filter(squared - expected, ERROR_WINDOW_PX)
-                      / box_filter(expected, ERROR_WINDOW_PX).clamp_min(MIN_NOISE_VARIANCE))
+        errors.append((box_filter(squared, ERROR_WINDOW_PX) - expected)
+                      / expected.clamp_min(MIN_NOISE_VARIANCE))
     if not errors:
         return first.new_zeros(1, 0, *first.shape[-2:])
     return torch.cat(errors, 1)
