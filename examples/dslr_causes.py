@@ -34,14 +34,14 @@ from datasets import DSLR
 from datasets.calibration import calibrate_dataset
 from datasets.dslr import soften
 from models.depth_from_photos import estimate_depth
+from models.metrics import best_constant_depth, depth_metrics
 from optics.progress import progress_bar
 
 DEPTH_RANGE = (0.5, 10.0)
 
 
 def abs_rel(depth: torch.Tensor, sample: dict) -> float:
-    mask = sample["mask"]
-    return float(((depth - sample["depth"]).abs() / sample["depth"])[mask].mean())
+    return depth_metrics(pred=depth, target=sample["depth"], mask=sample["mask"])["abs_rel"]
 
 
 def run_variants(val: DSLR, stated: DSLR, floor_px: float, focus_m: float,
@@ -79,10 +79,9 @@ def run_variants(val: DSLR, stated: DSLR, floor_px: float, focus_m: float,
         oracle = torch.where((near - truth).abs() < (far - truth).abs(), near, far)
         add("... and the side of the focus plane from the true depth (oracle)",
             abs_rel(oracle, fitted))
-        values = truth[fitted["mask"]]
-        grid = torch.linspace(0.5, 6.0, 221)
+        constant = best_constant_depth(target=truth, mask=fitted["mask"])
         add("the best constant of each scene (oracle)",
-            min(float(((c - values).abs() / values).mean()) for c in grid))
+            abs_rel(torch.full_like(truth, constant), fitted))
     return totals
 
 
