@@ -12,8 +12,9 @@ was used to choose the model's settings. For each camera it prints abs rel and d
 - `pretrained`: the experimental camera-general network's weights (`--weights`, written by
   `examples/blur_net.py`), the same way, and
 - with `--stacks`, the all-in-focus photo withheld: `pair`, the relative blur of the two shots
-  (`estimate_depth(method="relative-blur")`), `stack3`, the same with a third shot focused midway
-  in inverse depth, and `focus3`, depth from focus of those three (`method="focus"`),
+  (`estimate_depth(method="relative-blur")`), `stack3`, the same with a third shot (`--third`:
+  focused midway between the two in inverse depth, or one step of their spacing nearer), and
+  `focus3`, depth from focus of those three (`method="focus"`),
 - `direct`: `models.direct.fit_depth_direct` through the renderer at the sweep's resolution, told
   the camera and the PSF, the shots aligned first (no network; slow),
 
@@ -33,6 +34,7 @@ Usage:
     python benchmarks/cameras.py --cameras demo --photos perfect   # what imperfections cost
     python benchmarks/cameras.py --no-direct --jpeg 90   # photos saved as JPEGs of quality 90
     python benchmarks/cameras.py --no-direct --stacks    # and without the all-in-focus photo
+    python benchmarks/cameras.py --no-direct --stacks --third nearer   # the third shot nearer
 """
 
 from __future__ import annotations
@@ -88,18 +90,40 @@ PHOTOS = {
 }
 
 
-def third_focus(focus: tuple[float, float]) -> float:
-    """The focus distance a third shot adds: midway between the two in inverse depth."""
-    return 2 / (1 / focus[0] + 1 / focus[1])
+#: `--third`: where the third shot of `stack3` and `focus3` is focused, in inverse depth.
+THIRD_SHOT = {"midway": "midway between the two shots (inside the pair's span)",
+              "nearer": "one step of the pair's spacing nearer than the near shot (extending "
+                        "the bracket towards the camera, as focus bracketing does)",
+              "range": "midway through the stated depth range `DEPTH_RANGE` (a shot inside "
+                       "the range whatever the pair)"}
+
+
+def third_focus(focus: tuple[float, float], placement: str = "midway") -> float:
+    """The focus distance (metres) a third shot adds to the pair `focus` (near, far), by
+    `placement` (`THIRD_SHOT`).
+
+    Example:
+        >>> tuple(round(third_focus((5.0, 15.0), p), 2) for p in ("midway", "nearer", "range"))
+        (7.5, 3.0, 1.88)
+    """
+    if placement == "range":
+        focus = DEPTH_RANGE
+    near, far = 1 / focus[0], 1 / focus[1]
+    if placement in ("midway", "range"):
+        return 2 / (near + far)
+    if placement == "nearer":
+        return 1 / (2 * near - far)
+    raise ValueError(f"placement must be one of {sorted(THIRD_SHOT)}, got {placement!r}")
 
 
 def photograph(name: str, seed: int = 0, scale: float = 1.0,
-               noise: CaptureNoise = PHOTOS["real"], shots: int = 2) -> dict:
+               noise: CaptureNoise = PHOTOS["real"], shots: int = 2,
+               third: str = "midway") -> dict:
     """The motorcycle through camera `name`: photos, settings and ground truth; with
-    `shots=3` a third shot focused at `third_focus` (in the middle of the stack)."""
+    `shots=3` a third shot focused at `third_focus(..., third)`, second in the stack."""
     f, n, focus, sensor_width, psf = CAMERAS[name]
     if shots == 3:
-        focus = (focus[0], third_focus(focus), focus[1])
+        focus = (focus[0], third_focus(focus, third), focus[1])
     if name.startswith("demo"):  # the demo's own resolution: 185x125 at 180 um
         scale = 0.25
     image, depth, mask = (t[0] for t in motorcycle_scene(scale))
@@ -192,8 +216,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--stacks", action="store_true",
                         help="add the methods without the all-in-focus photo: the relative blur "
                              "of the two shots (pair), of three (stack3: a third shot focused "
-                             "midway in inverse depth) and depth from focus of the three "
-                             "(focus3)")
+                             "where --third says) and depth from focus of the three (focus3)")
+    parser.add_argument("--third", choices=sorted(THIRD_SHOT), default="midway",
+                        help="with --stacks, where the third shot is focused: "
+                             + "; ".join(f"{k}: {v}" for k, v in THIRD_SHOT.items()))
     parser.add_argument("--cameras", nargs="+", default=None, metavar="PREFIX",
                         help="only the cameras whose names start with these (e.g. demo 200mm)")
     args = parser.parse_args(argv)
@@ -231,7 +257,8 @@ def main(argv: list[str] | None = None) -> int:
                      f"the cameras are: {', '.join(CAMERAS)}")
     for camera, spec in cameras.items():
         shot = photograph(camera, args.seed, noise=photos)
-        stack = photograph(camera, args.seed, noise=photos, shots=3) if args.stacks else None
+        stack = photograph(camera, args.seed, noise=photos, shots=3, third=args.third) \
+            if args.stacks else None
         target, mask = shot["depth"][None], shot["mask"][None]
         constant = best_constant_depth(target=target, mask=mask)
         base = depth_metrics(pred=torch.full_like(target, constant), target=target, mask=mask)
@@ -263,7 +290,8 @@ def main(argv: list[str] | None = None) -> int:
             others = [r for camera, r in zip(cameras, ratios[name], strict=True)
                       if not camera.startswith("demo")]
             if others:
-                print(f"{name}: ratio <= 0.30 at every camera but the demo one: "
+                print(f"{name} (third shot {args.third}): ratio <= 0.30 at every camera but the "
+                      f"demo one: "
                       f"{'met' if max(others) <= 0.3 else 'unmet'} (worst {max(others):.2f})")
     for name in methods:
         worst = max(ratios[name])

@@ -32,16 +32,18 @@ from models.depth_from_photos import estimate_depth  # noqa: E402
 from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
 
 
-def scenes(n: int, shots: int | None, seed: int = 1234):
-    """`n` procedural tuning scenes (photos, settings, depth, range), `shots` per scene (2 or 3
-    alternately when None)."""
+def scenes(n: int, shots: int | None, seed: int = 1234, size: tuple[int, int] = (128, 192),
+           blur_px: tuple[float, float] = (3.0, 20.0)):
+    """`n` procedural tuning scenes (photos, settings, depth, range) of `size` pixels, `shots`
+    per scene (2 or 3 alternately when None), the largest blur over each scene log-uniform in
+    `blur_px` pixels."""
     rng = np.random.default_rng(seed)
     for k in range(n):
         near = float(rng.uniform(1.0, 3.0))
         far = near * float(rng.uniform(2.0, 5.0))
-        image, depth = generate_scene((128, 192), rng, (near, far))
+        image, depth = generate_scene(size, rng, (near, far))
         count = shots or 2 + k % 2
-        settings = random_camera(rng, near, far, count, (3.0, 20.0))
+        settings = random_camera(rng, near, far, count, blur_px)
         aif, focused = capture(image, depth, settings, rng)
         yield aif, focused, settings, depth, (near * 0.8, far * 1.25)
 
@@ -52,21 +54,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--variant", default="{}", help="JSON options of the method's class")
     parser.add_argument("--scenes", type=int, default=16)
     parser.add_argument("--shots", type=int, default=None, help="shots per scene (default 2/3)")
+    parser.add_argument("--size", type=int, nargs=2, default=(128, 192), metavar=("H", "W"),
+                        help="scene size in pixels")
+    parser.add_argument("--blur", type=float, nargs=2, default=(3.0, 20.0), metavar=("LO", "HI"),
+                        help="range of each scene's largest blur in pixels (log-uniform); e.g. "
+                             "20 60 for long lenses whose photos are read at a coarser scale")
+    parser.add_argument("--max-coc-px", type=float, default=None,
+                        help="largest blur (pixels) at the working resolution (default: the "
+                             "method's)")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     options = json.loads(args.variant)
     ratios = []
-    for aif, focused, settings, depth, depth_range in scenes(args.scenes, args.shots):
+    for aif, focused, settings, depth, depth_range in scenes(args.scenes, args.shots, size=tuple(args.size),
+                                                               blur_px=tuple(args.blur)):
         target, mask = depth[None], torch.ones_like(depth[None], dtype=torch.bool)
         constant = best_constant_depth(target=target, mask=mask)
         floor = depth_metrics(pred=torch.full_like(target, constant), target=target,
                               mask=mask)["abs_rel"]
         out = estimate_depth(focused, settings, depth_range, method=args.method,
-                             options=options, all_in_focus=False,
+                             options=options, all_in_focus=False, max_coc_px=args.max_coc_px,
                              image=aif if args.method == "sweep" else None)
         ratios.append(depth_metrics(pred=out["depth"][None], target=target,
                                     mask=mask)["abs_rel"] / floor)
-    print(f"{args.method} {options}: median {statistics.median(ratios):.3f} mean "
+    print(f"{args.method} {options} max_coc_px={args.max_coc_px}: median {statistics.median(ratios):.3f} mean "
           f"{statistics.fmean(ratios):.3f} over {len(ratios)} scenes")
     return 0
 

@@ -554,3 +554,25 @@ def test_the_cameras_benchmark_runs_on_jpeg_photos(capsys):
     ratio = float(row.split("|")[5])
     assert 0 < ratio < 1  # better than a constant, even through JPEG
     assert "sweep: ratio <= 0.30 for every camera" in out
+
+
+def test_the_cameras_benchmark_places_the_third_shot():
+    """`--third`: midway between the pair in inverse depth, one step of its spacing nearer, or
+    midway through the stated depth range (an independent computation in dioptres); anything
+    else is refused by name."""
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    try:
+        import cameras
+    finally:
+        sys.path.pop(0)
+    near, far = 4.0, 12.0  # dioptres 0.25 and 1/12: spacing 1/6
+    assert cameras.third_focus((near, far)) == pytest.approx(1 / (1 / 4 + 1 / 12) * 2)
+    assert 1 / cameras.third_focus((near, far), "nearer") == pytest.approx(0.25 + 1 / 6)
+    near_range, far_range = cameras.DEPTH_RANGE
+    assert 1 / cameras.third_focus((near, far), "range") == pytest.approx(
+        (1 / near_range + 1 / far_range) / 2)
+    assert set(cameras.THIRD_SHOT) == {"midway", "nearer", "range"}
+    with pytest.raises(ValueError, match="placement must be one of"):
+        cameras.third_focus((near, far), "middle")
