@@ -11,6 +11,8 @@ Usage:
 
     python benchmarks/tune_focus_stack.py                       # the shipped settings
     python benchmarks/tune_focus_stack.py --variant '{"aggregation": "windows"}'
+    python benchmarks/tune_focus_stack.py --size 256 384 --blur 20 60 --shots 3   # long lenses
+    python benchmarks/tune_focus_stack.py --shots 3 --per-scene   # every scene's ratio
 """
 
 from __future__ import annotations
@@ -62,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-coc-px", type=float, default=None,
                         help="largest blur (pixels) at the working resolution (default: the "
                              "method's)")
+    parser.add_argument("--per-scene", action="store_true", help="print every scene's ratio")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     options = json.loads(args.variant)
@@ -77,6 +80,11 @@ def main(argv: list[str] | None = None) -> int:
                              image=aif if args.method == "sweep" else None)
         ratios.append(depth_metrics(pred=out["depth"][None], target=target,
                                     mask=mask)["abs_rel"] / floor)
+        if args.per_scene:
+            print(f"scene {len(ratios) - 1}: {focused.shape[0]} shots, focus "
+                  f"{', '.join(f'{d:.2f}' for d in settings.focus_distance.tolist())} m, "
+                  f"f/{float(settings.f_number.reshape(-1)[0]):.1f}, depth {depth_range[0]:.2f}-"
+                  f"{depth_range[1]:.2f} m: ratio {ratios[-1]:.3f}")
     print(f"{args.method} {options} max_coc_px={args.max_coc_px}: median {statistics.median(ratios):.3f} mean "
           f"{statistics.fmean(ratios):.3f} over {len(ratios)} scenes")
     return 0
