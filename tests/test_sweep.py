@@ -9,7 +9,7 @@ from skimage import data
 
 from datasets.capture import CaptureNoise, capture, random_camera
 from datasets.synthetic import generate_scene
-from models.depth_from_photos import cost_volume, scene_range, sweep
+from models.depth_from_photos import cost_volume, scene_range, sweep, widen_cut_range
 from models.depth_from_photos import run_at_working_resolution as predict_depth
 from models.depth_from_photos.semi_global import cost_scale, semi_global_cost
 from models.depth_from_photos.sweep import SweepDepth, blur_errors, noise_model, sweep_cost
@@ -309,6 +309,69 @@ def test_scene_range_is_the_depth_maps_own_with_a_margin():
     # one depth: still a range
     assert scene_range(torch.full((1, 1, 4, 4), 3.0), 1.0, 15.0) == pytest.approx(
         (1 / (1 / 3.0 + pad), 1 / (1 / 3.0 - pad)))
+
+
+def test_widen_cut_range_moves_a_cut_side_by_the_kept_span():
+    """A side is widened by the kept range's inverse-depth span (closed form) where more than
+    the share of pixels sit at its limit, never beyond the stated range, and only where the
+    first pass set that limit."""
+    kept, stated = (2.5, 5.0), (1.0, 15.0)
+    span = 1 / 2.5 - 1 / 5.0
+    piled_near = torch.cat([torch.full((30,), 2.5), torch.linspace(2.6, 4.5, 70)])
+    assert widen_cut_range(piled_near, kept, stated) == pytest.approx((1 / (0.4 + span), 5.0))
+    piled_far = torch.cat([torch.full((30,), 4.0), torch.linspace(2.6, 3.9, 70)])
+    assert widen_cut_range(piled_far, (2.5, 4.0), stated) == pytest.approx(
+        (2.5, 1 / (0.25 - (0.4 - 0.25))))
+    # a span that would reach beyond infinity stops at the stated far limit
+    assert widen_cut_range(piled_far.clamp(max=5.0) + 1.0, kept, stated) == pytest.approx(
+        (2.5, 15.0))
+    # within the share: left alone
+    few = torch.cat([torch.full((1,), 2.5), torch.linspace(2.6, 4.5, 99)])
+    assert widen_cut_range(few, kept, stated) == kept
+    # a stated limit is never widened, and a widened side stops at the stated one
+    assert widen_cut_range(piled_near, kept, (2.5, 15.0)) == kept
+    assert widen_cut_range(piled_near, kept, (2.0, 15.0)) == pytest.approx((2.0, 5.0))
+    with pytest.raises(ValueError, match="share must be in"):
+        widen_cut_range(piled_near, kept, stated, share=0.0)
+
+
+class _CoarseMisreader(torch.nn.Module):
+    """A fake method: the true depth of a two-plane scene, clamped to the range it is given,
+    except over the stated range, where it reads the near plane 40 % too far (a coarse first
+    pass that misses the near part of the scene)."""
+
+    max_coc_px = 20.0
+    needs_image = False
+
+    def __init__(self, truth: torch.Tensor, stated: tuple[float, float]):
+        super().__init__()
+        self.truth, self.stated, self.ranges = truth, stated, []
+
+    def forward(self, image, focused, settings, near, far):
+        self.ranges.append((near, far))
+        depth = torch.nn.functional.interpolate(self.truth[None], size=focused.shape[-2:],
+                                                mode="nearest")
+        if (near, far) == self.stated:
+            depth = torch.where(depth < 3.0, depth * 1.4, depth)
+        depth = depth.clamp(near, far)
+        blur = torch.zeros(1, focused.shape[1], *focused.shape[-2:])
+        return {"depth": depth, "confidence": torch.ones_like(depth), "blur": blur}
+
+
+def test_predict_widens_a_refined_range_that_cut_the_scene():
+    """The first pass misses the near plane (2 m read as 2.8 m), so the refined range starts
+    near 2.6 m and a third of the pixels pile up at its limit: the range is widened and the near
+    plane comes out at 2 m (without the widening it stays at the cut limit)."""
+    settings = CameraSettings(0.135, 2.8, [3.0, 8.0], 1.2e-4)
+    truth = torch.full((1, 48, 64), 4.0)
+    truth[:, :, :24] = 2.0
+    photos = torch.rand(2, 3, 48, 64, generator=torch.Generator().manual_seed(0))
+    model = _CoarseMisreader(truth, (1.0, 20.0))
+    out = predict_depth(model, None, photos, settings, 1.0, 20.0)
+    assert len(model.ranges) >= 3 and model.ranges[1][0] > 2.4  # refined, then widened
+    near, far = out["depth_range"]
+    assert 1.0 <= near < 2.0 and 4.0 < far <= 20.0
+    assert torch.allclose(out["depth"][:, 8:-8, 4:20], torch.tensor(2.0), rtol=1e-4)
 
 
 def test_predict_on_flat_photos_with_a_wide_range():

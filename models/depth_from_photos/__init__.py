@@ -29,7 +29,7 @@ from .depth_from_focus import DepthFromFocus, focus_measures, focus_peak
 from .estimate import METHODS, check_shots_differ, choose_method, estimate_depth, join_shots
 from .photometry import match_exposure, noise_model
 from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
-from .resolution import run_at_working_resolution, scene_range, working_scale
+from .resolution import run_at_working_resolution, scene_range, widen_cut_range, working_scale
 from .sweep import SweepDepth, blur_errors, sweep_cost
 from .thin_lens import (
     aggregate_cost,
@@ -74,5 +74,6 @@ __all__ = [
     "texture_weight",
     "thin_lens_blur",
     "train_blur_net",
+    "widen_cut_range",
     "working_scale",
 ]

@@ -7,7 +7,8 @@ area-averaged down until the largest blur over the stated depth range is what th
 well and the pixel count is bounded (`working_scale`), with the pixel pitch grown by the same
 factor (`to_working_resolution`). `run_at_working_resolution` aligns the shots there, runs the
 method, brings the depth back to the photos' size, and, where the scene holds a narrower range
-of depths than stated, runs again over that range at a finer resolution (`scene_range`).
+of depths than stated, runs again over that range at a finer resolution (`scene_range`),
+widening it where that pass shows the first one cut the scene short (`widen_cut_range`).
 """
 
 from __future__ import annotations
@@ -84,7 +85,10 @@ def run_at_working_resolution(
             over `[near, far]` sets the working resolution, and a scene much farther than
             `near` never blurs that much. With this on, a first pass finds the depths the scene
             holds (`scene_range`); if that range allows a working resolution at least
-            `REFINE_GAIN` times finer, the depth is computed again there, over that range.
+            `REFINE_GAIN` times finer, the depth is computed again there, over that range;
+            where that pass piles its depths at a limit the first pass set, that side is
+            widened and the depth computed again (`widen_cut_range`, at most
+            `MAX_WIDENINGS` times).
 
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
@@ -111,12 +115,56 @@ def run_at_working_resolution(
         finer = working_scale(settings, *inner, (h, w), max_coc_px, max_pixels)
         if finer >= REFINE_GAIN * scale:
             out = _run_at(model, image, focused, settings, *inner, finer, align)
+            # a coarse first pass can miss part of the scene: its depths then pile up at the
+            # limit it set, and that side is widened and the depth computed again
+            for _ in range(MAX_WIDENINGS):
+                wider = widen_cut_range(out["depth"], inner, (near, far))
+                if wider == inner:
+                    break
+                inner = wider
+                scale = working_scale(settings, *inner, (h, w), max_coc_px, max_pixels)
+                out = _run_at(model, image, focused, settings, *inner, scale, align)
     return out
 
 
 #: How much finer (ratio of working scales) the scene's own depth range must allow before
 #: `run_at_working_resolution` computes the depth a second time.
 REFINE_GAIN = 1.25
+#: Share of the pixels at a limit the first pass set (not a stated one) that says the scene
+#: goes on beyond it (`widen_cut_range`).
+PILED_SHARE = 0.02
+#: The most times `run_at_working_resolution` widens a refined range.
+MAX_WIDENINGS = 2
+
+
+def widen_cut_range(depth: Tensor, kept: tuple[float, float], stated: tuple[float, float],
+                    share: float = PILED_SHARE) -> tuple[float, float]:
+    """The range `kept` `(near, far)` metres, widened on each side where it cut into the scene.
+
+    A side counts as cut where its limit lies inside the `stated` range and more than `share`
+    of the pixels of `depth` (computed over `kept`) sit at that limit (within 0.5 % of the
+    range's inverse-depth span): the method could not go further, so the scene likely does.
+    That side then moves out by the kept range's own inverse-depth span, never beyond
+    `stated`. Returns `kept` itself where nothing was cut.
+
+    Example:
+        >>> depth = torch.cat([torch.full((40,), 2.5), torch.linspace(2.5, 5.0, 60)])
+        >>> tuple(round(d, 2) for d in widen_cut_range(depth, (2.5, 5.5), (1.0, 15.0)))
+        (1.62, 5.5)
+        >>> widen_cut_range(depth, (1.0, 5.5), (1.0, 15.0))  # 1 m was stated: not cut
+        (1.0, 5.5)
+    """
+    if not 0 < share < 1:
+        raise ValueError(f"share must be in (0, 1), got {share!r}")
+    (near, far), (stated_near, stated_far) = kept, stated
+    inverse = 1 / depth.detach().flatten().double()
+    span = 1 / near - 1 / far
+    tolerance = 0.005 * span
+    if near > stated_near and float((inverse >= 1 / near - tolerance).double().mean()) > share:
+        near = 1 / min(1 / near + span, 1 / stated_near)
+    if far < stated_far and float((inverse <= 1 / far + tolerance).double().mean()) > share:
+        far = 1 / max(1 / far - span, 1 / stated_far)
+    return near, far
 
 
 def scene_range(depth: Tensor, near: float, far: float, tail: float = 0.01,
