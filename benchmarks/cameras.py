@@ -106,14 +106,10 @@ def third_focus(focus: tuple[float, float], placement: str = "midway") -> float:
         >>> tuple(round(third_focus((5.0, 15.0), p), 2) for p in ("midway", "nearer", "range"))
         (7.5, 3.0, 1.88)
     """
-    if placement == "range":
-        focus = DEPTH_RANGE
-    near, far = 1 / focus[0], 1 / focus[1]
-    if placement in ("midway", "range"):
-        return 2 / (near + far)
-    if placement == "nearer":
-        return 1 / (2 * near - far)
-    raise ValueError(f"placement must be one of {sorted(THIRD_SHOT)}, got {placement!r}")
+    if placement not in THIRD_SHOT:
+        raise ValueError(f"placement must be one of {sorted(THIRD_SHOT)}, got {placement!r}")
+    near, far = (1 / d for d in (DEPTH_RANGE if placement == "range" else focus))
+    return 1 / (2 * near - far) if placement == "nearer" else 2 / (near + far)
 
 
 def photograph(name: str, seed: int = 0, scale: float = 1.0,
@@ -290,9 +286,9 @@ def main(argv: list[str] | None = None) -> int:
             others = [r for camera, r in zip(cameras, ratios[name], strict=True)
                       if not camera.startswith("demo")]
             if others:
-                print(f"{name} (third shot {args.third}): ratio <= 0.30 at every camera but the "
-                      f"demo one: "
-                      f"{'met' if max(others) <= 0.3 else 'unmet'} (worst {max(others):.2f})")
+                print(f"{name} (third shot {args.third}): ratio <= 0.30 at every camera but "
+                      f"the demo one: {'met' if max(others) <= 0.3 else 'unmet'} "
+                      f"(worst {max(others):.2f})")
     for name in methods:
         worst = max(ratios[name])
         print(f"{name}: ratio <= 0.30 for every camera: {'met' if worst <= 0.3 else 'unmet'} "

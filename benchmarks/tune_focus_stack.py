@@ -69,8 +69,8 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     options = json.loads(args.variant)
     ratios = []
-    for aif, focused, settings, depth, depth_range in scenes(args.scenes, args.shots, size=tuple(args.size),
-                                                               blur_px=tuple(args.blur)):
+    for aif, focused, settings, depth, depth_range in scenes(
+            args.scenes, args.shots, size=tuple(args.size), blur_px=tuple(args.blur)):
         target, mask = depth[None], torch.ones_like(depth[None], dtype=torch.bool)
         constant = best_constant_depth(target=target, mask=mask)
         floor = depth_metrics(pred=torch.full_like(target, constant), target=target,
@@ -85,8 +85,9 @@ def main(argv: list[str] | None = None) -> int:
                   f"{', '.join(f'{d:.2f}' for d in settings.focus_distance.tolist())} m, "
                   f"f/{float(settings.f_number.reshape(-1)[0]):.1f}, depth {depth_range[0]:.2f}-"
                   f"{depth_range[1]:.2f} m: ratio {ratios[-1]:.3f}")
-    print(f"{args.method} {options} max_coc_px={args.max_coc_px}: median {statistics.median(ratios):.3f} mean "
-          f"{statistics.fmean(ratios):.3f} over {len(ratios)} scenes")
+    print(f"{args.method} {options} max_coc_px={args.max_coc_px}: median "
+          f"{statistics.median(ratios):.3f} mean {statistics.fmean(ratios):.3f} over "
+          f"{len(ratios)} scenes")
     return 0
 
 

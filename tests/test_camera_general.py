@@ -539,8 +539,8 @@ def test_the_blur_net_example_trains_from_a_config_with_photo_imperfections(tmp_
     assert "pretrain" not in COMMANDS
 
 
-def test_the_cameras_benchmark_runs_on_jpeg_photos(capsys):
-    """`benchmarks/cameras.py` end to end on the demo camera, its photos saved as JPEGs."""
+def _cameras_benchmark():
+    """The `benchmarks/cameras.py` module (benchmarks are scripts, not a package)."""
     from pathlib import Path
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
@@ -548,6 +548,12 @@ def test_the_cameras_benchmark_runs_on_jpeg_photos(capsys):
         import cameras
     finally:
         sys.path.pop(0)
+    return cameras
+
+
+def test_the_cameras_benchmark_runs_on_jpeg_photos(capsys):
+    """`benchmarks/cameras.py` end to end on the demo camera, its photos saved as JPEGs."""
+    cameras = _cameras_benchmark()
     assert cameras.main(["--cameras", "demo", "--no-direct", "--jpeg", "90"]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("| demo"))
@@ -560,13 +566,7 @@ def test_the_cameras_benchmark_places_the_third_shot():
     """`--third`: midway between the pair in inverse depth, one step of its spacing nearer, or
     midway through the stated depth range (an independent computation in dioptres); anything
     else is refused by name."""
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
-    try:
-        import cameras
-    finally:
-        sys.path.pop(0)
+    cameras = _cameras_benchmark()
     near, far = 4.0, 12.0  # dioptres 0.25 and 1/12: spacing 1/6
     assert cameras.third_focus((near, far)) == pytest.approx(1 / (1 / 4 + 1 / 12) * 2)
     assert 1 / cameras.third_focus((near, far), "nearer") == pytest.approx(0.25 + 1 / 6)
