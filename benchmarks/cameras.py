@@ -224,7 +224,7 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as error:
         parser.error(f"--jpeg: {error}")
     torch.set_num_threads(1)
-    from models.pretrained import load_weights
+    from models.loading import load_weights
 
     methods = {"sweep": lambda shot: run_model(SweepDepth(), shot)}
     if args.weights is not None:

@@ -52,7 +52,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import kornia  # noqa: E402
 
 from datasets.middlebury import motorcycle_scene  # noqa: E402
-from optics import Disk, Gaussian, Mask, Polygon, _render_cpp, render_defocus  # noqa: E402
+from optics import Disk, Gaussian, Mask, Polygon, render_defocus  # noqa: E402
+from optics.render import cpp as _render_cpp  # noqa: E402
 from optics.render import layer_weights  # noqa: E402
 
 APERTURES = ["gaussian", "disk", "hexagon", "mask"]

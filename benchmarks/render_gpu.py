@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from render import Job, paired_ratio  # noqa: E402  (benchmarks/render.py: inputs, pairing)
 
-from optics import _render_triton  # noqa: E402
+from optics.render import triton_kernels as _render_triton  # noqa: E402
 
 SHAPES = [(1, 3, 512, 512), (8, 3, 512, 512)]
 KERNELS = [15, 31]

@@ -3,6 +3,8 @@
 Not Hugging Face's `datasets`: never install that package in this environment.
 """
 
+from optics import collate  # the collate function of data loaders over these datasets
+
 from .base import DepthDataset
 from .ddff12 import DDFF12
 from .dslr import DSLR
@@ -39,5 +41,6 @@ __all__ = [
     "NYUv2",
     "ZEDD",
     "cached_focal_stack",
+    "collate",
     "refocus",
 ]

@@ -16,8 +16,8 @@ key             shape / type        meaning
 `id`          str                 sample id within the dataset
 ==============  ==================  ==========================================================
 
-After `torch.utils.data.default_collate` the settings become `(B,F)` and `focused`
-`(B,F,3,H,W)`.
+After `datasets.collate` (`optics.collate`: `DataLoader(..., collate_fn=collate)`) the settings
+become `(B,F)` and `focused` `(B,F,3,H,W)`.
 """
 
 from __future__ import annotations
@@ -135,6 +135,12 @@ class DepthDataset(Dataset):
 
     def __len__(self) -> int:
         return len(self.ids)
+
+    @property
+    def depth_range(self) -> tuple[float, float]:
+        """`(near, far)` metres the dataset's scenes lie within: the preset's
+        `(min_depth, depth_cap)`; a benchmark states its own (`FocalStackDataset`)."""
+        return self.preset.depth_range
 
     def load(self, index: int) -> dict[str, Any]:
         """Native-resolution `image`, `depth`, `mask` (and real `focused`/`camera`)."""

@@ -15,7 +15,13 @@ from typing import Any
 
 import torch
 
-from optics import CalibrationPair, DepthCalibration, align_shots, calibrate_from_depth
+from optics import (
+    DEFAULT_APERTURE,
+    CalibrationPair,
+    DepthCalibration,
+    align_shots,
+    calibrate_from_depth,
+)
 from optics.progress import progress_bar
 
 
@@ -57,7 +63,7 @@ def depth_pairs(dataset: Sequence[dict[str, Any]], indices: Sequence[int] | None
 
 
 def calibrate_dataset(dataset: Sequence[dict[str, Any]], indices: Sequence[int] | None = None,
-                      aperture: str = "gaussian:0.5", reference_f_number: float | None = None,
+                      aperture: str = DEFAULT_APERTURE, reference_f_number: float | None = None,
                       focus_distance: float | None = None, align: bool = True,
                       progress: bool = False, **measure: Any) -> DepthCalibration:
     """The camera of a dataset's focused photos, fitted from its samples with depth.

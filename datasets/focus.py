@@ -5,19 +5,18 @@ from __future__ import annotations
 import hashlib
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from optics import Aperture, CameraSettings, render_focal_stack
+from optics import DEFAULT_APERTURE, Aperture, CameraSettings, render_focal_stack
 
 
-@dataclass(frozen=True)
 class CameraPreset:
-    """A dataset's camera: one lens and sensor, several focus settings (all lengths in metres).
+    """A dataset's camera and the depths its scenes lie within: the `CameraSettings` of its
+    focused images (one lens and sensor, several focus settings) and a depth range (metres).
 
     Args:
         focal_length: metres.
@@ -28,28 +27,60 @@ class CameraPreset:
         depth_cap: largest valid depth in metres (evaluation cap).
         min_depth: smallest valid depth in metres.
         aperture: PSF spec of the focused images (`optics.aperture_spec`), Gaussian by default.
+
+    Example:
+        >>> preset = CameraPreset(0.035, 22.4e-6, focus_distances=(2.0, 8.0), f_numbers=(2.8,))
+        >>> preset.camera.n_shots, preset.focus_distances, preset.depth_range
+        (2, (2.0, 8.0), (0.001, 10.0))
     """
 
-    focal_length: float
-    pixel_pitch: float
-    focus_distances: Sequence[float]
-    f_numbers: Sequence[float] = field(default=(2.8,))
-    depth_cap: float = 10.0
-    min_depth: float = 1e-3
+    def __init__(self, focal_length: float, pixel_pitch: float, focus_distances: Sequence[float],
+                 f_numbers: Sequence[float] = (2.8,), depth_cap: float = 10.0,
+                 min_depth: float = 1e-3, aperture: str = DEFAULT_APERTURE) -> None:
+        n = len(focus_distances)
+        numbers = list(f_numbers) * n if len(f_numbers) == 1 else list(f_numbers)
+        if len(numbers) != n:
+            raise ValueError(
+                f"f_numbers must hold 1 or {n} values (one per focus distance), got {f_numbers}"
+            )
+        #: the settings of the focused images, float64
+        self.camera = CameraSettings(focal_length, numbers, list(focus_distances), pixel_pitch,
+                                     aperture=aperture)
+        self.depth_cap = depth_cap
+        self.min_depth = min_depth
 
-    aperture: str = "gaussian"
+    @property
+    def depth_range(self) -> tuple[float, float]:
+        """`(min_depth, depth_cap)`, metres: the depths the dataset's scenes lie within."""
+        return (self.min_depth, self.depth_cap)
+
+    @property
+    def focal_length(self) -> float:
+        """Focal length, metres."""
+        return float(self.camera.focal_length.reshape(-1)[0])
+
+    @property
+    def pixel_pitch(self) -> float:
+        """Effective pixel pitch, metres."""
+        return float(self.camera.pixel_pitch.reshape(-1)[0])
+
+    @property
+    def focus_distances(self) -> tuple[float, ...]:
+        """Focus distance of each focused image, metres."""
+        return tuple(self.camera.focus_distance.reshape(-1).tolist())
+
+    @property
+    def aperture(self) -> str:
+        """PSF spec of the focused images."""
+        return self.camera.aperture
 
     def settings(self, dtype: torch.dtype = torch.float32) -> CameraSettings:
         """The `(F,)` `CameraSettings` of the focused images (the samples' `camera` entry)."""
-        n = len(self.focus_distances)
-        f_numbers = list(self.f_numbers) * n if len(self.f_numbers) == 1 else list(self.f_numbers)
-        if len(f_numbers) != n:
-            raise ValueError(
-                f"f_numbers must hold 1 or {n} values (one per focus distance), got {self.f_numbers}"
-            )
-        settings = CameraSettings(self.focal_length, f_numbers, list(self.focus_distances),
-                                  self.pixel_pitch, aperture=self.aperture)
-        return settings.to(dtype)
+        return self.camera.to(dtype)
+
+    def __repr__(self) -> str:
+        return (f"CameraPreset({self.focal_length}, {self.pixel_pitch}, focus_distances="
+                f"{self.focus_distances}, depth_cap={self.depth_cap}, min_depth={self.min_depth})")
 
 
 def default_cache_dir() -> Path | None:

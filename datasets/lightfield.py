@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import Tensor
 
+from optics import CameraSettings
 from optics.checks import check_shape
 
 from .base import DepthDataset
@@ -159,7 +159,6 @@ def _sample_shifted(image: Tensor, shift: float, dim: int) -> Tensor:
     return lower * (1 - frac) + upper * frac
 
 
-@dataclass(frozen=True)
 class LightFieldCalibration:
     """An equivalent thin-lens camera for a light field (lengths in metres).
 
@@ -170,6 +169,10 @@ class LightFieldCalibration:
     `2 * radius * baseline` focused at `1/D_f = 1/D0 - d_f / (baseline * f_px)` (up to the
     factor `D_f / (D_f - f)`, under 1% for `D_f > 100 f`). The defaults are nominal Lytro
     Illum values; replace them with your calibration.
+
+    The main lens is held as `camera`, an `optics.CameraSettings`: focused at the
+    zero-disparity distance, with the f-number of an aperture one view step wide
+    (`focal_length / baseline`).
 
     Args:
         focal_length: main-lens focal length, metres.
@@ -184,10 +187,37 @@ class LightFieldCalibration:
         tensor([0.5000, 2.0000])
     """
 
-    focal_length: float = 0.03
-    pixel_pitch: float = 20e-6
-    baseline: float = 1.07e-3
-    zero_disparity_distance: float = 1.0
+    def __init__(self, focal_length: float = 0.03, pixel_pitch: float = 20e-6,
+                 baseline: float = 1.07e-3, zero_disparity_distance: float = 1.0) -> None:
+        #: the main lens focused at the zero-disparity distance, one view step of aperture
+        self.camera = CameraSettings(focal_length, focal_length / baseline,
+                                     zero_disparity_distance, pixel_pitch)
+        #: distance between adjacent views on the main-lens aperture, metres
+        self.baseline = float(baseline)
+
+    @property
+    def focal_length(self) -> float:
+        """Main-lens focal length, metres."""
+        return float(self.camera.focal_length[0])
+
+    @property
+    def pixel_pitch(self) -> float:
+        """Pitch of the sub-aperture images, metres."""
+        return float(self.camera.pixel_pitch[0])
+
+    @property
+    def zero_disparity_distance(self) -> float:
+        """Depth at which disparity is zero, metres."""
+        return float(self.camera.focus_distance[0])
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, LightFieldCalibration) and self.camera == other.camera \
+            and self.baseline == other.baseline
+
+    def __repr__(self) -> str:
+        return (f"LightFieldCalibration(focal_length={self.focal_length}, pixel_pitch="
+                f"{self.pixel_pitch}, baseline={self.baseline}, zero_disparity_distance="
+                f"{self.zero_disparity_distance})")
 
     @property
     def focal_length_px(self) -> float:

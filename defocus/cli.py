@@ -20,6 +20,8 @@ import signal
 import sys
 
 from defocus import __version__
+from defocus.errors import USER_ERRORS, one_line
+from defocus.options import DefaultsOnceFormatter
 
 #: subcommand -> (module, one-line help)
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -32,31 +34,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "convert-checkpoint": ("defocus.commands.convert_checkpoint",
                            "rewrite a trusted old checkpoint so that it opens without running code"),
 }
-
-
-class DefaultsOnceFormatter(argparse.HelpFormatter):
-    """Help that ends each option with its default once: not where the help text already says
-    what the default is, and not for defaults that mean "not given" (None, an empty list, an
-    unset flag)."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        unset = action.default is None or action.default is False or action.default == [] \
-            or action.default is argparse.SUPPRESS
-        if unset or "default" in text.lower() or not (action.option_strings or action.nargs
-                                                      in (argparse.OPTIONAL, argparse.ZERO_OR_MORE)):
-            return text
-        return f"{text} (default: %(default)s)"
-
-
-class CommandError(Exception):
-    """A problem with the user's input that a command reports in one line (exit code 2)."""
-
-
-#: Exceptions reported in one line: the library raises these for bad input, with a message that
-#: names the argument, the value and what is allowed.
-USER_ERRORS = (CommandError, ValueError, TypeError, FileNotFoundError, IsADirectoryError,
-               PermissionError, NotADirectoryError, FileExistsError, FloatingPointError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -89,26 +66,21 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             raise
         signum = getattr(error, "signal", signal.SIGINT)
-        print(f"defocus {args.command}: interrupted: {_one_line(error) or 'stopped'}",
+        print(f"defocus {args.command}: interrupted: {one_line(error) or 'stopped'}",
               file=sys.stderr)
         return 128 + int(signum)
     except USER_ERRORS as error:
         if debug:
             raise
-        message = _one_line(error) or repr(error)
+        message = one_line(error) or repr(error)
         print(f"defocus {args.command}: error: {message}", file=sys.stderr)
         return 2
     except Exception as error:
         if debug:
             raise
         print(f"defocus {args.command}: error: unexpected {type(error).__name__}: "
-              f"{_one_line(error)} (rerun with --debug for the traceback)", file=sys.stderr)
+              f"{one_line(error)} (rerun with --debug for the traceback)", file=sys.stderr)
         return 1
-
-
-def _one_line(error: BaseException) -> str:
-    """The message of `error` on one line."""
-    return " ".join(str(error).split())
 
 
 if __name__ == "__main__":

@@ -12,7 +12,7 @@ offer it. To compare it yourself:
     python benchmarks/cameras.py --weights runs/blur_net/dfd_general.pt --no-direct
 
 and in Python `estimate_depth(focused, settings, depth_range, image=image,
-model=models.pretrained.load_weights("runs/blur_net/dfd_general.pt"))`.
+model=models.load_depth_model("runs/blur_net/dfd_general.pt"))`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def train(config: dict, out: Path, twin: bool = False) -> list[Path]:
 
     from datasets.capture import CaptureNoise, RandomCameraScenes
     from models.depth_from_photos import BlurNet, DepthFromDefocus, train_blur_net
-    from models.pretrained import save_weights
+    from models.loading import save_weights
 
     torch.set_num_threads(int(config.get("threads", 1)))
     out.mkdir(parents=True, exist_ok=True)

@@ -26,18 +26,18 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_benchmark_parser, run_benchmark_example
-
 from datasets import DDFF12
+from defocus.app.experiment import run_benchmark_example
+from defocus.options import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_benchmark_parser(__doc__.splitlines()[0], split="val")
+    parser = benchmark_parser(__doc__.splitlines()[0], split="val")
     parser.add_argument("--shots", type=int, nargs="+", default=None,
                         help="slice indices to use (default: all 10; DFV uses 0 2 4 6 9)")
     args = parser.parse_args(argv)
     dataset = DDFF12(args.root, args.split, shots=args.shots)
-    run_benchmark_example("DDFF-12", args, dataset, "ddff12")
+    run_benchmark_example("DDFF-12", args, dataset, "ddff12", report=print)
     return 0
 
 

@@ -39,9 +39,10 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from _common import build_parser, device_kind, train_and_evaluate, training_crop
 
 from datasets import DSLR, JointAugment
+from defocus.app.experiment import train_and_evaluate, training_crop
+from defocus.options import device_kind, example_parser
 
 #: The scenes' depth lies within this range, metres (the release's depth: about 0.4 to 10 m).
 DEPTH_RANGE = (0.5, 10.0)
@@ -87,7 +88,7 @@ def calibrate(args: argparse.Namespace, train: DSLR) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(__doc__.splitlines()[0], "runs/dslr")
+    parser = example_parser(__doc__.splitlines()[0], "runs/dslr")
     parser.add_argument("--split", default="train", help="the release's split to use")
     parser.add_argument("--val", type=int, default=20,
                         help="the last this many scenes (by time) are the validation set")
@@ -128,14 +129,15 @@ def main(argv: list[str] | None = None) -> int:
     print(f"DSLR: {len(train)} training scenes, {len(val)} validation scenes "
           f"({val.ids[0]} to {val.ids[-1]}), camera {json.loads(Path(camera).read_text())}")
     depth_range = DEPTH_RANGE if args.depth_range is None else tuple(args.depth_range)
-    crop = training_crop(args, train)
+    crop = training_crop(args, train, print)
     augmented = train.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
     rows: dict[str, dict[str, float]] = {}
     out = args.out
     for supervision in ("self", "depth"):
         args.supervision, args.out = supervision, out / supervision
         found = train_and_evaluate(f"DSLR ({supervision}-supervised)", args, augmented, val,
-                                   depth_range=depth_range, constant_set=train)
+                                   depth_range=depth_range, constant_set=train,
+                                   report=print)
         for name, row in found.items():
             label = name if name.startswith("best constant") else \
                 f"{name} [{'self-supervised' if supervision == 'self' else 'depth-supervised'}]"

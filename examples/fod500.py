@@ -25,14 +25,14 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_benchmark_parser, run_benchmark_example
-
 from datasets import FoD500
+from defocus.app.experiment import run_benchmark_example
+from defocus.options import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_benchmark_parser(__doc__.splitlines()[0], split="test").parse_args(argv)
-    run_benchmark_example("FoD500", args, FoD500(args.root, args.split), "fod500")
+    args = benchmark_parser(__doc__.splitlines()[0], split="test").parse_args(argv)
+    run_benchmark_example("FoD500", args, FoD500(args.root, args.split), "fod500", report=print)
     return 0
 
 

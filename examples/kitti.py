@@ -32,17 +32,17 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, run_example
-
 from datasets import KITTI
+from defocus.app.experiment import run_example
+from defocus.options import dataset_kwargs, example_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(__doc__.splitlines()[0], "runs/kitti")
+    parser = example_parser(__doc__.splitlines()[0], "runs/kitti")
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
     run_example("KITTI", args, lambda split: KITTI(args.root, split, **kwargs),
-                depth_range=(1.0, 80.0), crop="garg")
+                depth_range=(1.0, 80.0), crop="garg", report=print)
     return 0
 
 

@@ -30,13 +30,13 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, run_example
-
 from datasets import LightField
+from defocus.app.experiment import run_example
+from defocus.options import dataset_kwargs, example_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(__doc__.splitlines()[0], "runs/lightfield")
+    parser = example_parser(__doc__.splitlines()[0], "runs/lightfield")
     parser.add_argument("--layout", choices=["interleaved", "tiled"], default="interleaved",
                         help="mosaic layout")
     parser.add_argument("--n-views", type=int, default=14, help="views per side in the mosaic")
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> int:
     lf = {"n_views": args.n_views, "layout": args.layout, "radius": args.radius,
           "focus_disparities": args.focus_disparities, **kwargs}
     run_example("Light fields", args, lambda split: LightField(args.root, split, **lf),
-                depth_range=(0.5, 10.0), has_depth=False)
+                depth_range=(0.5, 10.0), has_depth=False, report=print)
     return 0
 
 

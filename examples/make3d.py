@@ -29,18 +29,18 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, run_example
-
 from datasets import Make3D
+from defocus.app.experiment import run_example
+from defocus.options import dataset_kwargs, example_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(__doc__.splitlines()[0], "runs/make3d")
+    parser = example_parser(__doc__.splitlines()[0], "runs/make3d")
     parser.set_defaults(size=[460, 345])
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
     run_example("Make3D", args, lambda split: Make3D(args.root, split, **kwargs),
-                depth_range=(1.0, 70.0))
+                depth_range=(1.0, 70.0), report=print)
     return 0
 
 

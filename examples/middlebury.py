@@ -33,20 +33,20 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, run_example
-
 from datasets import Middlebury
+from defocus.app.experiment import run_example
+from defocus.options import dataset_kwargs, example_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(__doc__.splitlines()[0], "runs/middlebury")
+    parser = example_parser(__doc__.splitlines()[0], "runs/middlebury")
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
     root = None if str(args.root) == "builtin" else args.root
     splits = ("all", "all") if root is None or not (root / "train.txt").is_file() else (
         "train", "test")
     run_example("Middlebury", args, lambda split: Middlebury(root, split, **kwargs),
-                depth_range=(1.0, 8.0), splits=splits)
+                depth_range=(1.0, 8.0), splits=splits, report=print)
     return 0
 
 

@@ -27,13 +27,13 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_benchmark_parser, run_benchmark_example
-
 from datasets import MobileDepth
+from defocus.app.experiment import run_benchmark_example
+from defocus.options import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_benchmark_parser(__doc__.splitlines()[0], split=None)
+    parser = benchmark_parser(__doc__.splitlines()[0], split=None)
     parser.add_argument("--focus-range", type=float, nargs=2, metavar=("NEAR", "FAR"),
                         default=[0.1, 1.0], help="metres the frames' focus is spread over")
     parser.add_argument("--frames", type=int, default=5,
@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     dataset = MobileDepth(args.root, focus_range=tuple(args.focus_range),
                           n_shots=args.frames or None)
-    run_benchmark_example("Mobile Depth", args, dataset, None)
+    run_benchmark_example("Mobile Depth", args, dataset, None, report=print)
     return 0
 
 

@@ -30,17 +30,17 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_parser, dataset_kwargs, run_example
-
 from datasets import NYUv2
+from defocus.app.experiment import run_example
+from defocus.options import dataset_kwargs, example_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser(__doc__.splitlines()[0], "runs/nyu")
+    parser = example_parser(__doc__.splitlines()[0], "runs/nyu")
     args = parser.parse_args(argv)
     kwargs = dataset_kwargs(args)
     run_example("NYU Depth v2", args, lambda split: NYUv2(args.root, split, **kwargs),
-                depth_range=(0.5, 10.0), crop="eigen")
+                depth_range=(0.5, 10.0), crop="eigen", report=print)
     return 0
 
 

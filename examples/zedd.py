@@ -28,20 +28,20 @@ from __future__ import annotations
 
 import sys
 
-from _common import build_benchmark_parser, run_benchmark_example
-
 from datasets import ZEDD
+from defocus.app.experiment import run_benchmark_example
+from defocus.options import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_benchmark_parser(__doc__.splitlines()[0], split="val")
+    parser = benchmark_parser(__doc__.splitlines()[0], split="val")
     parser.add_argument("--f-number", type=float, default=2.8,
                         help="aperture of the focused shots (1.4, 2.0, 2.8, 4.0 or 5.6)")
     parser.add_argument("--shots", type=int, nargs="+", default=[0, 2, 4, 6, 8],
                         help="focus settings (0-8) of the focused shots")
     args = parser.parse_args(argv)
     dataset = ZEDD(args.root, args.split, shots=args.shots, f_number=args.f_number)
-    run_benchmark_example("ZEDD", args, dataset, "zedd" if args.split == "val" else None)
+    run_benchmark_example("ZEDD", args, dataset, "zedd" if args.split == "val" else None, report=print)
     return 0
 
 

@@ -1,1 +1,78 @@
-"""models: depth networks, losses, metrics and self-supervised training through the renderer."""
+"""models: depth networks, losses, metrics and self-supervised training through the renderer.
+
+The names most work needs are here; each lives in one module:
+
+| name | module | job |
+|---|---|---|
+| `estimate_depth` | `models.depth_from_photos` | depth of one scene from its photos (the label-free methods, or a trained model) |
+| `load_depth_model` | `models.loading` | a trained model from any weight file (`defocus train` checkpoint or weights file) |
+| `evaluate`, `label_free_method` | `models.evaluation` | a method's metrics over samples, with a benchmark's protocol |
+| `depth_metrics`, `best_constant_depth`, `format_table`, `PROTOCOLS` | `models.metrics` | metrics and the paper-style table |
+| `Trainer`, `TrainConfig` | `models.training` | training runs |
+| `DefocusLoss`, `supervised_depth_loss` | `models.losses` | the training losses |
+| `SmallDepthNet`, `PaperDepthNet`, `build_network`, `NETWORKS` | `models.networks` | the depth networks |
+| `train_and_evaluate`, `compare_on_scene` | `models.experiment` | experiments built from the pieces |
+
+Example:
+    >>> import torch
+    >>> import models
+    >>> sample = {"depth": torch.full((1, 4, 4), 2.0), "mask": torch.ones(1, 4, 4).bool()}
+    >>> models.evaluate(lambda s: torch.full((1, 4, 4), 2.0), [sample], "zedd")["abs_rel"]
+    0.0
+"""
+
+from .depth_from_photos import TrainedNetwork, estimate_depth
+from .evaluation import MeanMetrics, Method, evaluate, label_free_method
+from .experiment import compare_on_scene, train_and_evaluate
+from .loading import is_weights_file, load_depth_model, load_weights, save_weights
+from .losses import DefocusLoss, supervised_depth_loss
+from .metrics import (
+    METRIC_NAMES,
+    PROTOCOLS,
+    Protocol,
+    best_constant_depth,
+    depth_metrics,
+    format_table,
+    protocol_metrics,
+)
+from .networks import NETWORKS, PaperDepthNet, SmallDepthNet, build_network
+from .training import (
+    CheckpointError,
+    DepthCollapseWarning,
+    TrainConfig,
+    Trainer,
+    TrainingInterrupted,
+)
+
+__all__ = [
+    "METRIC_NAMES",
+    "NETWORKS",
+    "PROTOCOLS",
+    "CheckpointError",
+    "DefocusLoss",
+    "DepthCollapseWarning",
+    "MeanMetrics",
+    "Method",
+    "PaperDepthNet",
+    "Protocol",
+    "SmallDepthNet",
+    "TrainConfig",
+    "TrainedNetwork",
+    "Trainer",
+    "TrainingInterrupted",
+    "best_constant_depth",
+    "build_network",
+    "compare_on_scene",
+    "depth_metrics",
+    "estimate_depth",
+    "evaluate",
+    "format_table",
+    "is_weights_file",
+    "label_free_method",
+    "load_depth_model",
+    "load_weights",
+    "protocol_metrics",
+    "save_weights",
+    "supervised_depth_loss",
+    "train_and_evaluate",
+]

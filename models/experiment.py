@@ -18,11 +18,14 @@ from typing import Any
 
 import torch
 from torch import Tensor
-from torch.utils.data import Subset, default_collate
+from torch.utils.data import Subset
+
+from optics import collate
 
 from .depth_from_photos import estimate_depth
 from .depth_from_photos.tiling import apply_in_tiles, check_tiling
 from .direct import fit_depth_direct
+from .evaluation import MeanMetrics
 from .metrics import best_constant_depth, depth_metrics
 from .training import TrainConfig, Trainer
 
@@ -113,27 +116,19 @@ def evaluate_whole_images(
     Returns:
         (the network's metrics, the constant's metrics or None without `constant`).
     """
-    totals: dict[str, float] = {}
-    const_totals: dict[str, float] = {}
-    count = 0
+    ours, const = MeanMetrics(), MeanMetrics()
     for sample in test_set:
-        batch = default_collate([sample])
+        batch = collate([sample])
         depth = predict_tiled(trainer, batch["image"], batch.get("focused"),
                               batch.get("camera"), max_pixels=max_pixels).cpu()
         kwargs = {"target": batch["depth"], "mask": batch.get("mask"), "max_depth": depth_cap,
                   "crop": crop}
-        for key, value in depth_metrics(pred=depth, **kwargs).items():
-            totals[key] = totals.get(key, 0.0) + value
+        ours.add(depth_metrics(pred=depth, **kwargs))
         if constant is not None:
-            pred = torch.full_like(batch["depth"], constant)
-            for key, value in depth_metrics(pred=pred, **kwargs).items():
-                const_totals[key] = const_totals.get(key, 0.0) + value
-        count += 1
-    if count == 0:
+            const.add(depth_metrics(pred=torch.full_like(batch["depth"], constant), **kwargs))
+    if ours.count == 0:
         raise ValueError("test_set holds no samples")
-    mean = {key: value / count for key, value in totals.items()}
-    return mean, ({key: value / count for key, value in const_totals.items()}
-                  if constant is not None else None)
+    return ours.mean(), const.mean() if constant is not None else None
 
 
 def evenly_spaced(samples: Sequence[Mapping[str, Any]], count: int) -> Sequence[Mapping[str, Any]]:
@@ -183,33 +178,39 @@ def measure_steps(config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
             "sys_s_per_step": system}
 
 
+def _silent(message: str) -> None:
+    """A `report` that drops the message."""
+
+
 class _OutOfTime(Exception):
     """Raised by the step callback when the time budget is spent."""
 
 
-def _progress_printer(total: int, every: int) -> Callable[[Trainer, int, dict[str, float]], None]:
-    """A `step_callback` that prints step, loss, s/step and ETA every `every` steps."""
+def _progress_reporter(total: int, every: int, report: Callable[[str], None],
+                       ) -> Callable[[Trainer, int, dict[str, float]], None]:
+    """A `step_callback` that reports step, loss, s/step and ETA every `every` steps (and at
+    the last); set `.start[0]` to the step training starts from."""
     started = time.perf_counter()
 
-    def report(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
+    def progress(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
         if step % every and step != total:
             return
         elapsed = time.perf_counter() - started
         done = max(step - trainer_start[0], 1)
         rate = elapsed / done
-        print(f"  step {step}/{total}  loss {losses['loss']:.4f}  {rate:.2f} s/step  "
-              f"ETA {format_duration(rate * (total - step))}", flush=True)
+        report(f"  step {step}/{total}  loss {losses['loss']:.4f}  {rate:.2f} s/step  "
+               f"ETA {format_duration(rate * (total - step))}")
 
     trainer_start = [0]
-    report.start = trainer_start  # type: ignore[attr-defined]
-    return report
+    progress.start = trainer_start  # type: ignore[attr-defined]
+    return progress
 
 
 def reconstruction_metrics(trainer: Trainer, test_set: Sequence[Mapping[str, Any]]) -> dict[str, float]:
     """Mean self-supervised loss terms on `test_set` (for data without ground-truth depth)."""
     totals: dict[str, float] = {}
     for sample in test_set:
-        batch = default_collate([sample])
+        batch = collate([sample])
         depth = trainer.predict(batch["image"], batch["focused"], batch["camera"])
         with torch.no_grad():
             terms = trainer.loss_fn(depth, batch["image"].to(depth), batch["focused"].to(depth),
@@ -241,6 +242,96 @@ def plan_steps(s_per_step: float, minutes: float, reserve_s: float = 0.0,
     return steps if max_steps is None else min(steps, max_steps)
 
 
+def _plan_evaluation(
+    config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
+    test_set: Sequence[Mapping[str, Any]], timing: Mapping[str, float], minutes: float | None,
+    eval_share: float, report: Callable[[str], None] | None,
+) -> tuple[Sequence[Mapping[str, Any]], int, float]:
+    """The test samples to evaluate, their number and the evaluation's estimated seconds
+    (an evenly spaced part of `test_set` where the whole would take more than `eval_share` of
+    the budget)."""
+    started = _clock()
+    first_test = test_set[0] if hasattr(test_set, "__getitem__") else next(iter(test_set))
+    load_one = time.perf_counter() - started[0]
+    n_test = len(test_set) if hasattr(test_set, "__len__") else 1
+    # a forward pass of a whole image: about half a step's cost per pixel (no backward)
+    step_pixels = config.batch_size * _pixels(train_set)
+    forward_one = timing["s_per_step"] * first_test["image"][0].numel() / step_pixels / 2
+    per_test = load_one + forward_one
+    eval_s = per_test * n_test + 2.0
+    if minutes is not None and eval_s > eval_share * minutes * 60 and n_test > 1:
+        fit = max(1, int((eval_share * minutes * 60 - 2.0) / max(per_test, 1e-6)))
+        if fit < n_test:
+            if report is not None:
+                report(f"evaluating {fit} of {n_test} test images (evenly spaced) to fit the "
+                       f"{minutes:g} min budget; --max-test {n_test} or a larger --minutes for "
+                       "all")
+            test_set, n_test = evenly_spaced(test_set, fit), fit
+            eval_s = per_test * n_test + 2.0
+    return test_set, n_test, eval_s
+
+
+def _report_plan(config: TrainConfig, timing: Mapping[str, float], n_test: int, eval_s: float,
+                 minutes: float | None, report: Callable[[str], None]) -> None:
+    """Report the measured seconds per step and the plan (steps, ETA, end time)."""
+    steps = config.steps
+    train_s = steps * timing["s_per_step"]
+    user, system = timing["user_s_per_step"], timing["sys_s_per_step"]
+    report(f"measured {timing['s_per_step']:.3f} s/step (user {user:.3f} s, system "
+           f"{system:.3f} s; first step with data loading {timing['first_step_s']:.1f} s), "
+           f"batch {config.batch_size}, device {config.device}")
+    budget = "" if minutes is None else f" (budget {minutes:g} min)"
+    report(f"plan: {steps} steps, ETA {format_duration(train_s)} training + "
+           f"~{format_duration(eval_s)} evaluating {n_test} whole test images{budget}; "
+           f"done about {time.strftime('%H:%M', time.localtime(time.time() + train_s + eval_s))}")
+
+
+def _fit_before(config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
+                deadline: float | None, minutes: float | None, every: int,
+                report: Callable[[str], None] | None) -> Trainer:
+    """Train `config`, reporting progress every `every` steps (0: never); past `deadline`
+    (`time.perf_counter` seconds) training stops early, with a checkpoint."""
+    steps = config.steps
+    progress = _progress_reporter(steps, every, report) if every and report else None
+
+    def callback(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
+        if progress is not None:
+            progress(trainer, step, losses)
+        if deadline is not None and step < steps and time.perf_counter() > deadline:
+            raise _OutOfTime
+
+    trainer = Trainer(config, train_set, step_callback=callback)
+    if progress is not None:
+        progress.start[0] = trainer.step  # type: ignore[attr-defined]
+    try:
+        trainer.fit()
+    except _OutOfTime:
+        if report is not None:
+            report(f"time budget of {minutes:g} min reached after {trainer.step} of {steps} "
+                   "steps (the machine got slower than measured); evaluating now")
+        trainer.save_checkpoint()
+    return trainer
+
+
+def _result_rows(trainer: Trainer, train_set: Sequence[Mapping[str, Any]],
+                 test_set: Sequence[Mapping[str, Any]], crop: str | Sequence[float] | None,
+                 has_depth: bool, constant_set: Sequence[Mapping[str, Any]] | None,
+                 ) -> dict[str, dict[str, float]]:
+    """The table rows of a trained network: its metrics (or reconstruction losses without
+    depth) and the best constant depth's."""
+    config = trainer.config
+    method = f"ours ({config.network}, {config.input_mode}, {trainer.step} steps)"
+    if not has_depth:
+        return {method: reconstruction_metrics(trainer, test_set)}
+    constant = constant_from_training(train_set if constant_set is None else constant_set)
+    ours, baseline = evaluate_whole_images(trainer, test_set, constant,
+                                           depth_cap=config.depth_max, crop=crop)
+    rows = {method: ours}
+    if baseline is not None:
+        rows[f"best constant depth ({constant:.2f} m, from training depths)"] = baseline
+    return rows
+
+
 def train_and_evaluate(
     config: TrainConfig,
     train_set: Sequence[Mapping[str, Any]],
@@ -253,10 +344,11 @@ def train_and_evaluate(
     probe_steps: int = 3,
     report_every: int | None = None,
     eval_share: float = 0.4,
+    report: Callable[[str], None] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Train a network with `config` on `train_set`, then evaluate it on whole `test_set` images.
 
-    Before the long part it prints the planned steps, the measured seconds per step (with user
+    Before the long part it reports the planned steps, the measured seconds per step (with user
     and system CPU time) and the ETA. With `minutes`, `config.steps` is replaced by as many
     steps as fit in that budget together with the evaluation (measured on `probe_steps` steps
     and one test sample), at most `max_steps`; should the machine get slower than measured,
@@ -276,77 +368,34 @@ def train_and_evaluate(
         minutes: time budget of training plus evaluation, or None to run `config.steps`.
         max_steps: upper bound of the planned steps (with `minutes`).
         probe_steps: steps timed before planning (plus one untimed warm-up step).
-        report_every: print a progress line every this many steps (default: about 10 lines;
+        report_every: report a progress line every this many steps (default: about 10 lines;
             0: never).
         eval_share: with `minutes`, the largest share of the budget the evaluation may take;
-            beyond it an evenly spaced part of `test_set` is evaluated (and that is printed).
+            beyond it an evenly spaced part of `test_set` is evaluated (and that is reported).
+        report: called with each message line (the plan, progress, a budget cut), e.g.
+            `print`; None: silent.
 
     Returns:
         table rows: the trained network's, and (with depth) the best constant depth's.
+
+    Example:
+        >>> rows = train_and_evaluate(config, train, test, minutes=5, report=print)  # doctest: +SKIP
     """
     planning = _clock()
     timing = measure_steps(config, train_set, probe_steps)
-    started = _clock()
-    first_test = test_set[0] if hasattr(test_set, "__getitem__") else next(iter(test_set))
-    load_one = time.perf_counter() - started[0]
-    n_test = len(test_set) if hasattr(test_set, "__len__") else 1
-    # a forward pass of a whole image: about half a step's cost per pixel (no backward)
-    step_pixels = config.batch_size * _pixels(train_set)
-    forward_one = timing["s_per_step"] * first_test["image"][0].numel() / step_pixels / 2
-    per_test = load_one + forward_one
-    eval_s = per_test * n_test + 2.0
-    if minutes is not None and eval_s > eval_share * minutes * 60 and n_test > 1:
-        fit = max(1, int((eval_share * minutes * 60 - 2.0) / max(per_test, 1e-6)))
-        if fit < n_test:
-            print(f"evaluating {fit} of {n_test} test images (evenly spaced) to fit the "
-                  f"{minutes:g} min budget; --max-test {n_test} or a larger --minutes for all")
-            test_set, n_test = evenly_spaced(test_set, fit), fit
-            eval_s = per_test * n_test + 2.0
+    test_set, n_test, eval_s = _plan_evaluation(config, train_set, test_set, timing, minutes,
+                                                eval_share, report)
     if minutes is not None:
         spent = time.perf_counter() - planning[0]
         steps = plan_steps(timing["s_per_step"], minutes, reserve_s=eval_s + spent + 5,
                            max_steps=max_steps)
         config = replace(config, steps=steps)
-    steps = config.steps
-    train_s = steps * timing["s_per_step"]
-    user, system = timing["user_s_per_step"], timing["sys_s_per_step"]
-    print(f"measured {timing['s_per_step']:.3f} s/step (user {user:.3f} s, system "
-          f"{system:.3f} s; first step with data loading {timing['first_step_s']:.1f} s), "
-          f"batch {config.batch_size}, device {config.device}")
-    budget = "" if minutes is None else f" (budget {minutes:g} min)"
-    print(f"plan: {steps} steps, ETA {format_duration(train_s)} training + "
-          f"~{format_duration(eval_s)} evaluating {n_test} whole test images{budget}; "
-          f"done about {time.strftime('%H:%M', time.localtime(time.time() + train_s + eval_s))}",
-          flush=True)
-    every = report_every if report_every is not None else max(1, math.ceil(steps / 10))
-    printer = _progress_printer(steps, every) if every else None
+    if report is not None:
+        _report_plan(config, timing, n_test, eval_s, minutes, report)
+    every = report_every if report_every is not None else max(1, math.ceil(config.steps / 10))
     deadline = None if minutes is None else planning[0] + minutes * 60 - eval_s
-
-    def callback(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
-        if printer is not None:
-            printer(trainer, step, losses)
-        if deadline is not None and step < steps and time.perf_counter() > deadline:
-            raise _OutOfTime
-
-    trainer = Trainer(config, train_set, step_callback=callback)
-    if printer is not None:
-        printer.start[0] = trainer.step  # type: ignore[attr-defined]
-    try:
-        trainer.fit()
-    except _OutOfTime:
-        print(f"time budget of {minutes:g} min reached after {trainer.step} of {steps} steps "
-              f"(the machine got slower than measured); evaluating now", flush=True)
-        trainer.save_checkpoint()
-    method = f"ours ({config.network}, {config.input_mode}, {trainer.step} steps)"
-    if not has_depth:
-        return {method: reconstruction_metrics(trainer, test_set)}
-    constant = constant_from_training(train_set if constant_set is None else constant_set)
-    ours, baseline = evaluate_whole_images(trainer, test_set, constant,
-                                           depth_cap=config.depth_max, crop=crop)
-    rows = {method: ours}
-    if baseline is not None:
-        rows[f"best constant depth ({constant:.2f} m, from training depths)"] = baseline
-    return rows
+    trainer = _fit_before(config, train_set, deadline, minutes, every, report)
+    return _result_rows(trainer, train_set, test_set, crop, has_depth, constant_set)
 
 
 def compare_on_scene(
@@ -355,6 +404,7 @@ def compare_on_scene(
     val_set: Sequence[Mapping[str, Any]] | None,
     sample: Mapping[str, Any],
     direct_steps: int = 150,
+    report: Callable[[str], None] | None = None,
 ) -> tuple[dict[str, dict[str, float]], dict[str, torch.Tensor]]:
     """Five ways to get one scene's depth, with their metrics on its ground truth.
 
@@ -370,28 +420,34 @@ def compare_on_scene(
         val_set: validation samples (or None).
         sample: the test scene (unbatched sample with `depth` and `mask`).
         direct_steps: Adam steps of the direct fit.
+        report: called with a heading line before each method runs, e.g. `print`; None:
+            silent.
 
     Returns:
         (metrics per method, depth `(1,H,W)` per method).
+
+    Example:
+        >>> results, depths = compare_on_scene(config, train, None, scene, report=print)  # doctest: +SKIP
     """
-    batch = default_collate([sample])
+    say = report if report is not None else _silent
+    batch = collate([sample])
     target, mask = batch["depth"], batch["mask"]
     results: dict[str, dict[str, float]] = {}
     predictions: dict[str, torch.Tensor] = {}
     for method, supervision in (("self_supervised", "self"), ("supervised", "depth")):
         run = replace(config, supervision=supervision, out_dir=config.out_dir / method)
         labels = "no depth labels" if supervision == "self" else "depth labels"
-        print(f"\n[{method}] training {run.steps} steps ({labels})")
+        say(f"\n[{method}] training {run.steps} steps ({labels})")
         trainer = Trainer(run, train_set, val_set)
         trainer.fit()
         results[method] = trainer.evaluate([sample])
         predictions[method] = trainer.predict(batch["image"], batch["focused"], batch["camera"])[0]
-    print(f"\n[direct_optimisation] fitting the scene's depth, {direct_steps} steps")
+    say(f"\n[direct_optimisation] fitting the scene's depth, {direct_steps} steps")
     direct = fit_depth_direct(batch["image"], batch["focused"], batch["camera"], config.depth_min,
                               config.depth_max, steps=direct_steps, progress=config.progress)
     results["direct_optimisation"] = depth_metrics(pred=direct, target=target, mask=mask)
     predictions["direct_optimisation"] = direct[0]
-    print("\n[sweep] sweeping over depth (no network)")
+    say("\n[sweep] sweeping over depth (no network)")
     swept = estimate_depth(sample["focused"], sample["camera"],
                            (config.depth_min, config.depth_max), image=sample["image"],
                            method="sweep")["depth"]

@@ -16,7 +16,7 @@ from typing import Any
 import torch
 import yaml
 
-from optics import parse_aperture
+from optics import DEFAULT_APERTURE, aperture_spec
 from optics.render import MODES as RENDER_MODES
 
 from .networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS
@@ -85,8 +85,8 @@ class TrainConfig:
     #: SSIM window width, pixels
     ssim_window: int = 7
     #: PSF used to render in the loss, a spec of optics.aperture_spec: "gaussian" (sigma = CoC/2),
-    #: "gaussian:S", "disk", "polygon:N"
-    aperture: str = "gaussian"
+    #: "gaussian:S", "disk", "polygon:N"; kept in its canonical form ("gaussian" is "gaussian:0.5")
+    aperture: str = DEFAULT_APERTURE
     #: renderer semantics: "scatter", "gather" or "layered"
     render_mode: str = "scatter"
     #: largest PSF window, pixels
@@ -137,7 +137,7 @@ class TrainConfig:
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         try:
-            parse_aperture(self.aperture)
+            self.aperture = aperture_spec(self.aperture)
         except (TypeError, ValueError) as error:
             raise ValueError(f"aperture {self.aperture!r} is not a PSF spec: {error}") from None
         for name, low in (("steps", 1), ("batch_size", 1), ("n_focus", 1), ("width", 1),

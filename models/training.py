@@ -54,9 +54,8 @@ from typing import Any
 import torch
 import torch.distributed as dist
 from torch import Tensor, nn
-from torch.utils.data import default_collate
 
-from optics import CameraSettings, parse_aperture
+from optics import CameraSettings, collate, parse_aperture
 
 from .checkpoints import (
     CheckpointError,
@@ -64,7 +63,9 @@ from .checkpoints import (
     load_checkpoint,
     to_plain,
 )
+from .evaluation import MeanMetrics
 from .interruption import InterruptibleMixin, TrainingInterrupted
+from .loading import load_model, read_checkpoint  # noqa: F401  (load_model public here too)
 from .losses import DefocusLoss, supervised_depth_loss
 from .metrics import METRIC_NAMES, depth_metrics
 from .networks import build_network
@@ -81,11 +82,9 @@ from .train_config import (  # noqa: F401  (public here too: models.training.Tra
     check_device,
     select_device,
 )
-from .training_state import (  # noqa: F401  (public here too: models.training.load_model, ...)
+from .training_state import (  # noqa: F401  (public here too: models.training.to_device, ...)
     CheckpointingMixin,
     build_scheduler,
-    config_from_state,
-    load_model,
     process_rank,
     rng_state,
     set_rng_state,
@@ -332,7 +331,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         samples = self.sampler.samples(self.step)
         if self.config.supervision == "depth":
             self._check_depth(samples, self.step)
-        batch = to_device(default_collate(samples), self.device)
+        batch = to_device(collate(samples), self.device)
         if self.config.flip:
             batch = random_flip(batch, self.config.seed, self.step, self.rank)
         losses = self.train_step(batch)
@@ -401,22 +400,19 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
             the mean metrics, and `at_depth_limits`: the share of predicted pixels at
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
-        totals: dict[str, float] = {}
-        count = 0
+        means = MeanMetrics()
         for sample in test_set:
-            batch = default_collate([sample])
+            batch = collate([sample])
             depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
             metrics = depth_metrics(pred=depth.cpu(), target=batch["depth"],
                                     mask=batch.get("mask"), min_depth=min_depth,
                                     max_depth=depth_cap, crop=crop,
                                     median_scaling=median_scaling)
             metrics["at_depth_limits"] = float(self.at_depth_limits(depth))
-            for key, value in metrics.items():
-                totals[key] = totals.get(key, 0.0) + value
-            count += 1
-        if count == 0:
+            means.add(metrics)
+        if means.count == 0:
             raise ValueError("test_set holds no samples")
-        return {key: value / count for key, value in totals.items()}
+        return means.mean()
 
     def _validate(self) -> None:
         metrics = self.evaluate(self.val_set)
@@ -436,7 +432,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         if not self.is_main:
             return None
         sample = self._figure_sample()
-        batch = default_collate([sample])
+        batch = collate([sample])
         depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
         path = path or self.config.out_dir / "figures" / f"step_{self.step:06d}.png"
         return plot_prediction(path, sample["image"], depth[0], sample.get("focused"),
@@ -453,8 +449,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
             CheckpointError: the file is not a checkpoint or holds more than tensors and plain
                 data (refused without running anything).
         """
-        state = load_checkpoint(path)
-        cfg = config_from_state(state, path, resume="overwrite", progress=False, device=device)
+        state, cfg = read_checkpoint(path, resume="overwrite", progress=False, device=device)
         trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
         trainer.load_state_dict(state)
         trainer._removals, trainer._truncate_logs = [], trainer.step  # fit() would continue it

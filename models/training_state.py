@@ -3,7 +3,8 @@ random states (exact resume), on one process or several (DDP).
 
 `CheckpointingMixin` gives `models.training.Trainer` its checkpoint methods; the functions here
 are the pieces of state every run shares: the process's rank, the learning-rate schedule, the
-random states, moving a batch to a device, and reading a checkpoint's config or network back.
+random states, moving a batch to a device, and reading a checkpoint's config back
+(`models.loading` loads the network itself).
 """
 
 from __future__ import annotations
@@ -18,18 +19,16 @@ from typing import Any
 
 import torch
 import torch.distributed as dist
-from torch import Tensor, nn
+from torch import Tensor
 
 from optics import CameraSettings
 
 from .checkpoints import (
     CHECKPOINT_FORMAT,
     CheckpointError,
-    load_checkpoint,
     save_checkpoint,
     to_plain,
 )
-from .networks import build_network
 from .train_config import TrainConfig
 
 _log = logging.getLogger("models.training")
@@ -95,22 +94,6 @@ def config_from_state(state: Mapping[str, Any], path: str | Path, **changes: Any
         return TrainConfig.from_dict({**state["config"], **changes})
     except (TypeError, ValueError) as error:
         raise CheckpointError(f"checkpoint {path} holds an invalid config: {error}") from None
-
-
-def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module,
-                                                                                     TrainConfig]:
-    """The trained network (in eval mode) and its config from a checkpoint file.
-
-    Raises:
-        CheckpointError: the file is not a checkpoint or holds more than tensors and plain data
-            (refused without running anything).
-    """
-    state = load_checkpoint(checkpoint, map_location=device)
-    cfg = config_from_state(state, checkpoint, device="auto")
-    model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
-                          cfg.width, cfg.depth_spacing)
-    model.load_state_dict(state["model"])
-    return model.to(device).eval(), cfg
 
 
 class CheckpointingMixin:

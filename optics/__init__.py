@@ -2,8 +2,8 @@
 
 from .alignment import align_shots, estimate_motion, estimate_shift, translate, undo_motion, warp
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
-from .aperture_spec import APERTURE_FAMILIES, aperture_spec, parse_aperture
-from .calibrate import (
+from .aperture_spec import APERTURE_FAMILIES, DEFAULT_APERTURE, aperture_spec, parse_aperture
+from .calibration import (
     CalibrationError,
     CalibrationPair,
     CalibrationResult,
@@ -13,49 +13,62 @@ from .calibrate import (
     fit_thin_lens_curve,
     measure_blur,
 )
-from .camera import Camera, CameraSettings
+from .camera import Camera, CameraSettings, collate
 from .focal_stack import render_focal_stack
 from .lens import ThinLens
+from .photo_metadata import PhotoMetadata, RawReadError, read_metadata
+from .photo_settings import resolve_known, resolve_settings
 from .plotting import plot_calibration, plot_depth_calibration
-from .raw import RawMetadata, RawReadError, read_raw, read_raw_metadata, read_raw_stack
+from .raw import read_raw, read_raw_stack
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
 
 __all__ = [
+    # the camera: lens, sensor, aperture, settings of a scene's shots
+    "Camera",
+    "CameraSettings",
+    "Sensor",
+    "ThinLens",
+    "collate",
+    # apertures (PSF shapes) and their spec strings
     "APERTURE_FAMILIES",
+    "DEFAULT_APERTURE",
+    "Aperture",
+    "Disk",
+    "Gaussian",
+    "Mask",
+    "Polygon",
+    "aperture_spec",
+    "parse_aperture",
+    # rendering
+    "DefocusRenderer",
+    "render_defocus",
+    "render_focal_stack",
+    # aligning shots
     "align_shots",
     "estimate_motion",
     "estimate_shift",
     "translate",
     "undo_motion",
     "warp",
-    "CameraSettings",
-    "aperture_spec",
-    "parse_aperture",
-    "render_focal_stack",
-    "Aperture",
+    # calibration and its figures
     "CalibrationError",
     "CalibrationPair",
     "CalibrationResult",
-    "Camera",
-    "DefocusRenderer",
-    "Disk",
-    "Gaussian",
-    "Mask",
-    "Polygon",
-    "RawMetadata",
-    "RawReadError",
-    "Sensor",
-    "ThinLens",
+    "DepthCalibration",
     "calibrate",
     "calibrate_from_depth",
-    "DepthCalibration",
-    "plot_depth_calibration",
     "fit_thin_lens_curve",
     "measure_blur",
     "plot_calibration",
+    "plot_depth_calibration",
+    # raw photos
+    "RawReadError",
     "read_raw",
-    "read_raw_metadata",
     "read_raw_stack",
-    "render_defocus",
+    # what photo files state, and the camera settings of photos
+    "PhotoMetadata",
+    "read_metadata",
+    "resolve_known",
+    "resolve_settings",
 ]

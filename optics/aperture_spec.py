@@ -11,7 +11,8 @@ training configs and the command line.
 | `polygon:N` | `Polygon(N)`: an N-blade aperture |
 | `polygon:N:R` | `Polygon(N, rotation=R)`, R in radians |
 
-A `Mask` (a measured PSF image) has no spec: pass the `Mask` object itself.
+A `Mask` (a measured PSF image) has no spec: pass the `Mask` object itself. Where nobody names
+one, the PSF is `DEFAULT_APERTURE`.
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ APERTURE_FAMILIES: dict[str, str] = {
     "disk": "disk",
     "polygon": "polygon:N_BLADES[:ROTATION_RADIANS]",
 }
+
+#: The PSF when nobody says: the paper's Gaussian, sigma = 0.5 x CoC diameter (`Gaussian(0.5)`).
+DEFAULT_APERTURE = "gaussian:0.5"
 
 
 def _spec_error(spec: object, why: str) -> ValueError:

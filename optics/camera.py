@@ -21,9 +21,10 @@ from typing import Any
 
 import torch
 from torch import Tensor, nn
+from torch.utils.data import default_collate
 
 from .aperture import Aperture, Gaussian
-from .aperture_spec import aperture_from_json, aperture_spec, parse_aperture
+from .aperture_spec import DEFAULT_APERTURE, aperture_from_json, aperture_spec, parse_aperture
 from .checks import check_positive, implausible_length, is_tracing
 from .lens import ThinLens
 from .sensor import Sensor
@@ -166,7 +167,8 @@ class CameraSettings:
         pixel_pitch: the *effective* pixel pitch of the images in metres (sensor pitch times
             the downsampling from sensor to image), > 0.
         aperture: the PSF shape as a spec string (`"gaussian"`, `"disk"`, `"polygon:6"`, see
-            `optics.aperture_spec`); the same for every shot.
+            `optics.aperture_spec`); the same for every shot. `DEFAULT_APERTURE` (the paper's
+            Gaussian) by default.
 
     Example:
         >>> settings = CameraSettings(0.05, 1.4, [2.0, 6.0], 180e-6)
@@ -174,7 +176,7 @@ class CameraSettings:
         (2, (2,))
         >>> settings.shot(1).lens.focus_distance
         tensor(6., dtype=torch.float64)
-        >>> batch = torch.utils.data.default_collate([settings, settings])
+        >>> batch = collate([settings, settings])
         >>> tuple(batch.focus_distance.shape)
         (2, 2)
     """
@@ -183,7 +185,7 @@ class CameraSettings:
     f_number: Tensor
     focus_distance: Tensor
     pixel_pitch: Tensor
-    aperture: str = "gaussian:0.5"
+    aperture: str = DEFAULT_APERTURE
 
     def __post_init__(self) -> None:
         values = [_as_tensor(name, getattr(self, name)) for name in SETTING_FIELDS]
@@ -356,7 +358,7 @@ class CameraSettings:
             raise ValueError(f"{source}: missing {missing}; expected the keys "
                              f"{list(SETTING_FIELDS)} (metres) and optionally 'psf'")
         try:
-            aperture = aperture_spec(aperture_from_json(data.get("psf", "gaussian")))
+            aperture = aperture_spec(aperture_from_json(data.get("psf", DEFAULT_APERTURE)))
         except (TypeError, ValueError) as error:
             raise ValueError(f"{source}: bad 'psf' entry {data.get('psf')!r}: {error}") from None
         return cls(*(data[k] for k in SETTING_FIELDS), aperture=aperture)
@@ -405,7 +407,16 @@ class CameraSettings:
 
 
 def collate_settings(batch: Sequence[CameraSettings], **_: Any) -> CameraSettings:
-    """Stack `(F,)` settings of `B` samples into `(B, F)` (registered with `default_collate`)."""
+    """Stack `(F,)` settings of `B` samples into `(B, F)` (`collate` calls it).
+
+    Raises:
+        ValueError: for settings with different apertures or shapes.
+
+    Example:
+        >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-5)
+        >>> tuple(collate_settings([s, s, s]).shape)
+        (3, 2)
+    """
     specs = {s.aperture for s in batch}
     if len(specs) > 1:
         raise ValueError(f"cannot batch samples with different apertures {sorted(specs)}")
@@ -417,11 +428,58 @@ def collate_settings(batch: Sequence[CameraSettings], **_: Any) -> CameraSetting
     return CameraSettings(**stacked, aperture=batch[0].aperture)
 
 
-def _register() -> None:
-    from torch.utils.data._utils.collate import default_collate_fn_map
+def collate(batch: Sequence[Any]) -> Any:
+    """`torch.utils.data.default_collate` that also batches `CameraSettings`: the collate function
+    of data loaders whose samples hold camera settings (`DataLoader(..., collate_fn=collate)`).
 
-    default_collate_fn_map[CameraSettings] = collate_settings
-    torch.export.register_dataclass(CameraSettings, serialized_type_name="optics.CameraSettings")
+    Samples (dicts, lists, tuples, named tuples) are walked like `default_collate` does; settings
+    are stacked into `(B, F)` by `collate_settings`, and every part without settings goes to
+    `default_collate` unchanged.
+
+    Args:
+        batch: the `B` samples.
+
+    Returns:
+        the batch: tensors stacked along a new first dimension, `(B, F)` settings.
+
+    Raises:
+        ValueError: for settings with different apertures or shapes, or sequences of different
+            lengths that hold settings.
+
+    Example:
+        >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-5)
+        >>> batch = collate([{"camera": s, "x": torch.zeros(3)}] * 4)
+        >>> tuple(batch["camera"].shape), tuple(batch["x"].shape)
+        ((4, 2), (4, 3))
+    """
+    first = batch[0]
+    if isinstance(first, CameraSettings):
+        return collate_settings(batch)
+    if not _holds_settings(first):
+        return default_collate(batch)
+    if isinstance(first, Mapping):
+        merged = {key: collate([sample[key] for sample in batch]) for key in first}
+        try:
+            return type(first)(merged)
+        except TypeError:  # a mapping that cannot be built from a dict
+            return merged
+    if any(len(sample) != len(first) for sample in batch):
+        raise ValueError("each sample in a batch must hold the same number of elements")
+    parts = [collate(list(samples)) for samples in zip(*batch, strict=True)]
+    if isinstance(first, tuple) and hasattr(first, "_fields"):  # a named tuple
+        return type(first)(*parts)
+    return parts
 
 
-_register()
+def _holds_settings(sample: Any) -> bool:
+    """Whether `sample` is or contains (in dicts, lists and tuples) `CameraSettings`."""
+    if isinstance(sample, CameraSettings):
+        return True
+    if isinstance(sample, Mapping):
+        return any(_holds_settings(value) for value in sample.values())
+    if isinstance(sample, (list, tuple)):
+        return any(_holds_settings(value) for value in sample)
+    return False
+
+
+torch.export.register_dataclass(CameraSettings, serialized_type_name="optics.CameraSettings")

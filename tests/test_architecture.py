@@ -203,3 +203,134 @@ def test_concepts_group_private_modules_with_their_public_one():
     assert concept("optics._render_ops") == concept("optics.render") == "optics.render"
     assert concept("models.depth_from_photos.sweep") == "models.depth_from_photos"
     assert concept("models.training") != concept("models.checkpoints")
+
+
+# ---- one home per job: the rules of the house -------------------------------------------------
+
+#: The most lines a function of the packages may have.
+MAX_FUNCTION_LINES = 80
+#: Modules that may print: the command line and nothing else.
+MAY_PRINT = ("defocus.cli", "defocus.commands")
+#: Names of the camera values; a class that declares two of them is a camera value type.
+CAMERA_FIELDS = {"focal_length", "f_number", "f_numbers", "focus_distance", "focus_distances",
+                 "pixel_pitch"}
+
+
+def package_files():
+    for package in PACKAGES:
+        for path in sorted((ROOT / package).rglob("*.py")):
+            yield path, module_name(path), ast.parse(path.read_text(), filename=str(path))
+
+
+def test_no_function_is_over_the_line_limit():
+    long = [f"{path.relative_to(ROOT)}:{node.lineno}: {node.name} has "
+            f"{node.end_lineno - node.lineno + 1} lines"
+            for path, _, tree in package_files() for node in ast.walk(tree)
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES]
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines:\n" + "\n".join(long)
+
+
+def test_only_the_command_line_prints():
+    """The library and the workflows (`defocus.app`) return results and report through
+    callbacks; only `defocus.cli` and `defocus.commands` print."""
+    bad = [f"{path.relative_to(ROOT)}:{node.lineno}: print"
+           for path, name, tree in package_files() if not name.startswith(MAY_PRINT)
+           for node in ast.walk(tree)
+           if isinstance(node, ast.Call) and isinstance(node.func, ast.Name)
+           and node.func.id == "print"]
+    assert not bad, "print outside the command line:\n" + "\n".join(bad)
+
+
+def test_models_has_a_face():
+    tree = ast.parse((ROOT / "models" / "__init__.py").read_text())
+    names = [ast.literal_eval(node.value) for node in tree.body if isinstance(node, ast.Assign)
+             and any(isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets)]
+    assert names, "models/__init__.py has no __all__"
+    for name in ("estimate_depth", "load_depth_model", "evaluate", "Trainer", "TrainConfig",
+                 "depth_metrics"):
+        assert name in names[0], f"models.__all__ lacks {name}"
+
+
+def test_one_camera_value_type():
+    """`optics.CameraSettings` is the one value type that carries camera values: no other class
+    declares two of them as its fields. (The differentiable optics, `ThinLens`, `Sensor` and
+    `Camera`, are modules built from settings, not value types.)"""
+    bad = []
+    for path, _, tree in package_files():
+        for node in ast.walk(tree):
+            if not isinstance(node, ast.ClassDef) or node.name == "CameraSettings" \
+                    or any(ast.unparse(base) in ("nn.Module", "Module") for base in node.bases):
+                continue
+            fields = {stmt.target.id for stmt in node.body if isinstance(stmt, ast.AnnAssign)
+                      and isinstance(stmt.target, ast.Name)} & CAMERA_FIELDS
+            if len(fields) >= 2:
+                bad.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.name} holds "
+                           f"{sorted(fields)}")
+    assert not bad, "camera values outside CameraSettings:\n" + "\n".join(bad)
+
+
+def test_one_module_reads_exif():
+    readers = sorted({str(path.relative_to(ROOT)) for path, name, tree in package_files()
+                      for line, module in imported_modules(path, name.split(".")[0])
+                      if module.split(".")[0] == "exifread"
+                      or module in ("PIL.ExifTags", "PIL.TiffTags")}
+                     | {str(path.relative_to(ROOT)) for path, _, tree in package_files()
+                        for node in ast.walk(tree) if isinstance(node, ast.Attribute)
+                        and node.attr in ("getexif", "_getexif")})
+    assert len(readers) <= 1, f"EXIF read in {len(readers)} modules: {readers}"
+
+
+def test_commands_import_neither_each_other_nor_the_command_line():
+    bad = [f"{path.relative_to(ROOT)}:{line}: imports {module}"
+           for path, name, _ in package_files() if name.startswith("defocus.commands.")
+           for line, module in imported_modules(path, "defocus")
+           if module.startswith(("defocus.commands.", "defocus.cli"))]
+    bad += [f"{path.relative_to(ROOT)}:{line}: imports {module}"
+            for path, name, _ in package_files() if name.startswith("defocus.app")
+            for line, module in imported_modules(path, "defocus")
+            if module.startswith(("defocus.commands", "defocus.cli"))]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_private_module_of_another_library_is_imported():
+    """Nothing reaches into a library's private modules (e.g. PyTorch's collate table in
+    `torch.utils.data._utils`)."""
+    bad = [f"{path.relative_to(ROOT)}:{line}: imports {module}"
+           for path, name, _ in package_files()
+           for line, module in imported_modules(path, name.split(".")[0])
+           if module.split(".")[0] not in PACKAGES
+           and any(p.startswith("_") and not p.startswith("__") for p in module.split(".")[:-1])]
+    assert not bad, "\n".join(bad)
+
+
+def test_no_deprecation_shims():
+    bad = [f"{path.relative_to(ROOT)}:{node.lineno}: {what}"
+           for path, _, tree in package_files() for node, what in
+           [(n, "module __getattr__") for n in tree.body
+            if isinstance(n, ast.FunctionDef) and n.name == "__getattr__"]
+           + [(n, "DeprecationWarning") for n in ast.walk(tree)
+              if isinstance(n, ast.Name) and n.id == "DeprecationWarning"]]
+    assert not bad, "deprecation shims:\n" + "\n".join(bad)
+
+
+def test_examples_have_no_second_command_line():
+    """The example scripts build their parsers from `defocus.options`; no shared module of
+    theirs defines options."""
+    for path in sorted((ROOT / "examples").glob("_*.py")):
+        assert "add_argument" not in path.read_text(), f"{path.relative_to(ROOT)} adds options"
+
+
+def test_public_modules_import_no_private_names():
+    """A public module (its file name has no leading underscore) imports no private name, be it
+    a module (`from . import _ops`) or a symbol (`from .measure import _crop`)."""
+    bad = []
+    for path, name, _ in package_files():
+        if path.name.startswith("_") and path.name != "__init__.py":
+            continue
+        for line, imported in imported_modules(path, name.split(".")[0]):
+            if imported.split(".")[0] not in PACKAGES:
+                continue
+            if any(p.startswith("_") and not p.startswith("__") for p in imported.split(".")):
+                bad.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
+    assert not bad, "private names in public modules:\n" + "\n".join(bad)

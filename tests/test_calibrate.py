@@ -1,4 +1,4 @@
-"""Tests of optics.calibrate: round trips through synthetic Bayer DNGs, fixing, errors."""
+"""Tests of optics.calibrate (optics.calibration): round trips through synthetic Bayer DNGs, fixing, errors."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from optics import (
     plot_calibration,
     read_raw,
 )
-from optics.calibration.measure import _ConstantBlur
+from optics.calibration.measure import ConstantBlur as _ConstantBlur
 
 DISTANCES = (1.2, 1.5, 4.0)
 

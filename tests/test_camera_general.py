@@ -29,8 +29,8 @@ from models.depth_from_photos import (
     working_scale,
 )
 from models.depth_from_photos.blur_net import blur_loss
+from models.loading import is_weights_file, load_weights, save_weights, sha256
 from models.metrics import best_constant_depth
-from models.pretrained import is_weights_file, load_weights, save_weights, sha256
 from optics import CameraSettings
 
 
@@ -254,7 +254,7 @@ def test_read_photo_pixel_pitch_from_the_35mm_equivalent_focal_length(tmp_path):
 
 
 def test_jpeg_photos_are_known_as_compressed_and_warned_of_when_read_at_full_size(tmp_path):
-    from datasets.photos import JPEG_SCALE_LIMIT, compression_warning
+    from optics.photo_settings import JPEG_SCALE_LIMIT, compression_warning
 
     stored = np.zeros((8, 8, 3), np.uint8)
     _write_jpeg(tmp_path / "a.jpg", stored)
@@ -486,7 +486,7 @@ import resource, sys, numpy as np, torch
 from PIL import Image
 from defocus.cli import main
 from models.depth_from_photos import BlurNet, DepthFromDefocus
-from models.pretrained import save_weights
+from models.loading import save_weights
 torch.manual_seed(0)
 save_weights(DepthFromDefocus(BlurNet(width=8)), r"{tmp_path}/w.pt")
 rng = np.random.default_rng(0)

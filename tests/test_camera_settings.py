@@ -12,6 +12,7 @@ from optics import (
     Mask,
     Polygon,
     aperture_spec,
+    collate,
     parse_aperture,
     render_focal_stack,
 )
@@ -41,15 +42,14 @@ def test_coc_at_infinity_is_the_thin_lens_limit():
 def test_collate_to_and_dataloader():
     samples = [{"camera": CameraSettings(0.05, 2.0, [2.0, d], 1e-5, "disk").to(torch.float32),
                 "x": torch.zeros(1)} for d in (5.0, 6.0, 7.0)]
-    batch = next(iter(torch.utils.data.DataLoader(samples, batch_size=3)))
+    batch = next(iter(torch.utils.data.DataLoader(samples, batch_size=3, collate_fn=collate)))
     camera = batch["camera"]
     assert isinstance(camera, CameraSettings) and camera.shape == (3, 2)
     assert camera.aperture == "disk" and camera.focus_distance.dtype == torch.float32
     assert camera.focus_distance[:, 1].tolist() == [5.0, 6.0, 7.0]
     assert camera.to(torch.float64).pixel_pitch.dtype == torch.float64
     with pytest.raises(ValueError, match="apertures"):
-        torch.utils.data.default_collate([CameraSettings(0.05, 2, [2.0], 1e-5, "disk"),
-                                          CameraSettings(0.05, 2, [2.0], 1e-5)])
+        collate([CameraSettings(0.05, 2, [2.0], 1e-5, "disk"), CameraSettings(0.05, 2, [2.0], 1e-5)])
 
 
 def test_json_round_trip(tmp_path):

@@ -62,7 +62,7 @@ def test_demo_writes_metrics_json_and_figures(tmp_path, capsys):
     import torch
 
     from datasets.middlebury import motorcycle_sample
-    from defocus.commands.demo import METHODS
+    from defocus.app.demo import METHODS
     from models.metrics import METRIC_NAMES, depth_metrics
 
     out = tmp_path / "demo"

@@ -4,7 +4,7 @@ import re
 import pytest
 
 from defocus.cli import COMMANDS, build_parser
-from defocus.commands.train import config_fields_help
+from defocus.app.train import config_fields_help
 from models.training import TrainConfig
 
 

@@ -130,7 +130,8 @@ def test_time_budget_stops_training_when_the_machine_gets_slower(monkeypatch, ca
                 "mask": torch.ones(1, 16, 16, dtype=torch.bool)}] * 2
     cfg = TrainConfig(steps=5, batch_size=2, input_mode="aif", supervision="depth", width=4,
                       progress=False, out_dir=tempfile.mkdtemp(), device="cpu")
-    rows = experiment.train_and_evaluate(cfg, samples, samples, minutes=0.2, max_steps=10**6)
+    rows = experiment.train_and_evaluate(cfg, samples, samples, minutes=0.2, max_steps=10**6,
+                                         report=print)
     out = capsys.readouterr().out
     assert "time budget of 0.2 min reached after" in out
     steps = int(out.split("reached after ")[1].split(" ")[0])

@@ -25,6 +25,7 @@ from datasets import (
     Make3D,
     Middlebury,
     NYUv2,
+    collate,
     refocus,
 )
 from datasets.base import DepthDataset
@@ -114,7 +115,8 @@ def test_cache_key_changes_with_content(tmp_path):
 
 def test_dataloader_with_workers(tmp_path):
     write_nyu(tmp_path)
-    loader = torch.utils.data.DataLoader(NYUv2(tmp_path, split="all"), batch_size=2, num_workers=2)
+    loader = torch.utils.data.DataLoader(NYUv2(tmp_path, split="all"), batch_size=2, num_workers=2,
+                                         collate_fn=collate)
     batch = next(iter(loader))
     assert batch["focused"].shape == (2, 2, 3, 12, 16)
     assert batch["camera"].focus_distance.shape == (2, 2)

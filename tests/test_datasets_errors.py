@@ -20,7 +20,7 @@ from test_datasets_fixtures import (
     write_nyu,
 )
 
-from datasets import DSLR, KITTI, DataFormatError, LightField, Make3D, Middlebury, NYUv2
+from datasets import DSLR, KITTI, DataFormatError, LightField, Make3D, Middlebury, NYUv2, collate
 from datasets.io import read_pfm
 
 WRITERS = {
@@ -138,7 +138,8 @@ def test_truncated_files_in_dataloader_worker(tmp_path):
     """The worker's error reaches the main process with the file name in it."""
     write_dslr(tmp_path)
     truncate(tmp_path / "train" / "f8" / "scene00.png")
-    loader = torch.utils.data.DataLoader(DSLR(tmp_path), batch_size=1, num_workers=1)
+    loader = torch.utils.data.DataLoader(DSLR(tmp_path), batch_size=1, num_workers=1,
+                                         collate_fn=collate)
     with pytest.raises(DataFormatError, match=names(tmp_path / "train/f8/scene00.png")):
         next(iter(loader))
 

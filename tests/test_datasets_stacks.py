@@ -347,7 +347,7 @@ def test_evaluate_scores_a_benchmark_on_fixtures(tmp_path, capsys):
 
 
 def test_evaluate_offers_every_label_free_method():
-    from defocus.commands.evaluate import METHOD_NAMES
+    from defocus.options import METHOD_NAMES
     from models.depth_from_photos import METHODS
 
     assert set(METHOD_NAMES) == {"auto", *METHODS}

@@ -20,7 +20,7 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def load_example(name: str, monkeypatch):
-    monkeypatch.syspath_prepend(str(EXAMPLES))  # the scripts import their shared _common
+    monkeypatch.syspath_prepend(str(EXAMPLES))  # some scripts import helpers beside them
     spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

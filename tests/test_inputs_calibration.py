@@ -13,7 +13,7 @@ from _synthetic_dng import render_plane, synthetic_camera, texture, write_pairs
 
 from defocus.cli import main
 from optics import CalibrationPair, Disk, calibrate
-from optics.calibrate import CalibrationError
+from optics.calibration.fit import CalibrationError
 from optics.calibration.problem import Problem, needed_distances
 from optics.calibration.start import initial_guess
 
@@ -93,7 +93,7 @@ def test_initial_focus_guess_uses_the_known_blur_scale():
 
 
 def test_singular_fit_raises_and_is_never_saved(monkeypatch, tmp_path):
-    calibrate_module = importlib.import_module("optics.calibrate")  # optics.calibrate: a function
+    calibrate_module = importlib.import_module("optics.calibration.fit")
     real = calibrate_module.gauss_newton
 
     def singular(model, theta):

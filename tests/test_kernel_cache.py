@@ -1,5 +1,5 @@
 """The compiled kernels' cache folder and the checks made before loading them (optics.cache,
-optics._render_cpp)."""
+optics.render.cpp)."""
 
 import os
 import shutil
@@ -10,8 +10,9 @@ from pathlib import Path
 import pytest
 import torch
 
-from optics import Disk, _render_cpp, render_defocus
+from optics import Disk, render_defocus
 from optics.cache import cache_root, is_private_dir, user_cache_dir
+from optics.render import cpp as _render_cpp
 
 needs_library = pytest.mark.skipif(
     _render_cpp.library() is None, reason="no C++ compiler (or DEFOCUS_NO_CPP set)"

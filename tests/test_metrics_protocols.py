@@ -1,6 +1,6 @@
 """The benchmarks' protocols (`models.metrics.PROTOCOLS`) against independent numpy versions of
 the benchmarks' own evaluation code (DDFF-12's `BaseDDFFEval`, DFV's FoD500 evaluation,
-FOSSA's `eval_depth`), and the evaluation loop of `models.benchmarks`."""
+FOSSA's `eval_depth`), and the evaluation loop of `models.evaluation`."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 import torch
 from skimage import filters
 
-from models.benchmarks import evaluate_benchmark, label_free_method
+from models.evaluation import evaluate, label_free_method
 from models.metrics import (
     PROTOCOL_METRIC_NAMES,
     PROTOCOLS,
@@ -174,14 +174,14 @@ def test_evaluate_benchmark_takes_any_method_and_skips_samples_without_depth():
         seen.append(sample["id"])
         return torch.full((1, 16, 16), 2.5)
 
-    result = evaluate_benchmark([_sample(), _sample(has_gt=False)], method, "zedd",
-                                report=lambda i, name, values: seen.append(i))
+    result = evaluate(method, [_sample(), _sample(has_gt=False)], "zedd",
+                      report=lambda i, name, values: seen.append(i))
     assert result["images"] == 1 and result["skipped"] == 1 and seen == ["s", 0]
     assert result["abs_rel"] == pytest.approx(0.25)
     with pytest.raises(ValueError, match="no sample has ground-truth depth"):
-        evaluate_benchmark([_sample(has_gt=False)], method, "zedd")
+        evaluate(method, [_sample(has_gt=False)], "zedd")
     with pytest.raises(ValueError, match="shape"):
-        evaluate_benchmark([_sample()], lambda s: torch.ones(16, 16), "zedd")
+        evaluate(lambda s: torch.ones(16, 16), [_sample()], "zedd")
 
 
 def test_label_free_method_reads_the_stack_without_the_stand_in_image():

@@ -12,12 +12,13 @@ from _synthetic_dng import BLACK, WB, WHITE, write_dng
 
 from optics import (
     CameraSettings,
-    RawMetadata,
+    PhotoMetadata,
     RawReadError,
+    read_metadata,
     read_raw,
-    read_raw_metadata,
     read_raw_stack,
 )
+from optics.photo_settings import metadata_sensor, metadata_settings, resolve_known
 
 SAMPLES = Path(os.environ.get("DEFOCUS_RAW_SAMPLES", Path(__file__).parents[2] / "shared/data/raw"))
 needs_samples = pytest.mark.skipif(
@@ -55,7 +56,7 @@ def test_truncated_files_fail_clearly(name):
     with pytest.raises(RawReadError, match=name.replace(".", r"\.")):
         read_raw(SAMPLES / name)
     with pytest.raises(RawReadError, match="LibRaw cannot read"):
-        read_raw_metadata(SAMPLES / name)
+        read_metadata(SAMPLES / name)
 
 
 @needs_samples
@@ -63,7 +64,7 @@ def test_stripped_dng_refused_but_metadata_read():
     path = SAMPLES / "truncated_DNG.dng"
     with pytest.raises(RawReadError, match="truncated_DNG.dng: the file holds no image data"):
         read_raw(path)
-    meta = read_raw_metadata(path)
+    meta = read_metadata(path)
     assert meta.focal_length == pytest.approx(0.055) and meta.f_number == pytest.approx(8.0)
     assert meta.camera_model == "Canon EOS 350D DIGITAL"
 
@@ -78,7 +79,7 @@ def test_panasonic_stripped_data_never_crashes():
         assert image.shape[:2] == (1, 3) and torch.isfinite(image).all()
     except RawReadError as error:
         assert "truncated_Panasonic.rw2: the file holds no image data" in str(error)
-    meta = read_raw_metadata(path)
+    meta = read_metadata(path)
     assert meta.focal_length == pytest.approx(0.0051) and meta.f_number == pytest.approx(4.0)
     assert meta.camera_model == "DMC-LX3" and meta.cfa_pattern is not None
 
@@ -103,28 +104,28 @@ def test_synthetic_metadata(tmp_path):
     assert meta.black_level == [BLACK] * 4 and meta.white_level == WHITE
     assert meta.pixel_pitch == pytest.approx(4e-6)
     np.testing.assert_allclose(meta.camera_white_balance, WB, rtol=1e-3)
-    sensor = meta.sensor()
+    sensor = metadata_sensor(meta)
     assert float(sensor.effective_pixel_pitch) == pytest.approx(8e-6)
-    assert meta.effective_pixel_pitch == pytest.approx(8e-6)
-    settings = meta.camera_settings(2.0, aperture="disk")
+    assert resolve_known([meta])[0]["pixel_pitch"] == pytest.approx(8e-6)
+    settings = metadata_settings(meta, 2.0, aperture="disk")
     assert isinstance(settings, CameraSettings) and tuple(settings.shape) == (1,)
     assert settings.aperture == "disk" and float(settings.focus_distance) == 2.0
     assert float(settings.focal_length) == 0.05 and float(settings.f_number) == 2.8
     assert float(settings.pixel_pitch) == pytest.approx(8e-6)  # sensor pitch x binning
-    assert float(meta.camera_settings(2.0, pixel_pitch=5e-6).pixel_pitch) == pytest.approx(1e-5)
-    assert meta.camera_settings([1.0, 3.0]).shot(1).lens.focus_distance == 3.0
+    assert float(metadata_settings(meta, 2.0, pixel_pitch=5e-6).pixel_pitch) == pytest.approx(1e-5)
+    assert metadata_settings(meta, [1.0, 3.0]).shot(1).lens.focus_distance == 3.0
 
 
 def test_camera_settings_name_what_the_file_lacks():
-    meta = RawMetadata("bare.dng", f_number=4.0)
+    meta = PhotoMetadata("bare.dng", {"f_number": 4.0})
     with pytest.raises(ValueError, match=r"bare\.dng: .*focal length.*pass focal_length in "
                        r"metres.*pixel pitch.*pass pixel_pitch") as error:
-        meta.camera_settings(2.0)
+        metadata_settings(meta, 2.0)
     assert "f-number" not in str(error.value)
-    settings = meta.camera_settings(2.0, pixel_pitch=5e-6, focal_length=0.035)
+    settings = metadata_settings(meta, 2.0, pixel_pitch=5e-6, focal_length=0.035)
     assert float(settings.focal_length) == 0.035 and float(settings.pixel_pitch) == 5e-6
     with pytest.raises(ValueError, match="focus_distance must be > focal_length"):
-        meta.camera_settings(0.01, pixel_pitch=5e-6, focal_length=0.035)
+        metadata_settings(meta, 0.01, pixel_pitch=5e-6, focal_length=0.035)
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])

@@ -1,4 +1,5 @@
-"""Tests of the per-pixel PSF renderer (optics/render.py, optics/_render_ops.py, the C++ kernel)."""
+"""Tests of the per-pixel PSF renderer (optics/render/renderer.py, optics/render/ops.py, the C++
+kernel)."""
 
 import math
 
@@ -16,11 +17,11 @@ from optics import (
     Polygon,
     Sensor,
     ThinLens,
-    _render_cpp,
-    _render_ops,
     render_defocus,
 )
+from optics.render import cpp as _render_cpp
 from optics.render import layer_weights
+from optics.render import ops as _render_ops
 
 MODES = ["scatter", "gather", "layered"]
 

@@ -3,7 +3,8 @@
 import pytest
 import torch
 
-from optics import Disk, Gaussian, Polygon, _render_cpp, render_defocus
+from optics import Disk, Gaussian, Polygon, render_defocus
+from optics.render import cpp as _render_cpp
 
 CASES = [
     (Disk, "scatter"),

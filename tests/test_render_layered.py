@@ -3,8 +3,9 @@
 import pytest
 import torch
 
-from optics import Disk, Gaussian, Polygon, _render_cpp, render_defocus
+from optics import Disk, Gaussian, Polygon, render_defocus
 from optics.render import composite_layers, split_layers
+from optics.render import cpp as _render_cpp
 
 needs_library = pytest.mark.skipif(
     _render_cpp.library() is None, reason="no C++ compiler (or DEFOCUS_NO_CPP set)"

@@ -1,4 +1,4 @@
-"""The renderer's custom operators (optics._render_ops): compiled kernels against the PyTorch loops,
+"""The renderer's custom operators (optics.render.ops): compiled kernels against the PyTorch loops,
 the disk and polygons against brute force, gradients (aperture parameters included), opcheck."""
 
 
@@ -6,7 +6,9 @@ import pytest
 import torch
 from torch.autograd import gradcheck
 
-from optics import Disk, Gaussian, Polygon, _render_cpp, _render_ops, render_defocus
+from optics import Disk, Gaussian, Polygon, render_defocus
+from optics.render import cpp as _render_cpp
+from optics.render import ops as _render_ops
 
 needs_library = pytest.mark.skipif(
     _render_cpp.library() is None, reason="no C++ compiler (or DEFOCUS_NO_CPP set)"

@@ -1,11 +1,11 @@
-"""The Triton kernels (`optics._render_triton`: the fused scatter and the unnormalised spreads of
+"""The Triton kernels (`optics.render.triton_kernels`: the fused scatter and the unnormalised spreads of
 the gather and layered modes) against the PyTorch path.
 
 They run on CUDA when a GPU is present, else on the CPU in Triton's interpreter when the suite
 is started with `TRITON_INTERPRET=1` (the kernels are then also registered for the CPU, enabled
 only inside `kernels(triton=True)`); otherwise the module is skipped. The reference is the same
 operator with the Triton kernel disabled and the compiled CPU kernels turned off: the PyTorch
-loops of `optics._render_ops`.
+loops of `optics.render.ops`.
 """
 
 from __future__ import annotations
@@ -18,7 +18,11 @@ import pytest
 import torch
 from torch.autograd import gradcheck
 
-from optics import Disk, Gaussian, Polygon, _render_cpp, _render_ops, _render_triton, render_defocus
+from optics import Disk, Gaussian, Polygon, render_defocus
+from optics.render import backends
+from optics.render import cpp as _render_cpp
+from optics.render import ops as _render_ops
+from optics.render import triton_kernels as _render_triton
 
 INTERPRET = os.environ.get("TRITON_INTERPRET") == "1"
 
@@ -32,7 +36,7 @@ else:
     pytest.skip("the Triton kernels need a CUDA GPU, or TRITON_INTERPRET=1 for the interpreter",
                 allow_module_level=True)
 
-OPS = tuple(op for op, _ in _render_triton.KERNELS)
+OPS = tuple(op for op, _ in backends.TRITON_KERNELS)
 
 if DEVICE == "cpu":
     # Registered for the CPU too, but disabled so that the rest of the session keeps the compiled
@@ -41,7 +45,7 @@ if DEVICE == "cpu":
     _DISABLED = [op.set_kernel_enabled("cpu", False) for op in OPS]
     for _context in _DISABLED:
         _context.__enter__()
-    _render_triton.register("cpu")
+    backends.register_triton("cpu")
 
 
 def _not_triton(*args, **kwargs):

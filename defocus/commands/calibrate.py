@@ -18,7 +18,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from defocus.commands.render import aperture_argument
+from defocus.errors import CommandError
+from defocus.options import aperture_argument
 
 KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
 
@@ -62,48 +63,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--progress", action="store_true", help="show progress bars")
 
 
-def _distance(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise ValueError(f"a --pair distance must be a number of metres, got {text!r}") from None
-    if not value > 0:
-        raise ValueError(f"a --pair distance must be > 0 metres, got {text!r}")
-    return value
-
-
-def _slice(text: str | None, length: int) -> list[int]:
-    if text is None:
-        return list(range(length))
-    try:
-        parts = [int(p) if p else None for p in text.split(":")]
-        indices = list(range(length))[slice(*parts)]
-    except (ValueError, TypeError):
-        raise ValueError(f"--scenes must be a slice START:STOP[:STEP] of sample indices, got "
-                         f"{text!r}") from None
-    if not indices:
-        raise ValueError(f"--scenes {text!r} selects none of the {length} samples")
-    return indices
-
-
 def run_dataset(args: argparse.Namespace) -> int:
-    from datasets.calibration import calibrate_dataset
-    from datasets.registry import dataset_classes
+    from defocus.app.calibrate import calibrate_from_dataset
     from optics import plot_depth_calibration
 
-    if args.root is None:
-        raise ValueError("--dataset needs --root, the dataset's folder")
-    classes = dataset_classes()
-    if args.dataset not in classes or args.dataset == "synthetic":
-        raise ValueError(f"--dataset must be a dataset of real photos with depth, one of "
-                         f"{sorted(set(classes) - {'synthetic'})}, got {args.dataset!r}")
-    dataset = classes[args.dataset](args.root, split=args.split)  # full resolution
-    indices = _slice(args.scenes, len(dataset))
-    psf = "gaussian:0.5" if args.psf == "gaussian" else args.psf
-    fit = calibrate_dataset(dataset, indices, aperture=psf,
-                            focus_distance=args.focus_distance, progress=args.progress)
+    fit, count = calibrate_from_dataset(args.dataset, args.root, args.split, args.scenes,
+                                        args.psf, args.focus_distance, args.progress)
     values = fit.settings.to_dict()
-    print(f"{args.dataset}: {len(indices)} samples of {args.split!r}")
+    print(f"{args.dataset}: {count} samples of {args.split!r}")
     for name in ("focus_distance", "pixel_pitch", "f_number", "focal_length", "psf"):
         print(f"  {name}: {values[name]}")
     for name, value in fit.extras().items():
@@ -112,49 +79,21 @@ def run_dataset(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
-    from defocus.cli import CommandError
-    from optics import CalibrationPair, calibrate, plot_calibration, read_raw
+    from defocus.app.calibrate import calibrate_from_pairs
+    from optics import plot_calibration
 
     if (args.pair is None) == (args.dataset is None):
         raise CommandError("give either --pair SHARP BLURRED DISTANCE (repeat) or --dataset NAME "
                            "--root DIR")
     if args.dataset is not None:
         return run_dataset(args)
-    pairs, meta = [], None
-    for sharp_path, blurred_path, distance_text in args.pair:
-        distance = _distance(distance_text)
-        options = {"binning": args.binning, "white_balance": args.white_balance}
-        sharp, _ = read_raw(sharp_path, **options)
-        blurred, meta = read_raw(blurred_path, **options)
-        if sharp.shape != blurred.shape:
-            raise ValueError(
-                f"{sharp_path} is {tuple(sharp.shape[-2:])} pixels but {blurred_path} is "
-                f"{tuple(blurred.shape[-2:])}; a pair must have one size"
-            )
-        pairs.append(CalibrationPair(sharp, blurred, distance, name=Path(blurred_path).stem))
-    given = {
-        "focal_length": args.focal_length,
-        "f_number": args.f_number,
-        "pixel_pitch": None if args.pixel_pitch is None else args.pixel_pitch * args.binning,
-        "focus_distance": args.focus_distance,
-        "psf_scale": args.psf_scale,
-    }
-    from_metadata = {"focal_length": meta.focal_length, "f_number": meta.f_number,
-                     "pixel_pitch": meta.effective_pixel_pitch}
-    sources = {}
-    for name in ("focal_length", "f_number", "pixel_pitch"):
-        if given[name] is not None:
-            sources[name] = "option"
-        elif name not in args.fit and from_metadata[name] is not None:
-            given[name] = from_metadata[name]
-            sources[name] = "metadata"
-    if given["focal_length"] is None:
-        raise CommandError("the focal length is unknown: the files do not state it; pass "
-                           "--focal-length in metres")
-    result = calibrate(
-        pairs, psf=args.psf, margin_px=args.margin, adam_steps=args.adam_steps,
-        lbfgs_steps=args.lbfgs_steps, progress=args.progress, **given,
-    )
+    known = {"focal_length": args.focal_length, "f_number": args.f_number,
+             "pixel_pitch": args.pixel_pitch, "focus_distance": args.focus_distance,
+             "psf_scale": args.psf_scale}
+    result, sources = calibrate_from_pairs(
+        args.pair, known, fit=args.fit, psf=args.psf, binning=args.binning,
+        white_balance=args.white_balance, margin_px=args.margin, adam_steps=args.adam_steps,
+        lbfgs_steps=args.lbfgs_steps, progress=args.progress)
     for name, source in sources.items():
         print(f"{name}: from the {source}")
     print(result.table())
@@ -162,10 +101,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _write(args: argparse.Namespace, save, plot) -> int:
-    """Save the fit's JSON at `--out` and its figure beside it (or at `--figure`)."""
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    save(args.out)
-    figure = args.figure or args.out.with_suffix(".png")
-    plot(figure)
+    from defocus.app.calibrate import write_fit
+
+    figure = write_fit(args.out, args.figure, save, plot)
     print(f"wrote {args.out} and {figure}")
     return 0

@@ -28,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from defocus.cli import CommandError
+    from defocus.errors import CommandError
     from models.checkpoints import convert_checkpoint
 
     if not args.trust:

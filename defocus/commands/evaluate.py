@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from functools import partial
 from pathlib import Path
 
 from datasets.registry import STACK_DATASET_NAMES
-
-from .train import add_data_arguments, build_dataset
+from defocus.errors import CommandError
+from defocus.options import METHOD_NAMES, add_data_arguments, dataset_from_options
 
 BENCHMARKS = STACK_DATASET_NAMES
-#: Label-free methods (`models.depth_from_photos.METHODS`, listed here so that the help is
-#: built without importing the models) and "auto".
-METHOD_NAMES = ("auto", "sweep", "relative-blur", "focus")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,31 +46,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from defocus.cli import CommandError
-
     if args.dataset is not None:
         return run_benchmark(args)
     if args.checkpoint is None:
         raise CommandError("give a checkpoint file, or --dataset NAME --root FOLDER to score a "
                            "label-free method on a focal-stack benchmark")
+    from defocus.app.evaluate import evaluate_checkpoint
     from models.metrics import format_table
-    from models.training import COLLAPSE_FRACTION, Trainer
 
-    trainer = Trainer.from_checkpoint(args.checkpoint)
     if args.data == "motorcycle":
         from datasets.middlebury import motorcycle_sample
 
         test_set = [motorcycle_sample(args.scale)]
     else:
-        test_set = build_dataset(args, split=args.split or "test", seed_offset=1_000)
-    metrics = trainer.evaluate(test_set, depth_cap=args.depth_cap, crop=args.crop,
-                               median_scaling=args.median_scaling, min_depth=args.min_depth)
+        test_set = dataset_from_options(args, split=args.split or "test", seed_offset=1_000)
+    metrics, warning = evaluate_checkpoint(args.checkpoint, test_set, args.depth_cap, args.crop,
+                                           args.median_scaling, args.min_depth)
     print(format_table({args.checkpoint.parent.parent.name or "model": metrics}))
-    if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
-        config = trainer.config
-        print(f"warning: {metrics['at_depth_limits']:.0%} of the predicted pixels sit at "
-              f"depth_min ({config.depth_min} m) or depth_max ({config.depth_max} m): the "
-              "network collapsed to its depth limits; these metrics mean little")
+    if warning is not None:
+        print(f"warning: {warning}")
     if args.json:
         args.json.write_text(json.dumps(metrics, indent=2))
     return 0
@@ -81,8 +73,7 @@ def run(args: argparse.Namespace) -> int:
 def run_benchmark(args: argparse.Namespace) -> int:
     """`--dataset NAME --root FOLDER`: the benchmark's protocol table of one method."""
     from datasets.registry import build_stack_dataset
-    from defocus.cli import CommandError
-    from models.benchmarks import evaluate_benchmark, label_free_method
+    from defocus.app.evaluate import evaluate_on_benchmark
     from models.metrics import PROTOCOLS, format_table
 
     if args.root is None:
@@ -97,25 +88,10 @@ def run_benchmark(args: argparse.Namespace) -> int:
               "ground-truth depth, so it is judged by eye: nothing is scored (see "
               f"examples/{args.dataset}.py for the depth maps)")
         return 0
-    model = None
-    if args.checkpoint is not None:
-        from models.depth_from_photos import TrainedNetwork
-        from models.training import load_model
-
-        network, config = load_model(args.checkpoint, "cpu")
-        model = TrainedNetwork(network, config.input_mode, config.n_focus,
-                               (config.depth_min, config.depth_max))
-    method = label_free_method(dataset.depth_range, args.method, model=model,
-                               max_pixels=args.max_pixels)
-    count = len(dataset) if args.max_samples is None else min(args.max_samples, len(dataset))
-    samples = (dataset[i] for i in range(count))
+    name, metrics = evaluate_on_benchmark(dataset, args.dataset, args.method, args.checkpoint,
+                                          args.max_samples, args.max_pixels,
+                                          report=partial(print, flush=True))
     protocol = PROTOCOLS[args.dataset]
-
-    def report(index: int, sample_id: str, values: dict[str, float]) -> None:
-        print(f"  {index + 1}/{count} {sample_id}: abs rel {values['abs_rel']:.4g}", flush=True)
-
-    metrics = evaluate_benchmark(samples, method, protocol, report=report)
-    name = args.checkpoint.name if args.checkpoint is not None else method.name
     print(format_table({name: metrics}, metrics=protocol.metrics, number_format="{:.4g}"))
     print(f"{args.dataset}: {metrics['images']:.0f} images; protocol: {protocol.source}")
     if args.json:

@@ -188,38 +188,76 @@ def estimate_depth(
     """
     check_photos(focused, image)
     if image_settings is not None:
-        if image is None or settings is None:
-            raise ValueError("image_settings are the settings of image: give image and the "
-                             "focused photos' settings too")
-        if image_settings.n_shots != 1:
-            raise ValueError(f"image_settings must hold 1 shot, got {image_settings.n_shots}")
-        focused = torch.cat([image[None], focused])
-        settings = join_shots(image_settings, settings)
+        focused, settings = _image_as_shot(image, focused, settings, image_settings)
         image = None
+    near, far = _check_depth_range(depth_range)
+    model = _method_object(method, model, options, progress, image is not None, len(focused))
+    if getattr(model, "needs_image", True) and image is None:
+        raise ValueError(f"{type(model).__name__} needs an all-in-focus photo: give image")
+    if getattr(model, "native_resolution", False):
+        return _run_native(model, image, focused, settings, near, far, all_in_focus)
+    _check_defocus_photos(model, image, focused, settings, near, far)
+    warn_mirrored(settings, near, far)
+    out = run_at_working_resolution(model, image, focused, settings, near, far,
+                                    max_coc_px, max_pixels, align, refine_range)
+    if all_in_focus:
+        out["all_in_focus"] = image if image is not None else _fused(focused, out, align)
+    return out
+
+
+def _image_as_shot(image: Tensor | None, focused: Tensor, settings: CameraSettings | None,
+                   image_settings: CameraSettings) -> tuple[Tensor, CameraSettings]:
+    """The shots with the nearly sharp `image` first, and their joined settings."""
+    if image is None or settings is None:
+        raise ValueError("image_settings are the settings of image: give image and the "
+                         "focused photos' settings too")
+    if image_settings.n_shots != 1:
+        raise ValueError(f"image_settings must hold 1 shot, got {image_settings.n_shots}")
+    return torch.cat([image[None], focused]), join_shots(image_settings, settings)
+
+
+def _check_depth_range(depth_range: tuple[float, float]) -> tuple[float, float]:
+    """`(near, far)` as floats, checked: finite metres with 0 < near < far."""
     near, far = (float(d) for d in depth_range)
     if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
         raise ValueError(f"depth_range must be finite metres (near, far) with 0 < near < far, "
                          f"got {tuple(depth_range)!r}")
+    return near, far
+
+
+def _method_object(method: str, model: nn.Module | None, options: Mapping[str, Any] | None,
+                   progress: bool, has_image: bool, n_shots: int) -> nn.Module:
+    """`model`, or the method named `method` (`"auto"`: `choose_method`) built with `options`."""
     if model is None:
         if method == "auto":
-            method = choose_method(image is not None, len(focused))
+            method = choose_method(has_image, n_shots)
         if method not in METHODS:
             raise ValueError(f"method must be 'auto' or one of {sorted(METHODS)}, got {method!r}")
-        model = METHODS[method](progress=progress, **dict(options or {}))
-    elif options:
+        return METHODS[method](progress=progress, **dict(options or {}))
+    if options:
         raise ValueError(f"options configure a method by name; give them to the model's class "
                          f"instead (got model={type(model).__name__} and options={dict(options)})")
-    if getattr(model, "needs_image", True) and image is None:
-        raise ValueError(f"{type(model).__name__} needs an all-in-focus photo: give image")
-    if getattr(model, "native_resolution", False):
-        shots = None if settings is None else settings.to(focused.dtype)
-        out = model(image[None], focused[None], shots, near, far)
-        confidence = out.get("confidence")
-        result = {"depth": out["depth"][0], "confidence": None if confidence is None
-                  else confidence[0], "depth_range": getattr(model, "depth_range", (near, far))}
-        if all_in_focus:
-            result["all_in_focus"] = image
-        return result
+    return model
+
+
+def _run_native(model: nn.Module, image: Tensor, focused: Tensor,
+                settings: CameraSettings | None, near: float, far: float,
+                all_in_focus: bool) -> dict[str, Any]:
+    """Run a method that reads the photos at their own resolution (a trained network)."""
+    shots = None if settings is None else settings.to(focused.dtype)
+    out = model(image[None], focused[None], shots, near, far)
+    confidence = out.get("confidence")
+    result = {"depth": out["depth"][0], "confidence": None if confidence is None
+              else confidence[0], "depth_range": getattr(model, "depth_range", (near, far))}
+    if all_in_focus:
+        result["all_in_focus"] = image
+    return result
+
+
+def _check_defocus_photos(model: nn.Module, image: Tensor | None, focused: Tensor,
+                          settings: CameraSettings | None, near: float, far: float) -> None:
+    """Refuse photos a depth-from-defocus method cannot read: no shots, or without an
+    all-in-focus photo fewer than two shots or shots that do not tell depths apart."""
     if len(focused) == 0 or settings is None:
         raise ValueError(f"{type(model).__name__} reads depth from defocus: give one or more "
                          "focused photos with their settings")
@@ -228,15 +266,10 @@ def estimate_depth(
             raise ValueError(f"{type(model).__name__} compares focused photos: give 2 or more, "
                              f"each focused elsewhere, got {len(focused)}")
         check_shots_differ(settings, near, far)
-    warn_mirrored(settings, near, far)
-    out = run_at_working_resolution(model, image, focused, settings, near, far,
-                                    max_coc_px, max_pixels, align, refine_range)
-    if all_in_focus:
-        if image is not None:
-            out["all_in_focus"] = image
-        else:
-            motions = torch.cat([out["shifts"], out["zooms"][:, None],
-                                 torch.deg2rad(out["rotations"])[:, None]], 1)
-            out["all_in_focus"] = fuse_all_in_focus(focused, out["blur"],
-                                                    motions if align else None)
-    return out
+
+
+def _fused(focused: Tensor, out: Mapping[str, Any], align: bool) -> Tensor:
+    """The all-in-focus image fused from the shots by the blur each has at the depth found."""
+    motions = torch.cat([out["shifts"], out["zooms"][:, None],
+                         torch.deg2rad(out["rotations"])[:, None]], 1)
+    return fuse_all_in_focus(focused, out["blur"], motions if align else None)

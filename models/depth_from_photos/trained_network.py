@@ -16,7 +16,7 @@ from .tiling import apply_in_tiles, check_tiling
 
 
 class TrainedNetwork(nn.Module):
-    """A depth network of `defocus train` (`models.training.load_model`), called like every
+    """A depth network of `defocus train` (`models.loading.load_depth_model`), called like every
     method of `estimate_depth`.
 
     Args:

@@ -33,10 +33,10 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from ..aperture_spec import aperture_spec, parse_aperture
+from ..aperture_spec import DEFAULT_APERTURE, aperture_spec, parse_aperture
 from ..camera import CameraSettings
 from ..progress import progress_bar
-from .measure import _ConstantBlur, _crop
+from .measure import ConstantBlur, crop
 from .pair import CalibrationPair
 
 #: Depth bin edges (metres) of `measure_blur_curve` by default: 40 bins even in inverse depth
@@ -88,7 +88,7 @@ class BlurCurve:
 
 
 def measure_blur_curve(
-    pairs: Sequence[CalibrationPair], aperture: str = "gaussian:0.5",
+    pairs: Sequence[CalibrationPair], aperture: str = DEFAULT_APERTURE,
     edges: Tensor | None = None, max_coc_px: float = 12.0, step_px: float = 0.25,
     margin_px: int | None = None, min_pixels: int = 2000, progress: bool = False,
 ) -> BlurCurve:
@@ -145,8 +145,8 @@ def measure_blur_curve(
             raise ValueError(f"pairs[{i}] ({pair.name or 'unnamed'}) has one distance, not a depth "
                              "map: measure_blur_curve reads every depth of a map")
         sharp = pair.sharp.to(torch.float64)
-        target = _crop(pair.blurred.to(torch.float64), margin)[0]
-        depth = _crop(pair.depth_map(sharp), margin)[0, 0]
+        target = crop(pair.blurred.to(torch.float64), margin)[0]
+        depth = crop(pair.depth_map(sharp), margin)[0, 0]
         if target.numel() == 0:
             raise ValueError(f"margin_px={margin} leaves no pixels of a {tuple(sharp.shape[-2:])} "
                              "image")
@@ -154,11 +154,11 @@ def measure_blur_curve(
         inside = (label >= 0) & (label < len(edges) - 1)
         label = label.clamp(0, len(edges) - 2)
         pixels += torch.bincount(label[inside], minlength=len(edges) - 1).to(pixels)
-        blur = _ConstantBlur(sharp, pad)
+        blur = ConstantBlur(sharp, pad)
         # the exposure ratio of the pair (a blur keeps the mean): one gain for every candidate
-        gain = (target.mean((1, 2)) / _crop(sharp, margin)[0].mean((1, 2)).clamp_min(1e-12))
+        gain = (target.mean((1, 2)) / crop(sharp, margin)[0].mean((1, 2)).clamp_min(1e-12))
         for j, coc in enumerate(candidates):
-            rendered = _crop(blur(psf, float(coc)) if coc > 0 else sharp, margin)[0]
+            rendered = crop(blur(psf, float(coc)) if coc > 0 else sharp, margin)[0]
             residual = (target - gain[:, None, None] * rendered).pow(2).sum(0).reshape(-1)
             errors[:, j] += torch.bincount(label[inside], residual[inside],
                                            minlength=len(edges) - 1)
@@ -289,7 +289,7 @@ class DepthCalibration:
 
 def calibrate_from_depth(
     pairs: Sequence[CalibrationPair], focal_length: float, f_number: float,
-    aperture: str = "gaussian:0.5", reference_f_number: float | None = None,
+    aperture: str = DEFAULT_APERTURE, reference_f_number: float | None = None,
     focus_distance: float | None = None, **measure: Any,
 ) -> DepthCalibration:
     """Fit the camera of the defocused shots from pairs with depth maps.

@@ -19,19 +19,41 @@ if TYPE_CHECKING:
 GOLDEN_STEPS = 20
 
 
-def _optimal_gain(rendered: Tensor, target: Tensor) -> Tensor:
-    """Least-squares gain `g` minimising `|target - g rendered|^2`."""
+def optimal_gain(rendered: Tensor, target: Tensor) -> Tensor:
+    """Least-squares gain `g` minimising `|target - g rendered|^2`.
+
+    Example:
+        >>> optimal_gain(torch.tensor([1.0, 2.0]), torch.tensor([2.0, 4.0]))
+        tensor(2.)
+    """
     return (rendered * target).sum() / (rendered * rendered).sum().clamp_min(1e-30)
 
 
-def _crop(image: Tensor, margin: int) -> Tensor:
+def crop(image: Tensor, margin: int) -> Tensor:
+    """`image` without a border `margin` pixels wide on each side (the last two dimensions).
+
+    Example:
+        >>> crop(torch.zeros(1, 3, 10, 12), 2).shape
+        torch.Size([1, 3, 6, 8])
+    """
     return image[..., margin : image.shape[-2] - margin, margin : image.shape[-1] - margin]
 
 
-class _ConstantBlur:
+class ConstantBlur:
     """Spatially invariant blurs of one image by FFT: the renderer's result for a constant CoC away
     from the borders (an exactness anchor of `optics.render_defocus`), much faster, and
-    differentiable in the kernel."""
+    differentiable in the kernel.
+
+    Args:
+        image: `(B, C, H, W)` image to blur.
+        pad: replicate padding in pixels; the kernels are `2 pad + 1` wide.
+
+    Example:
+        >>> blur = ConstantBlur(torch.ones(1, 1, 8, 8, dtype=torch.float64), 3)
+        >>> out = blur(Gaussian(), 2.0)
+        >>> out.shape, round(float(out.mean()), 6)
+        (torch.Size([1, 1, 8, 8]), 1.0)
+    """
 
     def __init__(self, image: Tensor, pad: int):
         self.pad = pad
@@ -62,12 +84,12 @@ class _BlurMismatch:
             margin_px = min(aperture.half_width(max_coc_px) + 1, min(sharp.shape[-2:]) // 4)
         self.margin = margin_px
         self.aperture = aperture
-        self.blur = _ConstantBlur(sharp, aperture.half_width(max_coc_px) + 1)
-        self.target = _crop(pair.blurred.to(torch.float64), margin_px)
+        self.blur = ConstantBlur(sharp, aperture.half_width(max_coc_px) + 1)
+        self.target = crop(pair.blurred.to(torch.float64), margin_px)
 
     def __call__(self, coc: float) -> float:
-        rendered = _crop(self.blur(self.aperture, coc), self.margin)
-        gain = _optimal_gain(rendered, self.target)
+        rendered = crop(self.blur(self.aperture, coc), self.margin)
+        gain = optimal_gain(rendered, self.target)
         return float(((self.target - gain * rendered) ** 2).mean())
 
 

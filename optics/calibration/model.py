@@ -12,7 +12,7 @@ from torch import Tensor
 from ..camera import Camera
 from ..lens import ThinLens
 from ..sensor import Sensor
-from .measure import _ConstantBlur, _crop, _optimal_gain
+from .measure import ConstantBlur, crop, optimal_gain
 from .problem import Problem
 
 
@@ -66,7 +66,7 @@ class ResidualModel:
         self.blurred = [p.blurred.to(device=self.device, dtype=self.dtype) for p in pairs]
         self.depth_maps = [p.depth_map(s) for p, s in zip(pairs, self.sharp, strict=True)]
         self.invariant = [
-            None if use_renderer or isinstance(p.depth, Tensor) else _ConstantBlur(s, pad)
+            None if use_renderer or isinstance(p.depth, Tensor) else ConstantBlur(s, pad)
             for p, s in zip(pairs, self.sharp, strict=True)
         ]
 
@@ -96,9 +96,9 @@ class ResidualModel:
         camera = self.camera(theta)
         res, gains = [], []
         for i, depth in enumerate(self.problem.depths):
-            rendered = _crop(self._render(camera, i, depth), self.margin)
-            target = _crop(self.blurred[i], self.margin)
-            gain = (_optimal_gain(rendered, target) if self.problem.fit_gain
+            rendered = crop(self._render(camera, i, depth), self.margin)
+            target = crop(self.blurred[i], self.margin)
+            gain = (optimal_gain(rendered, target) if self.problem.fit_gain
                     else torch.ones((), dtype=self.dtype))
             res.append(target - gain * rendered)
             gains.append(gain)

@@ -1,8 +1,8 @@
-"""Optional compiled CPU kernels of the renderer, `optics/csrc/render_kernels.cpp`.
+"""Optional compiled CPU kernels of the renderer, `optics/render/csrc/render_kernels.cpp`.
 
 The kernels are plain C++ with OpenMP and a C ABI, loaded with `ctypes`: they need no PyTorch
 headers, so they build in a few seconds on first use with the system's C++ compiler (`$CXX`,
-else `c++`/`g++`/`clang++`). `optics._render_ops` wraps them as `torch.library` custom operators
+else `c++`/`g++`/`clang++`). `optics.render.ops` wraps them as `torch.library` custom operators
 (with fake implementations and registered autograd), which is what lets `torch.compile` trace the
 renderer without graph breaks; the ctypes call itself stays inside the operator.
 
@@ -22,7 +22,7 @@ Where the library lives and when it is trusted:
 
 When no compiler is found or the build fails, `usable` returns `False` and the renderer uses its
 pure PyTorch loops (same results, tested against each other). `DEFOCUS_NO_CPP=1` forces the
-PyTorch path. Build ahead of time with `python -c "import optics._render_cpp as k; k.library()"`.
+PyTorch path. Build ahead of time with `python -c "import optics.render.cpp as k; k.library()"`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from pathlib import Path
 import torch
 from torch import Tensor
 
-from .cache import cache_root, is_private_dir, user_cache_dir
+from ..cache import cache_root, is_private_dir, user_cache_dir
 
 SOURCE = Path(__file__).with_name("csrc") / "render_kernels.cpp"
 FLAG_SETS = (
@@ -290,7 +290,7 @@ def gaussian_scatter_forward(x: Tensor, sigma: Tensor, norm: Tensor, half: int) 
 
 
 def window_sums(sigma: Tensor, half: int) -> tuple[Tensor, Tensor]:
-    """Compiled twin of `_render_ops._window_line_sums` (contiguous CPU tensor)."""
+    """Compiled twin of the PyTorch loop of `ops.gaussian_window_sums` (contiguous CPU tensor)."""
     line, moment = torch.empty_like(sigma), torch.empty_like(sigma)
     _call("gs_window_sums", sigma, sigma, line, moment, sigma.numel(), half)
     return line, moment

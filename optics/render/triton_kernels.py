@@ -1,8 +1,8 @@
 """Triton kernels for the fused, normalised scatter operators (`defocus::gaussian_render`,
 `defocus::clamp_render` and their backward operators) and for the unnormalised spreads they are
 built from (`defocus::gaussian_scatter`, `defocus::clamp_scatter` and their backward operators:
-the gather and layered modes), registered as their CUDA implementations when `optics.render`
-imports this module; without Triton nothing is registered (the PyTorch fallback runs on CUDA).
+the gather and layered modes). `optics.render.backends` registers them as those operators' CUDA
+implementations; without Triton nothing is registered (the PyTorch fallback runs on CUDA).
 
 Each kernel is a *gather* over the window: one program owns a `BLOCK_H x BLOCK_W` tile of pixels
 and loops over the `K x K` offsets, so no atomics are needed.
@@ -11,8 +11,8 @@ and loops over the `K x K` offsets, so no atomics are needed.
   window, where `xn = (x * norm, norm)` is written by a first per-pixel pass (`norm` is the
   source's unit-energy factor over its *full* window). Then `y = s[:C] / s[C]`, `den = s[C]`.
 - Backward, per source `q`: `sum_u w_q(u) G(q + u)` and `sum_u w'_q(u) G(q + u)` with `G` the
-  gradient of the unnormalised spread `s` (`_render_ops._grad_of_spread`), finished in the same
-  program into `dL/dx` and `dL/dsigma` (or `dL/drho`), as `_render_ops` does in PyTorch.
+  gradient of the unnormalised spread `s` (`ops.grad_of_spread`), finished in the same
+  program into `dL/dx` and `dL/dsigma` (or `dL/drho`), as `optics.render.ops` does in PyTorch.
 - The unnormalised spreads take any number of channels (the layered mode spreads `L (C + 1)`),
   `CHANNEL_GROUP` of them per program (axis 2 of the grid), with the per-source factor `norm`
   applied beforehand; their backward returns `sum_u w_q(u) g(q + u)` per channel and, summed over
@@ -31,7 +31,7 @@ import contextlib
 import torch
 from torch import Tensor
 
-from . import _render_ops
+from .ops import grad_of_spread
 
 try:
     import triton
@@ -383,7 +383,7 @@ def render_backward(grad: Tensor, y: Tensor, den: Tensor, x: Tensor, param: Tens
                     table: Tensor | None) -> tuple[Tensor, Tensor]:
     """`(dL/dx, dL/dparam)` of `render` from `dL/dy`."""
     x, param, table, gaussian = _operands(x, param, table)
-    g = _render_ops._grad_of_spread(*(t.to(x.dtype) for t in (grad, y, den)))
+    g = grad_of_spread(*(t.to(x.dtype) for t in (grad, y, den)))
     grad_x, grad_param = torch.empty_like(x), torch.empty_like(param)
     _, _, h, w = x.shape
     with _device_of(x):
@@ -418,7 +418,7 @@ def spread(x: Tensor, param: Tensor, norm: Tensor, half: int, table: Tensor | No
 
 def spread_backward(grad: Tensor, x: Tensor, param: Tensor, half: int,
                     table: Tensor | None) -> tuple[Tensor, Tensor]:
-    """`(dx_raw, m)` of `spread` (see `_render_ops.gaussian_scatter_backward` and
+    """`(dx_raw, m)` of `spread` (see `ops.gaussian_scatter_backward` and
     `clamp_scatter_backward`): `sum_u w_q(u) g(q + u)` per channel and
     `sum_c x_c(q) sum_u w'_q(u) g_c(q + u)`, `w'` the weight's derivative without its
     `1 / sigma^3` (Gaussian: `w |u|^2`) or the clamp's slope."""
@@ -433,68 +433,3 @@ def spread_backward(grad: Tensor, x: Tensor, param: Tensor, half: int,
             GAUSSIAN=gaussian, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS,
         )
     return dx_raw, shares.sum(1, keepdim=True)
-
-
-# ------------------------------------------------------------------ operator registration
-
-
-def _cast(outputs: tuple[Tensor, Tensor], *like: Tensor) -> tuple[Tensor, Tensor]:
-    return tuple(o.to(t.dtype) for o, t in zip(outputs, like, strict=True))
-
-
-def _gaussian_render(x, sigma, half):
-    return _cast(render(x, sigma, int(half), None), x, sigma)
-
-
-def _gaussian_render_backward(grad, y, den, x, sigma, half):
-    return _cast(render_backward(grad, y, den, x, sigma, int(half), None), x, sigma)
-
-
-def _clamp_render(x, rho, dist, half):
-    return _cast(render(x, rho, int(half), _render_ops._window(dist, int(half))), x, rho)
-
-
-def _clamp_render_backward(grad, y, den, x, rho, dist, half):
-    table, k = _render_ops._window(dist, int(half)), int(half)
-    return _cast(render_backward(grad, y, den, x, rho, k, table), x, rho)
-
-
-def _gaussian_scatter(x, sigma, norm, half):
-    return spread(x, sigma, norm, int(half), None).to(x.dtype)
-
-
-def _gaussian_scatter_backward(grad, x, sigma, half):
-    return _cast(spread_backward(grad, x, sigma, int(half), None), x, sigma)
-
-
-def _clamp_scatter(x, rho, norm, dist, half):
-    return spread(x, rho, norm, int(half), _render_ops._window(dist, int(half))).to(x.dtype)
-
-
-def _clamp_scatter_backward(grad, x, rho, dist, half):
-    table = _render_ops._window(dist, int(half))
-    return _cast(spread_backward(grad, x, rho, int(half), table), x, rho)
-
-
-#: The operators with Triton kernels and those kernels' wrappers.
-KERNELS = (
-    (_render_ops.gaussian_render, _gaussian_render),
-    (_render_ops.gaussian_render_backward, _gaussian_render_backward),
-    (_render_ops.clamp_render, _clamp_render),
-    (_render_ops.clamp_render_backward, _clamp_render_backward),
-    (_render_ops.gaussian_scatter, _gaussian_scatter),
-    (_render_ops.gaussian_scatter_backward, _gaussian_scatter_backward),
-    (_render_ops.clamp_scatter, _clamp_scatter),
-    (_render_ops.clamp_scatter_backward, _clamp_scatter_backward),
-)
-
-
-def register(device_type: str = "cuda") -> None:
-    """Make the Triton kernels the implementations of the scatter operators on `device_type`
-    (CUDA; the tests also use "cpu" under `TRITON_INTERPRET=1`)."""
-    for op, fn in KERNELS:
-        op.register_kernel(device_type)(fn)
-
-
-if triton is not None:
-    register("cuda")

@@ -29,7 +29,7 @@ Photos with depth maps (a folder of reference / defocused pairs with registered 
 calibrated by `calibrate_from_depth` instead: the blur measured in depth bins over all pairs and
 the thin lens with a floor fitted to it (`optics.calibration.blur_curve`).
 
-The steps live in `optics.calibration` (one module each); the figure is
+The steps live in the other modules of `optics.calibration` (one job each); the figure is
 `optics.plotting.plot_calibration`.
 """
 
@@ -41,39 +41,14 @@ from typing import Any
 
 import torch
 
-from .calibration.blur_curve import (
-    BlurCurve,
-    BlurCurveFit,
-    DepthCalibration,
-    calibrate_from_depth,
-    fit_blur_curve,
-    measure_blur_curve,
-)
-from .calibration.measure import fit_thin_lens_curve, measure_blur
-from .calibration.model import ResidualModel
-from .calibration.optimise import Fit, gauss_newton, optimise
-from .calibration.pair import CalibrationPair
-from .calibration.problem import PARAMETERS, PSF_FAMILIES, Problem
-from .calibration.result import CalibrationResult, fitted_settings
-from .calibration.start import Start, initial_guess, margin_and_pad
-from .plotting import plot_calibration as plot_calibration  # noqa: F401 (moved, still here)
+from .model import ResidualModel
+from .optimise import Fit, gauss_newton, optimise
+from .pair import CalibrationPair
+from .problem import Problem
+from .result import CalibrationResult, fitted_settings
+from .start import Start, initial_guess, margin_and_pad
 
-__all__ = [
-    "PARAMETERS",
-    "PSF_FAMILIES",
-    "BlurCurve",
-    "BlurCurveFit",
-    "DepthCalibration",
-    "calibrate_from_depth",
-    "fit_blur_curve",
-    "measure_blur_curve",
-    "CalibrationError",
-    "CalibrationPair",
-    "CalibrationResult",
-    "calibrate",
-    "fit_thin_lens_curve",
-    "measure_blur",
-]
+__all__ = ["CalibrationError", "calibrate"]
 
 
 class CalibrationError(ValueError):
@@ -90,22 +65,13 @@ class CalibrationError(ValueError):
 
 
 def calibrate(
-    pairs: Sequence[CalibrationPair],
-    focal_length: float,
-    psf: str = "disk",
-    f_number: float | None = None,
-    focus_distance: float | None = None,
-    pixel_pitch: float | None = None,
-    psf_scale: float | None = None,
-    initial: Mapping[str, float] | None = None,
-    fit_gain: bool = True,
-    margin_px: int | None = None,
-    max_coc_px: float = 24.0,
-    adam_steps: int = 60,
-    lbfgs_steps: int = 40,
-    render_kwargs: Mapping[str, Any] | None = None,
-    use_renderer: bool = False,
-    progress: bool = False,
+    pairs: Sequence[CalibrationPair], focal_length: float, psf: str = "disk",
+    f_number: float | None = None, focus_distance: float | None = None,
+    pixel_pitch: float | None = None, psf_scale: float | None = None,
+    initial: Mapping[str, float] | None = None, fit_gain: bool = True,
+    margin_px: int | None = None, max_coc_px: float = 24.0, adam_steps: int = 60,
+    lbfgs_steps: int = 40, render_kwargs: Mapping[str, Any] | None = None,
+    use_renderer: bool = False, progress: bool = False,
 ) -> CalibrationResult:
     """Fit the camera that turns each pair's sharp reference into its defocused photo.
 
@@ -176,6 +142,12 @@ def calibrate(
     theta = optimise(model.loss, model.theta0(), adam_steps, lbfgs_steps, progress)
     fit = gauss_newton(model, theta)
     result = _result(problem, start, model, theta, fit)
+    _refuse_undetermined(problem, fit, result)
+    return result
+
+
+def _refuse_undetermined(problem: Problem, fit: Fit, result: CalibrationResult) -> None:
+    """Raise `CalibrationError` if the fit leaves a fitted parameter undetermined."""
     bad = [name for name, sd in result.uncertainty.items() if not math.isfinite(sd)]
     bad += [name for name in problem.fitted
             if not math.isfinite(result.values[name]) and name not in bad]
@@ -187,7 +159,6 @@ def calibrate(
             "farther than the focus plane, with clearly visible blur, or fix more parameters",
             result,
         )
-    return result
 
 
 def _result(problem: Problem, start: Start, model: ResidualModel, theta: torch.Tensor,

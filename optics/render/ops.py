@@ -20,10 +20,11 @@ the weights, so the extra memory is a few `(B,C,H,W)` maps whatever `K` is.
 The Gaussian and clamped-distance filters are `torch.library` custom operators in the `defocus`
 namespace, with fake (meta) implementations and registered autograd, so `torch.compile` traces
 them, forward and backward, without graph breaks. Each runs the compiled C++ kernel
-(`optics._render_cpp`) on CPU when it is available, Triton kernels on CUDA for the fused scatter
-(`gaussian_render`, `clamp_render` and their backwards; `optics._render_triton`, where Triton is
-installed), and the PyTorch loop below otherwise. The window half-width is passed as a 0-d
-integer tensor: under `torch.compile` it is computed from the CoC map inside the graph.
+(`optics.render.cpp`) on CPU when it is available, Triton kernels on CUDA for the fused scatter
+and the unnormalised spreads (`optics.render.triton_kernels`, registered by
+`optics.render.backends` where Triton is installed), and the PyTorch loop below otherwise. The
+window half-width is passed as a 0-d integer tensor: under `torch.compile` it is computed from
+the CoC map inside the graph.
 
 Taps whose source or output falls outside the image are skipped.
 """
@@ -33,39 +34,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from . import _render_cpp
-
-
-def axis_slices(shift: int, size: int) -> tuple[slice, slice] | None:
-    """Slices `(source, output)` along an axis of `size` pixels for `output = source + shift`.
-
-    `None` when no pixel pair is inside the image.
-    """
-    if abs(shift) >= size:
-        return None
-    if shift >= 0:
-        return slice(0, size - shift), slice(shift, size)
-    return slice(-shift, size), slice(0, size + shift)
-
-
-def window_taps(half: int, height: int, width: int):
-    """Yield `(dy, dx, source_index, output_index)` for every in-image offset of the window."""
-    for dy in range(-half, half + 1):
-        rows = axis_slices(dy, height)
-        if rows is None:
-            continue
-        for dx in range(-half, half + 1):
-            cols = axis_slices(dx, width)
-            if cols is None:
-                continue
-            yield dy, dx, (..., rows[0], cols[0]), (..., rows[1], cols[1])
-
-
-def gaussian_table(sigma: Tensor, half: int) -> Tensor:
-    """`exp(-d^2 / (2 sigma^2))` for `d = 0..half`, stacked: `(half+1, *sigma.shape)`."""
-    d = torch.arange(half + 1, device=sigma.device, dtype=sigma.dtype)
-    d = d.view(-1, *([1] * sigma.ndim))
-    return torch.exp(-(d * d) / (2 * sigma * sigma))
+from . import cpp
+from .taps import distinct, gaussian_table, window, window_taps
 
 
 def _gaussian_scatter_forward_torch(x: Tensor, sigma: Tensor, norm: Tensor, half: int) -> Tensor:
@@ -94,8 +64,6 @@ def _gaussian_scatter_backward_torch(
         dx_raw[src].addcmul_(weight[src], grad[dst])
         f_raw[src].addcmul_(weight[src], grad[dst], value=float(dy * dy + dx * dx))
     return dx_raw, (f_raw * x).sum(1, keepdim=True)
-
-
 
 
 def _clamp_scatter_forward_torch(
@@ -141,14 +109,6 @@ def _clamp_window_sums_torch(rho: Tensor, dists: Tensor, counts: Tensor) -> tupl
     return total, slope
 
 
-def _window(dist: Tensor, half: int) -> Tensor:
-    """The centre `(2 half + 1)^2` of a square distance table, on the CPU, contiguous."""
-    m = (dist.shape[-1] - 1) // 2
-    if half > m:
-        raise ValueError(f"the distance table covers half-width {m}, the window needs {half}")
-    return dist[m - half : m + half + 1, m - half : m + half + 1].detach().cpu().contiguous()
-
-
 def _dispatch(compiled, pure, args: tuple[Tensor, ...], half: Tensor, image: int = 0,
               dist: Tensor | None = None):
     """`compiled(*args, [table], k)` where the compiled kernels take the image `args[image]`, else
@@ -156,9 +116,9 @@ def _dispatch(compiled, pure, args: tuple[Tensor, ...], half: Tensor, image: int
     `dist` (if given) cut to the window `table` (cast to the image's dtype for the kernel)."""
     k = int(half)
     args = tuple(a.contiguous() for a in args)
-    tables = () if dist is None else (_window(dist, k),)
+    tables = () if dist is None else (window(dist, k),)
     x = args[image]
-    if _render_cpp.usable(x):
+    if cpp.usable(x):
         return compiled(*args, *(t.to(x.dtype) for t in tables), k)
     return pure(*args, *tables, k)
 
@@ -174,7 +134,7 @@ def gaussian_scatter(x: Tensor, sigma: Tensor, norm: Tensor, half: Tensor) -> Te
     Inputs: `x` `(B,C,H,W)`, `sigma` and `norm` `(B,1,H,W)` (pixels, and any per-source
     factor). Differentiable in `x`, `sigma` and `norm`.
     """
-    return _dispatch(_render_cpp.gaussian_scatter_forward, _gaussian_scatter_forward_torch,
+    return _dispatch(cpp.gaussian_scatter_forward, _gaussian_scatter_forward_torch,
                      (x, sigma, norm), half)
 
 
@@ -183,7 +143,7 @@ def gaussian_scatter_backward(
     grad: Tensor, x: Tensor, sigma: Tensor, half: Tensor
 ) -> tuple[Tensor, Tensor]:
     """`(dx_raw, m1)`: `sum_u t(u) g(q+u)` and `sum_c x_c(q) sum_u t(u) |u|^2 g_c(q+u)`."""
-    return _dispatch(_render_cpp.gaussian_scatter_backward, _gaussian_scatter_backward_torch,
+    return _dispatch(cpp.gaussian_scatter_backward, _gaussian_scatter_backward_torch,
                      (grad, x, sigma), half, image=1)
 
 
@@ -197,8 +157,8 @@ def gaussian_gather(x: Tensor, sigma: Tensor, half: Tensor) -> Tensor:
 def gaussian_window_sums(sigma: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
     """`sum_d t(d)` and `sum_d t(d) d^2` over `d = -half..half` per pixel."""
     sigma, k = sigma.contiguous(), int(half)
-    if _render_cpp.usable(sigma):
-        return _render_cpp.window_sums(sigma, k)
+    if cpp.usable(sigma):
+        return cpp.window_sums(sigma, k)
     line = torch.ones_like(sigma)
     moment = torch.zeros_like(sigma)
     scale = -0.5 / (sigma * sigma)
@@ -223,7 +183,7 @@ def clamp_scatter(x: Tensor, rho: Tensor, norm: Tensor, dist: Tensor, half: Tens
     `dist` is D on a square window at least as wide as `2 half + 1` (its centre is used).
     Differentiable in `x`, `rho` and `norm`.
     """
-    return _dispatch(_render_cpp.clamp_scatter_forward, _clamp_scatter_forward_torch,
+    return _dispatch(cpp.clamp_scatter_forward, _clamp_scatter_forward_torch,
                      (x, rho, norm), half, dist=dist)
 
 
@@ -232,7 +192,7 @@ def clamp_scatter_backward(
     grad: Tensor, x: Tensor, rho: Tensor, dist: Tensor, half: Tensor
 ) -> tuple[Tensor, Tensor]:
     """`(dx_raw, m)`: the image and `rho` parts of the clamp scatter's vector-Jacobian product."""
-    return _dispatch(_render_cpp.clamp_scatter_backward, _clamp_scatter_backward_torch,
+    return _dispatch(cpp.clamp_scatter_backward, _clamp_scatter_backward_torch,
                      (grad, x, rho), half, image=1, dist=dist)
 
 
@@ -246,10 +206,10 @@ def clamp_gather(x: Tensor, rho: Tensor, dist: Tensor, half: Tensor) -> Tensor:
 def clamp_window_sums(rho: Tensor, dist: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
     """`Z = sum_u clamp(rho - D(u), 0, 1)` over the window and `dZ/drho`, per pixel."""
     rho = rho.contiguous()
-    dists, counts = torch.unique(_window(dist, int(half)), return_counts=True)
-    if _render_cpp.usable(rho):
+    dists, counts = torch.unique(window(dist, int(half)), return_counts=True)
+    if cpp.usable(rho):
         dists = dists.to(rho.dtype).contiguous()
-        return _render_cpp.clamp_window_sums(rho, dists, counts.to(rho.dtype).contiguous())
+        return cpp.clamp_window_sums(rho, dists, counts.to(rho.dtype).contiguous())
     return _clamp_window_sums_torch(rho, dists, counts)
 
 
@@ -272,8 +232,14 @@ def _normalised(spread: Tensor) -> tuple[Tensor, Tensor]:
     return (spread[:, :-1] / den).contiguous(), den
 
 
-def _grad_of_spread(grad: Tensor, y: Tensor, den: Tensor) -> Tensor:
-    """`dL/ds` from `dL/dy` for `y = s[:C] / s[C]`."""
+def grad_of_spread(grad: Tensor, y: Tensor, den: Tensor) -> Tensor:
+    """`dL/ds` from `dL/dy` for `y = s[:C] / s[C]` (`den = s[C]`).
+
+    Example:
+        >>> y, den = torch.ones(1, 1, 1, 1), torch.full((1, 1, 1, 1), 2.0)
+        >>> grad_of_spread(torch.ones(1, 1, 1, 1), y, den).flatten()
+        tensor([ 0.5000, -0.5000])
+    """
     return torch.cat([grad / den, -(grad * y).sum(1, keepdim=True) / den], 1).contiguous()
 
 
@@ -281,8 +247,8 @@ def _grad_of_spread(grad: Tensor, y: Tensor, den: Tensor) -> Tensor:
 def gaussian_render(x: Tensor, sigma: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
     """`(y, den)`: the normalised Gaussian scatter of `x` and the weight each output receives."""
     x, sigma, k = x.contiguous(), sigma.contiguous(), int(half)
-    if _render_cpp.usable(x):
-        return _render_cpp.gaussian_render(x, sigma, k)
+    if cpp.usable(x):
+        return cpp.gaussian_render(x, sigma, k)
     norm = gaussian_window_sums(sigma, half)[0].pow(-2)
     return _normalised(_gaussian_scatter_forward_torch(_ones_channel(x), sigma, norm, k))
 
@@ -293,11 +259,10 @@ def gaussian_render_backward(
 ) -> tuple[Tensor, Tensor]:
     """`(dL/dx, dL/dsigma)` of `gaussian_render` from `dL/dy`."""
     grad, x, sigma, k = grad.contiguous(), x.contiguous(), sigma.contiguous(), int(half)
-    if _render_cpp.usable(x):
-        return _render_cpp.gaussian_render_backward(grad, y.contiguous(), den.contiguous(), x,
-                                                    sigma, k)
+    if cpp.usable(x):
+        return cpp.gaussian_render_backward(grad, y.contiguous(), den.contiguous(), x, sigma, k)
     ones = _ones_channel(x)
-    dx_raw, m1 = _gaussian_scatter_backward_torch(_grad_of_spread(grad, y, den), ones, sigma, k)
+    dx_raw, m1 = _gaussian_scatter_backward_torch(grad_of_spread(grad, y, den), ones, sigma, k)
     line, moment = gaussian_window_sums(sigma, half)
     norm = line.pow(-2)
     dnorm = -2 * moment / (sigma**3 * line**3)
@@ -305,18 +270,13 @@ def gaussian_render_backward(
     return (dx_raw[:, :-1] * norm).contiguous(), grad_sigma
 
 
-def _distinct(table: Tensor) -> tuple[Tensor, Tensor]:
-    dists, counts = torch.unique(table, return_counts=True)
-    return dists.contiguous(), counts.to(table.dtype).contiguous()
-
-
 @torch.library.custom_op("defocus::clamp_render", mutates_args=())
 def clamp_render(x: Tensor, rho: Tensor, dist: Tensor, half: Tensor) -> tuple[Tensor, Tensor]:
     """`(y, den)`: the normalised clamped-distance scatter of `x` (disk, polygons)."""
     k = int(half)
-    x, rho, table = x.contiguous(), rho.contiguous(), _window(dist, k).to(x.dtype)
-    if _render_cpp.usable(x):
-        return _render_cpp.clamp_render(x, rho, table, *_distinct(table), k)
+    x, rho, table = x.contiguous(), rho.contiguous(), window(dist, k).to(x.dtype)
+    if cpp.usable(x):
+        return cpp.clamp_render(x, rho, table, *distinct(table), k)
     norm = clamp_window_sums(rho, dist, half)[0].reciprocal()
     return _normalised(_clamp_scatter_forward_torch(_ones_channel(x), rho, norm, table, k))
 
@@ -327,13 +287,13 @@ def clamp_render_backward(
 ) -> tuple[Tensor, Tensor]:
     """`(dL/dx, dL/drho)` of `clamp_render` from `dL/dy`."""
     k = int(half)
-    grad, x, rho, table = grad.contiguous(), x.contiguous(), rho.contiguous(), _window(dist, k)
+    grad, x, rho, table = grad.contiguous(), x.contiguous(), rho.contiguous(), window(dist, k)
     table = table.to(x.dtype)
-    if _render_cpp.usable(x):
-        return _render_cpp.clamp_render_backward(grad, y.contiguous(), den.contiguous(), x, rho,
-                                                 table, *_distinct(table), k)
+    if cpp.usable(x):
+        return cpp.clamp_render_backward(grad, y.contiguous(), den.contiguous(), x, rho, table,
+                                         *distinct(table), k)
     ones = _ones_channel(x)
-    dx_raw, m = _clamp_scatter_backward_torch(_grad_of_spread(grad, y, den), ones, rho, table, k)
+    dx_raw, m = _clamp_scatter_backward_torch(grad_of_spread(grad, y, den), ones, rho, table, k)
     total, slope = clamp_window_sums(rho, dist, half)
     norm = total.reciprocal()
     grad_rho = norm * m - (ones * dx_raw).sum(1, keepdim=True) * slope / (total * total)
@@ -488,7 +448,3 @@ def _clamp_render_vjp(ctx, grad_y, grad_den):
 
 gaussian_render.register_autograd(_gaussian_render_vjp, setup_context=_save_render)
 clamp_render.register_autograd(_clamp_render_vjp, setup_context=_save_render)
-
-
-# Layered mode, fused (compiled kernels only; the renderer composes the operators above elsewhere).
-# `pos` is each pixel's continuous layer position in [0, L-1]; layer l weighs max(0, 1 - |pos - l|).

@@ -1,5 +1,5 @@
 """The occlusion-aware layered mode as `torch.library` custom operators (`defocus::layered_render`
-and its backward), on the compiled CPU kernels (`optics._render_cpp`); `optics.render` calls them.
+and its backward), on the compiled CPU kernels (`optics.render.cpp`); `optics.render.renderer` calls them.
 """
 
 from __future__ import annotations
@@ -7,17 +7,17 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from . import _render_cpp
-from ._render_ops import _distinct, _window
+from . import cpp
+from .taps import distinct, window
 
 
 def _clamp_tables(dist: Tensor, half: Tensor, like: Tensor):
-    table = _window(dist, int(half)).to(like.dtype)
-    return (table, *_distinct(table))
+    table = window(dist, int(half)).to(like.dtype)
+    return (table, *distinct(table))
 
 
 def _need_library(x: Tensor) -> None:
-    if not _render_cpp.usable(x):
+    if not cpp.usable(x):
         raise RuntimeError("defocus layered operators need the compiled CPU kernels; "
                            "use render_defocus, which falls back to the PyTorch path")
 
@@ -36,7 +36,7 @@ def layered_render(
     _need_library(x)
     x, pos, param = x.contiguous(), pos.contiguous(), param.contiguous()
     clamp = _clamp_tables(dist, half, x) if kind == "clamp" else None
-    return _render_cpp.layered_render(x, pos, param, int(half), n_layers, clamp)
+    return cpp.layered_render(x, pos, param, int(half), n_layers, clamp)
 
 
 @torch.library.custom_op("defocus::layered_render_backward", mutates_args=())
@@ -47,7 +47,7 @@ def layered_render_backward(
     """`(dL/dx, dL/dpos, dL/dparam)` of `layered_render` from `dL/dout`."""
     _need_library(x)
     clamp = _clamp_tables(dist, half, x) if kind == "clamp" else None
-    return _render_cpp.layered_render_backward(
+    return cpp.layered_render_backward(
         grad.contiguous(), out.contiguous(), spread.contiguous(), x.contiguous(),
         pos.contiguous(), param.contiguous(), int(half), n_layers, clamp,
     )

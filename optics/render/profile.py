@@ -8,7 +8,7 @@ import torch
 from torch import Tensor
 from torch.autograd.function import once_differentiable
 
-from ._render_ops import axis_slices, window_taps
+from .taps import axis_slices, window_taps
 
 
 def _profile_normaliser(psf, coc: Tensor, half: int) -> Tensor:

@@ -20,12 +20,13 @@ in the backward pass).
 
 Speed: the Gaussian (a separable per-source table) and the disk and polygons (a clamped distance,
 `clamp(edge_radius(c_q) + 1/2 - D(u), 0, 1)` with the distance `D` tabulated once per call) run
-as `torch.library` custom operators (`optics._render_ops`) backed, on CPU, by a compiled C++
-kernel when a compiler is available (`optics._render_cpp`), on CUDA by Triton kernels for the
-default scatter mode (`optics._render_triton`, where Triton is installed), and by PyTorch loops
-elsewhere. `torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and
-backward without graph breaks. Other apertures (`Mask`, user subclasses with their own
-`profile`) evaluate their `profile` per window offset in PyTorch.
+as `torch.library` custom operators (`optics.render.ops`) backed, on CPU, by a compiled C++
+kernel when a compiler is available (`optics.render.cpp`), on CUDA by Triton kernels for the
+default scatter mode (`optics.render.triton_kernels`, where Triton is installed), and by PyTorch
+loops elsewhere; `optics.render.backends` registers them and says which runs where.
+`torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and backward
+without graph breaks. Other apertures (`Mask`, user subclasses with their own `profile`)
+evaluate their `profile` per window offset in PyTorch.
 """
 
 from __future__ import annotations
@@ -36,15 +37,10 @@ import warnings
 import torch
 from torch import Tensor, nn
 
-from . import (
-    _render_cpp,
-    _render_layer_ops,
-    _render_profile,
-    _render_triton,  # noqa: F401  (registers the Triton kernels of ops on CUDA)
-)
-from . import _render_ops as ops
-from .aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
-from .checks import check_depth, check_finite, check_shape
+from ..aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
+from ..checks import check_depth, check_finite, check_shape
+from . import backends, layer_ops, ops
+from .profile import ProfileFilter
 
 MODES = ("gather", "scatter", "layered")
 PRESETS = ("gur_wolf_2019",)
@@ -252,7 +248,7 @@ def _linear_filter(
             return ops.clamp_gather(x, rho, dist, half_t)
         return ops.clamp_scatter(x, rho, ops.clamp_norm(rho, dist, half_t), dist, half_t)
     params = [p for p in psf.parameters() if p.requires_grad]
-    return _render_profile.ProfileFilter.apply(x, coc_px, psf, scatter, int(half), *params)
+    return ProfileFilter.apply(x, coc_px, psf, scatter, int(half), *params)
 
 
 def _render_paper(image: Tensor, coc_px: Tensor) -> Tensor:
@@ -306,7 +302,7 @@ def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
     b, _, h, w = image.shape
     depth = depth.to(image.dtype).expand(b, 1, h, w)
     kind = _fast_kind(psf)
-    if kind is not None and n_layers <= 32 and _render_cpp.usable(image):
+    if kind is not None and n_layers <= 32 and backends.compiled_cpu(image):
         # One fused pass each way: layers present nowhere near a pixel cost nothing there.
         pos = _layer_position(depth, n_layers)
         half_t = _half_tensor(half)
@@ -314,7 +310,7 @@ def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
             param, dist = psf.sigma_px(coc_px), image.new_zeros(1, 1)
         else:
             param, dist = psf.edge_radius(coc_px) + 0.5, _distance_table(psf, half, cap, image)
-        return _render_layer_ops.layered_render(image, pos, param, dist, half_t, n_layers, kind)[0]
+        return layer_ops.layered_render(image, pos, param, dist, half_t, n_layers, kind)[0]
     layers = split_layers(image, depth, n_layers)
     return composite_layers(_linear_filter(layers, coc_px, psf, half, True, cap), n_layers)
 

@@ -1,0 +1,271 @@
+"""Depth of your own photos (`defocus predict`): read the photos and the camera, pick the method,
+run `models.estimate_depth` and write the results.
+
+The camera comes from the options, a camera JSON written by `defocus calibrate` or the photos'
+EXIF (`optics.resolve_settings`). Without a model file the label-free methods run (no network, any
+camera): the sweep over depth with an all-in-focus photo, the relative blur between the focused
+photos without one, or depth from focus of a stack; with a model file (`models.load_depth_model`)
+that network.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import torch
+
+Report = Callable[[str], None]
+
+
+@dataclasses.dataclass
+class PredictRequest:
+    """What to predict from (the options of `defocus predict`, lengths in metres)."""
+
+    focused: list[Path] = dataclasses.field(default_factory=list)
+    image: Path | None = None
+    checkpoint: Path | None = None
+    image_f_number: float | None = None
+    image_focus_distance: float | None = None
+    method: str = "auto"
+    #: camera values the user gave (`focus_distance`, `f_number` per photo, `focal_length`,
+    #: `pixel_pitch`), before the camera JSON and the EXIF (`optics.resolve_settings`)
+    camera_options: dict[str, Any] = dataclasses.field(default_factory=dict)
+    linear: bool = False
+    camera: Path | None = None
+    depth_range: tuple[float, float] | None = None
+    aggregation: str = "semi-global"
+    device: str = "auto"
+    out: Path = Path("runs/predict")
+
+
+@dataclasses.dataclass
+class Photos:
+    """The photos as read: the all-in-focus one (or None), the focused stack `(F,3,H,W)` (the
+    all-in-focus photo alone where there are no focused ones) and the metadata of each."""
+
+    image: torch.Tensor | None
+    focused: torch.Tensor
+    image_info: Any
+    infos: list[Any]
+    first_path: Path
+
+
+def _silent(text: str) -> None:
+    """A `report` that drops the text."""
+
+
+def check_request(request: PredictRequest) -> None:
+    """Refuse combinations of options that cannot work, before anything is read."""
+    from models.depth_from_photos import METHODS
+    from models.depth_from_photos.cost_volume import AGGREGATIONS
+    from models.train_config import check_device
+
+    try:
+        check_device(request.device)
+    except ValueError as error:
+        raise ValueError(f"--device: {error}") from None
+    if request.aggregation not in AGGREGATIONS:
+        raise ValueError(f"--aggregation must be one of {', '.join(AGGREGATIONS)}, got "
+                         f"{request.aggregation!r}")
+    if request.method not in ("auto", *METHODS):
+        raise ValueError(f"--method must be auto or one of {', '.join(METHODS)}, got "
+                         f"{request.method!r}")
+    if request.checkpoint is not None and (request.aggregation != "semi-global"
+                                           or request.method != "auto"):
+        raise ValueError("--aggregation and --method choose how the label-free methods work: "
+                         f"give them without a model file (got {request.checkpoint})")
+
+
+def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_model: bool,
+                        report: Report = _silent) -> None:
+    """Where the camera JSON was fitted with references that were not sharp
+    (`reference_f_number`, e.g. f/8 beside f/2.8), `--image` counts as such a shot; then the
+    options about `--image` are checked."""
+    if request.image is not None and request.image_f_number is None and not has_model \
+            and request.method in ("auto", "relative-blur"):
+        reference = extra.get("reference_f_number")
+        if reference is not None:
+            request.image_f_number = float(reference)
+            report(f"--image counts as an f/{request.image_f_number:g} shot (reference_f_number "
+                   f"of {request.camera}); --method sweep takes it as all-in-focus instead")
+    if request.image_focus_distance is not None and request.image_f_number is None:
+        raise ValueError("--image-focus-distance goes with --image-f-number (the --image "
+                         "photo as one more shot)")
+    if request.image_f_number is not None and (request.image is None or has_model
+                                               or request.method in ("sweep", "focus")):
+        raise ValueError("--image-f-number makes --image one more shot of the relative blur: "
+                         "give --image, no model file, and --method auto or relative-blur")
+    if request.image is None and request.method == "sweep":
+        raise ValueError("--method sweep compares the focused photos with an all-in-focus "
+                         "photo: give --image")
+
+
+def read_photos(request: PredictRequest) -> Photos:
+    """Read `--image` and the `--focused` photos (one size; identical photos warned of)."""
+    from datasets.photos import read_photo
+
+    encoding = "linear" if request.linear else "srgb"
+    image, image_info = read_photo(request.image, encoding=encoding) if request.image \
+        else (None, None)
+    photos = [read_photo(path, encoding=encoding) for path in request.focused]
+    first_path, first = (request.image, image) if image is not None \
+        else (request.focused[0], photos[0][0])
+    for path, (photo, _) in zip(request.focused, photos, strict=True):
+        if photo.shape != first.shape:
+            raise ValueError(f"{path} is {tuple(photo.shape[-2:])} pixels but {first_path} is "
+                             f"{tuple(first.shape[-2:])}; all photos must have one size")
+        if path != first_path and torch.equal(photo, first):
+            warnings.warn(f"{path} is identical to {first_path}: there is no defocus to read",
+                          stacklevel=1)
+    del first
+    # without focused photos only a network that reads the all-in-focus photo alone runs
+    focused = torch.stack([p for p, _ in photos]) if photos else image[None]
+    return Photos(image, focused, image_info, [info for _, info in photos], first_path)
+
+
+def depth_range_of(request: PredictRequest, model: Any, n_photos: int) -> tuple[float, float]:
+    """The depth range: `--depth-range` for the label-free methods, a trained network's own."""
+    from models.depth_from_photos import TrainedNetwork
+
+    if model is None or not isinstance(model, TrainedNetwork):
+        if not n_photos:
+            raise ValueError("depth from defocus needs --focused photos (2 or more, each "
+                             "focused at its own --focus-distance)")
+        if request.depth_range is None:
+            raise ValueError("give --depth-range NEAR FAR (metres): the thin lens has two "
+                             "depths for each blur, the range picks the right one")
+        return tuple(request.depth_range)
+    if model.input_mode == "aif+focused" and n_photos != model.n_focus:
+        raise ValueError(f"this network needs {model.n_focus} --focused photos, got {n_photos}")
+    return model.depth_range
+
+
+def image_shot_settings(request: PredictRequest, settings):
+    """The settings of `--image` as one more shot (`--image-f-number`), else None."""
+    if request.image_f_number is None:
+        return None
+    focus = request.image_focus_distance or float(settings.focus_distance.reshape(-1)[0])
+    return settings.select_shots([0]).replace(
+        f_number=torch.tensor([request.image_f_number], dtype=torch.float64),
+        focus_distance=torch.tensor([focus], dtype=torch.float64))
+
+
+def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]:
+    """Run `defocus predict`'s whole job and write its outputs under `request.out`; returns
+    `estimate_depth`'s result with `written` (the files) and `method` added.
+
+    Example:
+        >>> out = predict(PredictRequest([Path("near.jpg"), Path("far.jpg")],
+        ...                              depth_range=(0.5, 5.0)))  # doctest: +SKIP
+    """
+    from models import estimate_depth, load_depth_model
+    from models.train_config import select_device
+    from optics import CameraSettings
+
+    check_request(request)
+    device = select_device(request.device)
+    # the model first: a file that is no model is refused before any photo is read
+    model = None if request.checkpoint is None else load_depth_model(request.checkpoint, device)
+    if request.image is None and (model is not None or len(request.focused) < 2):
+        raise ValueError("give --image (an all-in-focus photo), or 2 or more --focused photos "
+                         f"focused at different distances (got {len(request.focused)})")
+    calibration, extra = CameraSettings.read_json(request.camera) if request.camera \
+        else (None, {})
+    apply_camera_policy(request, extra, model is not None, report)
+    photos = read_photos(request)
+    settings = _settings(request, photos, calibration, report)
+    depth_range = depth_range_of(request, model, len(photos.infos))
+    image_settings = image_shot_settings(request, settings)
+    method, options = _method(request, model, photos, image_settings)
+    out = estimate_depth(photos.focused.to(device), settings, depth_range,
+                         image=None if photos.image is None else photos.image.to(device),
+                         image_settings=image_settings, method=method, model=model,
+                         options=options, progress=True)
+    if image_settings is not None:
+        report(f"--image is one more shot: f/{request.image_f_number:g}, focused at "
+               f"{float(image_settings.focus_distance[0]):g} m")
+    if "shifts" in out:
+        infos = ([] if photos.image_info is None else [photos.image_info]) + photos.infos
+        _report_working_resolution(out, depth_range, infos, method, report)
+    out["method"] = method
+    out["written"] = write_outputs(request.out, out, photos)
+    return out
+
+
+def _settings(request: PredictRequest, photos: Photos, calibration, report: Report):
+    from optics.photo_settings import describe_settings, resolve_settings
+
+    if not photos.infos:
+        return None
+    settings, sources = resolve_settings(photos.infos, request.camera_options, calibration)
+    report(describe_settings(settings, sources))
+    return settings
+
+
+def _method(request: PredictRequest, model, photos: Photos, image_settings):
+    """The method to run and its options."""
+    from models.depth_from_photos import choose_method
+
+    method = request.method if request.method != "auto" or model is not None \
+        else choose_method(photos.image is not None and image_settings is None,
+                           len(photos.infos) + (image_settings is not None))
+    options = {"aggregation": request.aggregation} if method in ("sweep", "relative-blur") \
+        and model is None else None
+    return method, options
+
+
+def _report_working_resolution(out, depth_range, infos, method, report: Report) -> None:
+    from optics.photo_settings import compression_warning
+
+    near, far = depth_range
+    moved = ", ".join(f"({dy:+.1f}, {dx:+.1f}, x{zoom:.4f}, {turn:+.2f} deg)"
+                      for (dy, dx), zoom, turn in zip(out["shifts"].tolist(), out["zooms"].tolist(),
+                                                      out["rotations"].tolist(), strict=True))
+    swept = out["depth_range"]
+    if tuple(swept) != (near, far):
+        report(f"the scene lies within {swept[0]:.2f}-{swept[1]:.2f} m of the stated "
+               f"{near:g}-{far:g} m: depth computed again over that range, at a finer resolution")
+    onto = "the all-in-focus photo" if method == "sweep" else "the first"
+    report(f"method {method}; working resolution {out['scale']:.3f} x the photos; focused photos "
+           f"aligned onto {onto}: moved by {moved} (pixels down, right; magnification; "
+           "rotation, clockwise)")
+    jpeg = compression_warning(infos, out["scale"])
+    if jpeg is not None:
+        warnings.warn(jpeg, stacklevel=1)
+
+
+def write_outputs(folder: Path, out: dict[str, Any], photos: Photos) -> list[str]:
+    """Write depth.npy (metres), depth_mm.png (16-bit millimetres), confidence.png,
+    all_in_focus.png and figure.png under `folder`; returns the names written."""
+    import numpy as np
+    from PIL import Image
+
+    from datasets.photos import save_photo
+    from models.plotting import plot_prediction
+
+    depth = out["depth"].cpu()
+    confidence = None if out["confidence"] is None else out["confidence"].cpu()
+    if not bool(torch.isfinite(depth).all()):
+        raise ValueError("the prediction is not finite; nothing written")
+    folder.mkdir(parents=True, exist_ok=True)
+    np.save(folder / "depth.npy", depth[0].numpy().astype(np.float32))
+    millimetres = np.clip(np.round(depth[0].numpy() * 1000), 0, 65535).astype(np.uint16)
+    Image.fromarray(millimetres).save(folder / "depth_mm.png")
+    written = ["depth.npy", "depth_mm.png"]
+    if confidence is not None:
+        Image.fromarray((confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(
+            folder / "confidence.png")
+        written.append("confidence.png")
+    fused = out["all_in_focus"].cpu()
+    save_photo(folder / "all_in_focus.png", fused)
+    written.append("all_in_focus.png")
+    plot_prediction(folder / "figure.png", fused, depth,
+                    photos.focused if photos.infos else None,
+                    title=str(photos.first_path.name), depth_range=tuple(out["depth_range"]),
+                    confidence=confidence, image_label="all in focus (input)"
+                    if photos.image is not None else "all in focus (fused)")
+    return written

@@ -1,0 +1,20 @@
+"""The focus sweep figure of the real motorcycle scene (`defocus render`, and `defocus demo`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+def write_focus_sweep(out: Path, focus_distances=(2.2, 3.0, 4.0, 5.0), focal_length=0.085,
+                      f_number=1.4, aperture="disk", mode="scatter", scale=0.5) -> Path:
+    """Render the sweep (`datasets.middlebury.motorcycle_focus_sweep`) and save
+    `out/focus_sweep.png` (`optics.plotting.plot_focus_sweep`); returns its path."""
+    from datasets.middlebury import motorcycle_focus_sweep
+    from optics.plotting import plot_focus_sweep
+
+    sweep = motorcycle_focus_sweep(focus_distances, focal_length, f_number, aperture, mode, scale)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "focus_sweep.png"
+    plot_focus_sweep(sweep["image"], sweep["depth"], sweep["renders"], sweep["coc_px"],
+                     sweep["settings"], path)
+    return path

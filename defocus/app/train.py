@@ -1,0 +1,96 @@
+"""Train a depth network (`defocus train`): a `TrainConfig` from a YAML file and overrides, the
+run, and the checks of its result."""
+
+from __future__ import annotations
+
+import dataclasses
+import inspect
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+
+def config_fields_help() -> str:
+    """One line per `TrainConfig` field: name, default and the `#:` comment above it in the
+    source (where the units are written).
+
+    Example:
+        >>> config_fields_help().splitlines()[0]
+        'TrainConfig fields (--config YAML keys and --set KEY=VALUE):'
+    """
+    from models.training import TrainConfig
+
+    comments: dict[str, str] = {}
+    pending: list[str] = []
+    for line in inspect.getsource(TrainConfig).splitlines():
+        stripped = line.strip()
+        if stripped.startswith("#:"):
+            pending.append(stripped[2:].strip())
+        elif pending and ":" in stripped:
+            comments[stripped.split(":", 1)[0].strip()] = " ".join(pending)
+            pending = []
+    lines = ["TrainConfig fields (--config YAML keys and --set KEY=VALUE):"]
+    for item in dataclasses.fields(TrainConfig):
+        if item.default is not dataclasses.MISSING:
+            default = item.default
+        elif item.default_factory is not dataclasses.MISSING:
+            default = item.default_factory()
+        else:
+            default = "(required)"
+        lines.append(f"  {item.name} = {default!s}: {comments.get(item.name, '')}")
+    return "\n".join(lines)
+
+
+def training_config(config: Path | None = None, overrides: Sequence[str] = (),
+                    out: Path | None = None, resume: bool = False, overwrite: bool = False):
+    """The `TrainConfig` of a YAML file (or the defaults) with `KEY=VALUE` overrides; `out`
+    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated."""
+    from models.training import TrainConfig
+
+    if config is not None and not config.is_file():
+        raise FileNotFoundError(f"--config {config} does not exist or is not a file")
+    cfg = TrainConfig.from_yaml(config) if config else TrainConfig()
+    overrides = list(overrides) + ([f"out_dir={out}"] if out else [])
+    if resume or overwrite:
+        overrides.append(f"resume={'resume' if resume else 'overwrite'}")
+    return cfg.override(overrides)
+
+
+@dataclass
+class TrainResult:
+    """What `train` did."""
+
+    trainer: Any
+    #: metrics on the validation set, when one was given
+    metrics: dict[str, float] | None = None
+    #: what the user should know (a collapse to the depth limits, ...), each once
+    warnings: list[str] = field(default_factory=list)
+
+
+def train(cfg, train_set, validation: Callable[[], Any] | None = None,
+          report: Callable[[str], None] = lambda text: None) -> TrainResult:
+    """Train on `train_set` with `cfg`; then, on the main process, evaluate on `validation()`
+    when given.
+
+    Example:
+        >>> result = train(training_config(overrides=["steps=2"]), scenes)  # doctest: +SKIP
+    """
+    from models.training import COLLAPSE_FRACTION, DepthCollapseWarning, Trainer
+
+    warnings.simplefilter("ignore", DepthCollapseWarning)  # in the result's warnings instead
+    trainer = Trainer(cfg, train_set)
+    if trainer.is_main and trainer.resumed_from is not None:
+        report(f"continuing the run in {cfg.out_dir} from step {trainer.step} of {cfg.steps}")
+    trainer.fit()
+    result = TrainResult(trainer)
+    if trainer.is_main and validation is not None:
+        result.metrics = metrics = trainer.evaluate(validation())
+        if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
+            trainer.warnings.append(
+                f"{metrics['at_depth_limits']:.0%} of the predicted validation pixels sit at "
+                f"depth_min or depth_max: the network collapsed to its depth limits (often a "
+                f"too large lr, here {cfg.lr})")
+    result.warnings = list(dict.fromkeys(trainer.warnings))
+    return result

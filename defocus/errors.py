@@ -1,0 +1,28 @@
+"""The errors a command reports in one line, and how it writes them.
+
+The library raises `ValueError`, `TypeError`, `FileNotFoundError`, ... for bad input, with a
+message that names the argument, the value and what is allowed; the command line reports those in
+one line (exit code 2). `CommandError` is a problem with the command's own options.
+"""
+
+from __future__ import annotations
+
+
+class CommandError(Exception):
+    """A problem with the user's input that a command reports in one line (exit code 2)."""
+
+
+#: Exceptions reported in one line: the library raises these for bad input, with a message that
+#: names the argument, the value and what is allowed.
+USER_ERRORS = (CommandError, ValueError, TypeError, FileNotFoundError, IsADirectoryError,
+               PermissionError, NotADirectoryError, FileExistsError, FloatingPointError)
+
+
+def one_line(error: BaseException) -> str:
+    """The message of `error` on one line.
+
+    Example:
+        >>> one_line(ValueError("two\\n  lines"))
+        'two lines'
+    """
+    return " ".join(str(error).split())

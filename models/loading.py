@@ -1,0 +1,187 @@
+"""Loading trained depth models, whatever file they come in.
+
+Two kinds of file hold a model:
+
+- a checkpoint of `defocus train` (`models.checkpoints`): a network trained for one camera,
+  with its config (input mode, focused photos, depth range) and the optimiser's state;
+- a weights file of the experimental camera-general network (`save_weights`): a
+  `DepthFromDefocus` (`models.depth_from_photos.blur_net`), written by `examples/blur_net.py`.
+
+`load_depth_model` reads either and returns the method object that
+`models.depth_from_photos.estimate_depth(model=...)` runs. Both formats hold tensors and plain
+data only and are read with `torch.load(..., weights_only=True)`, so opening a file runs no
+code; a weights file can also be checked against its recorded sha256 first.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from .checkpoints import load_checkpoint
+from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
+from .depth_from_photos.trained_network import TrainedNetwork
+from .networks import build_network
+from .train_config import TrainConfig
+from .training_state import config_from_state
+
+
+def sha256(path: str | Path) -> str:
+    """Hex sha256 of a file.
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.NamedTemporaryFile(delete=False) as handle:
+        ...     _ = handle.write(b"abc")
+        >>> sha256(handle.name)[:16]
+        'ba7816bf8f01cfea'
+    """
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def save_weights(model: DepthFromDefocus, path: str | Path, **metadata: float | int | str) -> str:
+    """Write `model`'s weights as a safe file (tensors and plain values); returns its sha256.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "w.pt"
+        >>> digest = save_weights(DepthFromDefocus(BlurNet(width=4)), path, steps=0)
+        >>> digest == sha256(path), is_weights_file(path)
+        (True, True)
+    """
+    net = model.blur_net
+    state = {"format": 1, "kind": "DepthFromDefocus", "width": net.width,
+             "blur_net": {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()},
+             "metadata": dict(metadata)}
+    torch.save(state, path)
+    return sha256(path)
+
+
+def is_weights_file(path: str | Path) -> bool:
+    """Whether `path` holds `save_weights` output (read safely; False for anything else).
+
+    The file is memory-mapped: its tensors are not read, so asking about a large training
+    checkpoint costs nothing before the caller loads it for real.
+
+    Example:
+        >>> is_weights_file("no/such/file.pt")
+        False
+    """
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
+    except Exception:  # not a weights file: the caller tries other formats
+        return False
+    return isinstance(state, dict) and state.get("kind") == "DepthFromDefocus"
+
+
+def load_weights(path: str | Path, expected_sha256: str | None = None) -> DepthFromDefocus:
+    """Load a `DepthFromDefocus` written by `save_weights` (in eval mode), checking the file's
+    sha256 first when given; `weights_only=True` (nothing in the file runs).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: the sha256 differs, or the file is not a weights file.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "w.pt"
+        >>> digest = save_weights(DepthFromDefocus(BlurNet(width=4)), path)
+        >>> load_weights(path, digest).blur_net.width
+        4
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such weights file")
+    if expected_sha256 is not None:
+        actual = sha256(path)
+        if actual != expected_sha256:
+            raise ValueError(f"{path}: sha256 {actual} does not match the recorded "
+                             f"{expected_sha256}; the file is damaged or was replaced")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # pickle and zip errors of many kinds: one clear line
+        raise ValueError(f"{path}: not a Defocus weights file ({type(error).__name__})") from None
+    if not isinstance(state, dict) or state.get("kind") != "DepthFromDefocus":
+        raise ValueError(f"{path}: not a Defocus DepthFromDefocus weights file")
+    model = DepthFromDefocus(BlurNet(int(state["width"])))
+    model.blur_net.load_state_dict(state["blur_net"])
+    return model.eval()
+
+
+def read_checkpoint(path: str | Path, map_location: Any = "cpu",
+                    **changes: Any) -> tuple[dict[str, Any], TrainConfig]:
+    """A `defocus train` checkpoint's state and its `TrainConfig` (with `changes`).
+
+    Raises:
+        FileNotFoundError: no such file.
+        CheckpointError: the file is not a checkpoint, holds more than tensors and plain data
+            (refused without running anything) or holds an invalid config.
+
+    Example:
+        >>> read_checkpoint("no/such/last.pt")
+        Traceback (most recent call last):
+        ...
+        FileNotFoundError: checkpoint no/such/last.pt does not exist or is not a file
+    """
+    state = load_checkpoint(path, map_location=map_location)
+    return state, config_from_state(state, path, **changes)
+
+
+def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module,
+                                                                                     TrainConfig]:
+    """The trained network (in eval mode) and its config from a `defocus train` checkpoint.
+
+    Raises:
+        CheckpointError: the file is not a checkpoint or holds more than tensors and plain data
+            (refused without running anything).
+
+    Example:
+        >>> network, config = load_model("runs/train/checkpoints/last.pt")  # doctest: +SKIP
+    """
+    state, cfg = read_checkpoint(checkpoint, map_location=device, device="auto")
+    model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
+                          cfg.width, cfg.depth_spacing)
+    model.load_state_dict(state["model"])
+    return model.to(device).eval(), cfg
+
+
+def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn.Module:
+    """The depth model in `path`, ready for `estimate_depth(model=...)`, on `device`.
+
+    A weights file of `save_weights` gives the camera-general `DepthFromDefocus`; a checkpoint
+    of `defocus train` gives its network wrapped as a `TrainedNetwork` (its input mode,
+    focused photos and depth range from the checkpoint's config).
+
+    Args:
+        path: a weights file or a training checkpoint.
+        device: where the model goes, as for `torch.Tensor.to`.
+
+    Raises:
+        FileNotFoundError: no such file.
+        CheckpointError: the file is neither a weights file nor a checkpoint, or holds more
+            than tensors and plain data (refused without running anything).
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "w.pt"
+        >>> _ = save_weights(DepthFromDefocus(BlurNet(width=4)), path)
+        >>> type(load_depth_model(path)).__name__
+        'DepthFromDefocus'
+    """
+    if is_weights_file(path):  # the experimental camera-general network
+        return load_weights(path).to(device)
+    network, config = load_model(path, device)
+    return TrainedNetwork(network, config.input_mode, config.n_focus,
+                          (config.depth_min, config.depth_max))
+
+
+__all__ = ["is_weights_file", "load_depth_model", "load_model", "load_weights", "read_checkpoint",
+           "save_weights", "sha256"]
