@@ -29,6 +29,8 @@ import torch
 from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 
+from optics import LENS_APERTURE
+
 from .base import DepthDataset
 from .depth import require_valid_depth
 from .focus import CameraPreset
@@ -87,7 +89,7 @@ def load_motorcycle(dtype: torch.dtype = torch.float32) -> dict[str, Tensor]:
 
 def motorcycle_focus_sweep(
     focus_distances: Sequence[float] = (2.2, 3.0, 4.0, 5.0), focal_length: float = 0.085,
-    f_number: float = 1.4, aperture: str = "disk", mode: str = "scatter", scale: float = 0.5,
+    f_number: float = 1.4, aperture: str = LENS_APERTURE, mode: str = "scatter", scale: float = 0.5,
 ) -> dict[str, Any]:
     """Render the real motorcycle scene through a thin lens at several focus distances.
 

@@ -39,18 +39,21 @@ def draw() -> Figure:
 
     # left: the layers (imports point down)
     ax.text(2.0, 6.1, "Layers (imports point down)", ha="center", fontsize=12, weight="bold")
-    box(ax, 0.3, 4.75, 3.4, 0.9, "defocus\ncommand line, __version__\n(nothing imports it)",
-        LAYER_COLOURS["defocus"], weight="bold")
-    box(ax, 0.3, 2.85, 1.45, 1.1, "models\nnetworks, training,\ndepth_from_photos", LAYER_COLOURS["models"])
-    box(ax, 2.25, 2.85, 1.45, 1.1, "datasets\nloaders, synthetic\nscenes, focus", LAYER_COLOURS["datasets"])
-    box(ax, 0.3, 0.7, 3.4, 1.3, "optics\nThinLens, Sensor, apertures, Camera,\nCameraSettings, render_defocus,\n"
-        "raw photos, calibration, checks", LAYER_COLOURS["optics"])
+    box(ax, 0.3, 4.75, 3.4, 1.05, "defocus\ncommands (parse, print) -> app\n(workflows, report callbacks);\n"
+        "options, errors", LAYER_COLOURS["defocus"], size=9.5, weight="bold")
+    box(ax, 0.3, 2.85, 1.45, 1.2, "models\nnetworks, training,\nevaluate, load_\ndepth_model,\n"
+        "depth_from_photos", LAYER_COLOURS["models"], size=9)
+    box(ax, 2.25, 2.85, 1.45, 1.2, "datasets\nloaders, synthetic\nscenes, focus,\nphoto files",
+        LAYER_COLOURS["datasets"], size=9)
+    box(ax, 0.3, 0.7, 3.4, 1.4, "optics\nThinLens, Sensor, apertures, Camera,\nCameraSettings, render/ "
+        "(backends),\nphoto metadata + settings resolver,\ncalibration/, checks",
+        LAYER_COLOURS["optics"], size=9)
     for x in (1.0, 3.0):
-        arrow(ax, (x, 4.75), (x, 3.95))
-        arrow(ax, (x, 2.85), (x, 2.0))
-    arrow(ax, (2.0, 4.75), (2.0, 2.0), rad=0.0)
-    ax.text(2.0, 0.28, "models and datasets never import each other;\nmodules named _x are private to their package", ha="center", fontsize=8.5,
-            style="italic", color="#444444")
+        arrow(ax, (x, 4.75), (x, 4.05))
+        arrow(ax, (x, 2.85), (x, 2.1))
+    arrow(ax, (2.0, 4.75), (2.0, 2.1), rad=0.0)
+    ax.text(2.0, 0.28, "models and datasets never import each other;\na public module imports no "
+            "private name", ha="center", fontsize=8.5, style="italic", color="#444444")
 
     # right: the path of data
     ax.text(6.8, 6.1, "Path of data (one training step)", ha="center", fontsize=12, weight="bold")

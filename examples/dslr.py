@@ -43,6 +43,7 @@ import torch
 from datasets import DSLR, JointAugment
 from defocus.app.experiment import train_and_evaluate, training_crop
 from defocus.options import device_kind, example_parser
+from optics import DEFAULT_APERTURE
 
 #: The scenes' depth lies within this range, metres (the release's depth: about 0.4 to 10 m).
 DEPTH_RANGE = (0.5, 10.0)
@@ -76,7 +77,7 @@ def calibrate(args: argparse.Namespace, train: DSLR) -> Path:
     from optics import plot_depth_calibration
 
     every = list(range(0, len(train), args.calibrate_every))
-    fit = calibrate_dataset(train, every, aperture="gaussian:0.5", progress=not args.no_progress)
+    fit = calibrate_dataset(train, every, aperture=DEFAULT_APERTURE, progress=not args.no_progress)
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "camera.json"
     fit.to_json(path)

@@ -2,7 +2,13 @@
 
 from .alignment import align_shots, estimate_motion, estimate_shift, translate, undo_motion, warp
 from .aperture import Aperture, Disk, Gaussian, Mask, Polygon
-from .aperture_spec import APERTURE_FAMILIES, DEFAULT_APERTURE, aperture_spec, parse_aperture
+from .aperture_spec import (
+    APERTURE_FAMILIES,
+    DEFAULT_APERTURE,
+    LENS_APERTURE,
+    aperture_spec,
+    parse_aperture,
+)
 from .calibration import (
     CalibrationError,
     CalibrationPair,
@@ -33,6 +39,7 @@ __all__ = [
     # apertures (PSF shapes) and their spec strings
     "APERTURE_FAMILIES",
     "DEFAULT_APERTURE",
+    "LENS_APERTURE",
     "Aperture",
     "Disk",
     "Gaussian",

@@ -12,7 +12,8 @@ training configs and the command line.
 | `polygon:N:R` | `Polygon(N, rotation=R)`, R in radians |
 
 A `Mask` (a measured PSF image) has no spec: pass the `Mask` object itself. Where nobody names
-one, the PSF is `DEFAULT_APERTURE`.
+one, the PSF is `DEFAULT_APERTURE`; where a real lens's photos are read and nothing says more
+(no calibration), `LENS_APERTURE`.
 """
 
 from __future__ import annotations
@@ -32,6 +33,10 @@ APERTURE_FAMILIES: dict[str, str] = {
 
 #: The PSF when nobody says: the paper's Gaussian, sigma = 0.5 x CoC diameter (`Gaussian(0.5)`).
 DEFAULT_APERTURE = "gaussian:0.5"
+#: The PSF of a real lens when nothing says more (photos without a calibration, the pairs a
+#: calibration fits, renders of a real scene): the iris's disk. The paper's Gaussian is a
+#: training choice; a real lens's blur has a sharp edge.
+LENS_APERTURE = "disk"
 
 
 def _spec_error(spec: object, why: str) -> ValueError:

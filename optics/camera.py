@@ -334,17 +334,18 @@ class CameraSettings:
 
     # ---- JSON ----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """Plain numbers and lists (metres), and the aperture spec under `psf`."""
+        """Plain numbers and lists (metres), and the aperture spec under `aperture`."""
         data: dict[str, Any] = {}
         for name, value in self.tensors().items():
             values = value.detach().cpu().tolist()
             data[name] = values[0] if value.numel() == 1 else values
-        data["psf"] = self.aperture
+        data["aperture"] = self.aperture
         return data
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], source: str = "camera settings") -> CameraSettings:
-        """Inverse of `to_dict`; also reads the older `{"family": ...}` `psf` objects.
+        """Inverse of `to_dict`; also reads the aperture of older files, under the key `psf`
+        and as a `{"family": ...}` object.
 
         Example:
             >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-5, "disk")
@@ -356,11 +357,12 @@ class CameraSettings:
         missing = [k for k in SETTING_FIELDS if data.get(k) is None]
         if missing:
             raise ValueError(f"{source}: missing {missing}; expected the keys "
-                             f"{list(SETTING_FIELDS)} (metres) and optionally 'psf'")
+                             f"{list(SETTING_FIELDS)} (metres) and optionally 'aperture'")
+        key = "aperture" if "aperture" in data or "psf" not in data else "psf"
         try:
-            aperture = aperture_spec(aperture_from_json(data.get("psf", DEFAULT_APERTURE)))
+            aperture = aperture_spec(aperture_from_json(data.get(key, DEFAULT_APERTURE)))
         except (TypeError, ValueError) as error:
-            raise ValueError(f"{source}: bad 'psf' entry {data.get('psf')!r}: {error}") from None
+            raise ValueError(f"{source}: bad {key!r} entry {data.get(key)!r}: {error}") from None
         return cls(*(data[k] for k in SETTING_FIELDS), aperture=aperture)
 
     def to_json(self, path: str | PathLike, **extra: Any) -> None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
-from .aperture_spec import DEFAULT_APERTURE
+from .aperture_spec import DEFAULT_APERTURE, LENS_APERTURE
 from .camera import SETTING_FIELDS, CameraSettings
 from .photo_metadata import PhotoMetadata
 from .sensor import Sensor
@@ -145,7 +145,7 @@ def resolve_settings(
     metadata: Sequence[PhotoMetadata],
     options: Mapping[str, Any] | None = None,
     calibration: CameraSettings | None = None,
-    aperture: str = "disk",
+    aperture: str = LENS_APERTURE,
 ) -> tuple[CameraSettings, dict[str, str]]:
     """The `(F,)` `CameraSettings` of `F` focused photos, every value known (`resolve_known`),
     and where each came from.

@@ -54,7 +54,7 @@ def gaussian_pairs(tmp_path_factory):
 @pytest.mark.slow
 def test_round_trip_disk_recovers_focus_and_f_number(disk_pairs, tmp_path):
     pairs, meta = disk_pairs
-    fit = calibrate(pairs, focal_length=meta.focal_length, pixel_pitch=meta.pixel_pitch, psf="disk")
+    fit = calibrate(pairs, focal_length=meta.focal_length, pixel_pitch=meta.pixel_pitch, aperture="disk")
     assert fit.fitted == ("focus_distance", "f_number")
     assert fit.values["focus_distance"] == pytest.approx(2.0, rel=0.02)
     assert fit.values["f_number"] == pytest.approx(4.0, rel=0.02)
@@ -64,7 +64,7 @@ def test_round_trip_disk_recovers_focus_and_f_number(disk_pairs, tmp_path):
     fit.save(tmp_path / "fit.json")
     data = json.loads((tmp_path / "fit.json").read_text())
     assert set(data["uncertainty"]) == {"focus_distance", "f_number"}
-    assert data["psf"] == {"family": "disk"}
+    assert data["aperture"] == {"family": "disk"}
     assert CameraSettings.from_json(tmp_path / "fit.json") == fit.settings
     assert data["rmse"] == fit.rmse and len(data["pairs"]) == 3
     camera = Camera.from_json(tmp_path / "fit.json")
@@ -80,7 +80,7 @@ def test_round_trip_gaussian_scale_with_known_f_number(gaussian_pairs):
     pairs, meta = gaussian_pairs
     assert meta.f_number == 4.0
     fit = calibrate(pairs, focal_length=meta.focal_length, f_number=meta.f_number,
-                    pixel_pitch=meta.pixel_pitch, psf="gaussian")
+                    pixel_pitch=meta.pixel_pitch, aperture="gaussian")
     assert fit.fitted == ("focus_distance", "psf_scale")
     assert fit.values["psf_scale"] == pytest.approx(0.4, rel=0.05)
     assert fit.values["focus_distance"] == pytest.approx(2.0, rel=0.02)
@@ -119,9 +119,9 @@ def test_pixel_pitch_can_be_fitted_instead():
 def test_renderer_path_agrees_with_invariant_blur():
     camera = Camera(ThinLens(0.025, 4.0, 2.0), Sensor(1e-5), Gaussian(0.5))
     pairs = _clean_pairs(camera, size=32)
-    fast = calibrate(pairs, focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, psf="gaussian",
+    fast = calibrate(pairs, focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, aperture="gaussian",
                      psf_scale=0.5, adam_steps=0, lbfgs_steps=6)
-    slow = calibrate(pairs, focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, psf="gaussian",
+    slow = calibrate(pairs, focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, aperture="gaussian",
                      psf_scale=0.5, adam_steps=0, lbfgs_steps=6, use_renderer=True)
     assert slow.values["focus_distance"] == pytest.approx(2.0, rel=0.01)
     assert fast.values["focus_distance"] == pytest.approx(slow.values["focus_distance"], rel=0.01)
@@ -130,7 +130,7 @@ def test_renderer_path_agrees_with_invariant_blur():
 def test_refuses_degenerate_sets_and_bad_inputs():
     pairs = _clean_pairs(Camera(ThinLens(0.025, 4.0, 2.0), Sensor(1e-5), Disk()), size=24)
     with pytest.raises(ValueError, match="cannot fit .*f_number.*psf_scale"):
-        calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, psf="gaussian")
+        calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, aperture="gaussian")
     with pytest.raises(ValueError, match="cannot fit .*f_number.*pixel_pitch"):
         calibrate(pairs, focal_length=0.025)
     with pytest.raises(ValueError, match="psf_scale applies to the Gaussian"):
@@ -142,7 +142,7 @@ def test_refuses_degenerate_sets_and_bad_inputs():
     with pytest.raises(ValueError, match="f_number must be finite and > 0"):
         calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, f_number=-2.0)
     with pytest.raises(ValueError, match="psf must be one of"):
-        calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, psf="airy")
+        calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, aperture="airy")
     with pytest.raises(ValueError, match="at least one"):
         calibrate([], focal_length=0.025)
     image = torch.rand(1, 3, 24, 24)

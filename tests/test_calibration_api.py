@@ -37,7 +37,7 @@ def _pairs(aperture, size=32, distances=DISTANCES):
 @pytest.fixture(scope="module")
 def gaussian_fit():
     return calibrate(_pairs(Gaussian(0.4)), focal_length=0.025, f_number=4.0, pixel_pitch=1e-5,
-                     psf="gaussian", adam_steps=15, lbfgs_steps=10)
+                     aperture="gaussian", adam_steps=15, lbfgs_steps=10)
 
 
 def test_result_carries_camera_settings(gaussian_fit, tmp_path):
@@ -67,7 +67,7 @@ def test_result_carries_camera_settings(gaussian_fit, tmp_path):
     data = json.loads((tmp_path / "fit.json").read_text())
     assert data == json.loads(json.dumps(fit.to_dict()))
     assert {"uncertainty", "fitted", "rmse", "margin_px", "pairs"} <= set(data)
-    assert data["psf"] == {"family": "gaussian", "scale": fit.psf_scale}
+    assert data["aperture"] == {"family": "gaussian", "scale": fit.psf_scale}
     assert isinstance(Camera.from_json(tmp_path / "fit.json").aperture, Gaussian)
     assert "psf_scale" in fit.table() and "psf: gaussian" in fit.table()
 
@@ -76,27 +76,27 @@ def test_gaussian_spec_with_scale_fixes_it(gaussian_fit):
     pairs = _pairs(Gaussian(0.4))
     kwargs = dict(focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, adam_steps=3,
                   lbfgs_steps=2)
-    by_spec = calibrate(pairs, psf="Gaussian:0.4", **kwargs)
-    by_arg = calibrate(pairs, psf="gaussian", psf_scale=0.4, **kwargs)
+    by_spec = calibrate(pairs, aperture="Gaussian:0.4", **kwargs)
+    by_arg = calibrate(pairs, aperture="gaussian", psf_scale=0.4, **kwargs)
     assert by_spec.fitted == by_arg.fitted == ("focus_distance",)
     assert by_spec.values == by_arg.values and by_spec.psf_scale == 0.4
     assert by_spec.settings == by_arg.settings and by_spec.settings.aperture == "gaussian:0.4"
     with pytest.raises(ValueError, match="give the Gaussian scale once"):
-        calibrate(pairs, psf="gaussian:0.4", psf_scale=0.5, **kwargs)
+        calibrate(pairs, aperture="gaussian:0.4", psf_scale=0.5, **kwargs)
 
 
 def test_polygon_is_fitted_like_the_disk():
     pairs = _pairs(Polygon(6))
-    fit = calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, psf="polygon:6",
+    fit = calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, aperture="polygon:6",
                     adam_steps=15, lbfgs_steps=10)
     assert fit.psf == "polygon:6" and fit.settings.aperture == "polygon:6"
     assert fit.psf_scale == 1.0 and isinstance(fit.aperture(), Polygon)
     assert fit.values["focus_distance"] == pytest.approx(2.0, rel=0.02)
     assert fit.values["f_number"] == pytest.approx(4.0, rel=0.02)
-    assert fit.to_dict()["psf"] == {"family": "polygon", "n_blades": 6, "rotation": 0.0}
+    assert fit.to_dict()["aperture"] == {"family": "polygon", "n_blades": 6, "rotation": 0.0}
     assert "psf_scale" not in fit.table()
     with pytest.raises(ValueError, match="psf_scale applies to the Gaussian PSF only.*polygon:6"):
-        calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, psf="polygon:6", psf_scale=0.5)
+        calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, aperture="polygon:6", psf_scale=0.5)
 
 
 def test_disk_result_and_unsupported_specs():
@@ -106,7 +106,7 @@ def test_disk_result_and_unsupported_specs():
     assert isinstance(fit.camera().aperture, Disk)
     for bad in ("airy", "disk:2", "polygon", 3):
         with pytest.raises(ValueError, match=r"psf must be one of \['disk', 'gaussian'"):
-            calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, psf=bad)
+            calibrate(pairs, focal_length=0.025, pixel_pitch=1e-5, aperture=bad)
 
 
 def test_a_fit_without_blur_is_refused():

@@ -20,7 +20,7 @@ def fit():
         with torch.no_grad():
             blurred = camera.render(sharp, torch.full((1, 1, 24, 24), d, dtype=torch.float64))
         pairs.append(CalibrationPair(sharp, blurred, d))
-    return calibrate(pairs, focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, psf="gaussian",
+    return calibrate(pairs, focal_length=0.025, f_number=4.0, pixel_pitch=1e-5, aperture="gaussian",
                      adam_steps=3, lbfgs_steps=2)
 
 

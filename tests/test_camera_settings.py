@@ -63,6 +63,10 @@ def test_json_round_trip(tmp_path):
     old = {"focal_length": 0.05, "f_number": 2.0, "focus_distance": 2.0, "pixel_pitch": 1e-5,
            "psf": {"family": "gaussian", "scale": 0.4}}
     assert CameraSettings.from_dict(old).aperture == "gaussian:0.4"
+    # the aperture is written under "aperture"; files of 0.2 wrote it under "psf"
+    assert one.to_dict()["aperture"] == one.aperture and "psf" not in one.to_dict()
+    assert CameraSettings.from_dict({**old, "psf": "disk"}).aperture == "disk"
+    assert CameraSettings.from_dict({**old, "aperture": "polygon:5"}).aperture == "polygon:5"
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [

@@ -24,7 +24,7 @@ def test_cli_calibrate_writes_loadable_fit(tmp_path, capsys):
     assert "focal_length: from the metadata" in out and "pixel_pitch: from the metadata" in out
     assert "focus_distance" in out and "fitted" in out
     data = json.loads((tmp_path / "fit.json").read_text())
-    assert {"focus_distance", "f_number", "focal_length", "pixel_pitch", "psf"} <= set(data)
+    assert {"focus_distance", "f_number", "focal_length", "pixel_pitch", "aperture"} <= set(data)
     assert set(data["uncertainty"]) == {"focus_distance", "f_number"}
     assert data["f_number"] == pytest.approx(4.0, rel=0.02)
     assert data["focus_distance"] == pytest.approx(2.0, rel=0.02)

@@ -3,8 +3,8 @@ import re
 
 import pytest
 
-from defocus.cli import COMMANDS, build_parser
 from defocus.app.train import config_fields_help
+from defocus.cli import COMMANDS, build_parser
 from models.training import TrainConfig
 
 

@@ -8,6 +8,8 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from optics import DEFAULT_APERTURE, LENS_APERTURE
+
 
 def parse_distance(text: str) -> float:
     """A `--pair` distance in metres.
@@ -62,7 +64,7 @@ def calibrate_from_dataset(name: str, root: Path | None, split: str = "train",
                          f"{sorted(set(classes) - {'synthetic'})}, got {name!r}")
     dataset = classes[name](root, split=split)  # full resolution
     indices = parse_scenes(scenes, len(dataset))
-    aperture = "gaussian:0.5" if psf == "gaussian" else psf
+    aperture = DEFAULT_APERTURE if psf == "gaussian" else psf
     fit = calibrate_dataset(dataset, indices, aperture=aperture, focus_distance=focus_distance,
                             progress=progress)
     return fit, len(indices)
@@ -89,7 +91,7 @@ def read_pairs(pairs: Sequence[Sequence[str]], binning: int = 1, white_balance: 
 
 
 def calibrate_from_pairs(pairs: Sequence[Sequence[str]], known: Mapping[str, Any],
-                         fit: Collection[str] = (), psf: str = "disk", binning: int = 1,
+                         fit: Collection[str] = (), aperture: str = LENS_APERTURE, binning: int = 1,
                          white_balance: str = "camera", **options: Any):
     """Fit a camera to raw pairs: `known` values (`focal_length`, `f_number`, `pixel_pitch`,
     `focus_distance`, `psf_scale`; None where unknown) come first, then the defocused file's
@@ -110,7 +112,7 @@ def calibrate_from_pairs(pairs: Sequence[Sequence[str]], known: Mapping[str, Any
     if given["focal_length"] is None:
         raise ValueError("the focal length is unknown: the files do not state it; pass "
                          "--focal-length in metres")
-    return calibrate(found, psf=psf, **options, **given), sources
+    return calibrate(found, aperture=aperture, **options, **given), sources
 
 
 def write_fit(out: Path, figure: Path | None, save: Callable[[Path], Any],

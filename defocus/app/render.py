@@ -4,9 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from optics import LENS_APERTURE
+
 
 def write_focus_sweep(out: Path, focus_distances=(2.2, 3.0, 4.0, 5.0), focal_length=0.085,
-                      f_number=1.4, aperture="disk", mode="scatter", scale=0.5) -> Path:
+                      f_number=1.4, aperture=LENS_APERTURE, mode="scatter", scale=0.5) -> Path:
     """Render the sweep (`datasets.middlebury.motorcycle_focus_sweep`) and save
     `out/focus_sweep.png` (`optics.plotting.plot_focus_sweep`); returns its path."""
     from datasets.middlebury import motorcycle_focus_sweep

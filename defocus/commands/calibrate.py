@@ -20,6 +20,7 @@ from pathlib import Path
 
 from defocus.errors import CommandError
 from defocus.options import aperture_argument
+from optics import LENS_APERTURE
 
 KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
 
@@ -40,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("fit.json"), help="JSON of the fit")
     parser.add_argument("--figure", type=Path, default=None,
                         help="figure path (default: the JSON path with .png)")
-    parser.add_argument("--psf", type=aperture_argument, default="disk",
+    parser.add_argument("--aperture", "--psf", dest="aperture", type=aperture_argument,
+                        default=LENS_APERTURE, metavar="SPEC",
                         help="PSF spec: disk, gaussian (scale fitted), gaussian:SCALE or "
                              "polygon:N_BLADES[:ROTATION]")
     parser.add_argument("--focal-length", type=float, help="known focal length, metres "
@@ -68,10 +70,10 @@ def run_dataset(args: argparse.Namespace) -> int:
     from optics import plot_depth_calibration
 
     fit, count = calibrate_from_dataset(args.dataset, args.root, args.split, args.scenes,
-                                        args.psf, args.focus_distance, args.progress)
+                                        args.aperture, args.focus_distance, args.progress)
     values = fit.settings.to_dict()
     print(f"{args.dataset}: {count} samples of {args.split!r}")
-    for name in ("focus_distance", "pixel_pitch", "f_number", "focal_length", "psf"):
+    for name in ("focus_distance", "pixel_pitch", "f_number", "focal_length", "aperture"):
         print(f"  {name}: {values[name]}")
     for name, value in fit.extras().items():
         print(f"  {name}: {value}")
@@ -91,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
              "pixel_pitch": args.pixel_pitch, "focus_distance": args.focus_distance,
              "psf_scale": args.psf_scale}
     result, sources = calibrate_from_pairs(
-        args.pair, known, fit=args.fit, psf=args.psf, binning=args.binning,
+        args.pair, known, fit=args.fit, aperture=args.aperture, binning=args.binning,
         white_balance=args.white_balance, margin_px=args.margin, adam_steps=args.adam_steps,
         lbfgs_steps=args.lbfgs_steps, progress=args.progress)
     for name, source in sources.items():

@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from defocus.options import aperture_argument
+from optics import LENS_APERTURE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -14,7 +15,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="focus distances in metres (the scene spans about 2.1-5.0 m)")
     parser.add_argument("--focal-length", type=float, default=0.085, help="focal length in metres")
     parser.add_argument("--f-number", type=float, default=1.4, help="f-number (dimensionless)")
-    parser.add_argument("--aperture", type=aperture_argument, default="disk",
+    parser.add_argument("--aperture", type=aperture_argument, default=LENS_APERTURE,
                         help="PSF shape: gaussian[:SCALE], disk or polygon:N_BLADES[:ROTATION]")
     parser.add_argument("--mode", choices=["gather", "scatter", "layered"], default="scatter",
                         help="renderer semantics (see the rendering tutorial)")

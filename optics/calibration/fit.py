@@ -41,6 +41,7 @@ from typing import Any
 
 import torch
 
+from ..aperture_spec import LENS_APERTURE
 from .model import ResidualModel
 from .optimise import Fit, gauss_newton, optimise
 from .pair import CalibrationPair
@@ -65,7 +66,7 @@ class CalibrationError(ValueError):
 
 
 def calibrate(
-    pairs: Sequence[CalibrationPair], focal_length: float, psf: str = "disk",
+    pairs: Sequence[CalibrationPair], focal_length: float, aperture: str = LENS_APERTURE,
     f_number: float | None = None, focus_distance: float | None = None,
     pixel_pitch: float | None = None, psf_scale: float | None = None,
     initial: Mapping[str, float] | None = None, fit_gain: bool = True,
@@ -83,7 +84,7 @@ def calibrate(
         pairs: one or more `CalibrationPair`; at least two distinct depths when the focus
             distance is fitted together with another parameter (three or more recommended).
         focal_length: focal length in metres (known, e.g. from the metadata).
-        psf: PSF shape as an aperture spec (`optics.aperture_spec`): `"disk"`, `"gaussian"`
+        aperture: PSF shape as an aperture spec (`optics.aperture_spec`): `"disk"`, `"gaussian"`
             (its scale fitted unless `psf_scale` is given), `"gaussian:S"` (scale fixed to `S`)
             or `"polygon:N"` / `"polygon:N:R"` (`N` blades rotated by `R` radians).
         f_number: f-number, or `None` to fit it.
@@ -133,7 +134,7 @@ def calibrate(
         ('disk', (1,))
     """
     problem = Problem.build(
-        pairs, psf, fit_gain, focal_length=focal_length, f_number=f_number,
+        pairs, aperture, fit_gain, focal_length=focal_length, f_number=f_number,
         focus_distance=focus_distance, pixel_pitch=pixel_pitch, psf_scale=psf_scale,
     )
     start = initial_guess(problem, initial, max_coc_px)

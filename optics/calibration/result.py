@@ -97,10 +97,10 @@ class CalibrationResult:
         return {"family": self.psf}
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict: `settings.to_dict()` (its `psf` as a `{"family": ...}` object),
+        """JSON-ready dict: `settings.to_dict()` (its `aperture` as a `{"family": ...}` object),
         `uncertainty`, `fitted`, `rmse`, `margin_px` and per-pair details."""
         data = self.settings.to_dict()
-        data["psf"] = self._psf_entry()
+        data["aperture"] = self._psf_entry()
         data["uncertainty"] = dict(self.uncertainty)
         data["fitted"] = list(self.fitted)
         data["rmse"] = self.rmse
