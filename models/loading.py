@@ -16,18 +16,27 @@ code; a weights file can also be checked against its recorded sha256 first.
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
 from torch import nn
 
-from .checkpoints import load_checkpoint
+from .checkpoints import CheckpointError, load_checkpoint
 from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
 from .depth_from_photos.trained_network import TrainedNetwork
 from .networks import build_network
 from .train_config import TrainConfig
-from .training_state import config_from_state
+
+
+def config_from_state(state: Mapping[str, Any], path: str | Path, **changes: Any) -> TrainConfig:
+    """The `TrainConfig` of a loaded checkpoint, with `changes`; a bad one is a
+    `CheckpointError` naming the file."""
+    try:
+        return TrainConfig.from_dict({**state["config"], **changes})
+    except (TypeError, ValueError) as error:
+        raise CheckpointError(f"checkpoint {path} holds an invalid config: {error}") from None
 
 
 def sha256(path: str | Path) -> str:
@@ -183,5 +192,5 @@ def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn
                           (config.depth_min, config.depth_max))
 
 
-__all__ = ["is_weights_file", "load_depth_model", "load_model", "load_weights", "read_checkpoint",
-           "save_weights", "sha256"]
+__all__ = ["config_from_state", "is_weights_file", "load_depth_model", "load_model", "load_weights",
+           "read_checkpoint", "save_weights", "sha256"]

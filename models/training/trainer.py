@@ -1,45 +1,5 @@
-"""Training: a trainer with exact resume, CSV logs, figures and DDP, run by a `TrainConfig`
-(`models.train_config`, also importable from here).
-
-`Trainer` takes any map-style `torch.utils.data.Dataset` (or any iterable) of samples in the
-sample format (see the datasets tutorial). With `supervision="self"` (default) the loss never
-sees depth labels: the predicted depth is rendered through each focused image's camera
-(`optics.render_focal_stack` with the sample's `CameraSettings`) and compared with the real focused image
-(`models.losses.DefocusLoss`). `supervision="depth"` trains on the ground truth instead
-(a baseline).
-
-Reproducibility: the batch of step `k` is drawn from a permutation seeded by `(seed, epoch)`,
-so a run resumed from a checkpoint sees the same batches and gives the same losses as an
-uninterrupted run. Launched with `torchrun --nproc_per_node=N`, training is data parallel (DDP;
-gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the same weights
-after each step, and only rank 0 writes files.
-
-Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
-seconds, `at_depth_limits`), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and the
-newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and `warnings.log` when a run ends with
-a warning.
-
-One folder holds one run. `TrainConfig.resume` says what happens when `out_dir` already holds
-one: `"auto"` (default) continues it when its config is the same and otherwise refuses with
-the keys that differ; `"resume"` continues it, also to a larger `steps`; `"overwrite"` deletes
-its files (config, logs, checkpoints, figures; nothing else) when `fit` starts. A continued run
-starts from `checkpoints/last.pt` with its logs cut back to that step, so its logs and losses
-match those of an uninterrupted run.
-
-Failures are safe: every config field is checked when the config is built; `fit` checks the
-samples (`n_focus`, ground-truth depth > 0 where valid), saves checkpoints periodically (by
-steps and by minutes), when a step fails and on SIGINT/SIGTERM (then it raises
-`TrainingInterrupted`), stops at the first non-finite loss or gradient (`FloatingPointError`)
-without saving non-finite weights, and warns (`DepthCollapseWarning`) when most predicted pixels
-sit at `depth_min` or `depth_max`.
-
-The pieces: `models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint
-files that open without running code, `CheckpointStore`), `models.training_state` (what a
-checkpoint holds, exact resume), `models.run_folder` (one run per folder), `models.interruption`
-(SIGINT and SIGTERM), `models.sample_checks`, `models.run_log` (CSV logs) and
-`models.plotting` (figures); `Trainer` runs the loop. Checkpoints hold only tensors and plain
-data and are read with `torch.load(..., weights_only=True)`: a file holding anything else is
-refused with `CheckpointError` (see `docs/security.md`).
+"""The training loop: `Trainer`, composed of the helpers of `models.training` (a `RunFolder`, a
+`Checkpointer`, a `SignalGuard` and a `SampleChecker`), and the depth-collapse warning.
 """
 
 from __future__ import annotations
@@ -57,41 +17,23 @@ from torch import Tensor, nn
 
 from optics import CameraSettings, collate, parse_aperture
 
-from .checkpoints import (
-    CheckpointError,
-    CheckpointStore,
-    load_checkpoint,
-    to_plain,
-)
-from .evaluation import MeanMetrics
-from .interruption import InterruptibleMixin, TrainingInterrupted
-from .loading import load_model, read_checkpoint  # noqa: F401  (load_model public here too)
-from .losses import DefocusLoss, supervised_depth_loss
-from .metrics import METRIC_NAMES, depth_metrics
-from .networks import build_network
-from .plotting import plot_prediction
-from .run_folder import RunFolderMixin, run_files  # noqa: F401  (public here too)
-from .run_log import RunLog
-from .sample_checks import SampleChecksMixin
-from .sampling import StepSampler, random_flip
-from .train_config import (  # noqa: F401  (public here too: models.training.TrainConfig, ...)
-    RESUME_MODES,
-    RUN_CONTROL_KEYS,
-    SUPERVISIONS,
-    TrainConfig,
-    check_device,
-    select_device,
-)
-from .training_state import (  # noqa: F401  (public here too: models.training.to_device, ...)
-    CheckpointingMixin,
-    build_scheduler,
-    process_rank,
-    rng_state,
-    set_rng_state,
-    to_device,
-)
+from ..checkpoints import CHECKPOINT_FORMAT, CheckpointStore, load_checkpoint, to_plain
+from ..evaluation import MeanMetrics
+from ..loading import read_checkpoint
+from ..losses import DefocusLoss, supervised_depth_loss
+from ..metrics import depth_metrics
+from ..networks import build_network
+from ..plotting import plot_prediction
+from ..run_log import RunLog
+from ..sampling import StepSampler, random_flip
+from ..train_config import TrainConfig, select_device
+from .checkpointing import Checkpointer
+from .interruption import SignalGuard, TrainingInterrupted
+from .run_folder import RunFolder
+from .sample_checks import SampleChecker
+from .state import build_scheduler, process_rank, rng_state, set_rng_state, to_device
 
-_log = logging.getLogger(__name__)
+_log = logging.getLogger("models.training")
 #: a prediction within this share of (depth_max - depth_min) of a limit counts as at the limit
 LIMIT_TOLERANCE = 1e-3
 #: warn when at least this share of the predicted pixels sits at depth_min or depth_max
@@ -103,12 +45,18 @@ class DepthCollapseWarning(UserWarning):
     depth limits (often a too large learning rate) and its metrics mean little."""
 
 
-class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, CheckpointingMixin):
+class Trainer:
     """Trains a depth network on samples in the sample format.
 
-    The loop lives here; the batches of each step come from `models.sampling.StepSampler`,
-    checkpoints go to a `models.checkpoints.CheckpointStore`, CSV logs to a
-    `models.run_log.RunLog` and figures through `models.plotting.plot_prediction`.
+    The loop lives here and owns the model, optimiser, schedule, `step`, `history` and
+    `warnings`; the rest is composed: the batches of each step come from a
+    `models.sampling.StepSampler` (`sampler`), the run's folder is a
+    `models.training.run_folder.RunFolder` (`run_folder`), checkpoints are written by a
+    `models.training.checkpointing.Checkpointer` (`checkpointer`) into a
+    `models.checkpoints.CheckpointStore` (`checkpoints`), signals are caught by a
+    `models.training.interruption.SignalGuard` (`signals`), samples are checked by a
+    `models.training.sample_checks.SampleChecker` (`sample_checks`), CSV logs go to a
+    `models.run_log.RunLog` (`log`) and figures through `models.plotting.plot_prediction`.
 
     One run per `out_dir`: what happens when the folder already holds a run follows
     `config.resume` ("auto": continue the same run, refuse another; "resume": continue, also
@@ -174,6 +122,10 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
                                    self.world_size)
         self.checkpoints = CheckpointStore(cfg.out_dir / "checkpoints", keep=cfg.keep_checkpoints)
         self.log = RunLog(cfg.out_dir)
+        self.checkpointer = Checkpointer(self.checkpoints, self.is_main)
+        self.run_folder = RunFolder(cfg, self.checkpoints, self.log)
+        self.signals = SignalGuard(self.world_size, self.device)
+        self.sample_checks = SampleChecker(cfg, self.sampler)
         self.step = 0
         self.history: list[dict[str, float]] = []
         #: warnings of the last `fit` (also in `out_dir/warnings.log`)
@@ -181,14 +133,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         #: the checkpoint (or config.yaml) of the run this trainer continues, if any
         self.resumed_from: Path | None = None
         self.last_validation: dict[str, float] | None = None
-        self._removals: list[Path] = []  # the old run's files, deleted when fit starts
-        self._truncate_logs: int | None = None  # cut the logs back to this step when fit starts
-        self._stop_signal: int | None = None
-        self._in_update = False
-        self._rng_at_step: dict[str, Any] | None = None
-        self._saved_step: int | None = None
-        self._last_save = time.monotonic()
-        self._check_first_sample()
+        self.sample_checks.check_first_sample()
         self._open_run()
 
     @property
@@ -196,9 +141,34 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         """The folder of `last.pt` and the step checkpoints."""
         return self.checkpoints.directory
 
+    @property
+    def _stop_signal(self) -> int | None:
+        """The signal caught while training (`signals.signal`)."""
+        return self.signals.signal
+
+    @_stop_signal.setter
+    def _stop_signal(self, signum: int | None) -> None:
+        self.signals.signal = signum
+
+    def _stop_requested(self) -> int:
+        """The signal that asks to stop (0: none), agreed by all processes."""
+        return self.signals.requested()
+
     def _indices(self, step: int) -> list[int]:
         """Dataset indices of this process's part of the batch of `step` (0-based)."""
         return self.sampler.indices(step)
+
+    def _open_run(self) -> None:
+        """Continue the run that `out_dir` holds, if `config.resume` says so."""
+        run = self.run_folder.open(self.device)
+        if run is None:
+            return
+        if run.state is not None:
+            self.load_state_dict(run.state)
+            self.checkpointer.saved_step = self.step
+        self.resumed_from = run.source
+        self.run_folder.continue_at(self.step)
+        _log.info("continuing the run in %s from step %d", self.config.out_dir, self.step)
 
     # -- model -----------------------------------------------------------------------------
     def predict(self, image: Tensor, focused: Tensor | None = None,
@@ -265,7 +235,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
                 f"gradient is not finite at step {step} (loss {float(terms['loss'].detach()):.4g}); "
                 f"training stopped before changing the weights (lr is {self.config.lr}: try a "
                 "smaller one, or grad_clip)")
-        self._in_update = True  # until the step is counted: no checkpoint of a half step
+        self.checkpointer.in_update = True  # until the step is counted: no half-step checkpoint
         self.optimizer.step()
         self.scheduler.step()
         values = torch.stack([v.detach() for v in terms.values()] + [self.at_depth_limits(depth)])
@@ -293,13 +263,13 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         until = cfg.steps if until is None else min(int(until), cfg.steps)
         self.warnings = []
         if self.is_main:
-            self._prepare_out_dir()
+            self.run_folder.prepare()
         bar = progress_bar(total=until, initial=self.step, desc="train", unit="step",
                            disable=not (cfg.progress and self.is_main))
         started = time.perf_counter()
-        self._last_save = time.monotonic()
+        self.checkpointer.restart_clock()
         try:
-            with self._signals_caught():
+            with self.signals.caught():
                 while self.step < until:
                     losses = self._advance(until, started)
                     bar.set_postfix(loss=f"{losses['loss']:.4f}", refresh=False)
@@ -314,7 +284,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         except TrainingInterrupted:
             raise
         except BaseException:
-            self._save_after_failure()
+            self.checkpointer.save_after_failure(self.state_dict, self.step)
             raise
         finally:
             bar.close()
@@ -327,10 +297,10 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
 
     def _advance(self, until: int, started: float) -> dict[str, float]:
         """Train one step on this step's batch, record it in the history and the train log."""
-        self._rng_at_step = rng_state()
+        self.checkpointer.start_step()
         samples = self.sampler.samples(self.step)
         if self.config.supervision == "depth":
-            self._check_depth(samples, self.step)
+            self.sample_checks.check_depth(samples, self.step)
         batch = to_device(collate(samples), self.device)
         if self.config.flip:
             batch = random_flip(batch, self.config.seed, self.step, self.rank)
@@ -341,7 +311,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
                "seconds": time.perf_counter() - started,
                "at_depth_limits": losses["at_depth_limits"]}
         self.history.append(row)
-        self._in_update = False
+        self.checkpointer.in_update = False
         if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
             self.log.train.append(row)
         return losses
@@ -354,11 +324,14 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
             self._validate()
         if cfg.figure_every and self.step % cfg.figure_every == 0:
             self.save_figure()
-        due = cfg.checkpoint_every and self.step % cfg.checkpoint_every == 0
-        late = cfg.checkpoint_minutes and (time.monotonic() - self._last_save
-                                           >= 60 * cfg.checkpoint_minutes)
-        if due or late:
+        if self.checkpointer.due(self.step, cfg.checkpoint_every, cfg.checkpoint_minutes):
             self._save_once()
+
+    def _stop_if_asked(self) -> None:
+        """Save and raise `TrainingInterrupted` when a signal asked the run to stop."""
+        signum = self._stop_requested()
+        if signum:
+            raise TrainingInterrupted(signum, self.step, self._save_once())
 
     def _check_collapse(self) -> None:
         """Warn when most predicted pixels sit at a depth limit (validation, else the last
@@ -440,6 +413,39 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
                                title=f"{sample.get('id', '')} step {self.step}",
                                depth_range=(self.config.depth_min, self.config.depth_max))
 
+    # -- checkpoints -------------------------------------------------------------------------
+    def state_dict(self) -> dict[str, Any]:
+        """Everything exact resume needs, as tensors and plain data only (see
+        `models.checkpoints`)."""
+        return {"format": CHECKPOINT_FORMAT, "model": self.model.state_dict(),
+                "optimizer": self.optimizer.state_dict(),
+                "scheduler": self.scheduler.state_dict(), "step": self.step,
+                "config": to_plain(self.config.to_dict(), "config"),
+                "history": [dict(row) for row in self.history], "rng": rng_state()}
+
+    def load_state_dict(self, state: Mapping[str, Any]) -> None:
+        """Restore what `state_dict` returned (also older checkpoints without `rng`)."""
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scheduler.load_state_dict(state["scheduler"])
+        self.step = int(state["step"])
+        self.history = [dict(row) for row in state.get("history", [])]
+        set_rng_state(state.get("rng", {}))
+
+    def save_checkpoint(self, path: str | Path | None = None) -> Path | None:
+        """Save model, optimiser, scheduler, step, config, history and random states (rank 0
+        only; atomic). Without `path`: `step_XXXXXX.pt` and `last.pt` in
+        `checkpoint_dir`, pruned to `config.keep_checkpoints`. Returns the path written."""
+        if not self.is_main:
+            return None
+        return self.checkpointer.save(self.state_dict(), self.step, path)
+
+    def _save_once(self) -> Path | None:
+        """`save_checkpoint()` unless this step is saved already; returns `last.pt`."""
+        if self.checkpointer.is_saved(self.step):
+            return self.checkpoints.last
+        return self.save_checkpoint()
+
     @classmethod
     def from_checkpoint(cls, path: str | Path, train_set: Iterable[Mapping[str, Any]] = (),
                         device: str = "auto") -> Trainer:
@@ -452,7 +458,7 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         state, cfg = read_checkpoint(path, resume="overwrite", progress=False, device=device)
         trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
         trainer.load_state_dict(state)
-        trainer._removals, trainer._truncate_logs = [], trainer.step  # fit() would continue it
+        trainer.run_folder.continue_at(trainer.step)  # fit() would continue it
         return trainer
 
     def load_checkpoint(self, path: str | Path, restore_logs: bool = True) -> None:
@@ -466,8 +472,3 @@ class Trainer(RunFolderMixin, SampleChecksMixin, InterruptibleMixin, Checkpointi
         self.load_state_dict(load_checkpoint(path, map_location=self.device))
         if self.is_main and restore_logs:
             self.log.truncate(self.step)
-
-
-__all__ = ["COLLAPSE_FRACTION", "METRIC_NAMES", "RESUME_MODES", "CheckpointError",
-           "DepthCollapseWarning", "TrainConfig", "Trainer", "TrainingInterrupted", "load_model",
-           "run_files", "to_device"]

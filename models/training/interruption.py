@@ -31,24 +31,34 @@ class TrainingInterrupted(KeyboardInterrupt):
                          "--resume`")
 
 
-class InterruptibleMixin:
-    """The signal handling of `models.training.Trainer` (which sets `_stop_signal` and saves
-    through `_save_once`)."""
+class SignalGuard:
+    """Owns the stop request of a training run: the signal caught while training (`signal`,
+    `None` while none arrived) and the handlers installed for SIGINT and SIGTERM meanwhile.
+
+    Args:
+        world_size: the number of processes that must agree to stop (DDP).
+        device: where the processes exchange the signal (the run's device).
+    """
+
+    def __init__(self, world_size: int, device: torch.device) -> None:
+        self.world_size, self.device = world_size, device
+        #: the signal that asks the run to stop, `None` while none arrived
+        self.signal: int | None = None
 
     @contextlib.contextmanager
-    def _signals_caught(self) -> Iterator[None]:
+    def caught(self) -> Iterator[None]:
         """While training: SIGINT and SIGTERM ask the loop to save and stop after the step under
         way (a second SIGINT stops at once). Only in the main thread; an ignored signal stays
         ignored."""
-        self._stop_signal = None
+        self.signal = None
         if threading.current_thread() is not threading.main_thread():
             yield
             return
 
         def handler(signum: int, frame: Any) -> None:
-            if self._stop_signal is not None and signum == signal.SIGINT:
+            if self.signal is not None and signum == signal.SIGINT:
                 raise KeyboardInterrupt
-            self._stop_signal = signum
+            self.signal = signum
 
         previous = {}
         for sig in (signal.SIGINT, signal.SIGTERM):
@@ -60,15 +70,9 @@ class InterruptibleMixin:
             for sig, old in previous.items():
                 signal.signal(sig, old)
 
-    def _stop_if_asked(self) -> None:
-        """Save and raise `TrainingInterrupted` when a signal asked the run to stop."""
-        signum = self._stop_requested()
-        if signum:
-            raise TrainingInterrupted(signum, self.step, self._save_once())
-
-    def _stop_requested(self) -> int:
+    def requested(self) -> int:
         """The signal that asks to stop (0: none), agreed by all processes."""
-        signum = self._stop_signal or 0
+        signum = self.signal or 0
         if self.world_size > 1:
             flag = torch.tensor([signum], device=self.device)
             dist.all_reduce(flag, op=dist.ReduceOp.MAX)

@@ -6,12 +6,16 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .checkpoints import load_checkpoint, to_plain
-from .train_config import RUN_CONTROL_KEYS, TrainConfig
-from .training_state import config_from_state
+import torch
+
+from ..checkpoints import CheckpointStore, load_checkpoint, to_plain
+from ..loading import config_from_state
+from ..run_log import RunLog
+from ..train_config import RUN_CONTROL_KEYS, TrainConfig
 
 _log = logging.getLogger("models.training")
 
@@ -44,41 +48,86 @@ def describe_diff(diff: Mapping[str, tuple[Any, Any]]) -> str:
     return ", ".join(f"{key} (there {old!r}, here {new!r})" for key, (old, new) in diff.items())
 
 
-class RunFolderMixin:
-    """The run-folder methods of `models.training.Trainer`."""
+@dataclass(frozen=True)
+class RunToContinue:
+    """The run that `out_dir` holds and that a trainer continues.
 
-    def _open_run(self) -> None:
-        """Apply `config.resume` to what `out_dir` holds: continue, refuse, or plan to delete."""
+    Attributes:
+        source: `checkpoints/last.pt`, or `config.yaml` where the run saved no checkpoint.
+        state: the checkpoint's state (`None` without a checkpoint): the trainer loads it.
+    """
+
+    source: Path
+    state: dict[str, Any] | None
+
+
+class RunFolder:
+    """Owns one run's folder, `config.out_dir`: what `config.resume` does with a run it holds
+    already, the old run's files that an overwrite deletes when `fit` starts (`removals`), and
+    the step that a continued run's logs, checkpoints and figures are cut back to then
+    (`truncate_to`).
+
+    Args:
+        config: the run's `TrainConfig` (`out_dir`, `resume`, and the config to compare).
+        checkpoints: the run's `CheckpointStore` (in `out_dir/checkpoints`).
+        log: the run's CSV logs.
+    """
+
+    def __init__(self, config: TrainConfig, checkpoints: CheckpointStore, log: RunLog) -> None:
+        self.config, self.checkpoints, self.log = config, checkpoints, log
+        #: the old run's files, deleted when fit starts
+        self.removals: list[Path] = []
+        #: cut the logs, checkpoints and figures back to this step when fit starts
+        self.truncate_to: int | None = None
+
+    def open(self, device: torch.device) -> RunToContinue | None:
+        """Apply `config.resume` to what `out_dir` holds: plan to delete it (`"overwrite"`),
+        refuse it, or return the run to continue (`None`: nothing to continue).
+
+        Raises:
+            ValueError: `out_dir` holds another run (naming the keys that differ), no run to
+                continue with `resume="resume"`, or a run without its config.
+            CheckpointError: `checkpoints/last.pt` is not a checkpoint.
+        """
         cfg = self.config
         files = run_files(cfg.out_dir)
         if cfg.resume == "overwrite":
-            self._removals = files
-            return
+            self.removals = files
+            return None
         if not files:
             if cfg.resume == "resume":
                 raise ValueError(f"resume='resume' (--resume) but out_dir {cfg.out_dir} holds no "
                                  "run to continue; check the folder, or start a new run without "
                                  "--resume")
-            return
-        state = None
+            return None
+        source, state, saved = self._saved_run(files, device)
+        self._check_same_run(saved, int(state["step"]) if state is not None else 0)
+        return RunToContinue(source, state)
+
+    def _saved_run(self, files: list[Path], device: torch.device,
+                   ) -> tuple[Path, dict[str, Any] | None, TrainConfig]:
+        """The source, checkpoint state (if any) and config of the run that `out_dir` holds."""
+        cfg = self.config
         if self.checkpoints.exists():
             source: Path = self.checkpoints.last
-            state = load_checkpoint(source, map_location=self.device)
-            saved = config_from_state(state, source, device="auto", resume="auto")
-        elif (cfg.out_dir / "config.yaml").is_file():
+            state = load_checkpoint(source, map_location=device)
+            return source, state, config_from_state(state, source, device="auto", resume="auto")
+        if (cfg.out_dir / "config.yaml").is_file():
             source = cfg.out_dir / "config.yaml"
             try:
-                saved = TrainConfig.from_yaml(source)
+                return source, None, TrainConfig.from_yaml(source)
             except (TypeError, ValueError) as error:
                 raise ValueError(f"{source} of the run in out_dir holds an invalid config "
                                  f"({error}); start over with --overwrite (resume='overwrite') "
                                  "or choose another out_dir") from None
-        else:
-            names = ", ".join(str(p.relative_to(cfg.out_dir)) for p in files[:3])
-            raise ValueError(f"out_dir {cfg.out_dir} holds files of a training run ({names}) "
-                             "without its config.yaml or checkpoints/last.pt; start over with "
-                             "--overwrite (resume='overwrite') or choose another out_dir")
-        step = int(state["step"]) if state is not None else 0
+        names = ", ".join(str(p.relative_to(cfg.out_dir)) for p in files[:3])
+        raise ValueError(f"out_dir {cfg.out_dir} holds files of a training run ({names}) "
+                         "without its config.yaml or checkpoints/last.pt; start over with "
+                         "--overwrite (resume='overwrite') or choose another out_dir")
+
+    def _check_same_run(self, saved: TrainConfig, step: int) -> None:
+        """Refuse to continue a run (at `step`) whose config `saved` differs from this one."""
+        cfg = self.config
         diff = config_diff(saved, cfg)
         if cfg.resume == "resume":
             if "steps" in diff and cfg.steps >= saved.steps:
@@ -95,26 +144,25 @@ class RunFolderMixin:
                 f"{describe_diff(diff)}; continue it with --resume (resume='resume'; only a larger "
                 "steps may differ), start over with --overwrite (resume='overwrite'), or choose "
                 "another out_dir")
-        if state is not None:
-            self.load_state_dict(state)
-            self._saved_step = self.step
-        self.resumed_from = source
-        self._truncate_logs = self.step
-        _log.info("continuing the run in %s from step %d", cfg.out_dir, self.step)
 
-    def _prepare_out_dir(self) -> None:
+    def continue_at(self, step: int) -> None:
+        """Keep the run's files: `prepare` cuts them back to `step` instead of deleting them."""
+        self.removals = []
+        self.truncate_to = step
+
+    def prepare(self) -> None:
         """At the start of `fit` (rank 0): delete an overwritten run's files or cut a resumed
         run's logs, checkpoints and figures back to its step; write `config.yaml`."""
         cfg = self.config
-        if self._removals:
-            for path in self._removals:
+        if self.removals:
+            for path in self.removals:
                 path.unlink(missing_ok=True)
             _log.warning("deleted the previous run's %d files in %s (resume='overwrite')",
-                         len(self._removals), cfg.out_dir)
-            self._removals = []
+                         len(self.removals), cfg.out_dir)
+            self.removals = []
         self.checkpoints.remove_temporaries()
-        if self._truncate_logs is not None:
-            step = self._truncate_logs
+        if self.truncate_to is not None:
+            step = self.truncate_to
             self.log.truncate(step)
             for path in self.checkpoints.list():
                 if int(path.stem.split("_")[1]) > step:
@@ -122,6 +170,6 @@ class RunFolderMixin:
             for path in (cfg.out_dir / "figures").glob("step_[0-9]*.png"):
                 if path.stem.split("_")[1].isdigit() and int(path.stem.split("_")[1]) > step:
                     path.unlink(missing_ok=True)
-            self._truncate_logs = None
+            self.truncate_to = None
         cfg.out_dir.mkdir(parents=True, exist_ok=True)
         cfg.to_yaml(cfg.out_dir / "config.yaml")

@@ -8,12 +8,23 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from ..sampling import StepSampler
+from ..train_config import TrainConfig
 
-class SampleChecksMixin:
-    """The sample checks of `models.training.Trainer` (which holds `config`, `sampler` and
-    `train_set`)."""
 
-    def _needs(self) -> list[str]:
+class SampleChecker:
+    """Checks training samples against a config; owns nothing that changes: the config and the
+    `StepSampler` whose dataset (`sampler.dataset`) and batch indices it checks and names.
+
+    Args:
+        config: the run's `TrainConfig` (input mode, supervision, `n_focus`).
+        sampler: the run's sampler (its dataset is the `train_set`).
+    """
+
+    def __init__(self, config: TrainConfig, sampler: StepSampler) -> None:
+        self.config, self.sampler = config, sampler
+
+    def needs(self) -> list[str]:
         """The sample keys that training with this config reads."""
         cfg = self.config
         keys = ["image"]
@@ -23,29 +34,30 @@ class SampleChecksMixin:
             keys.append("depth")
         return keys
 
-    def _check_first_sample(self) -> None:
+    def check_first_sample(self) -> None:
         """Refuse a map-style train_set whose first sample does not fit the config."""
-        if not self.sampler.is_map_style() or len(self.train_set) == 0:
+        train_set = self.sampler.dataset
+        if not self.sampler.is_map_style() or len(train_set) == 0:
             return
-        sample = self.train_set[0]
+        sample = train_set[0]
         name = repr(sample.get("id", "#0")) if isinstance(sample, Mapping) else "#0"
         if not isinstance(sample, Mapping):
             raise TypeError(f"train_set[0] must be a sample mapping (image, focused, camera, "
                             f"depth, mask), got a {type(sample).__name__}")
-        missing = [key for key in self._needs() if key not in sample]
+        missing = [key for key in self.needs() if key not in sample]
         if missing:
             raise ValueError(f"sample {name} has no {missing}, which input_mode="
                              f"{self.config.input_mode!r} with supervision="
                              f"{self.config.supervision!r} needs; it has {sorted(sample)}")
         focused = sample.get("focused")
-        if "focused" in self._needs() and isinstance(focused, Tensor):
+        if "focused" in self.needs() and isinstance(focused, Tensor):
             n = focused.shape[0] if focused.ndim == 4 else -1
             if n != self.config.n_focus:
                 raise ValueError(f"n_focus is {self.config.n_focus} but sample {name} holds "
                                  f"focused images of shape {tuple(focused.shape)} (F, 3, H, W); "
                                  f"set n_focus to its number of focused images")
 
-    def _check_depth(self, samples: Sequence[Mapping[str, Any]], step: int) -> None:
+    def check_depth(self, samples: Sequence[Mapping[str, Any]], step: int) -> None:
         """Refuse ground-truth depth that is not finite and > 0 where the mask says valid."""
         indices = self.sampler.indices(step) if self.sampler.is_map_style() else None
         for i, sample in enumerate(samples):

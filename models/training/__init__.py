@@ -1,0 +1,73 @@
+"""Training: a trainer with exact resume, CSV logs, figures and DDP, run by a `TrainConfig`
+(`models.train_config`, also importable from here).
+
+`Trainer` takes any map-style `torch.utils.data.Dataset` (or any iterable) of samples in the
+sample format (see the datasets tutorial). With `supervision="self"` (default) the loss never
+sees depth labels: the predicted depth is rendered through each focused image's camera
+(`optics.render_focal_stack` with the sample's `CameraSettings`) and compared with the real focused image
+(`models.losses.DefocusLoss`). `supervision="depth"` trains on the ground truth instead
+(a baseline).
+
+Reproducibility: the batch of step `k` is drawn from a permutation seeded by `(seed, epoch)`,
+so a run resumed from a checkpoint sees the same batches and gives the same losses as an
+uninterrupted run. Launched with `torchrun --nproc_per_node=N`, training is data parallel (DDP;
+gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the same weights
+after each step, and only rank 0 writes files.
+
+Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
+seconds, `at_depth_limits`), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and the
+newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and `warnings.log` when a run ends with
+a warning.
+
+One folder holds one run. `TrainConfig.resume` says what happens when `out_dir` already holds
+one: `"auto"` (default) continues it when its config is the same and otherwise refuses with
+the keys that differ; `"resume"` continues it, also to a larger `steps`; `"overwrite"` deletes
+its files (config, logs, checkpoints, figures; nothing else) when `fit` starts. A continued run
+starts from `checkpoints/last.pt` with its logs cut back to that step, so its logs and losses
+match those of an uninterrupted run.
+
+Failures are safe: every config field is checked when the config is built; `fit` checks the
+samples (`n_focus`, ground-truth depth > 0 where valid), saves checkpoints periodically (by
+steps and by minutes), when a step fails and on SIGINT/SIGTERM (then it raises
+`TrainingInterrupted`), stops at the first non-finite loss or gradient (`FloatingPointError`)
+without saving non-finite weights, and warns (`DepthCollapseWarning`) when most predicted pixels
+sit at `depth_min` or `depth_max`.
+
+The pieces: `Trainer` (`models.training.trainer`) runs the loop and is composed of helpers that
+each own their state: a `RunFolder` (`models.training.run_folder`: one run per folder), a
+`Checkpointer` (`models.training.checkpointing`: when checkpoints are written, exact resume
+after a failure), a `SignalGuard` (`models.training.interruption`: SIGINT and SIGTERM) and a
+`SampleChecker` (`models.training.sample_checks`); `models.training.state` holds the rank, the
+schedule, the random states and `to_device`. Outside the package: `models.train_config`,
+`models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint files that
+open without running code, `CheckpointStore`), `models.loading` (a checkpoint's config and
+network), `models.run_log` (CSV logs) and `models.plotting` (figures). Checkpoints hold only
+tensors and plain data and are read with `torch.load(..., weights_only=True)`: a file holding
+anything else is refused with `CheckpointError` (see `docs/security.md`).
+"""
+
+
+from ..checkpoints import CheckpointError
+from ..loading import load_model, read_checkpoint
+from ..metrics import METRIC_NAMES
+from ..train_config import (
+    RESUME_MODES,
+    RUN_CONTROL_KEYS,
+    SUPERVISIONS,
+    TrainConfig,
+    check_device,
+    select_device,
+)
+from .checkpointing import Checkpointer
+from .interruption import SignalGuard, TrainingInterrupted
+from .run_folder import RunFolder, RunToContinue, run_files
+from .sample_checks import SampleChecker
+from .state import build_scheduler, process_rank, rng_state, set_rng_state, to_device
+from .trainer import COLLAPSE_FRACTION, LIMIT_TOLERANCE, DepthCollapseWarning, Trainer
+
+__all__ = ["COLLAPSE_FRACTION", "LIMIT_TOLERANCE", "METRIC_NAMES", "RESUME_MODES",
+           "RUN_CONTROL_KEYS", "SUPERVISIONS", "CheckpointError", "Checkpointer",
+           "DepthCollapseWarning", "RunFolder", "RunToContinue", "SampleChecker", "SignalGuard",
+           "TrainConfig", "Trainer", "TrainingInterrupted", "build_scheduler", "check_device",
+           "load_model", "process_rank", "read_checkpoint", "rng_state", "run_files",
+           "select_device", "set_rng_state", "to_device"]
