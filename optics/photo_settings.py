@@ -234,7 +234,7 @@ def metadata_settings(
         >>> stated = {"focal_length": 0.05, "f_number": 2.8, "pixel_pitch": 4e-6}
         >>> meta = PhotoMetadata("a.dng", stated, binning=2)
         >>> metadata_settings(meta, 2.0).to_dict()
-        {'focal_length': 0.05, 'f_number': 2.8, 'focus_distance': 2.0, 'pixel_pitch': 8e-06, 'psf': 'gaussian:0.5'}
+        {'focal_length': 0.05, 'f_number': 2.8, 'focus_distance': 2.0, 'pixel_pitch': 8e-06, 'aperture': 'gaussian:0.5'}
     """
     options = {"focal_length": focal_length, "f_number": f_number, "pixel_pitch": pixel_pitch}
     values, _ = resolve_known([metadata], options)
