@@ -14,10 +14,12 @@ first).
 from __future__ import annotations
 
 import argparse
+import difflib
 import importlib
 import os
 import signal
 import sys
+import warnings
 
 from defocus import __version__
 from defocus.errors import USER_ERRORS, one_line
@@ -31,19 +33,31 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("defocus.commands.train", "train a depth network (config YAML + key=value overrides)"),
     "evaluate": ("defocus.commands.evaluate", "depth metrics of a checkpoint on a dataset"),
     "predict": ("defocus.commands.predict", "depth of your own photos (no network needed)"),
+    "sample": ("defocus.commands.sample", "write a small set of photos to try the commands on"),
     "convert-checkpoint": ("defocus.commands.convert_checkpoint",
                            "rewrite a trusted old checkpoint so that it opens without running code"),
 }
+
+
+def add_global_options(parser: argparse.ArgumentParser, after_command: bool = False) -> None:
+    """`--debug` and `--quiet`, accepted before the subcommand and after it (there, with no
+    default of their own, so that one given before the subcommand holds)."""
+    default = {"default": argparse.SUPPRESS} if after_command else {}
+    parser.add_argument("--debug", action="store_true", **default,
+                        help="show the full traceback of an error (also DEFOCUS_DEBUG=1)")
+    parser.add_argument("--quiet", action="store_true", **default,
+                        help="print only results, warnings and errors: no progress bars or "
+                             "progress lines")
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="defocus",
         description="Differentiable optics and depth from defocus. Lengths are in metres.",
+        allow_abbrev=False,
     )
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
-    parser.add_argument("--debug", action="store_true",
-                        help="show the full traceback of an error (also DEFOCUS_DEBUG=1)")
+    add_global_options(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
         command = sub.add_parser(
@@ -51,15 +65,60 @@ def build_parser() -> argparse.ArgumentParser:
             help=help_text,
             description=help_text,
             formatter_class=DefaultsOnceFormatter,
+            allow_abbrev=False,
         )
         importlib.import_module(module).add_arguments(command)
+        add_global_options(command, after_command=True)
         command.set_defaults(_module=module)
     return parser
 
 
+def subcommand_parser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
+    """The parser of subcommand `name`."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices[name]
+    raise KeyError(name)
+
+
+def parse(argv: list[str] | None = None) -> argparse.Namespace:
+    """The parsed command line; an unknown option is answered by its subcommand's usage and the
+    closest option it has."""
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        command = subcommand_parser(parser, args.command)
+        options = [o for action in command._actions for o in action.option_strings]
+        hints = [close[0] for word in unknown if word.startswith("-")
+                 for close in [difflib.get_close_matches(word.split("=")[0], options, n=1, cutoff=0.75)]
+                 if close]
+        hint = f" (did you mean {', '.join(dict.fromkeys(hints))}?)" if hints else ""
+        command.error(f"unrecognized arguments: {' '.join(unknown)}{hint}")
+    return args
+
+
+def one_line_warnings(command: str):
+    """A `warnings.formatwarning` that writes each warning as one line,
+    `defocus COMMAND: warning: MESSAGE`, without the source file and line, and each message
+    once (repeats format as nothing)."""
+    seen: set[str] = set()
+
+    def format_warning(message, category, filename, lineno, line=None):  # noqa: ANN001
+        text = one_line(message)
+        if text in seen:
+            return ""
+        seen.add(text)
+        return f"defocus {command}: warning: {text}\n"
+
+    return format_warning
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = parse(argv)
     debug = args.debug or os.environ.get("DEFOCUS_DEBUG", "") not in ("", "0")
+    original = warnings.formatwarning
+    if not debug:
+        warnings.formatwarning = one_line_warnings(args.command)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except KeyboardInterrupt as error:  # also models.training.TrainingInterrupted
@@ -81,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"defocus {args.command}: error: unexpected {type(error).__name__}: "
               f"{one_line(error)} (rerun with --debug for the traceback)", file=sys.stderr)
         return 1
+    finally:
+        warnings.formatwarning = original
 
 
 if __name__ == "__main__":

@@ -48,6 +48,42 @@ def aperture_argument(text: str) -> str:
     return text
 
 
+def check_positive(args: argparse.Namespace, *names: str) -> None:
+    """Refuse option values that are not finite numbers > 0, naming the option as typed
+    (`--f-number -8.3: must be a finite number > 0`); `names` are `args` attributes, unset
+    (None, empty) ones are skipped.
+
+    Example:
+        >>> check_positive(argparse.Namespace(f_number=[-8.3]), "f_number")
+        Traceback (most recent call last):
+        ...
+        ValueError: --f-number -8.3: must be a finite number > 0
+    """
+    for name in names:
+        value = getattr(args, name)
+        values = value if isinstance(value, (list, tuple)) else [value]
+        for item in values:
+            if item is not None and not 0 < item < float("inf"):
+                option = "--" + name.replace("_", "-")
+                raise ValueError(f"{option} {item:g}: must be a finite number > 0")
+
+
+def say(args: argparse.Namespace):
+    """The `report` callback of a command: `print` (flushed, so that progress lines show at once
+    in a log), or nothing with `--quiet`."""
+    if getattr(args, "quiet", False):
+        return lambda text: None
+    return lambda text: print(text, flush=True)
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    """Progress bars: on a terminal unless `--quiet`; anywhere with `--progress`."""
+    from optics.progress import writes_to_terminal
+
+    return bool(getattr(args, "progress", False)) or (
+        writes_to_terminal() and not getattr(args, "quiet", False))
+
+
 def add_data_arguments(
     parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (), default: str = "synthetic"
 ) -> None:

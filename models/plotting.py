@@ -23,7 +23,7 @@ def plot_prediction(
     path: str | Path, image: Tensor, depth: Tensor, focused: Tensor | None = None,
     target: Tensor | None = None, mask: Tensor | None = None, title: str = "",
     depth_range: tuple[float, float] | None = None, confidence: Tensor | None = None,
-    image_label: str = "all in focus (input)",
+    image_label: str = "all in focus (input)", stated_range: tuple[float, float] | None = None,
 ) -> Path:
     """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
     its confidence, ground-truth depth and the relative error `|d - g| / g` (masked pixels
@@ -37,9 +37,12 @@ def plot_prediction(
         target: optional ground-truth depth `(1,H,W)` metres.
         mask: optional valid-depth mask `(1,H,W)`.
         title: figure title.
-        depth_range: colour range of the depth maps in metres (default: that of the data).
+        depth_range: colour range of the depth maps in metres (default: that of the data; with
+            `stated_range`, its 2nd-98th percentiles, `robust_range`).
         confidence: optional confidence `(1,H,W)` in [0, 1] (e.g. `SweepDepth`'s).
         image_label: the title of the all-in-focus panel (e.g. "all in focus (fused)").
+        stated_range: the depth range the user stated, metres: marked on the depth colour bar
+            (dashed lines where it falls inside the colours) and named in the panel's title.
 
     Returns:
         the path written.
@@ -54,7 +57,9 @@ def plot_prediction(
     if focused is not None:
         for i, f in enumerate(focused.detach().float().cpu()):
             panels.append((f"focused image {i + 1}", f, "rgb"))
-    panels.append(("predicted depth (m)", depth[0], "depth"))
+    stated = "" if stated_range is None else \
+        f" (stated {stated_range[0]:g}-{stated_range[1]:g})"
+    panels.append((f"predicted depth (m){stated}", depth[0], "depth"))
     if confidence is not None:
         panels.append(("confidence", confidence.detach().float().cpu()[0], "confidence"))
     if target is not None:
@@ -63,7 +68,9 @@ def plot_prediction(
         panels.append(("ground truth (m)", torch.where(valid, target, torch.nan)[0], "depth"))
         error = torch.where(valid, (depth - target).abs() / target, torch.nan)[0]
         panels.append(("abs rel error", error, "error"))
-    if depth_range is None:
+    if depth_range is None and stated_range is not None:
+        depth_range = robust_range(depth)
+    elif depth_range is None:
         values = [depth] + ([target] if target is not None else [])
         depth_range = (min(float(v.min()) for v in values), max(float(v.max()) for v in values))
     fig = Figure(figsize=(2.8 * len(panels), 2.8), layout="constrained")
@@ -78,12 +85,68 @@ def plot_prediction(
             cmap = cmap.with_extremes(bad="0.6")
             limits = {"depth": depth_range, "confidence": (0.0, 1.0)}.get(kind, (0.0, 0.5))
             shown = ax.imshow(data.numpy(), cmap=cmap, vmin=limits[0], vmax=limits[1])
-            fig.colorbar(shown, ax=ax, shrink=0.75)
+            bar = fig.colorbar(shown, ax=ax, shrink=0.75)
+            if kind == "depth" and stated_range is not None:
+                _mark(bar, limits, stated_range)
         ax.set_title(name, fontsize=9)
         ax.axis("off")
     if title:
         fig.suptitle(title, fontsize=10)
     fig.savefig(path, dpi=90)
+    return path
+
+
+def robust_range(depth: Tensor, low: float = 2.0, high: float = 98.0) -> tuple[float, float]:
+    """The `low`-th and `high`-th percentiles of the finite values of `depth`: a colour scale
+    that follows the result, not its few extreme pixels (nor the stated range, which would
+    show a 0.9-2 m answer in a 0.5-10 m range as one flat colour).
+
+    Example:
+        >>> tuple(round(v, 2) for v in robust_range(torch.linspace(1.0, 3.0, 101)))
+        (1.04, 2.96)
+    """
+    values = depth.detach().float().flatten()
+    values = values[torch.isfinite(values)]
+    if values.numel() == 0:
+        return (0.0, 1.0)
+    a, b = (float(v) for v in torch.quantile(values[:: max(1, values.numel() // 1_000_000)],
+                                             torch.tensor([low / 100, high / 100])))
+    return (a, b) if b > a else (a - 0.5 * max(abs(a), 1e-3), b + 0.5 * max(abs(b), 1e-3))
+
+
+def _mark(bar, limits: tuple[float, float], stated: tuple[float, float]) -> None:
+    """Dashed lines on a colour bar at the ends of the stated range that fall inside it."""
+    for value in stated:
+        if limits[0] < value < limits[1]:
+            bar.ax.axhline(value, color="#2b8cbe", linestyle="--", linewidth=1.2)
+
+
+def save_depth_preview(path: str | Path, depth: Tensor,
+                       limits: tuple[float, float] | None = None) -> Path:
+    """Save depth `(H,W)` or `(1,H,W)` metres as a colour-mapped 8-bit PNG to look at (near
+    bright, far dark, as in the figures; colours over `limits`, by default `robust_range`);
+    unknown (non-finite) depth is grey. The metric depth is in `depth.npy` and the millimetre
+    PNG.
+
+    Example:
+        >>> import tempfile
+        >>> path = save_depth_preview(Path(tempfile.mkdtemp()) / "depth.png",
+        ...                           torch.rand(1, 8, 8) + 1)
+        >>> path.name
+        'depth.png'
+    """
+    import matplotlib
+    import numpy as np
+    from PIL import Image
+
+    depth = depth.detach().float().cpu().reshape(depth.shape[-2:])
+    low, high = limits or robust_range(depth)
+    scaled = ((depth - low) / max(high - low, 1e-12)).clamp(0, 1)
+    rgba = matplotlib.colormaps["magma_r"](scaled.numpy())
+    rgba[~np.isfinite(depth.numpy())] = (0.6, 0.6, 0.6, 1.0)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray((rgba[..., :3] * 255).round().astype(np.uint8)).save(path)
     return path
 
 

@@ -48,7 +48,7 @@ class DemoResult:
 
 def run_demo(out: Path, steps: int = 500, batch_size: int = 8, lr: float = 2e-3, width: int = 24,
              scenes: int = 256, size: int = 48, scale: float = 0.25, direct_steps: int = 150,
-             smoothness_weight: float = 0.01, seed: int = 0,
+             smoothness_weight: float = 0.01, seed: int = 0, progress: bool = True,
              report: Callable[[str], None] = lambda text: None) -> DemoResult:
     """Train, fit and evaluate every method of the demo (module docstring); returns the table.
 
@@ -73,7 +73,7 @@ def run_demo(out: Path, steps: int = 500, batch_size: int = 8, lr: float = 2e-3,
         steps=steps, batch_size=batch_size, lr=lr, network="small",
         input_mode="aif+focused", out_dir=out, seed=seed, depth_min=depth_range[0],
         depth_max=depth_range[1], n_focus=len(preset.focus_distances), width=width,
-        resume=False, log_every=10, smoothness_weight=smoothness_weight,
+        resume=False, log_every=10, smoothness_weight=smoothness_weight, progress=progress,
     )
     results, predictions = compare_on_scene(config, train_set, val_set, sample,
                                             direct_steps=direct_steps, report=report)

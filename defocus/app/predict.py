@@ -19,6 +19,8 @@ from typing import Any
 import torch
 
 Report = Callable[[str], None]
+#: Below this confidence a pixel's depth is not to be trusted (the summary counts them).
+LOW_CONFIDENCE = 0.2
 
 
 @dataclasses.dataclass
@@ -40,6 +42,8 @@ class PredictRequest:
     aggregation: str = "semi-global"
     device: str = "auto"
     out: Path = Path("runs/predict")
+    #: show progress bars
+    progress: bool = True
 
 
 @dataclasses.dataclass
@@ -184,7 +188,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     out = estimate_depth(photos.focused.to(device), settings, depth_range,
                          image=None if photos.image is None else photos.image.to(device),
                          image_settings=image_settings, method=method, model=model,
-                         options=options, progress=True)
+                         options=options, progress=request.progress)
     if image_settings is not None:
         report(f"--image is one more shot: f/{request.image_f_number:g}, focused at "
                f"{float(image_settings.focus_distance[0]):g} m")
@@ -192,6 +196,8 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
         infos = ([] if photos.image_info is None else [photos.image_info]) + photos.infos
         _report_working_resolution(out, depth_range, infos, method, report)
     out["method"] = method
+    out["low_confidence"] = None if out["confidence"] is None else \
+        float((out["confidence"] < LOW_CONFIDENCE).float().mean())
     out["written"] = write_outputs(request.out, out, photos)
     return out
 
@@ -239,13 +245,14 @@ def _report_working_resolution(out, depth_range, infos, method, report: Report) 
 
 
 def write_outputs(folder: Path, out: dict[str, Any], photos: Photos) -> list[str]:
-    """Write depth.npy (metres), depth_mm.png (16-bit millimetres), confidence.png,
-    all_in_focus.png and figure.png under `folder`; returns the names written."""
+    """Write depth.npy (metres), depth_mm.png (16-bit millimetres), depth.png (a colour-mapped
+    preview), confidence.png, all_in_focus.png and figure.png under `folder`; returns the names
+    written."""
     import numpy as np
     from PIL import Image
 
     from datasets.photos import save_photo
-    from models.plotting import plot_prediction
+    from models.plotting import plot_prediction, robust_range, save_depth_preview
 
     depth = out["depth"].cpu()
     confidence = None if out["confidence"] is None else out["confidence"].cpu()
@@ -255,7 +262,8 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos) -> list[str
     np.save(folder / "depth.npy", depth[0].numpy().astype(np.float32))
     millimetres = np.clip(np.round(depth[0].numpy() * 1000), 0, 65535).astype(np.uint16)
     Image.fromarray(millimetres).save(folder / "depth_mm.png")
-    written = ["depth.npy", "depth_mm.png"]
+    save_depth_preview(folder / "depth.png", depth[0], robust_range(depth))
+    written = ["depth.npy", "depth_mm.png", "depth.png"]
     if confidence is not None:
         Image.fromarray((confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(
             folder / "confidence.png")
@@ -265,7 +273,7 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos) -> list[str
     written.append("all_in_focus.png")
     plot_prediction(folder / "figure.png", fused, depth,
                     photos.focused if photos.infos else None,
-                    title=str(photos.first_path.name), depth_range=tuple(out["depth_range"]),
+                    title=str(photos.first_path.name), stated_range=tuple(out["depth_range"]),
                     confidence=confidence, image_label="all in focus (input)"
                     if photos.image is not None else "all in focus (fused)")
     return written

@@ -19,7 +19,7 @@ import argparse
 from pathlib import Path
 
 from defocus.errors import CommandError
-from defocus.options import aperture_argument
+from defocus.options import aperture_argument, check_positive, show_progress
 from optics import LENS_APERTURE
 
 KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
@@ -62,7 +62,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--margin", type=int, default=None, help="border left out, pixels")
     parser.add_argument("--adam-steps", type=int, default=60, help="Adam iterations")
     parser.add_argument("--lbfgs-steps", type=int, default=40, help="L-BFGS iterations")
-    parser.add_argument("--progress", action="store_true", help="show progress bars")
+    parser.add_argument("--progress", action="store_true",
+                        help="show progress bars also where standard error is no terminal (on "
+                             "a terminal they show unless --quiet)")
 
 
 def run_dataset(args: argparse.Namespace) -> int:
@@ -70,7 +72,7 @@ def run_dataset(args: argparse.Namespace) -> int:
     from optics import plot_depth_calibration
 
     fit, count = calibrate_from_dataset(args.dataset, args.root, args.split, args.scenes,
-                                        args.aperture, args.focus_distance, args.progress)
+                                        args.aperture, args.focus_distance, show_progress(args))
     values = fit.settings.to_dict()
     print(f"{args.dataset}: {count} samples of {args.split!r}")
     for name in ("focus_distance", "pixel_pitch", "f_number", "focal_length", "aperture"):
@@ -87,6 +89,7 @@ def run(args: argparse.Namespace) -> int:
     if (args.pair is None) == (args.dataset is None):
         raise CommandError("give either --pair SHARP BLURRED DISTANCE (repeat) or --dataset NAME "
                            "--root DIR")
+    check_positive(args, "focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
     if args.dataset is not None:
         return run_dataset(args)
     known = {"focal_length": args.focal_length, "f_number": args.f_number,
@@ -95,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     result, sources = calibrate_from_pairs(
         args.pair, known, fit=args.fit, aperture=args.aperture, binning=args.binning,
         white_balance=args.white_balance, margin_px=args.margin, adam_steps=args.adam_steps,
-        lbfgs_steps=args.lbfgs_steps, progress=args.progress)
+        lbfgs_steps=args.lbfgs_steps, progress=show_progress(args))
     for name, source in sources.items():
         print(f"{name}: from the {source}")
     print(result.table())

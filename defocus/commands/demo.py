@@ -9,6 +9,8 @@ from pathlib import Path
 
 import torch
 
+from defocus.options import say
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/demo"), help="output folder")
@@ -45,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
     result = run_demo(args.out, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                       width=args.width, scenes=args.scenes, size=args.size, scale=args.scale,
                       direct_steps=args.direct_steps, smoothness_weight=args.smoothness_weight,
-                      seed=args.seed, report=print)
+                      seed=args.seed, progress=not args.quiet, report=say(args))
     print(f"\nReal motorcycle scene ({result.scene_size} pixels, "
           f"best constant depth {result.constant_depth:.2f} m):")
     print(format_table(result.metrics))

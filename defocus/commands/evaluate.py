@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import argparse
 import json
-from functools import partial
 from pathlib import Path
 
 from datasets.registry import STACK_DATASET_NAMES
 from defocus.errors import CommandError
-from defocus.options import METHOD_NAMES, add_data_arguments, dataset_from_options
+from defocus.options import METHOD_NAMES, add_data_arguments, dataset_from_options, say
 
 BENCHMARKS = STACK_DATASET_NAMES
 
@@ -90,7 +89,7 @@ def run_benchmark(args: argparse.Namespace) -> int:
         return 0
     name, metrics = evaluate_on_benchmark(dataset, args.dataset, args.method, args.checkpoint,
                                           args.max_samples, args.max_pixels,
-                                          report=partial(print, flush=True))
+                                          report=say(args))
     protocol = PROTOCOLS[args.dataset]
     print(format_table({name: metrics}, metrics=protocol.metrics, number_format="{:.4g}"))
     print(f"{args.dataset}: {metrics['images']:.0f} images; protocol: {protocol.source}")

@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from defocus.options import check_positive, say
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
@@ -84,12 +86,22 @@ def run(args: argparse.Namespace) -> int:
     from defocus.app.predict import PredictRequest, predict
 
     camera = ("focus_distance", "f_number", "focal_length", "pixel_pitch")
+    check_positive(args, "image_f_number", "image_focus_distance", "focus_distance", "f_number",
+                   "focal_length", "pixel_pitch", "depth_range")
     request = PredictRequest(
         **{field.name: getattr(args, field.name) for field in dataclasses.fields(PredictRequest)
-           if field.name != "camera_options"},
+           if field.name not in ("camera_options", "progress")},
+        progress=not args.quiet,
         camera_options={name: getattr(args, name) for name in camera})
-    out = predict(request, report=print)
+    out = predict(request, report=say(args))
+    from defocus.app.predict import LOW_CONFIDENCE
+    from models.plotting import robust_range
+
     depth = out["depth"]
-    print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m; wrote "
-          f"{', '.join(out['written'])} and figure.png under {args.out}")
+    low, high = robust_range(depth)
+    doubt = "" if not out["low_confidence"] else \
+        f"; {out['low_confidence']:.0%} of the pixels have low confidence (< {LOW_CONFIDENCE:g})"
+    print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m (most pixels {low:.2f}-"
+          f"{high:.2f} m){doubt}; wrote {', '.join(out['written'])} and figure.png under "
+          f"{args.out}")
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from defocus.options import aperture_argument
+from defocus.options import aperture_argument, check_positive
 from optics import LENS_APERTURE
 
 
@@ -24,6 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_positive(args, "focus", "focal_length", "f_number")
     from defocus.app.render import write_focus_sweep
 
     path = write_focus_sweep(args.out, args.focus, args.focal_length, args.f_number,

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from defocus.app.train import config_fields_help
-from defocus.options import DefaultsOnceFormatter, add_data_arguments, dataset_from_options
+from defocus.options import DefaultsOnceFormatter, add_data_arguments, dataset_from_options, say
 
 
 class _HelpFormatter(DefaultsOnceFormatter, argparse.RawDescriptionHelpFormatter):
@@ -64,7 +65,9 @@ def run(args: argparse.Namespace) -> int:
             val = dataset_from_options(args, seed_offset=1_000)
             val.num_scenes = min(len(val), 16)
             return val
-    result = train(cfg, dataset_from_options(args), validation, report=print)
+    if args.quiet:
+        cfg = dataclasses.replace(cfg, progress=False)
+    result = train(cfg, dataset_from_options(args), validation, report=say(args))
     trainer = result.trainer
     if trainer.is_main:
         last = f"; last loss {trainer.history[-1]['loss']:.4f}" if trainer.history else ""

@@ -1,0 +1,29 @@
+"""`defocus sample`: write a small set of photos to try the other commands on
+(`defocus.app.sample.write_sample_set`)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("folder", type=Path, nargs="?", default=Path("samples"),
+                        help="where to write the photos (default: samples)")
+    parser.add_argument("--scale", type=float, default=0.35,
+                        help="size of the photos as a fraction of the scene's 741x500 pixels")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the photos' noise")
+
+
+def run(args: argparse.Namespace) -> int:
+    from defocus.app.sample import SAMPLE_DEPTH_RANGE, write_sample_set
+
+    if not 0 < args.scale <= 1:
+        raise ValueError(f"--scale {args.scale:g}: must be in (0, 1]")
+    sample = write_sample_set(args.folder, args.scale, args.seed)
+    near, far = SAMPLE_DEPTH_RANGE
+    print(f"wrote {', '.join(path.name for path in sample.files)} under {sample.folder}")
+    print(f"try: defocus predict --image {sample.folder / 'aif.png'} --focused "
+          f"{sample.folder / 'near.png'} {sample.folder / 'far.png'} --camera "
+          f"{sample.folder / 'camera.json'} --depth-range {near:g} {far:g}")
+    return 0
