@@ -209,8 +209,9 @@ def test_concepts_group_private_modules_with_their_public_one():
 
 #: The most lines a function of the packages may have.
 MAX_FUNCTION_LINES = 80
-#: Modules that may print: the command line and nothing else.
-MAY_PRINT = ("defocus.cli", "defocus.commands")
+#: Modules that may print: the command line and nothing else (`defocus.options` builds the
+#: commands' `report` callback, `print` or nothing with `--quiet`).
+MAY_PRINT = ("defocus.cli", "defocus.commands", "defocus.options")
 #: Names of the camera values; a class that declares two of them is a camera value type.
 CAMERA_FIELDS = {"focal_length", "f_number", "f_numbers", "focus_distance", "focus_distances",
                  "pixel_pitch"}
@@ -233,7 +234,8 @@ def test_no_function_is_over_the_line_limit():
 
 def test_only_the_command_line_prints():
     """The library and the workflows (`defocus.app`) return results and report through
-    callbacks; only `defocus.cli` and `defocus.commands` print."""
+    callbacks; only the command line (`defocus.cli`, `defocus.commands`, `defocus.options`)
+    prints."""
     bad = [f"{path.relative_to(ROOT)}:{node.lineno}: print"
            for path, name, tree in package_files() if not name.startswith(MAY_PRINT)
            for node in ast.walk(tree)
