@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from collections.abc import Mapping, Sequence
 from os import PathLike
 from pathlib import Path
@@ -133,6 +134,22 @@ class Camera(nn.Module):
 SETTING_FIELDS = ("focal_length", "f_number", "focus_distance", "pixel_pitch")
 _UNITS = {"focal_length": "metres", "f_number": "", "focus_distance": "metres",
           "pixel_pitch": "metres"}
+
+
+def _shortest(value: float, dtype: torch.dtype) -> float:
+    """`value` as the shortest decimal that reads back as the same `dtype` number: a float32
+    setting of 2.8 is written 2.8, not 2.799999952316284.
+
+    Example:
+        >>> _shortest(float(torch.tensor(2.8, dtype=torch.float32)), torch.float32)
+        2.8
+    """
+    if dtype not in (torch.float32, torch.float16) or not math.isfinite(value):
+        return value
+    import numpy as np
+
+    kind = np.float32 if dtype == torch.float32 else np.float16
+    return float(np.format_float_positional(kind(value), unique=True, trim="-"))
 
 
 def _as_tensor(name: str, value: Any) -> Tensor:
@@ -337,8 +354,9 @@ class CameraSettings:
         """Plain numbers and lists (metres), and the aperture spec under `aperture`."""
         data: dict[str, Any] = {}
         for name, value in self.tensors().items():
-            values = value.detach().cpu().tolist()
-            data[name] = values[0] if value.numel() == 1 else values
+            values = [_shortest(v, value.dtype) for v in value.detach().cpu().reshape(-1).tolist()]
+            data[name] = values[0] if value.numel() == 1 else \
+                torch.tensor(values, dtype=torch.float64).reshape(value.shape).tolist()
         data["aperture"] = self.aperture
         return data
 

@@ -307,7 +307,7 @@ def compression_warning(metadata: Sequence[PhotoMetadata], scale: float) -> str 
         >>> compression_warning([PhotoMetadata("a.jpg", compressed=True)], 0.3) is None
         True
     """
-    lossy = [meta.path.name for meta in metadata if meta.compressed]
+    lossy = list(dict.fromkeys(meta.path.name for meta in metadata if meta.compressed))
     if not lossy or not scale > JPEG_SCALE_LIMIT:
         return None
     return (f"{', '.join(lossy)}: JPEG photos read at {scale:.2f} of their resolution, where the "

@@ -135,3 +135,15 @@ def test_bad_aperture_specs_list_what_is_allowed(spec):
 def test_mask_has_no_spec():
     with pytest.raises(ValueError, match="no spec"):
         aperture_spec(Mask(torch.ones(3, 3)))
+
+
+def test_json_numbers_carry_no_float32_noise(tmp_path):
+    """Settings held in float32 are written as the numbers they were given (2.8, not
+    2.799999952316284), and read back to the same float32 values."""
+    import json
+
+    s = CameraSettings(0.035, [2.8, 8.3], [1.7, 2.2], 4.88e-6).to(torch.float32)
+    s.to_json(tmp_path / "cam.json")
+    data = json.loads((tmp_path / "cam.json").read_text())
+    assert data["f_number"] == [2.8, 8.3] and data["pixel_pitch"] == [4.88e-6, 4.88e-6]
+    assert CameraSettings.from_json(tmp_path / "cam.json").to(torch.float32) == s

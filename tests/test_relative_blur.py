@@ -360,3 +360,19 @@ def test_estimate_depth_warns_where_one_focus_plane_splits_the_range():
         warnings.simplefilter("error")
         warn_mirrored(one_plane, 2.0, 10.0)
         warn_mirrored(CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4), 1.0, 10.0)
+
+
+def test_no_mirror_warning_where_the_mirrored_depths_look_sharp():
+    """A 2 cm ambiguous span around the focus plane blurs the shots by a few hundredths of a
+    pixel: both sides look alike and sharp, so there is nothing to warn of."""
+    import warnings
+
+    from models.depth_from_photos.estimate import MIRROR_BLUR_PX, warn_mirrored
+
+    one_plane = CameraSettings(0.05, 2.0, [2.0], 1e-4)
+    assert float(one_plane.coc_at_infinity_px().abs()) * (2.01 / 1.99 - 1) < MIRROR_BLUR_PX
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_mirrored(one_plane, 1.99, 2.01)
+    with pytest.warns(UserWarning, match="mirror"):
+        warn_mirrored(one_plane, 1.5, 3.0)

@@ -112,6 +112,11 @@ def check_shots_differ(settings: CameraSettings, near: float, far: float) -> Non
                          "check the range, or focus the shots within or near it")
 
 
+#: `warn_mirrored` stays quiet where the mirrored depths blur the shots by less than this many
+#: pixels (their two sides then look alike and equally sharp).
+MIRROR_BLUR_PX = 1.0
+
+
 def warn_mirrored(settings: CameraSettings, near: float, far: float) -> None:
     """Warn where the shots cannot tell a depth from its mirror image across their one focus
     plane (`mirrored_depths`): there the depth may come out on the wrong side of it."""
@@ -119,6 +124,10 @@ def warn_mirrored(settings: CameraSettings, near: float, far: float) -> None:
     if span is None:
         return
     focus = float(settings.focus_distance.reshape(-1)[0])
+    # the blur at the span's ends: below about a pixel both sides look sharp, nothing to tell
+    largest = float(settings.coc_at_infinity_px().abs().max()) * abs(1 - focus / span[0])
+    if largest < MIRROR_BLUR_PX:
+        return
     warnings.warn(
         f"every shot is focused at {focus:g} m, inside the depth range {near:g}-{far:g} m: a "
         f"depth between {span[0]:.2f} and {span[1]:.2f} m blurs them exactly as its mirror "
