@@ -8,7 +8,7 @@ TORCH ?= torch==2.13.0
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test docs bench lint clean
+.PHONY: demo test docs bench lint clean wheel
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -26,6 +26,16 @@ test: $(STAMP)
 	$(BIN)/mkdocs build --strict --site-dir build/site
 	$(BIN)/python docs/check_site.py build/site
 
+# The package as users install it: a wheel, installed into a new virtual environment (outside
+# the source tree, so nothing is imported from the checkout), whose command line then runs.
+wheel: $(STAMP)
+	rm -rf dist build/wheel-venv
+	$(BIN)/pip wheel --no-deps --wheel-dir dist .
+	$(PYTHON) -m venv build/wheel-venv
+	build/wheel-venv/bin/pip install --quiet "$(TORCH)"
+	build/wheel-venv/bin/pip install --quiet dist/*.whl
+	cd build && wheel-venv/bin/defocus --help > /dev/null && wheel-venv/bin/python -m defocus --version
+
 docs: $(STAMP)
 	$(BIN)/mkdocs serve
 
@@ -33,4 +43,4 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/render.py
 
 clean:
-	rm -rf $(VENV) build runs .pytest_cache
+	rm -rf $(VENV) build dist runs .pytest_cache
