@@ -17,6 +17,7 @@ from .make3d import Make3D
 from .middlebury import Middlebury
 from .mobile_depth import MobileDepth
 from .nyu import NYUv2
+from .photo_folder import PhotoFolder
 from .presets import PRESETS
 from .stacks import FocalStackDataset
 from .transforms import JointAugment
@@ -39,6 +40,7 @@ __all__ = [
     "Middlebury",
     "MobileDepth",
     "NYUv2",
+    "PhotoFolder",
     "ZEDD",
     "cached_focal_stack",
     "collate",

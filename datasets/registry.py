@@ -17,10 +17,12 @@ def dataset_classes() -> dict[str, type]:
     from .make3d import Make3D
     from .middlebury import Middlebury
     from .nyu import NYUv2
+    from .photo_folder import PhotoFolder
     from .synthetic import SyntheticScenes
 
     return {"synthetic": SyntheticScenes, "dslr": DSLR, "nyu": NYUv2, "kitti": KITTI,
             "make3d": Make3D, "middlebury": Middlebury, "lightfield": LightField,
+            "folder": PhotoFolder,
             **stack_dataset_classes()}
 
 
@@ -39,11 +41,12 @@ STACK_DATASET_NAMES = ("ddff12", "fod500", "zedd", "mobile_depth")
 
 
 #: Names accepted by `build_dataset`.
-DATASET_NAMES = ("synthetic", "dslr", "nyu", "kitti", "make3d", "middlebury", "lightfield")
+DATASET_NAMES = ("synthetic", "dslr", "nyu", "kitti", "make3d", "middlebury", "lightfield",
+                 "folder")
 
 
 def build_dataset(name: str, root: str | Path | None = None, split: str = "train",
-                  size: tuple[int, int] = (48, 48), scenes: int = 256, seed: int = 0,
+                  size: tuple[int, int] | None = (48, 48), scenes: int = 256, seed: int = 0,
                   **kwargs: Any) -> DepthDataset | Any:
     """The dataset called `name`.
 
@@ -51,7 +54,8 @@ def build_dataset(name: str, root: str | Path | None = None, split: str = "train
         name: one of `DATASET_NAMES`.
         root: the dataset folder (all but `synthetic`).
         split: the split of a folder dataset.
-        size: `(height, width)` pixels: the synthetic scenes' size, the resize of real data.
+        size: `(height, width)` pixels: the synthetic scenes' size, the resize of real data
+            (None: real data at its own size).
         scenes: number of synthetic scenes.
         seed: seed of the synthetic scenes.
         **kwargs: passed to the dataset class.
@@ -67,7 +71,7 @@ def build_dataset(name: str, root: str | Path | None = None, split: str = "train
         return cls(scenes, tuple(size), seed=seed, **kwargs)
     if root is None:
         raise ValueError(f"dataset {name!r} needs root, the dataset folder")
-    return cls(root, split=split, size=tuple(size), **kwargs)
+    return cls(root, split=split, size=None if size is None else tuple(size), **kwargs)
 
 
 def build_stack_dataset(name: str, root: str | Path, split: str | None = None,

@@ -104,9 +104,10 @@ def add_data_arguments(
         "--size",
         type=int,
         nargs=2,
-        default=[48, 48],
+        default=None,
         metavar=("H", "W"),
-        help="image size in pixels (synthetic scenes; resize of real datasets)",
+        help="image size in pixels: the synthetic scenes' (default 48 48), a resize of real "
+        "photos (default: their own size)",
     )
     parser.add_argument(
         "--scenes", type=int, default=256, help="number of synthetic scenes (--data synthetic)"
@@ -119,7 +120,8 @@ def dataset_from_options(args: argparse.Namespace, split: str | None = None,
     """The dataset selected by `add_data_arguments`' options (`split` overrides `--split`)."""
     from datasets.registry import build_dataset
 
-    return build_dataset(args.data, args.root, split=split or args.split, size=tuple(args.size),
+    size = tuple(args.size) if args.size else (48, 48) if args.data == "synthetic" else None
+    return build_dataset(args.data, args.root, split=split or args.split, size=size,
                          scenes=args.scenes, seed=args.data_seed + seed_offset)
 
 

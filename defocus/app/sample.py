@@ -28,8 +28,9 @@ class SampleSet:
 def write_sample_set(folder: Path, scale: float = 0.35, seed: int = 0) -> SampleSet:
     """Write `aif.png` (the all-in-focus photo), `near.png`, `middle.png`, `far.png` (photos
     focused at `SAMPLE_FOCUS`), `camera.json` (the camera of the near/far pair),
-    `camera_stack.json` (of the three focused photos) and `depth.npy` (the true depth, metres)
-    under `folder`; `scale` downsizes the 741x500 scene first.
+    `camera_stack.json` (of the three focused photos; each JSON names its photos under
+    `"photos"`, so the folder is also a scene of `datasets.PhotoFolder`) and `depth.npy` (the
+    true depth, metres) under `folder`; `scale` downsizes the 741x500 scene first.
 
     Example:
         >>> import tempfile
@@ -58,8 +59,8 @@ def write_sample_set(folder: Path, scale: float = 0.35, seed: int = 0) -> Sample
     for name, photo in zip(names, focused, strict=True):
         result.files.append(save_photo(folder / f"{name}.png", photo))
     pair = stack.select_shots([0, 2])
-    pair.to_json(folder / "camera.json")
-    stack.to_json(folder / "camera_stack.json")
+    pair.to_json(folder / "camera.json", photos=["near.png", "far.png"])
+    stack.to_json(folder / "camera_stack.json", photos=[f"{name}.png" for name in names])
     np.save(folder / "depth.npy", depth[0].to(torch.float32).numpy())
     result.files += [folder / "camera.json", folder / "camera_stack.json", folder / "depth.npy"]
     return result

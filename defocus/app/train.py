@@ -58,6 +58,26 @@ def training_config(config: Path | None = None, overrides: Sequence[str] = (),
     return cfg.override(overrides)
 
 
+def given_fields(config: Path | None = None, overrides: Sequence[str] = ()) -> set[str]:
+    """The `TrainConfig` fields that a YAML file or `KEY=VALUE` overrides set."""
+    import yaml
+
+    given = {item.split("=", 1)[0].strip() for item in overrides}
+    if config is not None and config.is_file():
+        data = yaml.safe_load(config.read_text()) or {}
+        given |= set(data) if isinstance(data, dict) else set()
+    return given
+
+
+def fit_config_to_data(cfg, first_sample: dict[str, Any], given: set[str]):
+    """`cfg` with the number of focused photos of the data (`first_sample`) unless the user set
+    `n_focus` (a real dataset has as many as its camera took: one for the DSLR pairs)."""
+    n_focus = int(first_sample["focused"].shape[0])
+    if "n_focus" in given or cfg.n_focus == n_focus:
+        return cfg
+    return dataclasses.replace(cfg, n_focus=n_focus)
+
+
 @dataclass
 class TrainResult:
     """What `train` did."""

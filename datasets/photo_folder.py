@@ -1,0 +1,126 @@
+"""Your own photos as a training set: a folder of scenes, each an all-in-focus photo and the
+photos focused at the camera's focus distances, with their camera in a JSON file.
+
+Layout (what `defocus sample DIR` writes is one such scene)::
+
+    ROOT/
+      camera.json          settings of every scene (optional where each scene has its own)
+      scene_a/
+        aif.png            the all-in-focus photo (a small aperture; any photo format)
+        near.png far.png   the focused photos, named in camera.json's "photos" list
+        camera.json        (optional) this scene's own camera
+      scene_b/ ...
+
+A camera JSON is what `defocus calibrate` and `defocus sample` write (`optics.CameraSettings`
+with one focus distance and f-number per focused photo) plus `"photos"`: the file names of the
+focused photos in the order of its shots. The photos have no ground-truth depth: they train a
+network through the PSF layer (self-supervised), not a depth-supervised one.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from optics import CameraSettings
+
+from .base import DepthDataset
+from .focus import CameraPreset
+from .io import DataFormatError, require_root
+
+LAYOUT = ("ROOT/<scene>/aif.<ext> and the focused photos named in ROOT/camera.json's or "
+          "ROOT/<scene>/camera.json's \"photos\" list")
+#: File names of the all-in-focus photo (any of these suffixes).
+AIF_NAMES = ("aif.png", "aif.tif", "aif.tiff", "aif.jpg", "aif.jpeg", "aif.dng")
+
+
+def read_scene_camera(path: Path) -> tuple[CameraSettings, list[str]]:
+    """The settings and the focused photos' file names of a scene's camera JSON."""
+    settings, extra = CameraSettings.read_json(path)
+    photos = extra.get("photos")
+    if not isinstance(photos, list) or not all(isinstance(p, str) for p in photos):
+        raise DataFormatError(f"{path}: \"photos\" must list the focused photos' file names, in "
+                              f"the order of the camera's shots; got {photos!r}")
+    if len(photos) != settings.n_shots:
+        raise DataFormatError(f"{path}: \"photos\" names {len(photos)} photos but the camera has "
+                              f"{settings.n_shots} shots (one focus distance per photo)")
+    return settings, photos
+
+
+class PhotoFolder(DepthDataset):
+    """Scenes of your own photos (module docstring), for self-supervised training.
+
+    Args:
+        root: the folder of scenes.
+        split: `"train"` or `"all"`: every scene (a folder may also list its scenes of a split
+            in `ROOT/<split>.txt`, one per line).
+        **kwargs: `size`, `crop`, `augment`, `dtype` of `DepthDataset`.
+
+    Example:
+        >>> import tempfile
+        >>> from defocus.app.sample import write_sample_set  # doctest: +SKIP
+        >>> root = Path(tempfile.mkdtemp())  # doctest: +SKIP
+        >>> _ = write_sample_set(root / "scene", scale=0.1)  # doctest: +SKIP
+        >>> PhotoFolder(root)[0]["focused"].shape  # doctest: +SKIP
+        torch.Size([3, 3, 50, 74])
+    """
+
+    name = "folder"
+
+    def __init__(self, root: str | Path, split: str = "train", **kwargs: Any):
+        self.root = require_root(root, "PhotoFolder", LAYOUT)
+        listed = self.root / f"{split}.txt"
+        names = listed.read_text().split() if listed.is_file() else \
+            sorted(p.name for p in self.root.iterdir() if p.is_dir())
+        self.scenes = [self._scene(self.root / name) for name in names]
+        if not self.scenes:
+            raise FileNotFoundError(f"{self.root}: no scene folders; expected {LAYOUT}")
+        first = self.scenes[0]["camera"]
+        counts = {scene["camera"].n_shots for scene in self.scenes}
+        if len(counts) > 1:
+            raise DataFormatError(f"{self.root}: scenes have {sorted(counts)} focused photos; "
+                                  "a training set needs one number of shots")
+        preset = CameraPreset(float(first.focal_length[0]), float(first.pixel_pitch[0]),
+                              first.focus_distance.tolist(), first.f_number.tolist(),
+                              aperture=first.aperture)
+        super().__init__(preset, **kwargs)
+        self.ids = [scene["folder"].name for scene in self.scenes]
+
+    def _scene(self, folder: Path) -> dict[str, Any]:
+        own = folder / "camera.json"
+        path = own if own.is_file() else self.root / "camera.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"{folder}: no camera.json here or in {self.root}")
+        camera, photos = read_scene_camera(path)
+        aif = next((folder / name for name in AIF_NAMES if (folder / name).is_file()), None)
+        if aif is None:
+            raise FileNotFoundError(f"{folder}: no all-in-focus photo ({', '.join(AIF_NAMES)})")
+        missing = [name for name in photos if not (folder / name).is_file()]
+        if missing:
+            raise FileNotFoundError(f"{folder}: {path} names {missing}, which are not there")
+        return {"folder": folder, "camera": camera, "aif": aif,
+                "focused": [folder / name for name in photos]}
+
+    def camera_settings(self, index: int) -> CameraSettings:
+        return self.scenes[index]["camera"].to(self.dtype)
+
+    def load(self, index: int) -> dict[str, Any]:
+        from .photos import read_photo
+
+        scene = self.scenes[index]
+        image, _ = read_photo(scene["aif"], dtype=self.dtype)
+        focused = []
+        for path in scene["focused"]:
+            photo, _ = read_photo(path, dtype=self.dtype)
+            if photo.shape != image.shape:
+                raise DataFormatError(f"{path} is {tuple(photo.shape[-2:])} pixels but "
+                                      f"{scene['aif']} is {tuple(image.shape[-2:])}")
+            focused.append(photo)
+        h, w = image.shape[-2:]
+        return {"image": image, "focused": torch.stack(focused),
+                "camera": self.camera_settings(index),
+                "depth": torch.full((1, h, w), float(self.preset.depth_cap), dtype=self.dtype),
+                "mask": torch.zeros(1, h, w, dtype=torch.bool)}
+
