@@ -193,3 +193,22 @@ def test_relative_samples_model_the_reference_blur(tmp_path):
     assert torch.equal(relative["focused"], plain["focused"])
     assert relative["image"].std() < plain["image"].std()  # softened by the floor
     torch.testing.assert_close(relative["image"].mean(), plain["image"].mean(), atol=5e-3, rtol=0)
+
+
+def test_train_command_reads_the_release_at_its_photos_size(tmp_path, capsys):
+    """`defocus train --data dslr --root DIR`, as documented: one focused photo per scene
+    (n_focus follows the data) at the photos' own size, not a 48x48 resize."""
+    import yaml
+
+    from defocus.cli import main
+
+    write_rendered_release(tmp_path / "release", scenes=3, h=40, w=60)
+    out = tmp_path / "run"
+    assert main(["train", "--data", "dslr", "--root", str(tmp_path / "release"),
+                 "--set", "steps=1", "batch_size=1", "width=4", "--out", str(out),
+                 "--quiet"]) == 0, capsys.readouterr().err
+    assert yaml.safe_load((out / "config.yaml").read_text())["n_focus"] == 1
+    from datasets.registry import build_dataset
+
+    data = build_dataset("dslr", tmp_path / "release", size=None)
+    assert tuple(data[0]["image"].shape[-2:]) == (40, 60)
