@@ -19,7 +19,8 @@ from .calibration import (
     fit_thin_lens_curve,
     measure_blur,
 )
-from .camera import Camera, CameraSettings, collate
+from .camera import Camera, CameraSettings
+from .collate import collate
 from .focal_stack import render_focal_stack
 from .lens import ThinLens
 from .photo_metadata import PhotoMetadata, RawReadError, read_metadata

@@ -208,7 +208,7 @@ def estimate_depth(
     _check_defocus_photos(model, image, focused, settings, near, far)
     warn_mirrored(settings, near, far)
     out = run_at_working_resolution(model, image, focused, settings, near, far,
-                                    max_coc_px, max_pixels, align, refine_range)
+                                    max_coc_px, max_pixels, align, refine_range, progress)
     if all_in_focus:
         out["all_in_focus"] = image if image is not None else _fused(focused, out, align)
     return out

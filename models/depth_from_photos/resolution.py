@@ -21,6 +21,7 @@ from torch import Tensor, nn
 
 from optics import CameraSettings, align_shots
 from optics.checks import check_finite, check_shape
+from optics.progress import progress_bar
 
 
 def working_scale(settings: CameraSettings, near: float, far: float, shape: tuple[int, int],
@@ -61,7 +62,7 @@ def check_photos(focused: Tensor, image: Tensor | None = None) -> None:
 def run_at_working_resolution(
     model: nn.Module, image: Tensor | None, focused: Tensor, settings: CameraSettings,
     near: float, far: float, max_coc_px: float | None = None, max_pixels: int = 1_500_000,
-    align: bool = True, refine_range: bool = True,
+    align: bool = True, refine_range: bool = True, progress: bool = False,
 ) -> dict[str, Tensor | float]:
     """Depth of one scene at the photos' resolution, computed at the working resolution.
 
@@ -89,6 +90,7 @@ def run_at_working_resolution(
             where that pass piles its depths at a limit the first pass set, that side is
             widened and the depth computed again (`widen_cut_range`, at most
             `MAX_WIDENINGS` times).
+        progress: count the passes over the depth range in a progress bar.
 
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
@@ -109,12 +111,15 @@ def run_at_working_resolution(
     h, w = focused.shape[-2:]
     max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
     scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
+    passes = progress_bar(total=None, desc="depth", unit="pass", disable=not progress)
     out = _run_at(model, image, focused, settings, near, far, scale, align)
+    passes.update()
     if refine_range:
         inner = scene_range(out["depth"], near, far)
         finer = working_scale(settings, *inner, (h, w), max_coc_px, max_pixels)
         if finer >= REFINE_GAIN * scale:
             out = _run_at(model, image, focused, settings, *inner, finer, align)
+            passes.update()
             # a coarse first pass can miss part of the scene: its depths then pile up at the
             # limit it set, and that side is widened and the depth computed again
             for _ in range(MAX_WIDENINGS):
@@ -124,6 +129,8 @@ def run_at_working_resolution(
                 inner = wider
                 scale = working_scale(settings, *inner, (h, w), max_coc_px, max_pixels)
                 out = _run_at(model, image, focused, settings, *inner, scale, align)
+                passes.update()
+    passes.close()
     return out
 
 
