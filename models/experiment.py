@@ -450,7 +450,7 @@ def compare_on_scene(
     say("\n[sweep] sweeping over depth (no network)")
     swept = estimate_depth(sample["focused"], sample["camera"],
                            (config.depth_min, config.depth_max), image=sample["image"],
-                           method="sweep")["depth"]
+                           method="sweep", progress=config.progress)["depth"]
     results["sweep"] = depth_metrics(pred=swept[None], target=target, mask=mask)
     predictions["sweep"] = swept
     constant = best_constant_depth(target=target, mask=mask)
