@@ -141,12 +141,12 @@ def save_depth_preview(path: str | Path, depth: Tensor,
 
     depth = depth.detach().float().cpu().reshape(depth.shape[-2:])
     low, high = limits or robust_range(depth)
-    scaled = ((depth - low) / max(high - low, 1e-12)).clamp(0, 1)
-    rgba = matplotlib.colormaps["magma_r"](scaled.numpy())
-    rgba[~np.isfinite(depth.numpy())] = (0.6, 0.6, 0.6, 1.0)
+    scaled = ((depth - low) / max(high - low, 1e-12)).clamp(0, 1).numpy()
+    rgb = matplotlib.colormaps["magma_r"](scaled, bytes=True)[..., :3]  # uint8: 3 bytes a pixel
+    rgb[~np.isfinite(depth.numpy())] = 153
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray((rgba[..., :3] * 255).round().astype(np.uint8)).save(path)
+    Image.fromarray(np.ascontiguousarray(rgb)).save(path)
     return path
 
 
