@@ -163,6 +163,35 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
     return (rgb_to_linear_rgb(image) if encoding == "srgb" else image), info
 
 
+#: The largest share of a photo's pixels that may be black or saturated (clipped) for defocus to
+#: be read from the rest.
+MAX_CLIPPED_FRACTION = 0.99
+
+
+def check_photo_content(photo: Tensor, name: str = "photo") -> None:
+    """Refuse a linear photo `(3,H,W)` without texture for defocus to blur: one flat colour,
+    or all but `1 - MAX_CLIPPED_FRACTION` of its pixels black or saturated.
+
+    Example:
+        >>> check_photo_content(torch.rand(3, 8, 8))
+        >>> check_photo_content(torch.zeros(3, 8, 8), "near.png")
+        Traceback (most recent call last):
+        ...
+        ValueError: near.png is one flat colour (every pixel 0 in linear intensity): it has no texture for defocus to blur
+    """
+    low, high = float(photo.min()), float(photo.max())
+    if high - low <= 1e-6:
+        raise ValueError(f"{name} is one flat colour (every pixel {low:.3g} in linear "
+                         "intensity): it has no texture for defocus to blur")
+    black = photo.amax(0) <= 1e-4
+    saturated = photo.amin(0) >= 0.999
+    fraction = float((black | saturated).float().mean())
+    if fraction > MAX_CLIPPED_FRACTION:
+        raise ValueError(f"{name} is {fraction:.1%} black or saturated pixels (at most "
+                         f"{MAX_CLIPPED_FRACTION:.0%} may be): too little texture for defocus "
+                         "to blur; check the exposure")
+
+
 def save_photo(path: str | Path, image: Tensor) -> Path:
     """Write a linear image `(3,H,W)` (values in [0, 1], clipped) as a 16-bit sRGB PNG, which
     `read_photo` reads back to within 1e-4.
