@@ -45,7 +45,7 @@ from optics import CameraSettings
 from .depth import fill_unknown
 from .focus import CameraPreset
 from .fod500 import check_depth_metres
-from .io import DataFormatError, read_rgb, require_file, require_root
+from .io import DataFormatError, read_npy, read_rgb, require_file, require_root
 from .stacks import FocalStackDataset
 
 APERTURES = (1.4, 2.0, 2.8, 4.0, 5.6, 16.0)
@@ -182,11 +182,7 @@ class ZEDD(FocalStackDataset):
         depth_path = scene / "gt" / "depth.npy"
         photos = [read_rgb(p, dtype=self.dtype) for p in self._photos(scene)]
         if self.split == "val":
-            try:
-                array = np.load(depth_path, allow_pickle=False)
-            except (ValueError, OSError, EOFError) as error:
-                raise DataFormatError(f"{str(depth_path)!r}: cannot be read as a .npy depth map "
-                                      f"({error}); the file may be truncated") from None
+            array = read_npy(depth_path, "a .npy depth map")
             if array.ndim != 2 or not np.issubdtype(array.dtype, np.floating):
                 raise DataFormatError(f"{str(depth_path)!r}: expected an (H, W) float depth map "
                                       f"in metres, got shape {array.shape}, dtype {array.dtype}")
