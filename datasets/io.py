@@ -42,6 +42,26 @@ def require_file(path: Path, what: str) -> Path:
     return path
 
 
+def read_text(path: Path, what: str = "a text file") -> str:
+    """The text of a dataset's text file (UTF-8); a file that is not is refused naming it.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "list.txt"
+        >>> _ = path.write_bytes(b"scene\xff")
+        >>> read_text(path, "a scene list")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: ...list.txt': expected a scene list in UTF-8 text, but byte 6 is 0xff (a binary or otherwise encoded file)
+    """
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise DataFormatError(
+            f"{str(path)!r}: expected {what} in UTF-8 text, but byte {error.start + 1} is "
+            f"0x{error.object[error.start]:02x} (a binary or otherwise encoded file)") from None
+
+
 def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[int | None]) -> None:
     """Raise `DataFormatError` unless `array` has `len(dims)` axes of those sizes.
 

@@ -58,10 +58,19 @@ def _binning(metadata: Sequence[PhotoMetadata]) -> int:
 
 def _from_calibration(name: str, calibration: CameraSettings, n_photos: int) -> Any:
     """The calibration's value of `name`: its focus distances where it has one per photo (else
-    `None`), the first value of any other setting."""
+    `None`); of any other setting its one value, or its values one per photo where they
+    differ (never the first alone: per-shot values that do not match the photos are refused).
+    """
     if name == "focus_distance":
         return calibration.focus_distance.tolist() if calibration.n_shots == n_photos else None
-    return getattr(calibration, name).reshape(-1)[0].item()
+    values = getattr(calibration, name).reshape(-1).tolist()
+    if len(set(values)) == 1:
+        return values[0]
+    if len(values) != n_photos:
+        raise ValueError(f"the calibration has {len(values)} different {name} values "
+                         f"{values}, one per shot, but {n_photos} photo(s) are given: give one "
+                         "value for every photo, or one per photo")
+    return values
 
 
 def _from_metadata(name: str, metadata: Sequence[PhotoMetadata]) -> tuple[Any, str] | None:
@@ -94,8 +103,8 @@ def resolve_known(
             an empty sequence gives nothing. `pixel_pitch` is the pitch of the files' pixels
             (the sensor's for a raw file), multiplied by the records' `binning`.
         calibration: a `CameraSettings` from `defocus calibrate` (`CameraSettings.from_json`):
-            its focus distances where it has one per photo, the first value of its other
-            settings.
+            its focus distances where it has one per photo; its other settings' one value, or
+            one per photo (per-shot values of another count are refused).
         ignore: settings whose metadata value is not used (to be fitted instead).
 
     Returns:
@@ -234,7 +243,7 @@ def metadata_settings(
         >>> stated = {"focal_length": 0.05, "f_number": 2.8, "pixel_pitch": 4e-6}
         >>> meta = PhotoMetadata("a.dng", stated, binning=2)
         >>> metadata_settings(meta, 2.0).to_dict()
-        {'focal_length': 0.05, 'f_number': 2.8, 'focus_distance': 2.0, 'pixel_pitch': 8e-06, 'psf': 'gaussian:0.5'}
+        {'focal_length': 0.05, 'f_number': 2.8, 'focus_distance': 2.0, 'pixel_pitch': 8e-06, 'aperture': 'gaussian:0.5'}
     """
     options = {"focal_length": focal_length, "f_number": f_number, "pixel_pitch": pixel_pitch}
     values, _ = resolve_known([metadata], options)

@@ -254,11 +254,26 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     return out
 
 
+def check_calibration_shots(request: PredictRequest, calibration, n_photos: int) -> None:
+    """Refuse per-shot values of the `--camera` JSON that do not match the photos: values that
+    differ between shots are used one per photo, never the first one for all."""
+    for name in ("focal_length", "f_number", "pixel_pitch"):
+        values = getattr(calibration, name).reshape(-1).tolist()
+        given = request.camera_options.get(name)
+        if len(set(values)) > 1 and len(values) != n_photos and given in (None, []):
+            raise ValueError(f'{request.camera}: "{name}" holds {len(values)} different values '
+                             f"{values}, one per shot, but {n_photos} --focused photo(s) are "
+                             f"given: give one value for all, one per photo, or "
+                             f"--{name.replace('_', '-')}")
+
+
 def _settings(request: PredictRequest, photos: Photos, calibration, report: Report):
     from optics.photo_settings import describe_settings, resolve_settings
 
     if not photos.infos:
         return None
+    if calibration is not None:
+        check_calibration_shots(request, calibration, len(photos.infos))
     settings, sources = resolve_settings(photos.infos, request.camera_options, calibration)
     report(describe_settings(settings, sources))
     return settings
