@@ -48,7 +48,7 @@ def read_text(path: Path, what: str = "a text file") -> str:
     Example:
         >>> import tempfile
         >>> path = Path(tempfile.mkdtemp()) / "list.txt"
-        >>> _ = path.write_bytes(b"scene\xff")
+        >>> _ = path.write_bytes(bytes([115, 99, 101, 110, 101, 255]))
         >>> read_text(path, "a scene list")  # doctest: +ELLIPSIS
         Traceback (most recent call last):
         ...

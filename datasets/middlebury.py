@@ -214,7 +214,7 @@ def read_calib(path: Path) -> dict[str, float]:
     require_file(path, "a Middlebury calib.txt (cam0=[f 0 cx; ...], doffs=, baseline=)")
     expected = "expected lines cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=<px> and baseline=<mm>"
     try:
-        text = read_text(path, "a calibration file")
+        text = path.read_text()
     except UnicodeDecodeError as error:
         raise DataFormatError(f"{str(path)!r}: not a text file ({error}); {expected}") from None
     entries = {

@@ -25,7 +25,7 @@ from torch.utils.data import default_collate
 
 from .aperture import Aperture, Gaussian
 from .aperture_spec import DEFAULT_APERTURE, aperture_from_json, aperture_spec, parse_aperture
-from .checks import check_positive, implausible_length, is_tracing
+from .checks import check_positive, check_setting_entry, implausible_length, is_tracing
 from .lens import ThinLens
 from .sensor import Sensor
 
@@ -133,36 +133,6 @@ class Camera(nn.Module):
 SETTING_FIELDS = ("focal_length", "f_number", "focus_distance", "pixel_pitch")
 _UNITS = {"focal_length": "metres", "f_number": "", "focus_distance": "metres",
           "pixel_pitch": "metres"}
-
-
-def _json_text(value: Any) -> str:
-    """`value` as JSON writes it (`NaN`, `[8.3, 2.0]`), else its repr."""
-    try:
-        return json.dumps(value)
-    except (TypeError, ValueError):
-        return repr(value)
-
-
-def _check_entry(source: str, key: str, value: Any) -> None:
-    """Refuse a camera file's `key` unless it is a finite number > 0 or a flat list of them,
-    naming the file and the key as written.
-
-    Example:
-        >>> _check_entry("cam.json", "f_number", float("nan"))
-        Traceback (most recent call last):
-        ...
-        ValueError: cam.json: "f_number" must be a finite number > 0 or a list of them (one per shot), got NaN
-    """
-    try:
-        tensor = _as_tensor(key, value)
-        check_positive(key, tensor.detach())
-        ok = tensor.ndim <= 2
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        unit = f", {_UNITS[key]}" if _UNITS[key] else ""
-        raise ValueError(f'{source}: "{key}" must be a finite number > 0{unit} or a list of '
-                         f"them (one per shot), got {_json_text(value)}")
 
 
 def _as_tensor(name: str, value: Any) -> Tensor:
@@ -394,7 +364,7 @@ class CameraSettings:
         except (TypeError, ValueError) as error:
             raise ValueError(f"{source}: bad {key!r} entry {data.get(key)!r}: {error}") from None
         for key in SETTING_FIELDS:
-            _check_entry(source, key, data[key])
+            check_setting_entry(source, key, data[key], _UNITS[key])
         try:
             return cls(*(data[k] for k in SETTING_FIELDS), aperture=aperture)
         except (TypeError, ValueError) as error:
