@@ -8,6 +8,7 @@ inside a DataLoader worker.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -41,6 +42,26 @@ def require_file(path: Path, what: str) -> Path:
     return path
 
 
+def read_text(path: Path, what: str = "a text file") -> str:
+    """The text of a dataset's text file (UTF-8); a file that is not is refused naming it.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "list.txt"
+        >>> _ = path.write_bytes(bytes([115, 99, 101, 110, 101, 255]))
+        >>> read_text(path, "a scene list")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: ...list.txt': expected a scene list in UTF-8 text, but byte 6 is 0xff (a binary or otherwise encoded file)
+    """
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as error:
+        raise DataFormatError(
+            f"{str(path)!r}: expected {what} in UTF-8 text, but byte {error.start + 1} is "
+            f"0x{error.object[error.start]:02x} (a binary or otherwise encoded file)") from None
+
+
 def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[int | None]) -> None:
     """Raise `DataFormatError` unless `array` has `len(dims)` axes of those sizes.
 
@@ -54,11 +75,58 @@ def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[i
         raise DataFormatError(f"{str(path)!r}: {name} must have shape {wanted}, got {shape}")
 
 
+#: The most pixels of an image file that is decoded (100 megapixels): a file whose header
+#: states more is refused before any pixel is read (`check_image_size`).
+MAX_IMAGE_PIXELS = 100_000_000
+
+
+def check_image_size(path: Path, what: str = "an image",
+                     max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[int, int] | None:
+    """The `(H, W)` an image file's header states, read without decoding a pixel; refused
+    (`DataFormatError`) above `max_pixels`. None where Pillow cannot read the header (other
+    readers then try the file).
+
+    Example:
+        >>> import tempfile
+        >>> from PIL import Image
+        >>> path = Path(tempfile.mkdtemp()) / "photo.png"
+        >>> Image.new("RGB", (40, 30)).save(path)
+        >>> check_image_size(path)
+        (30, 40)
+        >>> check_image_size(path, max_pixels=1000)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: ...photo.png': its header states 30x40 pixels (0.0012 megapixels); at most 0.001 megapixels are read
+    """
+    import warnings
+
+    from PIL import Image
+
+    too_large = f"at most {max_pixels / 1e6:g} megapixels are read"
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as opened:
+                width, height = opened.size
+    except Image.DecompressionBombError as error:  # beyond Pillow's own limit
+        stated = re.search(r"\((\d+) pixels\)", str(error))
+        count = f"{int(stated[1]) / 1e6:.4g} megapixels" if stated else "too many pixels"
+        raise DataFormatError(f"{str(path)!r}: its header states {count}; {too_large}") from None
+    except Exception:  # noqa: BLE001 (not an image Pillow reads: the caller's reader decides)
+        return None
+    if width * height > max_pixels:
+        raise DataFormatError(f"{str(path)!r}: its header states {height}x{width} pixels "
+                              f"({width * height / 1e6:.4g} megapixels); {too_large}")
+    return height, width
+
+
 def read_image(path: Path, what: str = "an image") -> np.ndarray:
-    """Read a PNG/JPEG as an `(H,W)` or `(H,W,C)` array of its stored dtype (uint8/uint16)."""
+    """Read a PNG/JPEG as an `(H,W)` or `(H,W,C)` array of its stored dtype (uint8/uint16);
+    a header that states more than `MAX_IMAGE_PIXELS` is refused before decoding."""
     import imageio.v3 as iio
 
     require_file(path, what)
+    check_image_size(path, what)
     try:
         array = iio.imread(path)
     except Exception as error:  # imageio raises many types for broken files
@@ -145,6 +213,44 @@ def read_depth_png(path: Path, scale: float, dtype: torch.dtype = torch.float32)
             f"and dtype {array.dtype}"
         )
     return torch.from_numpy(array.astype(np.float64) * scale).to(dtype)[None]
+
+
+#: The most values of a `.npy` array that is read (`read_npy`): 400 million, 1.6 GB of float32.
+MAX_NPY_VALUES = 400_000_000
+
+
+def read_npy(path: Path, what: str = "an array", max_values: int = MAX_NPY_VALUES) -> np.ndarray:
+    """Read a `.npy` file (no pickled objects), its header checked before any data is read:
+    a shape of more than `max_values` values, or an object dtype, is refused.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "depth.npy"
+        >>> np.save(path, np.ones((2, 3), np.float32))
+        >>> read_npy(path).shape
+        (2, 3)
+    """
+    require_file(path, what)
+    try:
+        with open(path, "rb") as file:
+            version = np.lib.format.read_magic(file)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            shape, _, dtype = read_header(file)
+    except (ValueError, OSError, EOFError, SyntaxError) as error:
+        raise DataFormatError(f"{str(path)!r}: cannot be read as {what} in .npy format "
+                              f"({error}); the file may be truncated") from None
+    count = int(np.prod(shape, dtype=np.float64))
+    if count > max_values or dtype.hasobject:
+        why = f"{count:.3g} values (at most {max_values:.3g} are read)" if count > max_values \
+            else f"Python objects ({dtype})"
+        raise DataFormatError(f"{str(path)!r}: its header states shape {shape} of {why}; "
+                              f"expected {what}")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as error:
+        raise DataFormatError(f"{str(path)!r}: cannot be read as {what} in .npy format "
+                              f"({error}); the file may be truncated") from None
 
 
 def read_pfm(path: Path) -> np.ndarray:

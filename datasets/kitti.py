@@ -27,7 +27,7 @@ from typing import Any
 from .base import DepthDataset
 from .depth import densify_nearest, fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_depth_png, read_rgb, require_file, require_root
+from .io import DataFormatError, read_depth_png, read_rgb, read_text, require_file, require_root
 from .presets import KITTI
 
 LAYOUT = (
@@ -109,7 +109,7 @@ class KITTI(DepthDataset):
         )
         require_file(split_path, "a KITTI split file, one frame per line")
         self.frames: list[tuple[Path, Path]] = []
-        for number, line in enumerate(split_path.read_text().splitlines(), start=1):
+        for number, line in enumerate(read_text(split_path, "a split file").splitlines(), start=1):
             if not line.strip():
                 continue
             drive, camera, frame = parse_split_line(line, split_path, number)

@@ -34,7 +34,7 @@ from optics import LENS_APERTURE
 from .base import DepthDataset
 from .depth import require_valid_depth
 from .focus import CameraPreset
-from .io import DataFormatError, read_pfm, read_rgb, require_file, require_root
+from .io import DataFormatError, read_pfm, read_rgb, read_text, require_file, require_root
 from .presets import MIDDLEBURY
 
 #: Calibration of scikit-image's motorcycle scene: focal length in pixels, baseline in metres,
@@ -297,7 +297,7 @@ class Middlebury(DepthDataset):
                 )
         else:
             listing = require_file(self.root / f"{split}.txt", "a list of scene folder names")
-            names = [line.strip() for line in listing.read_text().splitlines() if line.strip()]
+            names = [line.strip() for line in read_text(listing, "a scene list").splitlines() if line.strip()]
             self.scenes = [self.root / n for n in names]
         for scene in self.scenes:
             for name in ("im0.png", "disp0.pfm", "calib.txt"):

@@ -40,7 +40,7 @@ import torch
 from optics import CameraSettings
 
 from .focus import CameraPreset
-from .io import DataFormatError, read_rgb, require_root
+from .io import DataFormatError, read_rgb, read_text, require_root
 from .stacks import FocalStackDataset
 
 FRAME = re.compile(r"^a(\d+)\.jpe?g$", re.IGNORECASE)
@@ -91,7 +91,7 @@ def read_calibrated(path: Path) -> list[float]:
     Raises:
         DataFormatError: a line that is not numbers, or no frame line.
     """
-    rows = [line.split() for line in path.read_text().splitlines() if line.strip()]
+    rows = [line.split() for line in read_text(path, "a text table").splitlines() if line.strip()]
     try:
         numbers = [[float(v) for v in row] for row in rows]
     except ValueError as error:

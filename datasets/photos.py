@@ -20,7 +20,7 @@ from torch import Tensor
 
 from optics.photo_metadata import RAW_SUFFIXES, PhotoMetadata, read_metadata
 
-from .io import DataFormatError, require_file
+from .io import DataFormatError, check_image_size, require_file
 
 #: How a JPEG, PNG or TIFF stores intensity (`read_photo`).
 ENCODINGS = ("srgb", "linear")
@@ -64,8 +64,10 @@ def _deep_colour(path: Path, opened) -> np.ndarray | None:
         if meta["bitdepth"] <= 8:
             return None
         planes = meta["planes"]
-        return np.vstack([np.asarray(row, np.uint16) for row in rows]).reshape(
-            height, width, planes)
+        array = np.empty((height, width * planes), np.uint16)  # row by row: no second copy
+        for index, row in enumerate(rows):
+            array[index] = row
+        return array.reshape(height, width, planes)
     return None
 
 
@@ -120,7 +122,8 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
 
     Raises:
         FileNotFoundError: `path` does not exist.
-        DataFormatError: the file cannot be read as an RGB photo.
+        DataFormatError: the file cannot be read as an RGB photo, or its header states more
+            than `datasets.io.MAX_IMAGE_PIXELS` (read before any pixel is decoded).
 
     Example:
         >>> import tempfile, pathlib
@@ -139,6 +142,7 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
     require_file(path, "a photo")
     if path.suffix.lower() in RAW_SUFFIXES:
         return _read_raw_photo(path, dtype)
+    check_image_size(path, "a photo")  # refused before decoding above MAX_IMAGE_PIXELS
     try:
         with Image.open(path) as opened:
             info = read_metadata(path, image_size=(opened.height, opened.width))
@@ -159,8 +163,38 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
         array = np.repeat(array[..., None], 3, axis=2)
     scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
     image = torch.from_numpy(np.ascontiguousarray(array[..., :3])).to(dtype).permute(2, 0, 1)
-    image = image / scale
+    del array, deep
+    image = image.div_(scale)
     return (rgb_to_linear_rgb(image) if encoding == "srgb" else image), info
+
+
+#: The largest share of a photo's pixels that may be black or saturated (clipped) for defocus to
+#: be read from the rest.
+MAX_CLIPPED_FRACTION = 0.99
+
+
+def check_photo_content(photo: Tensor, name: str = "photo") -> None:
+    """Refuse a linear photo `(3,H,W)` without texture for defocus to blur: one flat colour,
+    or all but `1 - MAX_CLIPPED_FRACTION` of its pixels black or saturated.
+
+    Example:
+        >>> check_photo_content(torch.rand(3, 8, 8))
+        >>> check_photo_content(torch.zeros(3, 8, 8), "near.png")
+        Traceback (most recent call last):
+        ...
+        ValueError: near.png is one flat colour (every pixel 0 in linear intensity): it has no texture for defocus to blur
+    """
+    low, high = float(photo.min()), float(photo.max())
+    if high - low <= 1e-6:
+        raise ValueError(f"{name} is one flat colour (every pixel {low:.3g} in linear "
+                         "intensity): it has no texture for defocus to blur")
+    black = photo.amax(0) <= 1e-4
+    saturated = photo.amin(0) >= 0.999
+    fraction = float((black | saturated).float().mean())
+    if fraction > MAX_CLIPPED_FRACTION:
+        raise ValueError(f"{name} is {fraction:.1%} black or saturated pixels (at most "
+                         f"{MAX_CLIPPED_FRACTION:.0%} may be): too little texture for defocus "
+                         "to blur; check the exposure")
 
 
 def save_photo(path: str | Path, image: Tensor) -> Path:

@@ -45,7 +45,7 @@ from optics import CameraSettings
 from .depth import fill_unknown
 from .focus import CameraPreset
 from .fod500 import check_depth_metres
-from .io import DataFormatError, read_rgb, require_file, require_root
+from .io import DataFormatError, read_npy, read_rgb, read_text, require_file, require_root
 from .stacks import FocalStackDataset
 
 APERTURES = (1.4, 2.0, 2.8, 4.0, 5.6, 16.0)
@@ -76,7 +76,7 @@ def read_metadata(path: Path) -> dict[int, tuple[str, float]]:
     """
     require_file(path, "ZEDD's metadata.txt (run_<k> TAB <hex> TAB <focus distance in metres>)")
     runs: dict[int, tuple[str, float]] = {}
-    for number, line in enumerate(path.read_text().splitlines(), 1):
+    for number, line in enumerate(read_text(path, "an intrinsics file").splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
@@ -182,11 +182,7 @@ class ZEDD(FocalStackDataset):
         depth_path = scene / "gt" / "depth.npy"
         photos = [read_rgb(p, dtype=self.dtype) for p in self._photos(scene)]
         if self.split == "val":
-            try:
-                array = np.load(depth_path, allow_pickle=False)
-            except (ValueError, OSError, EOFError) as error:
-                raise DataFormatError(f"{str(depth_path)!r}: cannot be read as a .npy depth map "
-                                      f"({error}); the file may be truncated") from None
+            array = read_npy(depth_path, "a .npy depth map")
             if array.ndim != 2 or not np.issubdtype(array.dtype, np.floating):
                 raise DataFormatError(f"{str(depth_path)!r}: expected an (H, W) float depth map "
                                       f"in metres, got shape {array.shape}, dtype {array.dtype}")

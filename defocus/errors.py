@@ -12,10 +12,16 @@ class CommandError(Exception):
     """A problem with the user's input that a command reports in one line (exit code 2)."""
 
 
+class OutputError(OSError):
+    """An output file could not be written (a full disk, a read-only folder): nothing was
+    replaced and no partial file is left (`defocus.app.outputs`)."""
+
+
 #: Exceptions reported in one line: the library raises these for bad input, with a message that
 #: names the argument, the value and what is allowed.
 USER_ERRORS = (CommandError, ValueError, TypeError, FileNotFoundError, IsADirectoryError,
-               PermissionError, NotADirectoryError, FileExistsError, FloatingPointError)
+               PermissionError, NotADirectoryError, FileExistsError, FloatingPointError,
+               OutputError)
 
 
 def one_line(error: BaseException) -> str:

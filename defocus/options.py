@@ -84,6 +84,15 @@ def show_progress(args: argparse.Namespace) -> bool:
         writes_to_terminal() and not getattr(args, "quiet", False))
 
 
+def add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
+    """`--overwrite`: replace the results of an earlier run (the output policy,
+    `defocus.app.outputs`: without it an existing output file is refused; inputs are never
+    written, with or without it)."""
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the files of an earlier run (without it an existing output "
+                             "file is refused; an input is never written)")
+
+
 def add_data_arguments(
     parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (), default: str = "synthetic"
 ) -> None:

@@ -232,13 +232,19 @@ def convert_checkpoint(source: str | Path, target: str | Path) -> Path:
                               f"({' '.join(str(error).split())[:120]})") from None
     if not isinstance(state, Mapping):
         raise CheckpointError(f"{source} is not a defocus checkpoint (not a dict)")
-    save_checkpoint(to_plain(dict(state), str(source)), target)
+    data = serialize(to_plain(dict(state), str(source)))
+    # checked at a temporary name beside target: a failed conversion leaves target as it was
+    target.parent.mkdir(parents=True, exist_ok=True)
+    checked = target.with_name(f".{target.name}.{os.getpid()}.converted")
     try:
-        load_checkpoint(target)
+        _atomic_write(data, checked)
+        load_checkpoint(checked)
+        os.replace(checked, target)
     except CheckpointError as error:
-        target.unlink(missing_ok=True)
         raise CheckpointError(f"converting {source} did not give a safe checkpoint: "
-                              f"{error}") from None
+                              f"{error}; {target} is left as it was") from None
+    finally:
+        checked.unlink(missing_ok=True)
     return target
 
 

@@ -230,7 +230,9 @@ def check_device(name: str) -> None:
                              "device(s); use 'auto' or 'cpu'")
     elif device.type == "mps" and not torch.backends.mps.is_available():
         raise ValueError(f"device {name!r} is not available here; use 'auto' or 'cpu'")
-    elif device.type not in ("cpu", "cuda", "mps", "xpu", "meta"):
+    elif device.type == "xpu" and not (hasattr(torch, "xpu") and torch.xpu.is_available()):
+        raise ValueError(f"device {name!r} is not available here; use 'auto' or 'cpu'")
+    elif device.type not in ("cpu", "cuda", "mps", "xpu"):
         raise ValueError(f"device must be 'auto', 'cpu', 'cuda[:N]' or 'mps', got {name!r}")
 
 

@@ -37,6 +37,12 @@ DEFAULT_APERTURE = "gaussian:0.5"
 #: calibration fits, renders of a real scene): the iris's disk. The paper's Gaussian is a
 #: training choice; a real lens's blur has a sharp edge.
 LENS_APERTURE = "disk"
+#: The most blades of a `polygon:N` spec (real irises have 5-20; a polygon of many more is a
+#: disk, and its kernel would cost memory in proportion).
+MAX_BLADES = 64
+#: The largest `gaussian:SCALE` (sigma per CoC diameter; the paper's is 0.5, fitted lenses
+#: 0.25-1): beyond it the kernel holds far more than the blur.
+MAX_GAUSSIAN_SCALE = 5.0
 
 
 def _spec_error(spec: object, why: str) -> ValueError:
@@ -80,8 +86,9 @@ def parse_aperture(spec: str | Aperture) -> Aperture:
         if len(args) > 1:
             raise _spec_error(spec, "gaussian takes at most one argument, its scale")
         scale = _number(spec, args[0], "scale") if args else 0.5
-        if scale <= 0:
-            raise _spec_error(spec, f"scale must be > 0, got {scale}")
+        if not 0 < scale <= MAX_GAUSSIAN_SCALE:
+            raise _spec_error(spec, f"scale must be > 0 and <= {MAX_GAUSSIAN_SCALE:g}, got "
+                                    f"{args[0]}")
         return Gaussian(scale)
     if family == "disk":
         if args:
@@ -90,8 +97,9 @@ def parse_aperture(spec: str | Aperture) -> Aperture:
     if not 1 <= len(args) <= 2:
         raise _spec_error(spec, "polygon needs its number of blades")
     blades = _number(spec, args[0], "n_blades")
-    if blades != int(blades) or blades < 3:
-        raise _spec_error(spec, f"n_blades must be an integer >= 3, got {args[0]}")
+    if blades != int(blades) or not 3 <= blades <= MAX_BLADES:
+        raise _spec_error(spec, f"n_blades must be an integer from 3 to {MAX_BLADES}, got "
+                                f"{args[0]}")
     rotation = _number(spec, args[1], "rotation") if len(args) == 2 else 0.0
     return Polygon(int(blades), rotation)
 

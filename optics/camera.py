@@ -25,7 +25,7 @@ from torch import Tensor, nn
 
 from .aperture import Aperture, Gaussian
 from .aperture_spec import DEFAULT_APERTURE, aperture_from_json, aperture_spec, parse_aperture
-from .checks import check_positive, implausible_length, is_tracing
+from .checks import check_positive, check_setting_entry, implausible_length, is_tracing
 from .lens import ThinLens
 from .sensor import Sensor
 
@@ -381,7 +381,12 @@ class CameraSettings:
             aperture = aperture_spec(aperture_from_json(data.get(key, DEFAULT_APERTURE)))
         except (TypeError, ValueError) as error:
             raise ValueError(f"{source}: bad {key!r} entry {data.get(key)!r}: {error}") from None
-        return cls(*(data[k] for k in SETTING_FIELDS), aperture=aperture)
+        for key in SETTING_FIELDS:
+            check_setting_entry(source, key, data[key], _UNITS[key])
+        try:
+            return cls(*(data[k] for k in SETTING_FIELDS), aperture=aperture)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{source}: {error}") from None
 
     def to_json(self, path: str | PathLike, **extra: Any) -> None:
         """Write `to_dict()` and any `extra` JSON values to `path`."""

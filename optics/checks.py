@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import contextlib
 import contextvars
+import json
 import warnings
 from collections.abc import Iterator, Sequence
+from typing import Any
 
 import torch
 from torch import Tensor, nn
@@ -243,3 +245,31 @@ def register_physical(module: nn.Module, name: str, value: ParamLike, unit: str 
         module.register_parameter(name, value)
     else:
         module.register_buffer(name, tensor)
+
+
+def check_setting_entry(source: str, key: str, value: Any, unit: str = "") -> None:
+    """Refuse a camera file's entry `key` unless it is a finite number > 0 or a list of them
+    (at most `(B, F)`), naming the file and the key as written and the value as JSON writes it.
+
+    Example:
+        >>> check_setting_entry("cam.json", "f_number", [8.3, 2.0])
+        >>> check_setting_entry("cam.json", "f_number", float("nan"))
+        Traceback (most recent call last):
+        ...
+        ValueError: cam.json: "f_number" must be a finite number > 0 or a list of them (one per shot), got NaN
+    """
+    try:
+        ok = not isinstance(value, (bool, str)) and all(
+            not isinstance(v, bool) for v in (value if isinstance(value, list) else [value]))
+        tensor = torch.as_tensor(value, dtype=torch.float64)
+        ok = ok and tensor.ndim <= 2 and bool(torch.all(torch.isfinite(tensor) & (tensor > 0)))
+    except (TypeError, ValueError, RuntimeError):
+        ok = False
+    if not ok:
+        try:
+            shown = json.dumps(value)
+        except (TypeError, ValueError):
+            shown = repr(value)
+        unit = f", {unit}" if unit else ""
+        raise ValueError(f'{source}: "{key}" must be a finite number > 0{unit} or a list of '
+                         f"them (one per shot), got {shown}")

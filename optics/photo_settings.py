@@ -58,10 +58,19 @@ def _binning(metadata: Sequence[PhotoMetadata]) -> int:
 
 def _from_calibration(name: str, calibration: CameraSettings, n_photos: int) -> Any:
     """The calibration's value of `name`: its focus distances where it has one per photo (else
-    `None`), the first value of any other setting."""
+    `None`); of any other setting its one value, or its values one per photo where they
+    differ (never the first alone: per-shot values that do not match the photos are refused).
+    """
     if name == "focus_distance":
         return calibration.focus_distance.tolist() if calibration.n_shots == n_photos else None
-    return getattr(calibration, name).reshape(-1)[0].item()
+    values = getattr(calibration, name).reshape(-1).tolist()
+    if len(set(values)) == 1:
+        return values[0]
+    if len(values) != n_photos:
+        raise ValueError(f"the calibration has {len(values)} different {name} values "
+                         f"{values}, one per shot, but {n_photos} photo(s) are given: give one "
+                         "value for every photo, or one per photo")
+    return values
 
 
 def _from_metadata(name: str, metadata: Sequence[PhotoMetadata]) -> tuple[Any, str] | None:
@@ -94,8 +103,8 @@ def resolve_known(
             an empty sequence gives nothing. `pixel_pitch` is the pitch of the files' pixels
             (the sensor's for a raw file), multiplied by the records' `binning`.
         calibration: a `CameraSettings` from `defocus calibrate` (`CameraSettings.from_json`):
-            its focus distances where it has one per photo, the first value of its other
-            settings.
+            its focus distances where it has one per photo; its other settings' one value, or
+            one per photo (per-shot values of another count are refused).
         ignore: settings whose metadata value is not used (to be fitted instead).
 
     Returns:

@@ -10,6 +10,8 @@ from typing import Any
 
 from optics import DEFAULT_APERTURE, LENS_APERTURE
 
+from .outputs import OutputPlan
+
 
 def parse_distance(text: str) -> float:
     """A `--pair` distance in metres.
@@ -115,12 +117,37 @@ def calibrate_from_pairs(pairs: Sequence[Sequence[str]], known: Mapping[str, Any
     return calibrate(found, aperture=aperture, **options, **given), sources
 
 
-def write_fit(out: Path, figure: Path | None, save: Callable[[Path], Any],
-              plot: Callable[[Path], Any]) -> Path:
-    """Save a fit's JSON at `out` and its figure beside it (or at `figure`); returns the
-    figure's path."""
-    out.parent.mkdir(parents=True, exist_ok=True)
-    save(out)
+def plan_fit_outputs(out: Path, figure: Path | None, overwrite: bool = False,
+                     pairs: Sequence[Sequence[str]] = (), root: Path | None = None
+                     ) -> tuple[OutputPlan, Path]:
+    """The checked plan of a fit's JSON `out` and its figure (`figure`, by default `out` with
+    `.png`), before any work: neither is a `--pair` file or an existing file of the dataset's
+    `--root`, they differ from each other, and neither replaces an earlier result without
+    `overwrite` (`defocus.app.outputs`); returns the plan and the figure's path.
+
+    Example:
+        >>> plan_fit_outputs(Path("fit.png"), None)
+        Traceback (most recent call last):
+        ...
+        ValueError: the calibration figure and the calibration JSON would both be written to fit.png; give them different paths
+    """
+    inputs = [("--pair", Path(name)) for pair in pairs for name in pair[:2]]
+    plan = OutputPlan(inputs, {"--root": root}, overwrite, how="or choose another --out")
+    plan.add(out, "calibration JSON")
     figure = figure or out.with_suffix(".png")
-    plot(figure)
+    plan.add(figure, "calibration figure")
+    return plan, figure
+
+
+def write_fit(out: Path, figure: Path | None, save: Callable[[Path], Any],
+              plot: Callable[[Path], Any], plan: OutputPlan | None = None) -> Path:
+    """Save a fit's JSON at `out` and its figure beside it (or at `figure`), both whole or
+    neither, through `plan` (by default `plan_fit_outputs(out, figure)`); returns the
+    figure's path."""
+    if plan is None:
+        plan, figure = plan_fit_outputs(out, figure)
+    figure = figure or out.with_suffix(".png")
+    with plan.writing() as write:
+        write(out, save)
+        write(figure, plot)
     return figure

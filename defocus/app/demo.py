@@ -22,6 +22,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from .outputs import plan_files
+
 #: The rows of the demo's table, in order.
 METHODS = ("self_supervised", "supervised", "direct_optimisation", "sweep", "constant")
 
@@ -49,6 +51,7 @@ class DemoResult:
 def run_demo(out: Path, steps: int = 500, batch_size: int = 8, lr: float = 2e-3, width: int = 24,
              scenes: int = 256, size: int = 48, scale: float = 0.25, direct_steps: int = 150,
              smoothness_weight: float = 0.01, seed: int = 0, progress: bool = True,
+             overwrite: bool = False,
              report: Callable[[str], None] = lambda text: None) -> DemoResult:
     """Train, fit and evaluate every method of the demo (module docstring); returns the table.
 
@@ -61,6 +64,7 @@ def run_demo(out: Path, steps: int = 500, batch_size: int = 8, lr: float = 2e-3,
     from models.experiment import compare_on_scene
     from models.training import TrainConfig
 
+    plan = plan_demo(out, overwrite)  # before any work: an earlier demo is kept
     out.mkdir(parents=True, exist_ok=True)
     preset = SYNTHETIC_PRESET
     depth_range = (preset.min_depth, preset.depth_cap)
@@ -77,21 +81,48 @@ def run_demo(out: Path, steps: int = 500, batch_size: int = 8, lr: float = 2e-3,
     )
     results, predictions = compare_on_scene(config, train_set, val_set, sample,
                                             direct_steps=direct_steps, report=report)
-    _write_figures(out, sample, predictions, depth_range)
     metrics_path = out / "metrics.json"
-    metrics_path.write_text(json.dumps(results, indent=2))
-    sweep_path = write_focus_sweep(out)
+    with plan.writing() as write:
+        _write_figures(write, out, sample, predictions, depth_range)
+        write(metrics_path, lambda tmp: tmp.write_text(json.dumps(results, indent=2)))
+    sweep_path = write_focus_sweep(out, overwrite=overwrite)
     report(f"wrote {sweep_path} (the real scene through a thin lens at four focus distances)")
     return DemoResult(results, float(predictions["constant"].flatten()[0]),
                       tuple(sample["image"].shape[-2:]), metrics_path, sweep_path)
 
 
-def _write_figures(out: Path, sample: dict[str, Any], predictions: dict[str, Any],
+def plan_demo(out: Path, overwrite: bool = False):
+    """The checked plan of the demo's files under `out` (`defocus.app.outputs`): an earlier
+    demo's results and training runs are replaced only with `overwrite`.
+
+    Example:
+        >>> import tempfile
+        >>> sorted(plan_demo(Path(tempfile.mkdtemp())).outputs)[0].name
+        'focus_sweep.png'
+    """
+    from models.training import run_files
+
+    names = {"metrics.json": "demo table", "focus_sweep.png": "focus sweep figure",
+             "motorcycle_comparison.png": "demo figure",
+             **{f"motorcycle_{method}.png": "demo figure" for method in METHODS}}
+    plan = plan_files(Path(out), names, overwrite)[0]
+    for method in ("self_supervised", "supervised"):
+        earlier = run_files(Path(out) / method)
+        if earlier and not overwrite:
+            raise FileExistsError(f"{Path(out) / method} holds an earlier training run "
+                                  f"({earlier[0].name}, ...); give --overwrite to replace it, "
+                                  "or choose another --out")
+    return plan
+
+
+def _write_figures(write, out: Path, sample: dict[str, Any], predictions: dict[str, Any],
                    depth_range: tuple[float, float]) -> None:
     from models.plotting import plot_comparison, plot_prediction
 
     for method, depth in predictions.items():
-        plot_prediction(out / f"motorcycle_{method}.png", sample["image"], depth,
-                        sample["focused"], sample["depth"], sample["mask"],
-                        title=f"motorcycle: {method}", depth_range=depth_range)
-    plot_comparison(out / "motorcycle_comparison.png", sample, predictions, depth_range)
+        write(out / f"motorcycle_{method}.png", lambda tmp, depth=depth, method=method:
+              plot_prediction(tmp, sample["image"], depth, sample["focused"], sample["depth"],
+                              sample["mask"], title=f"motorcycle: {method}",
+                              depth_range=depth_range))
+    write(out / "motorcycle_comparison.png",
+          lambda tmp: plot_comparison(tmp, sample, predictions, depth_range))

@@ -11,12 +11,15 @@ that network.
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from .outputs import OutputPlan, plan_files
 
 Report = Callable[[str], None]
 #: Below this confidence a pixel's depth is not to be trusted (the summary counts them).
@@ -44,6 +47,8 @@ class PredictRequest:
     out: Path = Path("runs/predict")
     #: show progress bars
     progress: bool = True
+    #: replace the results of an earlier run in `out` (`defocus.app.outputs`)
+    overwrite: bool = False
 
 
 @dataclasses.dataclass
@@ -58,8 +63,24 @@ class Photos:
     first_path: Path
 
 
+#: The files `predict` writes under `out`, and what each holds.
+OUTPUT_FILES = {"depth.npy": "depth map", "depth_mm.png": "depth map in millimetres",
+                "depth.png": "depth preview",
+                "confidence.png": "confidence map", "all_in_focus.png": "all-in-focus photo",
+                "figure.png": "figure"}
+
+
 def _silent(text: str) -> None:
     """A `report` that drops the text."""
+
+
+def plan_outputs(request: PredictRequest) -> OutputPlan:
+    """The checked plan of `predict`'s outputs (`OUTPUT_FILES` under `--out`): none is an input
+    photo, the camera JSON or the model file, none replaces an earlier result without
+    `--overwrite` (`defocus.app.outputs`)."""
+    inputs = [("--image", request.image), *(("--focused", p) for p in request.focused),
+              ("--camera", request.camera), ("model file", request.checkpoint)]
+    return plan_files(Path(request.out), OUTPUT_FILES, request.overwrite, inputs)[0]
 
 
 def check_request(request: PredictRequest) -> None:
@@ -78,10 +99,39 @@ def check_request(request: PredictRequest) -> None:
     if request.method not in ("auto", *METHODS):
         raise ValueError(f"--method must be auto or one of {', '.join(METHODS)}, got "
                          f"{request.method!r}")
+    check_numbers(request)
     if request.checkpoint is not None and (request.aggregation != "semi-global"
                                            or request.method != "auto"):
         raise ValueError("--aggregation and --method choose how the label-free methods work: "
                          f"give them without a model file (got {request.checkpoint})")
+
+
+def check_numbers(request: PredictRequest) -> None:
+    """Refuse option values that no camera has, naming the option: `--image-f-number`,
+    `--image-focus-distance` and `--depth-range` must be finite and > 0 (NEAR < FAR)."""
+    for option, value in (("--image-f-number", request.image_f_number),
+                          ("--image-focus-distance", request.image_focus_distance)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{option} must be finite and > 0, got {value:g}")
+    if request.depth_range is not None:
+        near, far = request.depth_range
+        if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
+            raise ValueError(f"--depth-range must be NEAR FAR metres with 0 < NEAR < FAR, got "
+                             f"{near:g} {far:g}")
+
+
+def check_beyond_lens(request: PredictRequest, settings, depth_range) -> None:
+    """Refuse a `--depth-range` or `--image-focus-distance` within the focal length (nothing
+    there is imaged on the sensor)."""
+    if settings is None:
+        return
+    focal = float(settings.focal_length.max())
+    if request.depth_range is not None and depth_range[0] <= focal:
+        raise ValueError(f"--depth-range must lie beyond the focal length ({focal:g} m): got "
+                         f"NEAR {depth_range[0]:g} m")
+    if request.image_focus_distance is not None and request.image_focus_distance <= focal:
+        raise ValueError(f"--image-focus-distance must be > the focal length ({focal:g} m), got "
+                         f"{request.image_focus_distance:g} m")
 
 
 def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_model: bool,
@@ -109,8 +159,9 @@ def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_mode
 
 
 def read_photos(request: PredictRequest) -> Photos:
-    """Read `--image` and the `--focused` photos (one size; identical photos warned of)."""
-    from datasets.photos import read_photo
+    """Read `--image` and the `--focused` photos: one size, none identical to another, none
+    without texture (`datasets.photos.check_photo_content`)."""
+    from datasets.photos import check_photo_content, read_photo
 
     encoding = "linear" if request.linear else "srgb"
     image, image_info = read_photo(request.image, encoding=encoding) if request.image \
@@ -118,14 +169,20 @@ def read_photos(request: PredictRequest) -> Photos:
     photos = [read_photo(path, encoding=encoding) for path in request.focused]
     first_path, first = (request.image, image) if image is not None \
         else (request.focused[0], photos[0][0])
-    for path, (photo, _) in zip(request.focused, photos, strict=True):
+    named = ([("--image", request.image, image)] if image is not None else []) + \
+        [("--focused", path, photo) for path, (photo, _) in zip(request.focused, photos,
+                                                                strict=True)]
+    for index, (option, path, photo) in enumerate(named):
+        check_photo_content(photo, f"{option} {path}")
         if photo.shape != first.shape:
             raise ValueError(f"{path} is {tuple(photo.shape[-2:])} pixels but {first_path} is "
                              f"{tuple(first.shape[-2:])}; all photos must have one size")
-        if path != first_path and torch.equal(photo, first):
-            warnings.warn(f"{path} is identical to {first_path}: there is no defocus to read",
-                          stacklevel=1)
-    del first
+        for other_option, other, earlier in named[:index]:
+            if torch.equal(photo, earlier):
+                raise ValueError(f"{option} {path} is the same photo as {other_option} {other}: "
+                                 "two identical shots have no defocus between them to read; "
+                                 "give photos focused at different distances")
+    del first, named
     # without focused photos only a network that reads the all-in-focus photo alone runs
     focused = torch.stack([p for p, _ in photos]) if photos else image[None]
     return Photos(image, focused, image_info, [info for _, info in photos], first_path)
@@ -171,6 +228,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     from optics import CameraSettings
 
     check_request(request)
+    plan = plan_outputs(request)  # before any work: nothing is lost, nothing refused late
     device = select_device(request.device)
     # the model first: a file that is no model is refused before any photo is read
     model = None if request.checkpoint is None else load_depth_model(request.checkpoint, device)
@@ -183,6 +241,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     photos = read_photos(request)
     settings = _settings(request, photos, calibration, report)
     depth_range = depth_range_of(request, model, len(photos.infos))
+    check_beyond_lens(request, settings, depth_range)
     image_settings = image_shot_settings(request, settings)
     method, options = _method(request, model, photos, image_settings)
     out = estimate_depth(photos.focused.to(device), settings, depth_range,
@@ -198,8 +257,21 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     out["method"] = method
     out["low_confidence"] = None if out["confidence"] is None else \
         float((out["confidence"] < LOW_CONFIDENCE).float().mean())
-    out["written"] = write_outputs(request.out, out, photos)
+    out["written"] = write_outputs(request.out, out, photos, plan)
     return out
+
+
+def check_calibration_shots(request: PredictRequest, calibration, n_photos: int) -> None:
+    """Refuse per-shot values of the `--camera` JSON that do not match the photos: values that
+    differ between shots are used one per photo, never the first one for all."""
+    for name in ("focal_length", "f_number", "pixel_pitch"):
+        values = getattr(calibration, name).reshape(-1).tolist()
+        given = request.camera_options.get(name)
+        if len(set(values)) > 1 and len(values) != n_photos and given in (None, []):
+            raise ValueError(f'{request.camera}: "{name}" holds {len(values)} different values '
+                             f"{values}, one per shot, but {n_photos} --focused photo(s) are "
+                             f"given: give one value for all, one per photo, or "
+                             f"--{name.replace('_', '-')}")
 
 
 def _settings(request: PredictRequest, photos: Photos, calibration, report: Report):
@@ -207,6 +279,8 @@ def _settings(request: PredictRequest, photos: Photos, calibration, report: Repo
 
     if not photos.infos:
         return None
+    if calibration is not None:
+        check_calibration_shots(request, calibration, len(photos.infos))
     settings, sources = resolve_settings(photos.infos, request.camera_options, calibration)
     report(describe_settings(settings, sources))
     return settings
@@ -244,10 +318,13 @@ def _report_working_resolution(out, depth_range, infos, method, report: Report) 
         warnings.warn(jpeg, stacklevel=1)
 
 
-def write_outputs(folder: Path, out: dict[str, Any], photos: Photos) -> list[str]:
-    """Write depth.npy (metres), depth_mm.png (16-bit millimetres), depth.png (a colour-mapped
-    preview), confidence.png, all_in_focus.png and figure.png under `folder`; returns the names
-    written."""
+def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
+                  plan: OutputPlan | None = None) -> list[str]:
+    """Write depth.npy (metres), depth_mm.png (16-bit millimetres), depth.png (a
+    colour-mapped preview), confidence.png, all_in_focus.png and figure.png under `folder`,
+    each whole or not at all, through `plan`
+    (by default one that replaces no earlier result, `defocus.app.outputs`); returns the
+    names written."""
     import numpy as np
     from PIL import Image
 
@@ -258,22 +335,23 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos) -> list[str
     confidence = None if out["confidence"] is None else out["confidence"].cpu()
     if not bool(torch.isfinite(depth).all()):
         raise ValueError("the prediction is not finite; nothing written")
-    folder.mkdir(parents=True, exist_ok=True)
-    np.save(folder / "depth.npy", depth[0].numpy().astype(np.float32))
+    plan = plan or plan_files(Path(folder), OUTPUT_FILES, overwrite=False)[0]
+    folder = Path(folder)
     millimetres = np.clip(np.round(depth[0].numpy() * 1000), 0, 65535).astype(np.uint16)
-    Image.fromarray(millimetres).save(folder / "depth_mm.png")
-    save_depth_preview(folder / "depth.png", depth[0], robust_range(depth))
-    written = ["depth.npy", "depth_mm.png", "depth.png"]
-    if confidence is not None:
-        Image.fromarray((confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(
-            folder / "confidence.png")
-        written.append("confidence.png")
     fused = out["all_in_focus"].cpu()
-    save_photo(folder / "all_in_focus.png", fused)
-    written.append("all_in_focus.png")
-    plot_prediction(folder / "figure.png", fused, depth,
-                    photos.focused if photos.infos else None,
-                    title=str(photos.first_path.name), stated_range=tuple(out["depth_range"]),
-                    confidence=confidence, image_label="all in focus (input)"
-                    if photos.image is not None else "all in focus (fused)")
-    return written
+    files = {"depth.npy": lambda path: np.save(path, depth[0].numpy().astype(np.float32)),
+             "depth_mm.png": lambda path: Image.fromarray(millimetres).save(path),
+             "depth.png": lambda path: save_depth_preview(path, depth[0], robust_range(depth))}
+    if confidence is not None:
+        files["confidence.png"] = lambda path: Image.fromarray(
+            (confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(path)
+    files["all_in_focus.png"] = lambda path: save_photo(path, fused)
+    files["figure.png"] = lambda path: plot_prediction(
+        path, fused, depth, photos.focused if photos.infos else None,
+        title=str(photos.first_path.name), stated_range=tuple(out["depth_range"]),
+        confidence=confidence, image_label="all in focus (input)"
+        if photos.image is not None else "all in focus (fused)")
+    with plan.writing() as write:
+        for name, writer in files.items():
+            write(folder / name, writer)
+    return [name for name in files if name != "figure.png"]

@@ -6,17 +6,22 @@ from pathlib import Path
 
 from optics import LENS_APERTURE
 
+from .outputs import plan_files
+
 
 def write_focus_sweep(out: Path, focus_distances=(2.2, 3.0, 4.0, 5.0), focal_length=0.085,
-                      f_number=1.4, aperture=LENS_APERTURE, mode="scatter", scale=0.5) -> Path:
+                      f_number=1.4, aperture=LENS_APERTURE, mode="scatter", scale=0.5,
+                      overwrite: bool = False) -> Path:
     """Render the sweep (`datasets.middlebury.motorcycle_focus_sweep`) and save
-    `out/focus_sweep.png` (`optics.plotting.plot_focus_sweep`); returns its path."""
+    `out/focus_sweep.png` (`optics.plotting.plot_focus_sweep`) whole, replacing an earlier one
+    only with `overwrite` (`defocus.app.outputs`); returns its path."""
     from datasets.middlebury import motorcycle_focus_sweep
     from optics.plotting import plot_focus_sweep
 
+    plan, paths = plan_files(Path(out), {"focus_sweep.png": "focus sweep figure"}, overwrite)
     sweep = motorcycle_focus_sweep(focus_distances, focal_length, f_number, aperture, mode, scale)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / "focus_sweep.png"
-    plot_focus_sweep(sweep["image"], sweep["depth"], sweep["renders"], sweep["coc_px"],
-                     sweep["settings"], path)
+    path = paths["focus_sweep.png"]
+    with plan.writing() as write:
+        write(path, lambda tmp: plot_focus_sweep(sweep["image"], sweep["depth"], sweep["renders"],
+                                                 sweep["coc_px"], sweep["settings"], tmp))
     return path

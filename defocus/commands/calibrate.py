@@ -19,7 +19,7 @@ import argparse
 from pathlib import Path
 
 from defocus.errors import CommandError
-from defocus.options import aperture_argument, check_positive, show_progress
+from defocus.options import add_overwrite_argument, aperture_argument, check_positive, show_progress
 from optics import LENS_APERTURE
 
 KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
@@ -65,9 +65,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--progress", action="store_true",
                         help="show progress bars also where standard error is no terminal (on "
                              "a terminal they show unless --quiet)")
+    add_overwrite_argument(parser)
 
 
-def run_dataset(args: argparse.Namespace) -> int:
+#: Options of the --pair mode that --dataset ignores, with their defaults.
+PAIR_ONLY = {"--focal-length": ("focal_length", None), "--f-number": ("f_number", None),
+             "--pixel-pitch": ("pixel_pitch", None), "--psf-scale": ("psf_scale", None),
+             "--fit": ("fit", []), "--binning": ("binning", 1),
+             "--white-balance": ("white_balance", "camera"), "--margin": ("margin", None),
+             "--adam-steps": ("adam_steps", 60), "--lbfgs-steps": ("lbfgs_steps", 40)}
+#: Options of the --dataset mode that --pair ignores, with their defaults.
+DATASET_ONLY = {"--root": ("root", None), "--split": ("split", "train"),
+                "--scenes": ("scenes", None)}
+
+
+def check_mode_options(args: argparse.Namespace) -> None:
+    """Refuse options that the chosen mode (--pair or --dataset) would ignore."""
+    mode, ignored = ("--dataset", PAIR_ONLY) if args.dataset is not None \
+        else ("--pair", DATASET_ONLY)
+    given = [option for option, (name, default) in ignored.items()
+             if getattr(args, name) != default]
+    if given:
+        why = (" (the focal length and f-number are the dataset's stated ones)"
+               if mode == "--dataset" else "")
+        raise CommandError(f"{', '.join(given)} do(es) nothing with {mode}{why}; leave "
+                           f"{'it' if len(given) == 1 else 'them'} out")
+
+
+def run_dataset(args: argparse.Namespace, plan=None) -> int:
     from defocus.app.calibrate import calibrate_from_dataset
     from optics import plot_depth_calibration
 
@@ -79,7 +104,7 @@ def run_dataset(args: argparse.Namespace) -> int:
         print(f"  {name}: {values[name]}")
     for name, value in fit.extras().items():
         print(f"  {name}: {value}")
-    return _write(args, fit.to_json, lambda path: plot_depth_calibration(fit, path))
+    return _write(args, fit.to_json, lambda path: plot_depth_calibration(fit, path), plan)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,8 +115,10 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError("give either --pair SHARP BLURRED DISTANCE (repeat) or --dataset NAME "
                            "--root DIR")
     check_positive(args, "focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
+    check_mode_options(args)
+    plan = _plan(args)
     if args.dataset is not None:
-        return run_dataset(args)
+        return run_dataset(args, plan)
     known = {"focal_length": args.focal_length, "f_number": args.f_number,
              "pixel_pitch": args.pixel_pitch, "focus_distance": args.focus_distance,
              "psf_scale": args.psf_scale}
@@ -102,12 +129,19 @@ def run(args: argparse.Namespace) -> int:
     for name, source in sources.items():
         print(f"{name}: from the {source}")
     print(result.table())
-    return _write(args, result.save, lambda path: plot_calibration(result, path))
+    return _write(args, result.save, lambda path: plot_calibration(result, path), plan)
 
 
-def _write(args: argparse.Namespace, save, plot) -> int:
+def _plan(args: argparse.Namespace):
+    from defocus.app.calibrate import plan_fit_outputs
+
+    return plan_fit_outputs(args.out, args.figure, args.overwrite, args.pair or (),
+                            args.root)[0]
+
+
+def _write(args: argparse.Namespace, save, plot, plan=None) -> int:
     from defocus.app.calibrate import write_fit
 
-    figure = write_fit(args.out, args.figure, save, plot)
+    figure = write_fit(args.out, args.figure, save, plot, plan)
     print(f"wrote {args.out} and {figure}")
     return 0

@@ -11,6 +11,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from defocus.options import add_overwrite_argument
+
 WARNING = ("WARNING: this runs any code stored in SOURCE (it is unpickled with "
            "weights_only=False); only convert checkpoints that you wrote yourself or whose "
            "author you trust. The result holds only tensors and plain data and opens safely.")
@@ -25,9 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trust", action="store_true",
                         help="required: confirm that you trust SOURCE, since reading it may run "
                              "code in it")
+    add_overwrite_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
+    from defocus.app.outputs import OutputPlan
     from defocus.errors import CommandError
     from models.checkpoints import convert_checkpoint
 
@@ -36,6 +40,9 @@ def run(args: argparse.Namespace) -> int:
                            "add --trust if you wrote it yourself or trust its author")
     if args.target.resolve() == args.source.resolve():
         raise CommandError("give a new file as TARGET, not SOURCE itself")
+    # the output policy: SOURCE never written, an existing TARGET kept unless --overwrite
+    OutputPlan({"SOURCE": args.source}, overwrite=args.overwrite,
+               how="or choose another TARGET").add(args.target, "checkpoint")
     convert_checkpoint(args.source, args.target)
     print(f"wrote {args.target} (tensors and plain data only; opens with weights_only=True)")
     return 0

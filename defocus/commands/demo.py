@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from defocus.options import say
+from defocus.options import add_overwrite_argument, say
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threads", type=int, default=1,
                         help="CPU threads for torch (0: torch's default); the work is many small "
                              "operations, so one thread is about as fast and never oversubscribes")
+    add_overwrite_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -47,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
     result = run_demo(args.out, steps=args.steps, batch_size=args.batch_size, lr=args.lr,
                       width=args.width, scenes=args.scenes, size=args.size, scale=args.scale,
                       direct_steps=args.direct_steps, smoothness_weight=args.smoothness_weight,
-                      seed=args.seed, progress=not args.quiet, report=say(args))
+                      seed=args.seed, progress=not args.quiet, overwrite=args.overwrite,
+                      report=say(args))
     print(f"\nReal motorcycle scene ({result.scene_size} pixels, "
           f"best constant depth {result.constant_depth:.2f} m):")
     print(format_table(result.metrics))

@@ -9,7 +9,13 @@ from pathlib import Path
 
 from datasets.registry import STACK_DATASET_NAMES
 from defocus.errors import CommandError
-from defocus.options import METHOD_NAMES, add_data_arguments, dataset_from_options, say
+from defocus.options import (
+    METHOD_NAMES,
+    add_data_arguments,
+    add_overwrite_argument,
+    dataset_from_options,
+    say,
+)
 
 BENCHMARKS = STACK_DATASET_NAMES
 
@@ -42,9 +48,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--median-scaling", action="store_true",
                         help="scale predictions by median(gt)/median(pred) (reported in the table)")
     parser.add_argument("--json", type=Path, default=None, help="also write the metrics here")
+    add_overwrite_argument(parser)
+
+
+def plan_json(args: argparse.Namespace):
+    """The checked plan of `--json` (`defocus.app.outputs`), None without it: not the
+    checkpoint nor a file of `--root`, no earlier result replaced without `--overwrite`."""
+    from defocus.app.outputs import OutputPlan
+
+    if args.json is None:
+        return None
+    plan = OutputPlan({"CHECKPOINT": args.checkpoint}, {"--root": args.root}, args.overwrite,
+                      how="or choose another --json")
+    plan.add(args.json, "metrics JSON")
+    return plan
+
+
+def write_json(plan, path: Path, data: dict) -> None:
+    """Write `data` as JSON at `path`, whole or not at all, through `plan`."""
+    with plan.writing() as write:
+        write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=2)))
 
 
 def run(args: argparse.Namespace) -> int:
+    plan = plan_json(args)
     if args.dataset is not None:
         return run_benchmark(args)
     if args.checkpoint is None:
@@ -64,8 +91,8 @@ def run(args: argparse.Namespace) -> int:
     print(format_table({args.checkpoint.parent.parent.name or "model": metrics}))
     if warning is not None:
         print(f"warning: {warning}")
-    if args.json:
-        args.json.write_text(json.dumps(metrics, indent=2))
+    if plan is not None:
+        write_json(plan, args.json, metrics)
     return 0
 
 
@@ -93,6 +120,6 @@ def run_benchmark(args: argparse.Namespace) -> int:
     protocol = PROTOCOLS[args.dataset]
     print(format_table({name: metrics}, metrics=protocol.metrics, number_format="{:.4g}"))
     print(f"{args.dataset}: {metrics['images']:.0f} images; protocol: {protocol.source}")
-    if args.json:
-        args.json.write_text(json.dumps({"protocol": args.dataset, **metrics}, indent=2))
+    if args.json is not None:
+        write_json(plan_json(args), args.json, {"protocol": args.dataset, **metrics})
     return 0

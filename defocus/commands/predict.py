@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from defocus.options import check_positive, say
+from defocus.options import add_overwrite_argument, check_positive, say
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -78,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, default=Path("runs/predict"),
                         help="output folder: depth.npy (metres), depth_mm.png (16-bit "
                              "millimetres), confidence.png, all_in_focus.png, figure.png")
+    add_overwrite_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:

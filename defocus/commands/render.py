@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from defocus.options import aperture_argument, check_positive
+from defocus.options import add_overwrite_argument, aperture_argument, check_positive
 from optics import LENS_APERTURE
 
 
@@ -21,6 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="renderer semantics (see the rendering tutorial)")
     parser.add_argument("--scale", type=float, default=0.5,
                         help="downscale the scene by this factor first (1 = full 741x500 pixels)")
+    add_overwrite_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -28,6 +29,6 @@ def run(args: argparse.Namespace) -> int:
     from defocus.app.render import write_focus_sweep
 
     path = write_focus_sweep(args.out, args.focus, args.focal_length, args.f_number,
-                             args.aperture, args.mode, args.scale)
+                             args.aperture, args.mode, args.scale, args.overwrite)
     print(f"wrote {path}")
     return 0

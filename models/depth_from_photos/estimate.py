@@ -21,6 +21,7 @@ with at least `depth` `(B,1,H,W)` metres. Its class attributes say how to run it
 from __future__ import annotations
 
 import math
+import numbers
 import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -195,7 +196,7 @@ def estimate_depth(
         >>> out["depth"].shape, out["confidence"].shape
         (torch.Size([1, 24, 24]), torch.Size([1, 24, 24]))
     """
-    check_photos(focused, image)
+    focused, image = check_arguments(focused, settings, depth_range, image, image_settings)
     if image_settings is not None:
         focused, settings = _image_as_shot(image, focused, settings, image_settings)
         image = None
@@ -212,6 +213,58 @@ def estimate_depth(
     if all_in_focus:
         out["all_in_focus"] = image if image is not None else _fused(focused, out, align)
     return out
+
+
+#: Photo dtypes computed in float32 (and returned as float32): too coarse for the sweep.
+_WIDENED = (torch.float16, torch.bfloat16)
+
+
+def _is_number(value: Any) -> bool:
+    """A real number: Python's, numpy's or a one-element tensor (not a bool)."""
+    if isinstance(value, Tensor):
+        return value.numel() == 1 and not value.is_complex()
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+def check_arguments(focused: Any, settings: Any, depth_range: Any, image: Any = None,
+                    image_settings: Any = None) -> tuple[Tensor, Tensor | None]:
+    """`estimate_depth`'s door: the types, dtypes and shapes of its arguments, each refused in
+    one line that names the argument; returns the photos, float16 and bfloat16 ones widened
+    to float32.
+
+    Example:
+        >>> check_arguments(torch.zeros(2, 3, 8, 8, dtype=torch.uint8), None, (1.0, 5.0))
+        Traceback (most recent call last):
+        ...
+        TypeError: focused must hold floating-point linear intensity in [0, 1], got dtype torch.uint8; convert it with .float() / 255 (and decode sRGB: kornia.color.rgb_to_linear_rgb)
+    """
+    photos = []
+    for name, photo in (("focused", focused), ("image", image)):
+        if photo is None and name == "image":
+            photos.append(None)
+            continue
+        if not isinstance(photo, Tensor):
+            raise TypeError(f"{name} must be a torch.Tensor, got {type(photo).__name__}")
+        if not photo.is_floating_point():
+            raise TypeError(f"{name} must hold floating-point linear intensity in [0, 1], got "
+                            f"dtype {photo.dtype}; convert it with .float() / 255 (and decode "
+                            "sRGB: kornia.color.rgb_to_linear_rgb)")
+        photos.append(photo.float() if photo.dtype in _WIDENED else photo)
+    for name, value in (("settings", settings), ("image_settings", image_settings)):
+        if value is not None and not isinstance(value, CameraSettings):
+            raise TypeError(f"{name} must be an optics.CameraSettings, got "
+                            f"{type(value).__name__}; build one with CameraSettings("
+                            "focal_length, f_number, focus_distance, pixel_pitch)")
+    if isinstance(depth_range, (str, bytes)) or not hasattr(depth_range, "__len__") or \
+            len(depth_range) != 2 or not all(_is_number(d) for d in depth_range):
+        raise TypeError(f"depth_range must be two numbers (near, far) in metres, got "
+                        f"{depth_range!r}")
+    check_photos(photos[0], photos[1])
+    near, _ = _check_depth_range(depth_range)
+    if settings is not None and near <= float(settings.focal_length.max()):
+        raise ValueError(f"depth_range must lie beyond the focal length "
+                         f"({float(settings.focal_length.max()):g} m), got near {near:g} m")
+    return photos[0], photos[1]
 
 
 def _image_as_shot(image: Tensor | None, focused: Tensor, settings: CameraSettings | None,

@@ -39,6 +39,37 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
     return min(1.0, max_coc_px / max(largest, 1e-9), math.sqrt(max_pixels / (shape[0] * shape[1])))
 
 
+#: The fewest pixels on each side of the working resolution that the methods read.
+MIN_WORKING_SIDE = 6
+
+
+def check_working_size(settings: CameraSettings, near: float, far: float,
+                       shape: tuple[int, int], scale: float) -> None:
+    """Refuse photos of `shape` `(H, W)` that are, or at the working `scale` would be, smaller
+    than `MIN_WORKING_SIDE` pixels a side (tiny photos, or a blur so large, from a tiny
+    f-number or pixel pitch, that the photos would shrink to nothing).
+
+    Example:
+        >>> check_working_size(CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4), 1.0, 10.0, (4, 4), 1.0)
+        Traceback (most recent call last):
+        ...
+        ValueError: the photos are 4x4 pixels; depth from defocus needs at least 6 pixels on each side
+    """
+    h, w = shape
+    if min(h, w) < MIN_WORKING_SIDE:
+        raise ValueError(f"the photos are {h}x{w} pixels; depth from defocus needs at least "
+                         f"{MIN_WORKING_SIDE} pixels on each side")
+    small = (round(h * scale), round(w * scale))
+    if min(small) < MIN_WORKING_SIDE:
+        largest = settings.largest_coc_px(near, far)
+        raise ValueError(
+            f"over the depth range {near:g}-{far:g} m the largest blur is {largest:.3g} pixels "
+            f"(f-number {settings.f_number.reshape(-1).tolist()}, pixel pitch "
+            f"{settings.pixel_pitch.reshape(-1).tolist()} m), so the {h}x{w} photos would be "
+            f"read at {small[0]}x{small[1]} pixels (at least {MIN_WORKING_SIDE} a side needed): "
+            "check the f-number, the pixel pitch (metres) and the depth range")
+
+
 def check_photos(focused: Tensor, image: Tensor | None = None) -> None:
     """Refuse photos that are not `(F,3,H,W)` focused shots and an optional `(3,H,W)`
     all-in-focus photo of the same size, all finite.
@@ -111,6 +142,7 @@ def run_at_working_resolution(
     h, w = focused.shape[-2:]
     max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
     scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
+    check_working_size(settings, near, far, (h, w), scale)
     passes = progress_bar(total=None, desc="depth", unit="pass", disable=not progress)
     out = _run_at(model, image, focused, settings, near, far, scale, align)
     passes.update()

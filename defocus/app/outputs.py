@@ -1,0 +1,188 @@
+"""The output policy of every command: nothing lost, nothing half written.
+
+Every command that writes files (`predict`, `calibrate`, `evaluate --json`,
+`convert-checkpoint`, `render`, `demo`) plans its outputs with an `OutputPlan` before it starts
+the work, and writes them through it:
+
+1. An input is never written: an output that is one of the run's input files (or lies in an
+   input folder such as a dataset's `--root` and exists there) is refused.
+2. An existing result is never replaced unless the user says so (`--overwrite`); the message
+   names the file and how to proceed.
+3. Two outputs of one run never share a path (e.g. `calibrate --out fit.png` and its default
+   figure `fit.png`).
+4. Nothing is written through a symbolic link: an output path that is a link is refused.
+5. Each file is written to a temporary name in its own folder and renamed over its path
+   (`os.replace`) only once every output of the run is whole: a failure (a full disk, an
+   interrupt) leaves the earlier files as they were and no half-written file behind.
+
+Example:
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> plan = OutputPlan(inputs={"--image": folder / "photo.png"})
+    >>> path = plan.add(folder / "depth.txt", "depth")
+    >>> with plan.writing() as write:
+    ...     _ = write(path, lambda tmp: tmp.write_text("1.5"))
+    >>> path.read_text()
+    '1.5'
+    >>> OutputPlan().add(path, "depth")  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    FileExistsError: ...depth.txt already exists (an earlier depth); give --overwrite to replace it, or choose another output
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+from defocus.errors import OutputError
+
+#: writes one output at the temporary path it is given
+Writer = Callable[[Path], Any]
+#: input files or folders by the name the user gave them: a mapping or `(name, path)` pairs
+Inputs = Mapping[str, "Path | None"] | Iterable[tuple[str, "Path | None"]]
+
+
+def _pairs(inputs: Inputs | None) -> list[tuple[str, Path]]:
+    items = inputs.items() if isinstance(inputs, Mapping) else (inputs or ())
+    return [(name, Path(path)) for name, path in items if path is not None]
+
+
+def _resolved(path: Path) -> Path:
+    return Path(os.path.abspath(path)).resolve()
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        path.relative_to(folder)
+    except ValueError:
+        return False
+    return True
+
+
+class OutputPlan:
+    """The files one run writes, checked against the policy (module docstring) as they are
+    added, and written atomically by `writing`.
+
+    Args:
+        inputs: the run's input files by the name the user gave them (`"--image"`, `"SOURCE"`,
+            ...), a mapping or `(name, path)` pairs; None paths are skipped.
+        input_folders: input folders (a dataset's `--root`) whose existing files are inputs.
+        overwrite: replace earlier results (`--overwrite`).
+        how: what to say besides `--overwrite` (e.g. `"or choose another --out"`).
+    """
+
+    def __init__(self, inputs: Inputs | None = None, input_folders: Inputs | None = None,
+                 overwrite: bool = False, how: str = "or choose another output") -> None:
+        self.inputs = _pairs(inputs)
+        self.input_folders = [(name, _resolved(p)) for name, p in _pairs(input_folders)]
+        self.overwrite = bool(overwrite)
+        self.how = how
+        self.outputs: dict[Path, tuple[Path, str]] = {}
+
+    def add(self, path: Path | str, what: str) -> Path:
+        """Check that `path` may receive output `what` and plan it; returns `path`.
+
+        Raises:
+            ValueError: `path` is an input, another output of this run, or a symbolic link.
+            FileExistsError: `path` holds an earlier result and `overwrite` is off.
+            IsADirectoryError: `path` is a folder.
+        """
+        path = Path(path)
+        resolved = _resolved(path)
+        self._check_not_input(path, resolved, what)
+        if resolved in self.outputs:
+            other, other_what = self.outputs[resolved]
+            raise ValueError(f"the {what} and the {other_what} would both be written to {path}; "
+                             "give them different paths")
+        if path.is_symlink():
+            raise ValueError(f"{path} is a symbolic link (to {os.readlink(path)}); outputs are "
+                             "never written through a link: remove it or choose another output")
+        if path.is_dir():
+            raise IsADirectoryError(f"the {what} would be written to {path}, which is a folder; "
+                                    "choose another output")
+        if path.exists() and not self.overwrite:
+            raise FileExistsError(f"{path} already exists (an earlier {what}); give --overwrite "
+                                  f"to replace it, {self.how}")
+        self.outputs[resolved] = (path, what)
+        return path
+
+    def _check_not_input(self, path: Path, resolved: Path, what: str) -> None:
+        for name, given in self.inputs:
+            same = resolved == _resolved(given)
+            if not same and path.exists() and given.exists():
+                with contextlib.suppress(OSError):
+                    same = os.path.samefile(path, given)
+            if same:
+                raise ValueError(f"the {what} would be written to {path}, which is the input "
+                                 f"{name} {given}: an input is never written; choose another "
+                                 "output")
+        for name, folder in self.input_folders:
+            if path.exists() and _inside(resolved, folder):
+                raise ValueError(f"the {what} would be written to {path}, an existing file of "
+                                 f"the input {name} {folder}: an input is never written; "
+                                 "choose an output outside it")
+
+    @contextlib.contextmanager
+    def writing(self) -> Iterator[Callable[[Path, Writer], Path]]:
+        """A context that gives `write(path, writer)`: `writer` writes a planned output at a
+        temporary path beside it (same suffix); on leaving the context every output is
+        renamed over its path, and on an error every temporary file is removed."""
+        staged: list[tuple[Path, Path]] = []
+
+        def write(path: Path, writer: Writer) -> Path:
+            path = Path(path)
+            if _resolved(path) not in self.outputs:
+                raise ValueError(f"{path} was not planned as an output of this run")
+            temporary = path.with_name(f".{path.stem}.{os.getpid()}.partial{path.suffix}")
+            staged.append((temporary, path))
+            _guarded(path, lambda: (path.parent.mkdir(parents=True, exist_ok=True),
+                                    writer(temporary)))
+            return path
+
+        try:
+            yield write
+            for temporary, path in staged:
+                _guarded(path, lambda t=temporary, p=path: os.replace(t, p))
+        finally:
+            for temporary, _ in staged:
+                with contextlib.suppress(OSError):
+                    temporary.unlink()
+
+
+def _guarded(path: Path, action: Callable[[], Any]) -> None:
+    """Run `action` (writing `path`); an operating-system error becomes one line that names
+    `path` (`OutputError`, or `PermissionError` for a folder one may not write in)."""
+    try:
+        action()
+    except PermissionError as error:
+        raise PermissionError(f"cannot write {path}: permission denied "
+                              f"({error.strerror or error}); choose another output folder") from None
+    except OSError as error:
+        if isinstance(error, (FileNotFoundError, IsADirectoryError, NotADirectoryError)) or \
+                error.errno in (errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO):
+            raise OutputError(f"cannot write {path}: {error.strerror or error}; nothing was "
+                              "replaced and no partial file is left") from None
+        raise
+
+
+def plan_files(folder: Path, names: Mapping[str, str], overwrite: bool,
+               inputs: Inputs | None = None,
+               option: str = "--out") -> tuple[OutputPlan, dict[str, Path]]:
+    """An `OutputPlan` of the files `names` (file name -> what it holds) in `folder`, and
+    their paths by file name.
+
+    Example:
+        >>> import tempfile
+        >>> plan, paths = plan_files(Path(tempfile.mkdtemp()), {"a.json": "metrics"}, False)
+        >>> sorted(paths)
+        ['a.json']
+    """
+    plan = OutputPlan(inputs, overwrite=overwrite, how=f"or choose another {option}")
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(f"{option} {folder} is a file, not a folder")
+    return plan, {name: plan.add(folder / name, what) for name, what in names.items()}
