@@ -115,8 +115,8 @@ def add_data_arguments(
         nargs=2,
         default=None,
         metavar=("H", "W"),
-        help="image size in pixels: the synthetic scenes' (default 48 48), a resize of real "
-        "photos (default: their own size)",
+        help="image size in pixels: the synthetic scenes' (48 48 unless given), a resize of "
+        "real photos (default: their own size)",
     )
     parser.add_argument(
         "--scenes", type=int, default=256, help="number of synthetic scenes (--data synthetic)"
