@@ -32,7 +32,7 @@ import torch
 
 from datasets import DSLR
 from datasets.calibration import calibrate_dataset
-from datasets.dslr import soften
+from datasets.pairs import soften
 from models.depth_from_photos import estimate_depth
 from models.metrics import best_constant_depth, depth_metrics
 from optics.progress import progress_bar
