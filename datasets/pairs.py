@@ -23,13 +23,21 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from optics import CameraSettings, align_shots, render_defocus
+from optics import CameraSettings, align_shots, render_defocus, undo_motion, warp
 
 
 def register_focused(sample: Mapping[str, Any]) -> dict[str, Any]:
-    """`sample` with its `focused` photos `(F,3,H,W)` moved (and where the lens breathes,
-    scaled) onto its `image` `(3,H,W)` by `optics.align_shots`; `"motion"` `(F,4)` holds what
-    was undone (`dy, dx, zoom, angle`). Estimated in float64, returned in the photos' dtype.
+    """`sample` with its `focused` photos `(F,3,H,W)` registered onto its `image` `(3,H,W)`;
+    `"motion"` `(F,4)` holds the motion found (`dy, dx, zoom, angle` of each focused photo
+    relative to the image, `optics.estimate_motion`). Estimated in float64, returned in the
+    photos' dtype.
+
+    A translation is undone exactly (`optics.translate`, no resampling). Where the lens
+    breathed or the camera turned (beyond `optics.alignment.ZOOM_TOLERANCE_PX` at the corners) the motion must be
+    resampled, and resampling blurs: read as defocus, that blur of the focused photo alone would
+    bias a loss toward more blur. With one focused photo the motion is then split, half undone
+    on it and half applied to the image, so both are resampled alike and the blur between them
+    is the defocus alone; with several, they are moved onto the image (`optics.align_shots`).
 
     Example:
         >>> import kornia
@@ -40,9 +48,16 @@ def register_focused(sample: Mapping[str, Any]) -> dict[str, Any]:
         >>> out["motion"][0, :2].round(decimals=1).tolist()
         [1.0, -0.5]
     """
-    image, focused = sample["image"], sample["focused"]
-    aligned, motion = align_shots(image[None].double(), focused[None].double())
-    return {**sample, "focused": aligned[0].to(focused.dtype), "motion": motion[0].float()}
+    image, focused = sample["image"][None].double(), sample["focused"][None].double()
+    aligned, motion = align_shots(image, focused)
+    if focused.shape[1] == 1 and bool((motion[0, 0, 2:] != torch.tensor(
+            [1.0, 0.0], dtype=motion.dtype)).any()):
+        dy, dx, zoom, angle = motion[0, 0]
+        half = torch.stack([dy / 2, dx / 2, zoom.sqrt(), angle / 2])
+        aligned = undo_motion(focused[:, 0], half)[:, None]
+        image = warp(image, half[None, :2], half[2:3], half[3:4])
+    return {**sample, "image": image[0].to(sample["image"].dtype),
+            "focused": aligned[0].to(sample["focused"].dtype), "motion": motion[0].float()}
 
 
 def soften(image: Tensor, camera: CameraSettings, floor_px: float) -> Tensor:

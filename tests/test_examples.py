@@ -160,10 +160,10 @@ REAL_DSLR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "re
 
 def _check_dslr_table(out: str, scenes: int) -> None:
     assert f"DSLR validation ({scenes} scenes, never used to fit or train)" in out
-    for row in ("[self-supervised]", "[depth-supervised]", "label-free predict",
+    for row in ("[self-supervised", "[depth-supervised]", "label-free predict", "the paper's setting",
                 "best constant depth"):
         assert row in out
-    assert out.count("x the constant's") == 4
+    assert out.count("x the constant's") == 5
 
 
 def test_dslr_example_help(monkeypatch, capsys):
