@@ -27,14 +27,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torch import Tensor
 
-from optics import CameraSettings, render_defocus
+from optics import CameraSettings
 
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
 from .io import DataFormatError, read_depth_png, read_rgb, require_root
+from .pairs import register_focused, relative_pair
 from .presets import DSLR as DSLR_PRESET
 
 #: Folder of the release holding the f/2.8 photos and the depth.
@@ -123,24 +123,6 @@ def _files(folder: Path, suffixes: tuple[str, ...]) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)
 
 
-def soften(image: Tensor, camera: CameraSettings, floor_px: float) -> Tensor:
-    """`image` `(3,H,W)` blurred by the camera's PSF at a constant `floor_px` (CoC diameter,
-    pixels): the blur the f/2.8 photos have even in focus (`focus_floor_px` of a fitted camera
-    JSON). Zero leaves it as it is.
-
-    Example:
-        >>> image = torch.rand(3, 16, 16)
-        >>> camera = CameraSettings(0.035, 2.8, [1.7], 6e-5, "gaussian:0.5")
-        >>> bool(soften(image, camera, 1.5).std() < image.std()), soften(image, camera, 0) is image
-        (True, True)
-    """
-    if floor_px <= 0:
-        return image
-    floor = torch.full((1, 1, *image.shape[-2:]), float(floor_px), dtype=image.dtype,
-                       device=image.device)
-    return render_defocus(image[None], floor, psf=camera.aperture_module())[0]
-
-
 class DSLR(DepthDataset):
     """Real defocus: the f/8 photo as `image`, the f/2.8 photo as the one focused image.
 
@@ -164,8 +146,12 @@ class DSLR(DepthDataset):
             through the renderer: the f/8 photo's own blur taken out of the f-number
             (`N / sqrt(1 - (N / N_ref)^2)`, exact for Gaussian PSFs) and `image` blurred by the
             camera JSON's `focus_floor_px` (the blur the f/2.8 photos have even in focus, which
-            no depth explains). Off, the camera is the lens's own (for `estimate_depth` with the
-            f/8 photo as a shot).
+            no depth explains), and scaled by its `exposure_gain` (`datasets.pairs.relative_pair`).
+            Off, the camera is the lens's own (for `estimate_depth` with the f/8 photo as a shot).
+        register: move the f/2.8 photo onto the f/8 one (`datasets.pairs.register_focused`):
+            the shots of a scene are 0.3 to 4 pixels apart, which a loss through the renderer
+            reads as blur. Default: on for `relative` samples (training), off otherwise
+            (`estimate_depth` and the calibration register the photos themselves).
         **kwargs: `size`, `crop`, `augment`, `dtype` of `DepthDataset`.
 
     Raises:
@@ -204,6 +190,7 @@ class DSLR(DepthDataset):
         max_gap_s: float = 10.0,
         scenes: slice | range | list[int] | None = None,
         relative: bool = False,
+        register: bool | None = None,
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
@@ -217,6 +204,8 @@ class DSLR(DepthDataset):
         self.reference_f_number = 8.0
         self.floor_px = 0.0
         self.relative = bool(relative)
+        self.register = self.relative if register is None else bool(register)
+        self.exposure_gain: list[float] | None = None
         self.settings: CameraSettings | None = None
         if isinstance(camera, CameraSettings):
             self.settings = camera
@@ -224,6 +213,8 @@ class DSLR(DepthDataset):
             self.settings, extra = CameraSettings.read_json(camera)
             self.reference_f_number = float(extra.get("reference_f_number", 8.0))
             self.floor_px = float(extra.get("focus_floor_px", 0.0))
+            gain = extra.get("exposure_gain")
+            self.exposure_gain = None if gain is None else [float(g) for g in gain]
         if (self.root / WIDE_FOLDER).is_dir():
             folders = [self.root / WIDE_FOLDER / "rgb" / split,
                        self.root / REFERENCE_FOLDER / "rgb" / split,
@@ -251,15 +242,6 @@ class DSLR(DepthDataset):
             self.files = [self.files[i] for i in kept]
         self.ids.extend(w.stem for w, _, _ in self.files)
 
-    def _relative(self, image: Tensor, camera: CameraSettings) -> tuple[Tensor, CameraSettings]:
-        """`image` blurred by the floor and the camera of the blur from it to the f/2.8 photo."""
-        ratio = camera.f_number / self.reference_f_number
-        if bool((ratio >= 1).any()):
-            raise ValueError(f"reference_f_number {self.reference_f_number} must exceed the "
-                             f"camera's f-number {camera.f_number.tolist()} for relative=True")
-        camera = camera.replace(f_number=camera.f_number / (1 - ratio ** 2).sqrt())
-        return soften(image, camera, self.floor_px), camera
-
     def reference_settings(self, camera: CameraSettings) -> CameraSettings:
         """The settings of the f/8 photo (`image`): `camera` at `reference_f_number`, e.g. for
         `estimate_depth(image_settings=...)`."""
@@ -282,9 +264,13 @@ class DSLR(DepthDataset):
             camera = self.preset.settings(self.dtype)
             camera = camera.replace(
                 pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / image.shape[-1]))
+        pair = {"image": image, "focused": focused[None]}
+        if self.register:
+            pair = register_focused(pair)
+            del pair["motion"]
         if self.relative:
-            image, camera = self._relative(image, camera)
+            pair["image"], camera = relative_pair(pair["image"], camera, self.reference_f_number,
+                                                  self.floor_px, self.exposure_gain)
         mask = valid_depth_mask(depth)
         require_valid_depth(mask, repr(str(depth_path)))
-        return {"image": image, "focused": focused[None], "camera": camera,
-                "depth": fill_unknown(depth, mask), "mask": mask}
+        return {**pair, "camera": camera, "depth": fill_unknown(depth, mask), "mask": mask}

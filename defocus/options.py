@@ -165,6 +165,10 @@ def add_training_arguments(parser: argparse.ArgumentParser, out: str) -> None:
                         help="depths the network can output, metres (default: the dataset's)")
     parser.add_argument("--depth-spacing", choices=["depth", "inverse"], default="depth",
                         help="space the network's output evenly in depth or in inverse depth")
+    parser.add_argument("--side", choices=["both", "beyond", "before"], default="both",
+                        help="a prior on the side of the focus plane (one focus setting): where "
+                             "the self-supervised network puts a blur both sides explain; a blur "
+                             "above the far side's bound is put near either way")
     parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
     parser.add_argument("--network", choices=["small", "paper"], default="small",
                         help="depth network (the paper's is large; use a GPU)")

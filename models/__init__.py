@@ -10,6 +10,7 @@ The names most work needs are here; each lives in one module:
 | `depth_metrics`, `best_constant_depth`, `format_table`, `PROTOCOLS` | `models.metrics` | metrics and the paper-style table |
 | `Trainer`, `TrainConfig` | `models.training` | training runs |
 | `DefocusLoss`, `supervised_depth_loss` | `models.losses` | the training losses |
+| `loss_at_depths` | `models.diagnostics` | is the loss right: its value at the true depth and the alternatives |
 | `SmallDepthNet`, `PaperDepthNet`, `build_network`, `NETWORKS` | `models.networks` | the depth networks |
 | `train_and_evaluate`, `compare_on_scene` | `models.experiment` | experiments built from the pieces |
 
@@ -22,6 +23,7 @@ Example:
 """
 
 from .depth_from_photos import TrainedNetwork, estimate_depth
+from .diagnostics import loss_at_depths
 from .evaluation import MeanMetrics, Method, evaluate, label_free_method
 from .experiment import compare_on_scene, train_and_evaluate
 from .loading import is_weights_file, load_depth_model, load_weights, save_weights
@@ -71,6 +73,7 @@ __all__ = [
     "label_free_method",
     "load_depth_model",
     "load_weights",
+    "loss_at_depths",
     "protocol_metrics",
     "save_weights",
     "supervised_depth_loss",

@@ -157,7 +157,8 @@ def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tu
     """
     state, cfg = read_checkpoint(checkpoint, map_location=device, device="auto")
     model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
-                          cfg.width, cfg.depth_spacing)
+                          cfg.width, cfg.depth_spacing, cfg.side,
+                          cfg.focus_distance or None)
     model.load_state_dict(state["model"])
     return model.to(device).eval(), cfg
 

@@ -36,6 +36,12 @@ INPUT_MODES = ("aif", "aif+focused")
 #: How `DepthHead` spaces its output between `depth_min` and `depth_max`: evenly in depth, or
 #: evenly in inverse depth (where the thin lens's blur is linear).
 DEPTH_SPACINGS = ("depth", "inverse")
+#: Which side of the focus plane `DepthHead` may put a blur that both sides explain: "both"
+#: (no prior: the whole range), "beyond" or "before" the focus plane (a prior the user states).
+SIDES = ("both", "beyond", "before")
+#: With side "beyond": the share of the sigmoid's range spent on the far side, so that an
+#: untrained network (sigmoid 0.5) starts beyond the focus plane.
+BEYOND_SHARE = 0.8
 
 
 def camera_channels(settings: CameraSettings, depth_max: float) -> Tensor:
@@ -79,13 +85,27 @@ class DepthHead(nn.Module):
     at the harmonic middle of the range instead of far out where the blur hardly changes with
     depth (measured on the real DSLR pairs: the self-supervised network's abs rel 2.3 -> 0.63).
 
+    One focus plane is ambiguous about its side: the blur of `1/d = 1/f - b` (beyond) equals
+    that of `1/f + b` (before). With `side` and the `focus_distance` `f` the head resolves it
+    (spaced evenly in inverse depth, i.e. in blur; `spacing` is then not used):
+
+    - `"before"`: every depth in `[depth_min, f]`;
+    - `"beyond"`: the blur `b` goes to the far side while the far side can explain it
+      (`b <= 1/f - 1/depth_max`, the blur at the range's far end), and to the near side above
+      that bound, which only a nearer depth explains (the physical tie-breaker; the rest is
+      the prior). The first `BEYOND_SHARE` of the sigmoid's range is the far side.
+
     Example:
         >>> head = DepthHead(0.5, 10.0, spacing="inverse")
         >>> tuple(round(float(d), 3) for d in head(torch.tensor([-50.0, 0.0, 50.0])))
         (0.5, 0.952, 10.0)
+        >>> beyond = DepthHead(0.5, 10.0, side="beyond", focus_distance=2.0)
+        >>> tuple(round(float(d), 3) for d in beyond(torch.tensor([-50.0, 0.0, 1.3, 50.0])))
+        (2.0, 4.0, 9.339, 0.5)
     """
 
-    def __init__(self, depth_min: float, depth_max: float, spacing: str = "depth"):
+    def __init__(self, depth_min: float, depth_max: float, spacing: str = "depth",
+                 side: str = "both", focus_distance: float | None = None):
         super().__init__()
         if not 0 < depth_min < depth_max:
             raise ValueError(
@@ -94,25 +114,52 @@ class DepthHead(nn.Module):
             )
         if spacing not in DEPTH_SPACINGS:
             raise ValueError(f"spacing must be one of {DEPTH_SPACINGS}, got {spacing!r}")
+        if side not in SIDES:
+            raise ValueError(f"side must be one of {SIDES}, got {side!r}")
+        if side != "both" and not (focus_distance is not None
+                                   and depth_min < focus_distance < depth_max):
+            raise ValueError(f"side {side!r} needs a focus_distance between depth_min "
+                             f"{depth_min} and depth_max {depth_max} metres, got "
+                             f"{focus_distance!r}")
         self.depth_min, self.depth_max = float(depth_min), float(depth_max)
-        self.spacing = spacing
+        self.spacing, self.side = spacing, side
+        self.focus_distance = None if focus_distance is None else float(focus_distance)
 
     def forward(self, logits: Tensor) -> Tensor:
+        near, far = 1 / self.depth_min, 1 / self.depth_max
+        s = torch.sigmoid(logits)
+        if self.side != "both":
+            return 1 / self._sided_inverse(s, near, far)
         if self.spacing == "inverse":
-            near, far = 1 / self.depth_min, 1 / self.depth_max
-            return 1 / (near - (near - far) * torch.sigmoid(logits))
-        return self.depth_min + (self.depth_max - self.depth_min) * torch.sigmoid(logits)
+            return 1 / (near - (near - far) * s)
+        return self.depth_min + (self.depth_max - self.depth_min) * s
+
+    def _sided_inverse(self, s: Tensor, near: float, far: float) -> Tensor:
+        """Inverse depth of the sigmoid output `s` on the stated side of the focus plane."""
+        focus = 1 / self.focus_distance
+        if self.side == "before":
+            return focus + (near - focus) * s
+        bound = focus - far  # the largest blur the far side explains
+        if near - focus <= bound:  # the near side explains nothing the far side does not
+            return focus - bound * s
+        share = BEYOND_SHARE
+        beyond = focus - bound * (s / share).clamp(max=1)
+        before = focus + bound + (near - focus - bound) * ((s - share) / (1 - share)).clamp(min=0)
+        return torch.where(s <= share, beyond, before)
 
     def extra_repr(self) -> str:
+        side = "" if self.side == "both" else \
+            f", side={self.side!r}, focus_distance={self.focus_distance} m"
         return (f"depth_min={self.depth_min} m, depth_max={self.depth_max} m, "
-                f"spacing={self.spacing!r}")
+                f"spacing={self.spacing!r}{side}")
 
 
 class _DepthNetwork(nn.Module):
     """Shared input assembly and checks; subclasses implement `_logits(x)`."""
 
     def __init__(self, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
-                 depth_spacing: str = "depth"):
+                 depth_spacing: str = "depth", side: str = "both",
+                 focus_distance: float | None = None):
         super().__init__()
         if input_mode not in INPUT_MODES:
             raise ValueError(f"input_mode must be one of {INPUT_MODES}, got {input_mode!r}")
@@ -120,7 +167,7 @@ class _DepthNetwork(nn.Module):
             raise ValueError(f"n_focus must be >= 1 in 'aif+focused' mode, got {n_focus!r}")
         self.input_mode = input_mode
         self.n_focus = int(n_focus) if input_mode == "aif+focused" else 0
-        self.head = DepthHead(depth_min, depth_max, depth_spacing)
+        self.head = DepthHead(depth_min, depth_max, depth_spacing, side, focus_distance)
 
     @property
     def in_channels(self) -> int:
@@ -189,8 +236,10 @@ class SmallDepthNet(_DepthNetwork):
 
     def __init__(self, input_mode: str = "aif+focused", n_focus: int = 2,
                  depth_min: float = 1.0, depth_max: float = 10.0, width: int = 32,
-                 depth_spacing: str = "depth"):
-        super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing)
+                 depth_spacing: str = "depth", side: str = "both",
+                 focus_distance: float | None = None):
+        super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
+                         focus_distance)
         w = int(width)
         self.enc1 = _conv_block(self.in_channels, w)
         self.enc2 = _conv_block(w, 2 * w, stride=2)
@@ -327,8 +376,10 @@ class PaperDepthNet(_DepthNetwork):
     """
 
     def __init__(self, input_mode: str = "aif", n_focus: int = 2, depth_min: float = 1.0,
-                 depth_max: float = 10.0, depth_spacing: str = "depth"):
-        super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing)
+                 depth_max: float = 10.0, depth_spacing: str = "depth", side: str = "both",
+                 focus_distance: float | None = None):
+        super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
+                         focus_distance)
         self.backbone = ResNet50OS16(self.in_channels)
         self.aspp = DenseASPP(2048)
         self.attention = SelfAttention2d(256)
@@ -354,9 +405,10 @@ NETWORKS = {"small": SmallDepthNet, "paper": PaperDepthNet}
 
 
 def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
-                  width: int = 32, depth_spacing: str = "depth") -> _DepthNetwork:
+                  width: int = 32, depth_spacing: str = "depth", side: str = "both",
+                  focus_distance: float | None = None) -> _DepthNetwork:
     """Build a depth network by name (`"small"` or `"paper"`), its output spaced evenly in
-    depth or in inverse depth (`DepthHead`).
+    depth or in inverse depth, or on a stated side of the focus plane (`DepthHead`).
 
     Example:
         >>> build_network("small", "aif", 0, 1.0, 10.0, width=8).input_mode
@@ -365,5 +417,7 @@ def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, de
     if name not in NETWORKS:
         raise ValueError(f"network must be one of {sorted(NETWORKS)}, got {name!r}")
     if name == "small":
-        return SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width, depth_spacing)
-    return PaperDepthNet(input_mode, n_focus, depth_min, depth_max, depth_spacing)
+        return SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width, depth_spacing,
+                             side, focus_distance)
+    return PaperDepthNet(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
+                         focus_distance)

@@ -19,7 +19,7 @@ import yaml
 from optics import DEFAULT_APERTURE, aperture_spec
 from optics.render import MODES as RENDER_MODES
 
-from .networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS
+from .networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS, SIDES
 
 #: values of `TrainConfig.supervision`: through the renderer (no depth labels) or on depth
 SUPERVISIONS = ("self", "depth")
@@ -66,6 +66,12 @@ class TrainConfig:
     depth_max: float = 10.0
     #: "depth" or "inverse": the network's output spaced evenly in depth or in inverse depth
     depth_spacing: str = "depth"
+    #: "both", "beyond" or "before": the side of the focus plane the network's output may put
+    #: a blur that both sides explain (`models.networks.DepthHead`; not "both" needs
+    #: focus_distance); a prior the user states, for one focus setting
+    side: str = "both"
+    #: focus distance, metres, of the side prior (0: none; needed unless side is "both")
+    focus_distance: float = 0.0
     #: focused images per sample
     n_focus: int = 2
     #: first-scale channels of the small network
@@ -130,7 +136,7 @@ class TrainConfig:
                      "sharpness_weight", "smoothness_weight", "checkpoint_minutes"):
             setattr(self, name, float(getattr(self, name)))
         choices = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
-                   "depth_spacing": DEPTH_SPACINGS,
+                   "depth_spacing": DEPTH_SPACINGS, "side": SIDES,
                    "supervision": SUPERVISIONS, "lr_schedule": ("cosine", "constant"),
                    "render_mode": RENDER_MODES, "resume": RESUME_MODES}
         for name, allowed in choices.items():
@@ -162,6 +168,10 @@ class TrainConfig:
                                  f"{getattr(self, name)!r}")
         if not 0 <= self.ssim_weight <= 1:
             raise ValueError(f"ssim_weight must be in [0, 1], got {self.ssim_weight!r}")
+        self.focus_distance = float(self.focus_distance)
+        if self.side != "both" and not self.depth_min < self.focus_distance < self.depth_max:
+            raise ValueError(f"side {self.side!r} needs a focus_distance between depth_min and "
+                             f"depth_max, got {self.focus_distance!r}")
         check_device(self.device)
 
     def to_dict(self) -> dict[str, Any]:

@@ -186,7 +186,9 @@ def test_relative_samples_model_the_reference_blur(tmp_path):
     CameraSettings(0.035, 2.8, [1.7], 6e-5, "gaussian:0.5").to_json(
         tmp_path / "cam.json", reference_f_number=8.0, focus_floor_px=1.5)
     plain = DSLR(tmp_path / "data", camera=tmp_path / "cam.json")[0]
-    relative = DSLR(tmp_path / "data", camera=tmp_path / "cam.json", relative=True)[0]
+    # register=False: the photos as loaded (the registration is checked below)
+    relative = DSLR(tmp_path / "data", camera=tmp_path / "cam.json", relative=True,
+                    register=False)[0]
     n_eff = float(relative["camera"].f_number[0])
     # CoC scales as 1 / N: the relative blur's CoC squared is the difference of the two shots'
     assert (1 / n_eff) ** 2 == pytest.approx((1 / 2.8) ** 2 - (1 / 8.0) ** 2, rel=1e-5)
@@ -212,3 +214,18 @@ def test_train_command_reads_the_release_at_its_photos_size(tmp_path, capsys):
 
     data = build_dataset("dslr", tmp_path / "release", size=None)
     assert tuple(data[0]["image"].shape[-2:]) == (40, 60)
+
+
+def test_relative_samples_are_registered_by_default(tmp_path):
+    """`relative=True` registers the f/2.8 photo onto the f/8 one (`register_focused`), as the
+    calibration and `estimate_depth` do; `register=False` leaves it as loaded."""
+    from datasets.pairs import register_focused
+
+    write_dslr_release(tmp_path / "data")
+    CameraSettings(0.035, 2.8, [1.7], 6e-5, "gaussian:0.5").to_json(
+        tmp_path / "cam.json", reference_f_number=8.0)
+    dataset = DSLR(tmp_path / "data", camera=tmp_path / "cam.json", relative=True)
+    assert dataset.register and not DSLR(tmp_path / "data").register
+    plain = DSLR(tmp_path / "data", camera=tmp_path / "cam.json")[0]
+    expected = register_focused(plain)
+    torch.testing.assert_close(dataset[0]["focused"], expected["focused"])

@@ -160,10 +160,10 @@ REAL_DSLR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "re
 
 def _check_dslr_table(out: str, scenes: int) -> None:
     assert f"DSLR validation ({scenes} scenes, never used to fit or train)" in out
-    for row in ("[self-supervised]", "[depth-supervised]", "label-free predict",
-                "best constant depth"):
+    for row in ("[self-supervised", "[depth-supervised]", "label-free predict",
+                "the paper's setting", "best constant depth"):
         assert row in out
-    assert out.count("x the constant's") == 4
+    assert out.count("x the constant's") == 5
 
 
 def test_dslr_example_help(monkeypatch, capsys):
@@ -193,6 +193,35 @@ def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
     assert (tmp_path / "run" / "depth" / "train_log.csv").is_file()
     with pytest.raises(SystemExit, match="--val must leave training scenes"):
         module.main([*argv, "--val", "7"])
+
+
+@pytest.mark.slow
+def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypatch, capsys):
+    """--eval-split test: every scene of --split trains, the other split is scored (the paper's
+    protocol); --json writes each row of the table."""
+    import json
+
+    from test_dslr import write_rendered_release
+
+    write_rendered_release(tmp_path / "data", scenes=5)
+    write_rendered_release(tmp_path / "data", scenes=2, split="test")
+    module = load_example("dslr", monkeypatch)
+    table = tmp_path / "out" / "table.json"
+    argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--no-progress",
+            "--device", "cpu", "--eval-split", "test", "--json", str(table), "--steps", "2",
+            "--batch-size", "2", "--width", "8", "--calibrate-every", "1", "--crop", "48",
+            "--no-paper-setting"]
+    assert module.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "camera fitted on 5 training scenes" in out
+    assert "DSLR test split (2 scenes, never used to fit or train)" in out
+    rows = json.loads(table.read_text())
+    names = " ".join(rows)
+    for row in ("[self-supervised, side beyond]", "[depth-supervised]", "label-free predict",
+                "best constant depth"):
+        assert row in names
+    assert "the paper's setting" not in names
+    assert all(set(row) >= {"abs_rel", "rmse"} for row in rows.values())
 
 
 @pytest.mark.slow

@@ -73,10 +73,19 @@ def _training_config(args: argparse.Namespace, first: dict, depth_range: tuple[f
                      kind: str, steps: int | None):
     from models.training import TrainConfig
 
+    side = getattr(args, "side", "both")
+    focus = 0.0
+    if side != "both":
+        focus_distances = first["camera"].focus_distance.reshape(-1)
+        if focus_distances.numel() != 1:
+            raise SystemExit(f"--side {side} needs samples of one focus setting, got "
+                             f"{focus_distances.numel()}")
+        focus = float(focus_distances[0])
     return TrainConfig(
         steps=steps or 1, batch_size=args.batch_size, lr=args.lr, network=args.network,
         input_mode=args.input_mode, out_dir=args.out, seed=args.seed,
         supervision=getattr(args, "supervision", "self"), depth_spacing=args.depth_spacing,
+        side=side, focus_distance=focus,
         depth_min=depth_range[0], depth_max=depth_range[1],
         device=kind if args.device == "auto" else args.device,
         n_focus=int(first["focused"].shape[0]), width=args.width, progress=not args.no_progress,

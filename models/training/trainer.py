@@ -107,7 +107,8 @@ class Trainer:
         self.device = select_device(cfg.device)
         torch.manual_seed(cfg.seed)
         self.model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min,
-                                   cfg.depth_max, cfg.width, cfg.depth_spacing).to(self.device)
+                                   cfg.depth_max, cfg.width, cfg.depth_spacing, cfg.side,
+                                   cfg.focus_distance or None).to(self.device)
         self.ddp_model: nn.Module = self.model
         if self.world_size > 1:
             ids = [self.device.index] if self.device.type == "cuda" else None

@@ -1,0 +1,106 @@
+"""Is the self-supervised loss right? Its value at the true depth against the alternatives.
+
+A loss that trains depth without labels is only as good as its image formation model: on real
+pairs with depth, the rendered photo at the *true* depth must reproduce the real one better than
+at any wrong depth. `loss_at_depths` scores, scene by scene, the true depth, its *mirror* across
+the focus plane (the depth of the same blur on the other side: `1/d' = 2/f - 1/d`, clamped to the
+range), the two ends of the depth range and constant depths. If the true depth does not score
+best, no network trained through that loss can find it: the model of the pair is wrong
+(unregistered photos, an exposure difference, a blur floor, the wrong PSF).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from typing import Any
+
+import torch
+from torch import Tensor
+
+from optics import collate
+
+#: a self-supervised loss: `(depth (B,1,H,W), image (B,3,H,W), focused (B,F,3,H,W), settings)`
+#: -> a dict with "loss" (e.g. `models.losses.DefocusLoss`)
+Loss = Callable[..., Mapping[str, Tensor]]
+
+
+def mirror_depth(depth: Tensor, focus_distance: float, depth_range: tuple[float, float]) -> Tensor:
+    """The depth whose thin-lens blur equals that of `depth`, on the other side of the focus
+    plane: `1/d' = 2/f - 1/d`, clamped to `depth_range` (beyond infinity: the far end).
+
+    Example:
+        >>> d = torch.tensor([1.0, 2.0, 4.0])
+        >>> [round(float(v), 3) for v in mirror_depth(d, 2.0, (0.5, 10.0))]
+        [10.0, 2.0, 1.333]
+    """
+    inverse = 2.0 / focus_distance - 1.0 / depth
+    far = inverse <= 1.0 / depth_range[1]
+    mirrored = 1.0 / inverse.clamp_min(1e-12)
+    return torch.where(far, torch.full_like(depth, depth_range[1]),
+                       mirrored.clamp(depth_range[0], depth_range[1]))
+
+
+def candidate_depths(sample: Mapping[str, Any], depth_range: tuple[float, float],
+                     constants: Sequence[float] = ()) -> dict[str, Tensor]:
+    """The depth maps `loss_at_depths` scores for one batched sample: `"true"`, `"mirror"`,
+    `"near end"`, `"far end"`, `"focus"` and one `"constant X m"` per constant."""
+    depth = sample["depth"]
+    focus = float(sample["camera"].focus_distance.reshape(-1)[0])
+    out = {"true": depth, "mirror": mirror_depth(depth, focus, depth_range)}
+    for name, value in (("near end", depth_range[0]), ("far end", depth_range[1]),
+                        ("focus", focus), *((f"constant {c:g} m", c) for c in constants)):
+        out[name] = torch.full_like(depth, float(value))
+    return out
+
+
+def loss_at_depths(samples: Iterable[Mapping[str, Any]], loss: Loss,
+                   depth_range: tuple[float, float], constants: Sequence[float] = (),
+                   ) -> list[dict[str, float]]:
+    """The self-supervised `loss` of each sample at the true depth and at the alternatives of
+    `candidate_depths`, scene by scene.
+
+    Args:
+        samples: unbatched samples with `image`, `focused`, `camera` and `depth` (metres).
+        loss: the loss to judge, called as `loss(depth, image, focused, camera)["loss"]`.
+        depth_range: `(near, far)` metres: the range ends, and where the mirror is clamped.
+        constants: more constant depths to score, metres.
+
+    Returns:
+        one dict per sample: `"id"` (if the sample has one) and the loss per candidate name.
+
+    Example:
+        >>> from models.losses import DefocusLoss
+        >>> from optics import CameraSettings, render_focal_stack
+        >>> camera = CameraSettings(0.05, 2.0, [2.0], 30e-6)
+        >>> image = torch.rand(3, 32, 32)
+        >>> depth = torch.full((1, 32, 32), 4.0)
+        >>> depth[..., 16:] = 1.2
+        >>> batched = CameraSettings(0.05, 2.0, [[2.0]], 30e-6)
+        >>> focused = render_focal_stack(image[None], depth[None], batched)[0]
+        >>> sample = {"image": image, "focused": focused, "camera": camera, "depth": depth}
+        >>> row = loss_at_depths([sample], DefocusLoss(), (0.5, 10.0))[0]
+        >>> min(row, key=row.get)
+        'true'
+    """
+    rows = []
+    for sample in samples:
+        batch = collate([sample])
+        row: dict[str, Any] = {} if "id" not in sample else {"id": sample["id"]}
+        with torch.no_grad():
+            for name, depth in candidate_depths(batch, depth_range, constants).items():
+                terms = loss(depth, batch["image"], batch["focused"], batch["camera"])
+                row[name] = float(terms["loss"])
+        rows.append(row)
+    return rows
+
+
+def true_depth_wins(row: Mapping[str, Any], tolerance: float = 0.02) -> bool:
+    """Whether the true depth's loss is within `tolerance` (relative) of the best constant's
+    (the range ends, the focus plane and the named constants of `loss_at_depths`).
+
+    Example:
+        >>> true_depth_wins({"true": 1.01, "mirror": 0.9, "far end": 1.0})
+        True
+    """
+    constants = [v for k, v in row.items() if k not in ("id", "true", "mirror")]
+    return not constants or row["true"] <= (1 + tolerance) * min(constants)
