@@ -178,6 +178,10 @@ def read_photos(request: PredictRequest) -> Photos:
             raise ValueError(f"{path} is {tuple(photo.shape[-2:])} pixels but {first_path} is "
                              f"{tuple(first.shape[-2:])}; all photos must have one size")
         for other_option, other, earlier in named[:index]:
+            # --image may name a --focused file itself (that shot then also serves as the sharp
+            # one, as before); any other pair of identical shots is refused
+            if (other_option != option and Path(other) == Path(path)):
+                continue
             if torch.equal(photo, earlier):
                 raise ValueError(f"{option} {path} is the same photo as {other_option} {other}: "
                                  "two identical shots have no defocus between them to read; "
