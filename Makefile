@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/defocus demo --out runs/demo
+	$(BIN)/defocus demo --out runs/demo --overwrite
 
 test: $(STAMP)
 	$(BIN)/ruff check optics models datasets defocus tests benchmarks examples
