@@ -63,7 +63,8 @@ class PhotoFolder(DepthDataset):
         >>> from defocus.app.sample import write_sample_set  # doctest: +SKIP
         >>> root = Path(tempfile.mkdtemp())  # doctest: +SKIP
         >>> _ = write_sample_set(root / "scene", scale=0.1)  # doctest: +SKIP
-        >>> PhotoFolder(root)[0]["focused"].shape  # doctest: +SKIP
+        >>> sample = PhotoFolder(root)[0]  # doctest: +SKIP
+        >>> sample["focused"].shape  # doctest: +SKIP
         torch.Size([3, 3, 50, 74])
     """
 

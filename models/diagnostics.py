@@ -30,8 +30,8 @@ def mirror_depth(depth: Tensor, focus_distance: float, depth_range: tuple[float,
 
     Example:
         >>> d = torch.tensor([1.0, 2.0, 4.0])
-        >>> [round(float(v), 3) for v in mirror_depth(d, 2.0, (0.5, 10.0))]
-        [10.0, 2.0, 1.333]
+        >>> tuple(round(float(v), 3) for v in mirror_depth(d, 2.0, (0.5, 10.0)))
+        (10.0, 2.0, 1.333)
     """
     inverse = 2.0 / focus_distance - 1.0 / depth
     far = inverse <= 1.0 / depth_range[1]
