@@ -194,7 +194,8 @@ def test_image_shot_options_are_named(tmp_path, capsys, option, value):
     argv = ["predict", "--image", photos[0], "--focused", *photos[1:], "--image-f-number", "8",
             option, value, "--out", str(tmp_path / "o")]
     assert main(argv) == 2
-    assert f"{option} must be finite and > 0" in _one_line(capsys)
+    err = _one_line(capsys)
+    assert f"{option} {value}: must be a finite number > 0" in err, err
 
 
 @pytest.mark.parametrize("size", [(1, 1), (4, 4), (1, 64)])
