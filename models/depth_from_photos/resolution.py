@@ -39,14 +39,19 @@ def working_scale(settings: CameraSettings, near: float, far: float, shape: tupl
     return min(1.0, max_coc_px / max(largest, 1e-9), math.sqrt(max_pixels / (shape[0] * shape[1])))
 
 
-#: The fewest pixels on each side of the working resolution that the methods read.
-MIN_WORKING_SIDE = 6
+#: The fewest pixels on each side of a photo that the methods read.
+MIN_PHOTO_SIDE = 6
+#: The fewest pixels on each side of the working resolution (the 3x3 median of every method);
+#: a blur so large, from a tiny f-number or pixel pitch, that the photos would shrink below it
+#: is refused.
+MIN_WORKING_SIDE = 3
 
 
 def check_working_size(settings: CameraSettings, near: float, far: float,
                        shape: tuple[int, int], scale: float) -> None:
     """Refuse photos of `shape` `(H, W)` that are, or at the working `scale` would be, smaller
-    than `MIN_WORKING_SIDE` pixels a side (tiny photos, or a blur so large, from a tiny
+    than `MIN_PHOTO_SIDE` (the photos) or `MIN_WORKING_SIDE` (the working resolution) pixels
+    a side (tiny photos, or a blur so large, from a tiny
     f-number or pixel pitch, that the photos would shrink to nothing).
 
     Example:
@@ -56,9 +61,9 @@ def check_working_size(settings: CameraSettings, near: float, far: float,
         ValueError: the photos are 4x4 pixels; depth from defocus needs at least 6 pixels on each side
     """
     h, w = shape
-    if min(h, w) < MIN_WORKING_SIDE:
+    if min(h, w) < MIN_PHOTO_SIDE:
         raise ValueError(f"the photos are {h}x{w} pixels; depth from defocus needs at least "
-                         f"{MIN_WORKING_SIDE} pixels on each side")
+                         f"{MIN_PHOTO_SIDE} pixels on each side")
     small = (round(h * scale), round(w * scale))
     if min(small) < MIN_WORKING_SIDE:
         largest = settings.largest_coc_px(near, far)
