@@ -51,7 +51,8 @@ def aperture_argument(text: str) -> str:
 def check_positive(args: argparse.Namespace, *names: str) -> None:
     """Refuse option values that are not finite numbers > 0, naming the option as typed
     (`--f-number -8.3: must be a finite number > 0`); `names` are `args` attributes, unset
-    (None, empty) ones are skipped.
+    (None, empty) ones are skipped. `args` is any object with those attributes (a parsed
+    command line, `defocus.app.predict.PredictRequest`).
 
     Example:
         >>> check_positive(argparse.Namespace(f_number=[-8.3]), "f_number")

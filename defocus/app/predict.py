@@ -11,13 +11,14 @@ that network.
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from defocus.options import check_positive
 
 from .outputs import OutputPlan, plan_files
 
@@ -108,14 +109,12 @@ def check_request(request: PredictRequest) -> None:
 
 def check_numbers(request: PredictRequest) -> None:
     """Refuse option values that no camera has, naming the option: `--image-f-number`,
-    `--image-focus-distance` and `--depth-range` must be finite and > 0 (NEAR < FAR)."""
-    for option, value in (("--image-f-number", request.image_f_number),
-                          ("--image-focus-distance", request.image_focus_distance)):
-        if value is not None and not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{option} must be finite and > 0, got {value:g}")
+    `--image-focus-distance` and `--depth-range` must be finite and > 0
+    (`defocus.options.check_positive`), NEAR < FAR."""
+    check_positive(request, "image_f_number", "image_focus_distance", "depth_range")
     if request.depth_range is not None:
         near, far = request.depth_range
-        if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
+        if not near < far:
             raise ValueError(f"--depth-range must be NEAR FAR metres with 0 < NEAR < FAR, got "
                              f"{near:g} {far:g}")
 

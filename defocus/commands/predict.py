@@ -87,8 +87,9 @@ def run(args: argparse.Namespace) -> int:
     from defocus.app.predict import PredictRequest, predict
 
     camera = ("focus_distance", "f_number", "focal_length", "pixel_pitch")
-    check_positive(args, "image_f_number", "image_focus_distance", "focus_distance", "f_number",
-                   "focal_length", "pixel_pitch", "depth_range")
+    # the camera options (PredictRequest.camera_options); the request's own numbers are checked
+    # by the workflow
+    check_positive(args, "focus_distance", "f_number", "focal_length", "pixel_pitch")
     request = PredictRequest(
         **{field.name: getattr(args, field.name) for field in dataclasses.fields(PredictRequest)
            if field.name not in ("camera_options", "progress")},
