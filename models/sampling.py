@@ -1,9 +1,12 @@
 """Which samples each training step sees, and their random flips, as functions of the step.
 
-The batch of step `k` is drawn from a permutation seeded by `(seed, epoch)` and its flips
-from a generator seeded by `(seed, step, rank)`, so a run resumed at step `k` sees the same
-batches as an uninterrupted run. Under data parallelism each process takes its own part of the
-global batch of `batch_size * world_size` samples.
+The batch of step `k` is drawn from a permutation seeded by `(seed, epoch)`, each of its samples
+is prepared with torch's global generator seeded by `(seed, step, rank, position)` (a dataset's
+random crops, flips and gains), and its batch flips come from a generator seeded by
+`(seed, step, rank)`. A step's batch is thus a function of the step alone: a run resumed at step
+`k` sees the same batches as an uninterrupted run, and so does a run whose batches are prepared
+ahead in worker processes (`models.training.batches`). Under data parallelism each process takes
+its own part of the global batch of `batch_size * world_size` samples.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator, Mapping
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -49,10 +53,25 @@ class StepSampler:
             indices.append(int(permutations[epoch][position % n]))
         return indices
 
+    def sample_seed(self, step: int, position: int) -> int:
+        """The seed of torch's global generator while the sample at `position` of this
+        process's part of the batch of `step` is prepared."""
+        return sample_seed(self.seed, step, self.rank, position)
+
     def samples(self, step: int) -> list[Mapping[str, Any]]:
-        """This process's samples of step `step` (0-based)."""
+        """This process's samples of step `step` (0-based).
+
+        From a map-style dataset each sample is prepared under `sample_seed(step, position)`
+        (torch's global generator is restored afterwards), so its random augmentation depends on
+        the step alone; an iterable's samples come in their own order and randomness.
+        """
         if self.is_map_style():
-            return [self.dataset[i] for i in self.indices(step)]
+            samples = []
+            with torch.random.fork_rng(devices=[]):
+                for position, index in enumerate(self.indices(step)):
+                    torch.manual_seed(self.sample_seed(step, position))
+                    samples.append(self.dataset[index])
+            return samples
         per_step = self.batch_size * self.world_size
         if self._iterator is None:  # iterable: consume, skipping what earlier steps used
             self._iterator = self._cycle()
@@ -71,6 +90,17 @@ class StepSampler:
                 raise ValueError("train_set yielded no samples")
 
 
+def sample_seed(seed: int, step: int, rank: int, position: int) -> int:
+    """A 64-bit seed for one sample of one step, well mixed from its four integers.
+
+    Example:
+        >>> sample_seed(0, 3, 0, 1) == sample_seed(0, 3, 0, 1) != sample_seed(0, 3, 0, 2)
+        True
+    """
+    state = np.random.SeedSequence([seed, step, rank, position]).generate_state(1, np.uint64)
+    return int(state[0])
+
+
 def random_flip(batch: dict[str, Any], seed: int, step: int, rank: int = 0) -> dict[str, Any]:
     """Flip each sample of a collated batch left-right with probability 1/2 (`image`,
     `focused`, `depth` and `mask` together), reproducibly from `(seed, step, rank)`."""
@@ -85,4 +115,4 @@ def random_flip(batch: dict[str, Any], seed: int, step: int, rank: int = 0) -> d
     return out
 
 
-__all__ = ["StepSampler", "random_flip"]
+__all__ = ["StepSampler", "random_flip", "sample_seed"]

@@ -28,7 +28,9 @@ RESUME_MODES = ("auto", "resume", "overwrite")
 #: config keys that may differ between a run and its continuation (they do not change the
 #: numbers: where it runs, what it shows and how often it saves)
 RUN_CONTROL_KEYS = ("out_dir", "resume", "device", "progress", "checkpoint_every",
-                    "checkpoint_minutes", "keep_checkpoints")
+                    "checkpoint_minutes", "keep_checkpoints", "workers", "compile")
+#: values of `TrainConfig.precision`
+PRECISIONS = ("float32", "bfloat16")
 
 
 @dataclass
@@ -121,6 +123,15 @@ class TrainConfig:
     resume: str = "auto"
     #: "auto" (CUDA when available), "cpu", "cuda", ... (refused when this machine lacks it)
     device: str = "auto"
+    #: processes that prepare batches ahead of the step (0: the training loop prepares each
+    #: batch itself; -1: automatic, `models.training.batches.auto_workers`); the batches are
+    #: the same either way
+    workers: int = -1
+    #: the network's arithmetic: "float32", or "bfloat16" (autocast around the network; the
+    #: renderer, its PSF weights and the loss stay float32)
+    precision: str = "float32"
+    #: run the network through `torch.compile` (slow first steps, faster later ones on a GPU)
+    compile: bool = False
     #: tqdm progress bar
     progress: bool = True
     #: extra keys for your own code (kept in config.yaml)
@@ -138,7 +149,8 @@ class TrainConfig:
         choices = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
                    "depth_spacing": DEPTH_SPACINGS, "side": SIDES,
                    "supervision": SUPERVISIONS, "lr_schedule": ("cosine", "constant"),
-                   "render_mode": RENDER_MODES, "resume": RESUME_MODES}
+                   "render_mode": RENDER_MODES, "resume": RESUME_MODES,
+                   "precision": PRECISIONS}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
@@ -148,7 +160,8 @@ class TrainConfig:
             raise ValueError(f"aperture {self.aperture!r} is not a PSF spec: {error}") from None
         for name, low in (("steps", 1), ("batch_size", 1), ("n_focus", 1), ("width", 1),
                           ("log_every", 1), ("seed", 0), ("checkpoint_every", 0),
-                          ("keep_checkpoints", 0), ("val_every", 0), ("figure_every", 0)):
+                          ("keep_checkpoints", 0), ("val_every", 0), ("figure_every", 0),
+                          ("workers", -1)):
             if getattr(self, name) < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {getattr(self, name)!r}")
         for name in ("ssim_window", "max_kernel_size"):

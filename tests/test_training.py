@@ -119,7 +119,7 @@ DDP_SCRIPT = textwrap.dedent("""
     trainer = Trainer(cfg, SyntheticScenes(8, (16, 16), seed=1), step_callback=check)
     history = trainer.fit()
     result = {"world": trainer.world_size, "max_diff": max_diff,
-              "indices": trainer._indices(0), "losses": [r["loss"] for r in history]}
+              "indices": trainer.sampler.indices(0), "losses": [r["loss"] for r in history]}
     (base / f"result{rank}.json").write_text(json.dumps(result))
     dist.destroy_process_group()
 """)

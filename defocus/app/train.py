@@ -97,9 +97,10 @@ def train(cfg, train_set, validation: Callable[[], Any] | None = None,
     Example:
         >>> result = train(training_config(overrides=["steps=2"]), scenes)  # doctest: +SKIP
     """
-    from models.training import COLLAPSE_FRACTION, DepthCollapseWarning, Trainer
+    from models.training import COLLAPSE_FRACTION, DataWaitWarning, DepthCollapseWarning, Trainer
 
-    warnings.simplefilter("ignore", DepthCollapseWarning)  # in the result's warnings instead
+    for category in (DepthCollapseWarning, DataWaitWarning):  # in the result's warnings instead
+        warnings.simplefilter("ignore", category)
     trainer = Trainer(cfg, train_set)
     if trainer.is_main and trainer.resumed_from is not None:
         report(f"continuing the run in {cfg.out_dir} from step {trainer.step} of {cfg.steps}")

@@ -15,7 +15,7 @@ gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the 
 after each step, and only rank 0 writes files.
 
 Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
-seconds, `at_depth_limits`), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and the
+seconds, `at_depth_limits`, `data_s`, `compute_s`), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and the
 newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and `warnings.log` when a run ends with
 a warning.
 
@@ -25,6 +25,13 @@ the keys that differ; `"resume"` continues it, also to a larger `steps`; `"overw
 its files (config, logs, checkpoints, figures; nothing else) when `fit` starts. A continued run
 starts from `checkpoints/last.pt` with its logs cut back to that step, so its logs and losses
 match those of an uninterrupted run.
+
+Speed: each step's batch is prepared ahead in `TrainConfig.workers` worker processes
+(`models.training.batches.BatchStream`; the same batches as without them); the network may run
+under bfloat16 autocast (`precision`) and `torch.compile` (`compile`); each step waits for the
+device once. Every logged step's time is split into `data_s` (waiting for the batch) and
+`compute_s`, shown in the progress bar, and a `DataWaitWarning` says when the wait exceeds a
+quarter of the steps (`models.training.step_timing`).
 
 Failures are safe: every config field is checked when the config is built; `fit` checks the
 samples (`n_focus`, ground-truth depth > 0 where valid), saves checkpoints periodically (by
@@ -58,16 +65,20 @@ from ..train_config import (
     check_device,
     select_device,
 )
+from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
 from .interruption import SignalGuard, TrainingInterrupted
 from .run_folder import RunFolder, RunToContinue, run_files
+from .run_warnings import COLLAPSE_FRACTION, LIMIT_TOLERANCE, DepthCollapseWarning, RunWarnings
 from .sample_checks import SampleChecker
 from .state import build_scheduler, process_rank, rng_state, set_rng_state, to_device
-from .trainer import COLLAPSE_FRACTION, LIMIT_TOLERANCE, DepthCollapseWarning, Trainer
+from .step_timing import DataWaitWarning, StepTimer
+from .trainer import Trainer
 
 __all__ = ["COLLAPSE_FRACTION", "LIMIT_TOLERANCE", "METRIC_NAMES", "RESUME_MODES",
-           "RUN_CONTROL_KEYS", "SUPERVISIONS", "CheckpointError", "Checkpointer",
-           "DepthCollapseWarning", "RunFolder", "RunToContinue", "SampleChecker", "SignalGuard",
+           "RUN_CONTROL_KEYS", "SUPERVISIONS", "BatchStream", "CheckpointError", "Checkpointer",
+           "DataWaitWarning", "DepthCollapseWarning", "RunFolder", "RunToContinue",
+           "RunWarnings", "SampleChecker", "SignalGuard", "StepTimer", "auto_workers",
            "TrainConfig", "Trainer", "TrainingInterrupted", "build_scheduler", "check_device",
            "load_model", "process_rank", "read_checkpoint", "rng_state", "run_files",
            "select_device", "set_rng_state", "to_device"]

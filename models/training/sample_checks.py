@@ -39,7 +39,8 @@ class SampleChecker:
         train_set = self.sampler.dataset
         if not self.sampler.is_map_style() or len(train_set) == 0:
             return
-        sample = train_set[0]
+        with torch.random.fork_rng(devices=[]):  # the check leaves the run's randomness alone
+            sample = train_set[0]
         name = repr(sample.get("id", "#0")) if isinstance(sample, Mapping) else "#0"
         if not isinstance(sample, Mapping):
             raise TypeError(f"train_set[0] must be a sample mapping (image, focused, camera, "
@@ -57,19 +58,21 @@ class SampleChecker:
                                  f"focused images of shape {tuple(focused.shape)} (F, 3, H, W); "
                                  f"set n_focus to its number of focused images")
 
-    def check_depth(self, samples: Sequence[Mapping[str, Any]], step: int) -> None:
-        """Refuse ground-truth depth that is not finite and > 0 where the mask says valid."""
+    def check_depth(self, batch: Mapping[str, Any], step: int) -> None:
+        """Refuse ground-truth depth that is not finite and > 0 where the mask says valid, in
+        the collated batch of `step` (0-based); the message names the sample."""
+        depth, mask = batch["depth"], batch.get("mask")
+        valid = torch.ones_like(depth, dtype=torch.bool) if mask is None else mask.bool()
+        bad = valid & ~(torch.isfinite(depth) & (depth > 0))
+        if not bool(bad.any()):
+            return
+        i = int(bad.flatten(1).any(1).nonzero()[0])
         indices = self.sampler.indices(step) if self.sampler.is_map_style() else None
-        for i, sample in enumerate(samples):
-            depth = sample["depth"]
-            mask = sample.get("mask")
-            valid = torch.ones_like(depth, dtype=torch.bool) if mask is None else mask.bool()
-            bad = valid & ~(torch.isfinite(depth) & (depth > 0))
-            if bool(bad.any()):
-                where = f"train_set[{indices[i]}]" if indices is not None else "a train_set sample"
-                name = sample.get("id", where)
-                raise ValueError(
-                    f"sample {name!r} ({where}) has ground-truth depth that is not finite and > 0 "
-                    f"at {int(bad.sum())} of its valid pixels (e.g. {float(depth[bad][0])!r}); "
-                    "depth must be positive metres wherever its mask is valid: fix the data or "
-                    "mark those pixels invalid in its mask")
+        where = f"train_set[{indices[i]}]" if indices is not None else "a train_set sample"
+        ids = batch.get("id")
+        name = ids[i] if isinstance(ids, Sequence) and not isinstance(ids, str) else where
+        raise ValueError(
+            f"sample {name!r} ({where}) has ground-truth depth that is not finite and > 0 "
+            f"at {int(bad[i].sum())} of its valid pixels (e.g. {float(depth[i][bad[i]][0])!r}); "
+            "depth must be positive metres wherever its mask is valid: fix the data or "
+            "mark those pixels invalid in its mask")

@@ -56,16 +56,18 @@ def set_rng_state(state: Mapping[str, Any]) -> None:
             torch.cuda.set_rng_state_all(states)
 
 
-def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None) -> Any:
-    """Move every tensor of a (nested) batch to `device` (floating tensors to `dtype`)."""
+def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None,
+              non_blocking: bool = False) -> Any:
+    """Move every tensor of a (nested) batch to `device` (floating tensors to `dtype`);
+    `non_blocking` copies from pinned memory without waiting for them."""
     if isinstance(batch, Tensor):
         if dtype is not None and batch.is_floating_point():
-            return batch.to(device=device, dtype=dtype)
-        return batch.to(device)
+            return batch.to(device=device, dtype=dtype, non_blocking=non_blocking)
+        return batch.to(device, non_blocking=non_blocking)
     if isinstance(batch, Mapping):
-        return {k: to_device(v, device, dtype) for k, v in batch.items()}
+        return {k: to_device(v, device, dtype, non_blocking) for k, v in batch.items()}
     if isinstance(batch, list | tuple):
-        return type(batch)(to_device(v, device, dtype) for v in batch)
+        return type(batch)(to_device(v, device, dtype, non_blocking) for v in batch)
     if isinstance(batch, CameraSettings):
         return batch.to(device=device, dtype=dtype) if dtype is not None else batch.to(device)
     return batch

@@ -5,8 +5,8 @@
 from __future__ import annotations
 
 import logging
+import math
 import time
-import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -27,22 +27,21 @@ from ..plotting import plot_prediction
 from ..run_log import RunLog
 from ..sampling import StepSampler, random_flip
 from ..train_config import TrainConfig, select_device
+from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
 from .interruption import SignalGuard, TrainingInterrupted
 from .run_folder import RunFolder
+from .run_warnings import (
+    LIMIT_TOLERANCE,
+    DepthCollapseWarning,
+    RunWarnings,
+    collapse_message,
+)
 from .sample_checks import SampleChecker
 from .state import build_scheduler, process_rank, rng_state, set_rng_state, to_device
+from .step_timing import DataWaitWarning, StepTimer
 
 _log = logging.getLogger("models.training")
-#: a prediction within this share of (depth_max - depth_min) of a limit counts as at the limit
-LIMIT_TOLERANCE = 1e-3
-#: warn when at least this share of the predicted pixels sits at depth_min or depth_max
-COLLAPSE_FRACTION = 0.9
-
-
-class DepthCollapseWarning(UserWarning):
-    """Most predicted pixels sit at `depth_min` or `depth_max`: the network collapsed to its
-    depth limits (often a too large learning rate) and its metrics mean little."""
 
 
 class Trainer:
@@ -113,6 +112,12 @@ class Trainer:
         if self.world_size > 1:
             ids = [self.device.index] if self.device.type == "cuda" else None
             self.ddp_model = nn.parallel.DistributedDataParallel(self.model, device_ids=ids)
+        #: the network as each training step runs it (compiled when `config.compile`)
+        self.step_model: nn.Module = torch.compile(self.ddp_model) if cfg.compile \
+            else self.ddp_model
+        #: processes preparing batches ahead of the step (`config.workers`, resolved)
+        self.workers = auto_workers(self.device) if cfg.workers < 0 else cfg.workers
+        self.step_timer = StepTimer()
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr,
                                            weight_decay=cfg.weight_decay)
         self.scheduler = build_scheduler(self.optimizer, cfg)
@@ -129,8 +134,7 @@ class Trainer:
         self.sample_checks = SampleChecker(cfg, self.sampler)
         self.step = 0
         self.history: list[dict[str, float]] = []
-        #: warnings of the last `fit` (also in `out_dir/warnings.log`)
-        self.warnings: list[str] = []
+        self.run_warnings = RunWarnings(cfg.out_dir, self.is_main)
         #: the checkpoint (or config.yaml) of the run this trainer continues, if any
         self.resumed_from: Path | None = None
         self.last_validation: dict[str, float] | None = None
@@ -154,10 +158,6 @@ class Trainer:
     def _stop_requested(self) -> int:
         """The signal that asks to stop (0: none), agreed by all processes."""
         return self.signals.requested()
-
-    def _indices(self, step: int) -> list[int]:
-        """Dataset indices of this process's part of the batch of `step` (0-based)."""
-        return self.sampler.indices(step)
 
     def _open_run(self) -> None:
         """Continue the run that `out_dir` holds, if `config.resume` says so."""
@@ -197,10 +197,13 @@ class Trainer:
 
     def _forward(self, batch: Mapping[str, Any]) -> tuple[Tensor, dict[str, Tensor]]:
         image = batch["image"]
-        if self.config.input_mode == "aif":
-            depth = self.ddp_model(image)
-        else:
-            depth = self.ddp_model(image, batch["focused"], batch["camera"])
+        with torch.autocast(self.device.type, torch.bfloat16,
+                            enabled=self.config.precision == "bfloat16"):
+            if self.config.input_mode == "aif":
+                depth = self.step_model(image)
+            else:
+                depth = self.step_model(image, batch["focused"], batch["camera"])
+        depth = depth.float()  # the renderer and the loss in float32
         if self.config.supervision == "self":
             return depth, self.loss_fn(depth, image, batch["focused"], batch["camera"])
         target, mask = batch["depth"], batch.get("mask")
@@ -218,12 +221,6 @@ class Trainer:
         """
         self.model.train()
         depth, terms = self._forward(batch)
-        step = self.step + 1
-        if not bool(torch.isfinite(terms["loss"])):
-            raise FloatingPointError(
-                f"loss is not finite at step {step}: "
-                f"{ {k: float(v.detach()) for k, v in terms.items()} }; training stopped "
-                f"before changing the weights (lr is {self.config.lr}: try a smaller one)")
         self.optimizer.zero_grad(set_to_none=True)
         terms["loss"].backward()
         params = [p for p in self.model.parameters() if p.grad is not None]
@@ -231,19 +228,32 @@ class Trainer:
             norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
         else:
             norm = torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in params]))
-        if not bool(torch.isfinite(norm)):
-            raise FloatingPointError(
-                f"gradient is not finite at step {step} (loss {float(terms['loss'].detach()):.4g}); "
-                f"training stopped before changing the weights (lr is {self.config.lr}: try a "
-                "smaller one, or grad_clip)")
-        self.checkpointer.in_update = True  # until the step is counted: no half-step checkpoint
-        self.optimizer.step()
-        self.scheduler.step()
-        values = torch.stack([v.detach() for v in terms.values()] + [self.at_depth_limits(depth)])
+        values = torch.stack([v.detach().float() for v in terms.values()]
+                             + [self.at_depth_limits(depth), norm.detach().float()])
         if self.world_size > 1:
             dist.all_reduce(values)
             values = values / self.world_size
-        return dict(zip([*terms, "at_depth_limits"], values.tolist(), strict=True))
+        *numbers, grad_norm = values.tolist()  # the step's one wait for the device
+        losses = dict(zip([*terms, "at_depth_limits"], numbers, strict=True))
+        self._check_finite(losses, grad_norm)
+        self.checkpointer.in_update = True  # until the step is counted: no half-step checkpoint
+        self.optimizer.step()
+        self.scheduler.step()
+        return losses
+
+    def _check_finite(self, losses: dict[str, float], grad_norm: float) -> None:
+        """Stop before the weights change when the loss or the gradient is not finite."""
+        step = self.step + 1
+        if not math.isfinite(losses["loss"]):
+            terms = {k: v for k, v in losses.items() if k != "at_depth_limits"}
+            raise FloatingPointError(
+                f"loss is not finite at step {step}: {terms}; training stopped before changing "
+                f"the weights (lr is {self.config.lr}: try a smaller one)")
+        if not math.isfinite(grad_norm):
+            raise FloatingPointError(
+                f"gradient is not finite at step {step} (loss {losses['loss']:.4g}); training "
+                f"stopped before changing the weights (lr is {self.config.lr}: try a smaller one, "
+                "or grad_clip)")
 
     # -- loop ------------------------------------------------------------------------------
     def fit(self, until: int | None = None) -> list[dict[str, float]]:
@@ -262,18 +272,24 @@ class Trainer:
         if self.sampler.is_map_style() and len(self.train_set) == 0:
             raise ValueError("train_set holds no samples; give at least one sample")
         until = cfg.steps if until is None else min(int(until), cfg.steps)
-        self.warnings = []
+        self.run_warnings = RunWarnings(cfg.out_dir, self.is_main)
         if self.is_main:
             self.run_folder.prepare()
         bar = progress_bar(total=until, initial=self.step, desc="train", unit="step",
                            disable=not (cfg.progress and self.is_main))
         started = time.perf_counter()
         self.checkpointer.restart_clock()
+        self.step_timer = StepTimer()
+        check = self.sample_checks.check_depth if cfg.supervision == "depth" else None
+        batches = BatchStream(self.sampler, self.step, until, self.device, self.workers,
+                              check=check)
         try:
-            with self.signals.caught():
+            with self.signals.caught(), batches:
                 while self.step < until:
-                    losses = self._advance(until, started)
-                    bar.set_postfix(loss=f"{losses['loss']:.4f}", refresh=False)
+                    losses = self._advance(batches, until, started)
+                    bar.set_postfix(loss=f"{losses['loss']:.4f}",
+                                    data=f"{self.step_timer.share(last=20) or 0:.0%}",
+                                    refresh=False)
                     bar.update(1)
                     if self.step_callback is not None:
                         self.step_callback(self, self.step, losses)
@@ -296,25 +312,27 @@ class Trainer:
         self._check_collapse()
         return self.history
 
-    def _advance(self, until: int, started: float) -> dict[str, float]:
+    def _advance(self, batches: BatchStream, until: int, started: float) -> dict[str, float]:
         """Train one step on this step's batch, record it in the history and the train log."""
         self.checkpointer.start_step()
-        samples = self.sampler.samples(self.step)
-        if self.config.supervision == "depth":
-            self.sample_checks.check_depth(samples, self.step)
-        batch = to_device(collate(samples), self.device)
+        batch, data_s = next(batches)
         if self.config.flip:
             batch = random_flip(batch, self.config.seed, self.step, self.rank)
+        computing = time.perf_counter()
         losses = self.train_step(batch)
+        compute_s = time.perf_counter() - computing
         self.step += 1
+        self.step_timer.add(data_s, compute_s)
         terms = {k: v for k, v in losses.items() if k != "at_depth_limits"}
         row = {"step": self.step, **terms, "lr": self.scheduler.get_last_lr()[0],
                "seconds": time.perf_counter() - started,
-               "at_depth_limits": losses["at_depth_limits"]}
+               "at_depth_limits": losses["at_depth_limits"], "data_s": data_s,
+               "compute_s": compute_s}
         self.history.append(row)
         self.checkpointer.in_update = False
         if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
             self.log.train.append(row)
+        self._check_data_wait()
         return losses
 
     def _periodic_tasks(self) -> None:
@@ -334,6 +352,11 @@ class Trainer:
         if signum:
             raise TrainingInterrupted(signum, self.step, self._save_once())
 
+    @property
+    def warnings(self) -> list[str]:
+        """The warnings of the last `fit` (also in `out_dir/warnings.log`)."""
+        return self.run_warnings.messages
+
     def _check_collapse(self) -> None:
         """Warn when most predicted pixels sit at a depth limit (validation, else the last
         training batch)."""
@@ -344,17 +367,15 @@ class Trainer:
             share, where = self.history[-1].get("at_depth_limits"), "the last training batch"
         else:
             return
-        if share is None or share < COLLAPSE_FRACTION:
-            return
-        message = (f"step {self.step}: {share:.0%} of the predicted pixels of {where} sit at "
-                   f"depth_min ({cfg.depth_min} m) or depth_max ({cfg.depth_max} m): the network "
-                   f"collapsed to its depth limits (often a too large lr, here {cfg.lr}); its "
-                   "metrics mean little")
-        self.warnings.append(message)
-        warnings.warn(message, DepthCollapseWarning, stacklevel=3)
-        if self.is_main:
-            with (cfg.out_dir / "warnings.log").open("a") as handle:
-                handle.write(message + "\n")
+        message = collapse_message(share, where, (cfg.depth_min, cfg.depth_max), cfg.lr)
+        if message is not None:
+            self.run_warnings.warn(f"step {self.step}: {message}", DepthCollapseWarning)
+
+    def _check_data_wait(self) -> None:
+        """Warn once per `fit` when the steps wait for their data (`StepTimer.wait_message`)."""
+        message = self.step_timer.wait_message(self.workers)
+        if message is not None:
+            self.run_warnings.warn(f"step {self.step}: {message}", DataWaitWarning)
 
     # -- evaluation --------------------------------------------------------------------------
     def evaluate(self, test_set: Iterable[Mapping[str, Any]], depth_cap: float | None = None,

@@ -1,0 +1,174 @@
+"""The batches of a run's steps, prepared ahead of the step that needs them.
+
+A `BatchStream` yields the collated batch of each step from `first` to `until`, in order, with
+the seconds the training loop waited for it. With `workers > 0` the batches are prepared in
+`torch.utils.data.DataLoader` worker processes, `prefetch` batches per worker ahead of the step
+(pinned memory and `non_blocking` copies when the device is a GPU); with `workers = 0` each batch
+is prepared when it is asked for. Both give the same batches: `models.sampling.StepSampler` makes
+each step's samples a function of the step alone.
+
+Example:
+    >>> from models.sampling import StepSampler
+    >>> samples = [{"image": torch.full((3, 2, 2), float(i))} for i in range(4)]
+    >>> with BatchStream(StepSampler(samples, 2, seed=0), 0, 2, torch.device("cpu")) as stream:
+    ...     [tuple(batch["image"].shape) for batch, waited in stream]
+    [(2, 3, 2, 2), (2, 3, 2, 2)]
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import time
+import traceback
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any
+
+import torch
+from torch.utils.data import DataLoader, Dataset
+
+from optics import collate
+
+from ..sampling import StepSampler
+from .state import to_device
+
+#: batches each worker prepares ahead of the step that needs them
+PREFETCH_BATCHES = 2
+#: a check of a collated batch and its step (0-based) that raises for a batch not to be used
+BatchCheck = Callable[[Mapping[str, Any], int], None]
+
+
+def usable_cpus() -> int:
+    """The CPU cores this process may run on."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def auto_workers(device: torch.device, cpus: int | None = None) -> int:
+    """The worker processes `workers = -1` means: on a GPU up to 4, leaving a core to the
+    training loop; on the CPU, where the workers take cores from the step itself, one per 8 cores
+    beyond the first 4 (none on a small machine).
+
+    Example:
+        >>> auto_workers(torch.device("cuda"), cpus=16), auto_workers(torch.device("cpu"), cpus=2)
+        (4, 0)
+    """
+    cpus = usable_cpus() if cpus is None else cpus
+    if device.type == "cpu":
+        return max(0, (cpus - 4) // 8)
+    return max(1, min(4, cpus - 1))
+
+
+class _Failure:
+    """An exception raised while a worker prepared a batch, carried to the training loop."""
+
+    def __init__(self, error: BaseException):
+        try:
+            pickle.dumps(error)
+            self.error = error
+        except Exception:  # an exception that cannot cross processes: keep its words
+            self.error = RuntimeError(f"{type(error).__name__}: {error}")
+        self.trace = "".join(traceback.format_exception(error))
+
+    def reraise(self) -> None:
+        self.error.add_note(f"raised while a worker prepared the batch:\n{self.trace}")
+        raise self.error
+
+
+class StepBatches(Dataset):
+    """Step -> the collated batch of this process for that step (a `Dataset` of batches).
+
+    Args:
+        sampler: the run's `StepSampler`.
+        check: optional `f(batch, step)` that raises for a batch the run must not use.
+    """
+
+    def __init__(self, sampler: StepSampler, check: BatchCheck | None = None):
+        self.sampler, self.check = sampler, check
+
+    def batch(self, step: int) -> Any:
+        """The checked batch of `step`."""
+        batch = collate(self.sampler.samples(step))
+        if self.check is not None:
+            self.check(batch, step)
+        return batch
+
+    def __getitem__(self, step: int) -> Any:
+        try:
+            return self.batch(step)
+        except Exception as error:  # raised again, with its own type, in the training loop
+            return _Failure(error)
+
+
+def _quiet_worker(_: int) -> None:
+    """Workers leave SIGINT and SIGTERM to the training loop, which stops after its step and
+    closes them; they end by themselves when the loop's process ends."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+
+
+class BatchStream:
+    """Iterate `(batch, seconds waited)` over the steps `first` to `until - 1` (0-based), each
+    batch on `device`; a context manager that stops its workers on exit.
+
+    Args:
+        sampler: the run's `StepSampler`; an iterable (not map-style) dataset is always read in
+            this process.
+        first: the first step (0-based).
+        until: the step after the last.
+        device: where the batches go.
+        workers: worker processes (0: prepare each batch when it is asked for).
+        prefetch: batches each worker prepares ahead.
+        check: optional `f(batch, step)` run on each batch where it is prepared, before it
+            moves to the device.
+    """
+
+    def __init__(self, sampler: StepSampler, first: int, until: int, device: torch.device,
+                 workers: int = 0, prefetch: int = PREFETCH_BATCHES,
+                 check: BatchCheck | None = None):
+        if workers < 0:
+            raise ValueError(f"workers must be >= 0, got {workers}")
+        self.sampler, self.first, self.until = sampler, int(first), int(until)
+        self.device = device
+        self.workers = workers if sampler.is_map_style() else 0
+        self.prefetch = prefetch
+        self.batches = StepBatches(sampler, check)
+        self._iterator: Iterator[Any] | None = None
+
+    def _batches(self) -> Iterator[Any]:
+        steps = range(self.first, self.until)
+        if self.workers == 0:
+            return (self.batches.batch(step) for step in steps)
+        loader = DataLoader(self.batches, batch_size=None, sampler=steps,
+                            num_workers=self.workers, prefetch_factor=self.prefetch,
+                            pin_memory=self.device.type == "cuda",
+                            worker_init_fn=_quiet_worker,
+                            # the workers' base seed comes from here, not the global generator
+                            generator=torch.Generator().manual_seed(self.sampler.seed))
+        return iter(loader)
+
+    def __iter__(self) -> BatchStream:
+        if self._iterator is None:
+            self._iterator = self._batches()
+        return self
+
+    def __next__(self) -> tuple[Mapping[str, Any], float]:
+        started = time.perf_counter()
+        batch = next(iter(self)._iterator)
+        if isinstance(batch, _Failure):
+            batch.reraise()
+        batch = to_device(batch, self.device, non_blocking=True)
+        return batch, time.perf_counter() - started
+
+    def close(self) -> None:
+        """Stop the workers (a DataLoader iterator stops them when it is let go)."""
+        self._iterator = None
+
+    def __enter__(self) -> BatchStream:
+        return self
+
+    def __exit__(self, *_: Any) -> None:
+        self.close()

@@ -1,0 +1,227 @@
+"""Batches prepared ahead of the step: the same batches with and without workers, exact resume,
+errors from workers, the data-wait split and warning, bfloat16 and compiled networks."""
+
+import csv
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+import torch
+from training_helpers import tiny_config
+
+from datasets import JointAugment
+from models.sampling import StepSampler
+from models.training import BatchStream, DataWaitWarning, StepTimer, Trainer, auto_workers
+from models.training.step_timing import JUDGED_AFTER, WARMUP_STEPS
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+class _Augmented(torch.utils.data.Dataset):
+    """Samples with random crops, flips and gains from torch's global generator."""
+
+    def __init__(self, scenes):
+        self.scenes = scenes
+        self.augment = JointAugment(crop_size=(12, 12), hflip=0.5, gain=0.1)
+
+    def __len__(self):
+        return len(self.scenes)
+
+    def __getitem__(self, index):
+        return self.augment(dict(self.scenes[index]))
+
+
+@pytest.fixture(scope="module")
+def augmented(scenes):
+    return _Augmented(scenes)
+
+
+def _losses(history):
+    return [row["loss"] for row in history]
+
+
+def test_workers_give_the_same_batches_as_the_loop(augmented):
+    sampler = StepSampler(augmented, batch_size=3, seed=5)
+    device = torch.device("cpu")
+    with BatchStream(sampler, 2, 6, device, workers=0) as stream:
+        inline = [batch for batch, _ in stream]
+    with BatchStream(sampler, 2, 6, device, workers=2) as stream:
+        ahead = [batch for batch, _ in stream]
+    assert len(inline) == len(ahead) == 4
+    for a, b in zip(inline, ahead, strict=True):
+        assert a["id"] == b["id"]
+        for key in ("image", "focused", "depth", "mask"):
+            assert torch.equal(a[key], b[key]), key
+    # the samples' random crops differ between steps: the seeds are per step and position
+    assert not torch.equal(inline[0]["image"], inline[1]["image"])
+
+
+def test_sample_randomness_leaves_the_global_generator_alone(augmented):
+    torch.manual_seed(123)
+    expected = torch.rand(3)
+    torch.manual_seed(123)
+    StepSampler(augmented, batch_size=2, seed=0).samples(0)
+    assert torch.equal(torch.rand(3), expected)
+
+
+def test_training_with_workers_equals_training_without(tmp_path, augmented):
+    inline = Trainer(tiny_config(tmp_path / "inline", workers=0), augmented).fit()
+    ahead = Trainer(tiny_config(tmp_path / "ahead", workers=2), augmented).fit()
+    assert _losses(inline) == _losses(ahead)
+
+
+def test_resume_with_workers_is_exact(tmp_path, augmented):
+    full = Trainer(tiny_config(tmp_path / "full", workers=1), augmented).fit()
+    cfg = tiny_config(tmp_path / "split", workers=1)
+    Trainer(cfg, augmented).fit(until=2)
+    resumed = Trainer(cfg, augmented)  # a new process would start its workers afresh too
+    assert resumed.step == 2
+    assert _losses(resumed.fit()) == _losses(full)
+
+
+class _Broken(torch.utils.data.Dataset):
+    def __init__(self, scenes, bad_index):
+        self.scenes, self.bad_index = scenes, bad_index
+
+    def __len__(self):
+        return len(self.scenes)
+
+    def __getitem__(self, index):
+        if index == self.bad_index:
+            raise FileNotFoundError(f"scene {index}: missing file 'x.png'")
+        return self.scenes[index]
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_a_worker_error_arrives_with_its_type_and_words(tmp_path, scenes, workers):
+    trainer = Trainer(tiny_config(tmp_path / "run", workers=workers, steps=3), _Broken(scenes, 4))
+    with pytest.raises(FileNotFoundError, match="scene 4: missing file 'x.png'"):
+        trainer.fit()
+
+
+def test_bad_depth_is_named_from_a_worker(tmp_path, scenes):
+    bad = [dict(scenes[i]) for i in range(4)]
+    bad[2]["depth"] = bad[2]["depth"].clone()
+    bad[2]["depth"][0, 3, 3] = float("nan")
+    trainer = Trainer(tiny_config(tmp_path / "run", supervision="depth", workers=1, batch_size=4,
+                                  steps=1), bad)
+    with pytest.raises(ValueError, match=r"sample '.*' \(train_set\[2\]\) has ground-truth depth"):
+        trainer.fit()
+
+
+def test_each_step_is_split_into_data_wait_and_compute(tmp_path, scenes):
+    cfg = tiny_config(tmp_path / "run", workers=0)
+    history = Trainer(cfg, scenes).fit()
+    for row in history:
+        assert row["data_s"] >= 0 and row["compute_s"] > 0
+        assert row["data_s"] + row["compute_s"] <= row["seconds"] + 1e-6
+    with (cfg.out_dir / "train_log.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert {"data_s", "compute_s"} <= set(rows[0]) and len(rows) == 4
+
+
+class _Slow(torch.utils.data.Dataset):
+    def __init__(self, scenes, seconds):
+        self.scenes, self.seconds = scenes, seconds
+
+    def __len__(self):
+        return len(self.scenes)
+
+    def __getitem__(self, index):
+        time.sleep(self.seconds)
+        return self.scenes[index]
+
+
+def test_a_step_that_waits_for_its_data_warns(tmp_path, scenes):
+    steps = WARMUP_STEPS + JUDGED_AFTER
+    trainer = Trainer(tiny_config(tmp_path / "run", workers=0, steps=steps, batch_size=1,
+                                  supervision="depth"), _Slow(scenes, 0.05))
+    with pytest.warns(DataWaitWarning, match=r"waiting for data took \d+% .*workers=0 now"):
+        trainer.fit()
+    assert len(trainer.warnings) == 1
+    assert "waiting for data" in (tmp_path / "run" / "warnings.log").read_text()
+
+
+def test_step_timer_judges_after_the_warm_up():
+    timer = StepTimer()
+    for _ in range(WARMUP_STEPS):
+        timer.add(data_s=5.0, compute_s=0.1)  # start-up: left out
+    for _ in range(JUDGED_AFTER - 1):
+        timer.add(data_s=0.01, compute_s=0.09)
+    assert timer.wait_message(workers=0) is None  # not yet judged
+    timer.add(data_s=0.01, compute_s=0.09)
+    assert math.isclose(timer.share(), 0.1)
+    assert timer.wait_message(workers=0) is None  # 10 %: fine
+    slow = StepTimer()
+    for _ in range(WARMUP_STEPS + JUDGED_AFTER):
+        slow.add(data_s=0.03, compute_s=0.07)
+    assert "30%" in slow.wait_message(workers=2)
+    assert slow.wait_message(workers=2) is None  # once
+
+
+def test_auto_workers():
+    assert auto_workers(torch.device("cpu"), cpus=2) == 0
+    assert auto_workers(torch.device("cpu"), cpus=64) == 7
+    assert auto_workers(torch.device("cuda"), cpus=2) == 1
+    assert auto_workers(torch.device("cuda"), cpus=16) == 4
+
+
+def test_bfloat16_network_trains_with_float32_weights(tmp_path, scenes):
+    trainer = Trainer(tiny_config(tmp_path / "run", precision="bfloat16"), scenes)
+    history = trainer.fit()
+    assert all(math.isfinite(row["loss"]) for row in history)
+    assert all(p.dtype == torch.float32 for p in trainer.model.parameters())
+    float32 = Trainer(tiny_config(tmp_path / "f32"), scenes).fit()
+    assert history[0]["loss"] == pytest.approx(float32[0]["loss"], rel=0.05)
+
+
+@pytest.mark.slow
+def test_compiled_network_matches_the_eager_one(tmp_path, scenes):
+    pytest.importorskip("torch._inductor")
+    eager = Trainer(tiny_config(tmp_path / "eager", steps=2, input_mode="aif",
+                                supervision="depth"), scenes).fit()
+    compiled = Trainer(tiny_config(tmp_path / "compiled", steps=2, input_mode="aif",
+                                   supervision="depth", compile=True), scenes).fit()
+    assert _losses(compiled) == pytest.approx(_losses(eager), rel=1e-4)
+
+
+@pytest.mark.slow
+def test_ctrl_c_with_workers_stops_cleanly_and_resumes(tmp_path):
+    """Ctrl-C reaches the whole process group: the workers leave it to the training loop."""
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    env.pop("DEFOCUS_DEBUG", None)
+    out = tmp_path / "run"
+    command = [sys.executable, "-m", "defocus", "train", "--out", str(out), "--scenes", "4",
+               "--size", "16", "16", "--set", "steps=300", "batch_size=1", "width=4",
+               "progress=false", "supervision=depth", "checkpoint_minutes=0", "workers=1"]
+    proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    log = out / "train_log.csv"
+    deadline = time.monotonic() + 120
+    while proc.poll() is None and time.monotonic() < deadline:
+        if log.exists() and len(log.read_text().splitlines()) >= 3:
+            os.killpg(proc.pid, signal.SIGINT)  # as a terminal sends it: to every process
+            break
+        time.sleep(0.01)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "interrupted: stopped by SIGINT after step" in err and "Traceback" not in err, err
+    resumed = subprocess.run([*command, "--resume"], env=env, capture_output=True, text=True,
+                             timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    with log.open() as handle:
+        steps = [int(row["step"]) for row in csv.DictReader(handle)]
+    assert steps == list(range(1, 301))
+
+
+def test_no_warnings_from_a_quick_run(tmp_path, scenes):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", DataWaitWarning)
+        Trainer(tiny_config(tmp_path / "run", workers=0), scenes).fit()
