@@ -74,11 +74,33 @@ def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
     return tensor
 
 
+_VALUES_CHECKED = contextvars.ContextVar("optics_values_checked", default=False)
+
+
+@contextlib.contextmanager
+def values_checked() -> Iterator[None]:
+    """Skip the checks that read tensor values inside the block, as under tracing: for code
+    whose inputs were checked where they entered (e.g. a training batch checked on the host
+    when it was prepared) and whose results are checked once at the end (the training step's
+    finite loss). Reading a value from a GPU waits for every queued kernel; shapes, types and
+    names are still checked.
+
+    Example:
+        >>> with values_checked():
+        ...     check_positive("f_number", torch.tensor([-1.0]))  # not read: no error
+    """
+    token = _VALUES_CHECKED.set(True)
+    try:
+        yield
+    finally:
+        _VALUES_CHECKED.reset(token)
+
+
 def is_tracing(*tensors: Tensor) -> bool:
     """Whether `torch.compile` or `torch.export` is tracing (or any of `tensors` is a fake
-    tensor made for tracing): value checks are skipped then, since a traced graph cannot branch
-    on tensor values; eager calls check them."""
-    if torch.compiler.is_compiling() or torch.compiler.is_exporting():
+    tensor made for tracing), or the block is `values_checked`: value checks are skipped then,
+    since a traced graph cannot branch on tensor values; eager calls check them."""
+    if _VALUES_CHECKED.get() or torch.compiler.is_compiling() or torch.compiler.is_exporting():
         return True
     return any(type(t).__name__ == "FakeTensor" for t in tensors)
 

@@ -327,8 +327,8 @@ def test_a_signal_after_the_last_steps_check_still_stops_the_run(tmp_path, scene
 
     def late_signal() -> int:
         signum = check()
-        if trainer.step == 3 and trainer._stop_signal is None:
-            trainer._stop_signal = signal.SIGTERM  # arrives just after this check
+        if trainer.step == 3 and trainer.signals.signal is None:
+            trainer.signals.signal = signal.SIGTERM  # arrives just after this check
         return signum
 
     trainer._stop_requested = late_signal

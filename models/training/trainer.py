@@ -14,8 +14,10 @@ from typing import Any
 import torch
 import torch.distributed as dist
 from torch import Tensor, nn
+from torch.profiler import record_function
 
 from optics import CameraSettings, collate, parse_aperture
+from optics.checks import values_checked
 
 from ..checkpoints import CHECKPOINT_FORMAT, CheckpointStore, load_checkpoint, to_plain
 from ..evaluation import MeanMetrics
@@ -146,15 +148,6 @@ class Trainer:
         """The folder of `last.pt` and the step checkpoints."""
         return self.checkpoints.directory
 
-    @property
-    def _stop_signal(self) -> int | None:
-        """The signal caught while training (`signals.signal`)."""
-        return self.signals.signal
-
-    @_stop_signal.setter
-    def _stop_signal(self, signum: int | None) -> None:
-        self.signals.signal = signum
-
     def _stop_requested(self) -> int:
         """The signal that asks to stop (0: none), agreed by all processes."""
         return self.signals.requested()
@@ -197,15 +190,16 @@ class Trainer:
 
     def _forward(self, batch: Mapping[str, Any]) -> tuple[Tensor, dict[str, Tensor]]:
         image = batch["image"]
-        with torch.autocast(self.device.type, torch.bfloat16,
-                            enabled=self.config.precision == "bfloat16"):
+        with record_function("network"), torch.autocast(
+                self.device.type, torch.bfloat16, enabled=self.config.precision == "bfloat16"):
             if self.config.input_mode == "aif":
                 depth = self.step_model(image)
             else:
                 depth = self.step_model(image, batch["focused"], batch["camera"])
         depth = depth.float()  # the renderer and the loss in float32
         if self.config.supervision == "self":
-            return depth, self.loss_fn(depth, image, batch["focused"], batch["camera"])
+            with record_function("loss"):
+                return depth, self.loss_fn(depth, image, batch["focused"], batch["camera"])
         target, mask = batch["depth"], batch.get("mask")
         if mask is not None:  # masked-out labels may be anything (inf, nan): keep them out
             target = torch.where(mask.bool(), target, torch.ones_like(target))
@@ -220,9 +214,11 @@ class Trainer:
                 as they were).
         """
         self.model.train()
-        depth, terms = self._forward(batch)
+        with values_checked():  # checked on the host where prepared; the loss checked below
+            depth, terms = self._forward(batch)
         self.optimizer.zero_grad(set_to_none=True)
-        terms["loss"].backward()
+        with record_function("backward"):
+            terms["loss"].backward()
         params = [p for p in self.model.parameters() if p.grad is not None]
         if self.config.grad_clip > 0:
             norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
@@ -237,8 +233,9 @@ class Trainer:
         losses = dict(zip([*terms, "at_depth_limits"], numbers, strict=True))
         self._check_finite(losses, grad_norm)
         self.checkpointer.in_update = True  # until the step is counted: no half-step checkpoint
-        self.optimizer.step()
-        self.scheduler.step()
+        with record_function("optimizer"):
+            self.optimizer.step()
+            self.scheduler.step()
         return losses
 
     def _check_finite(self, losses: dict[str, float], grad_norm: float) -> None:
@@ -315,7 +312,8 @@ class Trainer:
     def _advance(self, batches: BatchStream, until: int, started: float) -> dict[str, float]:
         """Train one step on this step's batch, record it in the history and the train log."""
         self.checkpointer.start_step()
-        batch, data_s = next(batches)
+        with record_function("data"):
+            batch, data_s = next(batches)
         if self.config.flip:
             batch = random_flip(batch, self.config.seed, self.step, self.rank)
         computing = time.perf_counter()

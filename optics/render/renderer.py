@@ -38,7 +38,7 @@ import torch
 from torch import Tensor, nn
 
 from ..aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
-from ..checks import check_depth, check_finite, check_shape
+from ..checks import check_depth, check_finite, check_shape, is_tracing
 from . import backends, layer_ops, ops
 from .profile import ProfileFilter
 
@@ -193,7 +193,7 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
     message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
     if _compiling():
         torch._assert_async(valid, message)
-    elif not bool(valid):
+    elif not is_tracing() and not bool(valid):  # `values_checked` skips the read
         raise ValueError(message)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
