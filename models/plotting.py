@@ -58,22 +58,10 @@ def plot_prediction(
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    image, depth = image.detach().float().cpu(), depth.detach().float().cpu()
-    panels: list[tuple[str, Tensor, str]] = [(image_label, image, "rgb")]
-    if focused is not None:
-        for i, f in enumerate(focused.detach().float().cpu()):
-            panels.append((f"focused image {i + 1}", f, "rgb"))
-    stated = "" if stated_range is None else \
-        f" (stated {stated_range[0]:g}-{stated_range[1]:g})"
-    panels.append((f"predicted depth (m){stated}", depth[0], "depth"))
-    if confidence is not None:
-        panels.append(("confidence", confidence.detach().float().cpu()[0], "confidence"))
-    if target is not None:
-        target = target.detach().float().cpu()
-        valid = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.cpu().bool()
-        panels.append(("ground truth (m)", torch.where(valid, target, torch.nan)[0], "depth"))
-        error = torch.where(valid, (depth - target).abs() / target, torch.nan)[0]
-        panels.append(("abs rel error", error, "error"))
+    depth = depth.detach().float().cpu()
+    target = None if target is None else target.detach().float().cpu()
+    panels = _prediction_panels(image, depth, focused, target, mask, confidence, image_label,
+                                stated_range)
     if depth_range is None and stated_range is not None:
         depth_range = robust_range(depth)
     elif depth_range is None:
@@ -104,6 +92,29 @@ def plot_prediction(
         {MIRRORED_DEPTHS_KEY: f"{mirrored_depths[0]:.6g} {mirrored_depths[1]:.6g}"}
     fig.savefig(path, dpi=90, metadata=metadata)
     return path
+
+
+def _prediction_panels(image: Tensor, depth: Tensor, focused: Tensor | None,
+                       target: Tensor | None, mask: Tensor | None, confidence: Tensor | None,
+                       image_label: str, stated_range: tuple[float, float] | None,
+                       ) -> list[tuple[str, Tensor, str]]:
+    """`(title, data, kind)` of each panel of `plot_prediction` (kind: `"rgb"`, `"depth"`,
+    `"confidence"` or `"error"`), on the CPU."""
+    panels: list[tuple[str, Tensor, str]] = [(image_label, image.detach().float().cpu(), "rgb")]
+    if focused is not None:
+        for i, f in enumerate(focused.detach().float().cpu()):
+            panels.append((f"focused image {i + 1}", f, "rgb"))
+    stated = "" if stated_range is None else \
+        f" (stated {stated_range[0]:g}-{stated_range[1]:g})"
+    panels.append((f"predicted depth (m){stated}", depth[0], "depth"))
+    if confidence is not None:
+        panels.append(("confidence", confidence.detach().float().cpu()[0], "confidence"))
+    if target is not None:
+        valid = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.cpu().bool()
+        panels.append(("ground truth (m)", torch.where(valid, target, torch.nan)[0], "depth"))
+        error = torch.where(valid, (depth - target).abs() / target, torch.nan)[0]
+        panels.append(("abs rel error", error, "error"))
+    return panels
 
 
 #: The PNG text key under which `plot_prediction` stores the mirrored depths it hatched.
