@@ -30,7 +30,7 @@ other split is scored, the paper's protocol):
 
 CPU (default: 2.5 minutes per network, about 10 minutes on 2 cores)::
 
-    python examples/dslr.py --root ../shared/data/real/dfd_indoor
+    python examples/dslr.py --root data/dfd_indoor
 
 GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam lr
 2e-5, Gaussian PSF sigma = CoC/2, real f/2.8 and f/8 photos; 256x256 crops, batch 8)::

@@ -25,7 +25,7 @@ trained through the loss can find it.
 
 CPU, about 10 minutes on 2 cores::
 
-    python examples/dslr_causes.py --root ../shared/data/real/dfd_indoor
+    python examples/dslr_causes.py --root data/dfd_indoor
 """
 
 from __future__ import annotations

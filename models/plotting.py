@@ -24,6 +24,7 @@ def plot_prediction(
     target: Tensor | None = None, mask: Tensor | None = None, title: str = "",
     depth_range: tuple[float, float] | None = None, confidence: Tensor | None = None,
     image_label: str = "all in focus (input)", stated_range: tuple[float, float] | None = None,
+    mirrored_depths: tuple[float, float] | None = None,
 ) -> Path:
     """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
     its confidence, ground-truth depth and the relative error `|d - g| / g` (masked pixels
@@ -43,6 +44,11 @@ def plot_prediction(
         image_label: the title of the all-in-focus panel (e.g. "all in focus (fused)").
         stated_range: the depth range the user stated, metres: marked on the depth colour bar
             (dashed lines where it falls inside the colours) and named in the panel's title.
+        mirrored_depths: the depths `(nearest, farthest)` metres the photos cannot place on
+            either side of their one focus plane (`models.depth_from_photos.ambiguous_depths`):
+            hatched on the depth colour bar, the predicted depth's pixels within it hatched,
+            the span named under the panel and, in a PNG, stored as its text
+            `MIRRORED_DEPTHS_KEY` (`figure_mirrored_depths` reads it back).
 
     Returns:
         the path written.
@@ -52,22 +58,10 @@ def plot_prediction(
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    image, depth = image.detach().float().cpu(), depth.detach().float().cpu()
-    panels: list[tuple[str, Tensor, str]] = [(image_label, image, "rgb")]
-    if focused is not None:
-        for i, f in enumerate(focused.detach().float().cpu()):
-            panels.append((f"focused image {i + 1}", f, "rgb"))
-    stated = "" if stated_range is None else \
-        f" (stated {stated_range[0]:g}-{stated_range[1]:g})"
-    panels.append((f"predicted depth (m){stated}", depth[0], "depth"))
-    if confidence is not None:
-        panels.append(("confidence", confidence.detach().float().cpu()[0], "confidence"))
-    if target is not None:
-        target = target.detach().float().cpu()
-        valid = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.cpu().bool()
-        panels.append(("ground truth (m)", torch.where(valid, target, torch.nan)[0], "depth"))
-        error = torch.where(valid, (depth - target).abs() / target, torch.nan)[0]
-        panels.append(("abs rel error", error, "error"))
+    depth = depth.detach().float().cpu()
+    target = None if target is None else target.detach().float().cpu()
+    panels = _prediction_panels(image, depth, focused, target, mask, confidence, image_label,
+                                stated_range)
     if depth_range is None and stated_range is not None:
         depth_range = robust_range(depth)
     elif depth_range is None:
@@ -88,12 +82,96 @@ def plot_prediction(
             bar = fig.colorbar(shown, ax=ax, shrink=0.75)
             if kind == "depth" and stated_range is not None:
                 _mark(bar, limits, stated_range)
+            if name.startswith("predicted depth") and mirrored_depths is not None:
+                _hatch_mirrored(ax, bar, data, limits, mirrored_depths)
         ax.set_title(name, fontsize=9)
-        ax.axis("off")
+        _hide_axes(ax)
     if title:
         fig.suptitle(title, fontsize=10)
-    fig.savefig(path, dpi=90)
+    metadata = None if mirrored_depths is None or path.suffix.lower() != ".png" else \
+        {MIRRORED_DEPTHS_KEY: f"{mirrored_depths[0]:.6g} {mirrored_depths[1]:.6g}"}
+    fig.savefig(path, dpi=90, metadata=metadata)
     return path
+
+
+def _prediction_panels(image: Tensor, depth: Tensor, focused: Tensor | None,
+                       target: Tensor | None, mask: Tensor | None, confidence: Tensor | None,
+                       image_label: str, stated_range: tuple[float, float] | None,
+                       ) -> list[tuple[str, Tensor, str]]:
+    """`(title, data, kind)` of each panel of `plot_prediction` (kind: `"rgb"`, `"depth"`,
+    `"confidence"` or `"error"`), on the CPU."""
+    panels: list[tuple[str, Tensor, str]] = [(image_label, image.detach().float().cpu(), "rgb")]
+    if focused is not None:
+        for i, f in enumerate(focused.detach().float().cpu()):
+            panels.append((f"focused image {i + 1}", f, "rgb"))
+    stated = "" if stated_range is None else \
+        f" (stated {stated_range[0]:g}-{stated_range[1]:g})"
+    panels.append((f"predicted depth (m){stated}", depth[0], "depth"))
+    if confidence is not None:
+        panels.append(("confidence", confidence.detach().float().cpu()[0], "confidence"))
+    if target is not None:
+        valid = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.cpu().bool()
+        panels.append(("ground truth (m)", torch.where(valid, target, torch.nan)[0], "depth"))
+        error = torch.where(valid, (depth - target).abs() / target, torch.nan)[0]
+        panels.append(("abs rel error", error, "error"))
+    return panels
+
+
+#: The PNG text key under which `plot_prediction` stores the mirrored depths it hatched.
+MIRRORED_DEPTHS_KEY = "Mirrored depths (m)"
+#: Hatching (pattern, colour) of the depths that may lie on the other side of the focus plane.
+_MIRROR_HATCH = ("//", "#2b8cbe")
+
+
+def figure_mirrored_depths(path: str | Path) -> tuple[float, float] | None:
+    """The mirrored depths `(nearest, farthest)` metres a PNG of `plot_prediction` hatched, or
+    None where it hatched none.
+
+    Example:
+        >>> import tempfile
+        >>> path = plot_prediction(Path(tempfile.mkdtemp()) / "figure.png",
+        ...                        torch.rand(3, 8, 8), torch.rand(1, 8, 8) + 1,
+        ...                        mirrored_depths=(1.2, 1.8))
+        >>> figure_mirrored_depths(path)
+        (1.2, 1.8)
+    """
+    from PIL import Image
+
+    with Image.open(path) as figure:
+        text = getattr(figure, "text", {}).get(MIRRORED_DEPTHS_KEY)
+    if text is None:
+        return None
+    near, far = (float(v) for v in text.split())
+    return near, far
+
+
+def _hatch_mirrored(ax, bar, depth: Tensor, limits: tuple[float, float],
+                    span: tuple[float, float]) -> None:
+    """Mark the depths of `span` (metres) that may lie mirrored across the focus plane: hatched
+    on the colour bar (its part within `limits`), hatched over the pixels of `depth` within it,
+    and named under the panel."""
+    import matplotlib
+
+    hatch, colour = _MIRROR_HATCH
+    low, high = max(span[0], limits[0]), min(span[1], limits[1])
+    inside = ((depth >= span[0]) & (depth <= span[1])).float().numpy()
+    # the hatch colour is a setting read when a patch is made (matplotlib >= 3.7)
+    with matplotlib.rc_context({"hatch.color": colour, "hatch.linewidth": 0.8}):
+        if high > low:
+            bar.ax.axhspan(low, high, facecolor="none", edgecolor=colour, linewidth=0,
+                           hatch=hatch)
+        if inside.any():
+            ax.contourf(inside, levels=[0.5, 1.5], colors="none", hatches=[hatch])
+    ax.set_xlabel(f"hatched: {span[0]:.2f}-{span[1]:.2f} m, may lie\nmirrored across the "
+                  "focus plane", fontsize=7)
+
+
+def _hide_axes(ax) -> None:
+    """No ticks and no frame, but the axis label (a note under a panel) kept."""
+    ax.set_xticks([])
+    ax.set_yticks([])
+    for spine in ax.spines.values():
+        spine.set_visible(False)
 
 
 def robust_range(depth: Tensor, low: float = 2.0, high: float = 98.0) -> tuple[float, float]:

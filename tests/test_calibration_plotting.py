@@ -98,3 +98,25 @@ def test_prediction_figure_shows_the_confidence_when_given(tmp_path):
                     confidence=torch.rand(1, *sample["depth"].shape[-2:]))
     width = {n: Image.open(tmp_path / n).size[0] for n in ("a.png", "b.png")}
     assert width["b.png"] - width["a.png"] == pytest.approx(2.8 * 90, abs=2)  # one more panel
+
+
+def test_prediction_figure_hatches_the_mirrored_depths(tmp_path, monkeypatch):
+    """The depths the photos cannot place on either side of the focus plane reach the depth
+    panel (hatched over its colour bar's range) and are stored in the PNG."""
+    import models.plotting as plotting
+    from datasets.middlebury import motorcycle_sample
+
+    drawn = []
+    hatch = plotting._hatch_mirrored
+    monkeypatch.setattr(plotting, "_hatch_mirrored", lambda ax, bar, depth, limits, span: (
+        drawn.append((tuple(depth.shape), limits, span)), hatch(ax, bar, depth, limits, span)))
+    sample = motorcycle_sample(0.1)
+    path = plotting.plot_prediction(tmp_path / "a.png", sample["image"], sample["depth"],
+                                    sample["focused"], stated_range=(1.5, 8.0),
+                                    mirrored_depths=(1.92, 8.0))
+    assert plotting.figure_mirrored_depths(path) == (1.92, 8.0)
+    ((shape, limits, span),) = drawn  # the predicted depth's panel, not the ground truth's
+    assert shape == tuple(sample["depth"].shape[-2:]) and span == (1.92, 8.0)
+    assert limits == pytest.approx(plotting.robust_range(sample["depth"]))
+    plain = plotting.plot_prediction(tmp_path / "b.png", sample["image"], sample["depth"])
+    assert plotting.figure_mirrored_depths(plain) is None and len(drawn) == 1

@@ -85,3 +85,27 @@ def test_demo_writes_metrics_json_and_figures(tmp_path, capsys):
         assert (out / name).stat().st_size > 0, name
     printed = capsys.readouterr().out
     assert "self_supervised" in printed and "best constant abs rel" in printed
+
+
+def test_predict_marks_the_mirrored_depths_on_the_figure_and_the_summary(tmp_path, capsys):
+    """One focused shot beside the all-in-focus photo, focused inside the range: the depths on
+    both sides of its focus plane that blur it alike are named in the summary and hatched in
+    figure.png (two focus planes have none: `test_mirrored_depths_none_for_two_focus_planes_or_a_
+    focus_outside_the_range`)."""
+    from defocus.app.sample import write_sample_set
+    from models.depth_from_photos import ambiguous_depths
+    from models.plotting import figure_mirrored_depths
+    from optics import CameraSettings
+
+    sample = write_sample_set(tmp_path / "s", scale=0.2)
+    pitch = json.loads((sample.folder / "camera.json").read_text())["pixel_pitch"][0]
+    with pytest.warns(UserWarning, match="mirror"):
+        assert main(["predict", "--image", str(sample.folder / "aif.png"), "--focused",
+                     str(sample.folder / "near.png"), "--focus-distance", "2.3",
+                     "--f-number", "1.8", "--focal-length", "0.05", "--pixel-pitch", str(pitch),
+                     "--depth-range", "1.5", "8", "--out", str(tmp_path / "one"),
+                     "--quiet"]) == 0
+    span = ambiguous_depths(CameraSettings(0.05, 1.8, [2.3], pitch), 1.5, 8.0)
+    assert span is not None
+    assert f"depths {span[0]:.2f}-{span[1]:.2f} m may lie mirrored" in capsys.readouterr().out
+    assert figure_mirrored_depths(tmp_path / "one" / "figure.png") == pytest.approx(span)

@@ -324,7 +324,8 @@ def _report_working_resolution(out, depth_range, infos, method, report: Report) 
 def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
                   plan: OutputPlan | None = None) -> list[str]:
     """Write depth.npy (metres), depth_mm.png (16-bit millimetres), depth.png (a
-    colour-mapped preview), confidence.png, all_in_focus.png and figure.png under `folder`,
+    colour-mapped preview), confidence.png, all_in_focus.png and figure.png (the depths that may
+    lie mirrored across the focus plane, `out["mirrored_depths"]`, hatched) under `folder`,
     each whole or not at all, through `plan`
     (by default one that replaces no earlier result, `defocus.app.outputs`); returns the
     names written."""
@@ -353,7 +354,8 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
         path, fused, depth, photos.focused if photos.infos else None,
         title=str(photos.first_path.name), stated_range=tuple(out["depth_range"]),
         confidence=confidence, image_label="all in focus (input)"
-        if photos.image is not None else "all in focus (fused)")
+        if photos.image is not None else "all in focus (fused)",
+        mirrored_depths=out.get("mirrored_depths"))
     with plan.writing() as write:
         for name, writer in files.items():
             write(folder / name, writer)

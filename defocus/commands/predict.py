@@ -103,6 +103,10 @@ def run(args: argparse.Namespace) -> int:
     low, high = robust_range(depth)
     doubt = "" if not out["low_confidence"] else \
         f"; {out['low_confidence']:.0%} of the pixels have low confidence (< {LOW_CONFIDENCE:g})"
+    mirrored = out.get("mirrored_depths")
+    if mirrored is not None:
+        doubt += (f"; depths {mirrored[0]:.2f}-{mirrored[1]:.2f} m may lie mirrored across the "
+                  "focus plane (hatched in figure.png)")
     print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m (most pixels {low:.2f}-"
           f"{high:.2f} m){doubt}; wrote {', '.join(out['written'])} and figure.png under "
           f"{args.out}")

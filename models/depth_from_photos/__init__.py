@@ -26,7 +26,14 @@ from .blur_net import BlurNet, DepthFromDefocus, solve_depth, train_blur_net
 from .confidence import depth_edge_confidence, texture_confidence, texture_weight
 from .cost_volume import CostVolumeDepth
 from .depth_from_focus import DepthFromFocus, focus_measures, focus_peak
-from .estimate import METHODS, check_shots_differ, choose_method, estimate_depth, join_shots
+from .estimate import (
+    METHODS,
+    ambiguous_depths,
+    check_shots_differ,
+    choose_method,
+    estimate_depth,
+    join_shots,
+)
 from .photometry import match_exposure, noise_model
 from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
 from .resolution import run_at_working_resolution, scene_range, widen_cut_range, working_scale
@@ -50,6 +57,7 @@ __all__ = [
     "SweepDepth",
     "TrainedNetwork",
     "aggregate_cost",
+    "ambiguous_depths",
     "blur_errors",
     "candidate_inverse_depths",
     "check_shots_differ",

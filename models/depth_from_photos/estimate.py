@@ -118,17 +118,37 @@ def check_shots_differ(settings: CameraSettings, near: float, far: float) -> Non
 MIRROR_BLUR_PX = 1.0
 
 
-def warn_mirrored(settings: CameraSettings, near: float, far: float) -> None:
-    """Warn where the shots cannot tell a depth from its mirror image across their one focus
-    plane (`mirrored_depths`): there the depth may come out on the wrong side of it."""
+def ambiguous_depths(settings: CameraSettings, near: float, far: float
+                     ) -> tuple[float, float] | None:
+    """The span (metres) of `mirrored_depths` where its blur matters: None where there is no
+    such span, or where its ends blur the shots by less than `MIRROR_BLUR_PX` (both sides of
+    the focus plane then look alike and sharp, nothing to tell).
+
+    Example:
+        >>> s = CameraSettings(0.05, 2.0, [2.0], 1e-4)  # one focus plane, 2 m
+        >>> tuple(round(d, 2) for d in ambiguous_depths(s, 1.0, 10.0))
+        (1.11, 10.0)
+        >>> ambiguous_depths(s, 1.99, 2.01) is None  # a few hundredths of a pixel of blur
+        True
+    """
     span = mirrored_depths(settings, near, far)
     if span is None:
-        return
+        return None
     focus = float(settings.focus_distance.reshape(-1)[0])
     # the blur at the span's ends: below about a pixel both sides look sharp, nothing to tell
     largest = float(settings.coc_at_infinity_px().abs().max()) * abs(1 - focus / span[0])
-    if largest < MIRROR_BLUR_PX:
-        return
+    return None if largest < MIRROR_BLUR_PX else span
+
+
+def warn_mirrored(settings: CameraSettings, near: float, far: float
+                  ) -> tuple[float, float] | None:
+    """Warn where the shots cannot tell a depth from its mirror image across their one focus
+    plane (`ambiguous_depths`): there the depth may come out on the wrong side of it. Returns
+    that span, metres, or None."""
+    span = ambiguous_depths(settings, near, far)
+    if span is None:
+        return None
+    focus = float(settings.focus_distance.reshape(-1)[0])
     warnings.warn(
         f"every shot is focused at {focus:g} m, inside the depth range {near:g}-{far:g} m: a "
         f"depth between {span[0]:.2f} and {span[1]:.2f} m blurs them exactly as its mirror "
@@ -136,6 +156,7 @@ def warn_mirrored(settings: CameraSettings, near: float, far: float) -> None:
         f"Where the scene lies on one side, give that side as the range ({focus:g}-{far:g} m "
         f"beyond the focus plane, {near:g}-{focus:g} m before it), or focus a shot elsewhere",
         UserWarning, stacklevel=3)
+    return span
 
 
 def estimate_depth(
@@ -180,7 +201,9 @@ def estimate_depth(
         method has none), `depth_range` `(near, far)` metres of the pass kept,
         `all_in_focus` `(3,H,W)` (with `all_in_focus=True`), and, for methods run at a working
         resolution, `blur` `(F,h,w)`, `scale`, `shifts`, `zooms` and `rotations` (see
-        `run_at_working_resolution`).
+        `run_at_working_resolution`), and `mirrored_depths`: the depths `(nearest, farthest)`
+        metres the shots cannot place on either side of their one focus plane
+        (`ambiguous_depths`, the span `warn_mirrored` warns of), or None.
 
     Raises:
         ValueError: for photos of other shapes or sizes, non-finite values, a bad depth range or
@@ -207,9 +230,10 @@ def estimate_depth(
     if getattr(model, "native_resolution", False):
         return _run_native(model, image, focused, settings, near, far, all_in_focus)
     _check_defocus_photos(model, image, focused, settings, near, far)
-    warn_mirrored(settings, near, far)
+    mirrored = warn_mirrored(settings, near, far)
     out = run_at_working_resolution(model, image, focused, settings, near, far,
                                     max_coc_px, max_pixels, align, refine_range, progress)
+    out["mirrored_depths"] = mirrored
     if all_in_focus:
         out["all_in_focus"] = image if image is not None else _fused(focused, out, align)
     return out
@@ -310,7 +334,8 @@ def _run_native(model: nn.Module, image: Tensor, focused: Tensor,
     out = model(image[None], focused[None], shots, near, far)
     confidence = out.get("confidence")
     result = {"depth": out["depth"][0], "confidence": None if confidence is None
-              else confidence[0], "depth_range": getattr(model, "depth_range", (near, far))}
+              else confidence[0], "depth_range": getattr(model, "depth_range", (near, far)),
+              "mirrored_depths": None}
     if all_in_focus:
         result["all_in_focus"] = image
     return result
