@@ -30,7 +30,8 @@ test: $(STAMP)
 # the source tree, so nothing is imported from the checkout), whose command line then runs.
 wheel: $(STAMP)
 	rm -rf dist build/wheel-venv
-	$(BIN)/pip wheel --no-deps --wheel-dir dist .
+	$(BIN)/pip install --quiet build
+	$(BIN)/python -m build --wheel --outdir dist .
 	$(PYTHON) -m venv build/wheel-venv
 	build/wheel-venv/bin/pip install --quiet "$(TORCH)"
 	build/wheel-venv/bin/pip install --quiet dist/*.whl
