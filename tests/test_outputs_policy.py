@@ -97,6 +97,29 @@ def test_a_failed_write_leaves_no_half_file_and_the_earlier_ones(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]  # no temporary left
 
 
+def test_overwrite_removes_the_earlier_outputs_this_run_does_not_write(tmp_path):
+    names = {"depth.npy": "depth map", "confidence.png": "confidence map"}
+    for name in (*names, "notes.txt"):
+        (tmp_path / name).write_bytes(b"earlier")
+    plan, paths = plan_files(tmp_path, names, overwrite=True)
+    with plan.writing(remove_unwritten=True) as write:
+        write(paths["depth.npy"], lambda tmp: tmp.write_bytes(b"new"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["depth.npy", "notes.txt"]
+    assert plan.removed == [paths["confidence.png"]]
+    assert (tmp_path / "notes.txt").read_bytes() == b"earlier"  # not an output: kept
+
+
+def test_an_unwritten_output_is_kept_when_the_run_fails(tmp_path):
+    (tmp_path / "confidence.png").write_bytes(b"earlier")
+    plan, paths = plan_files(tmp_path, {"depth.npy": "depth map",
+                                        "confidence.png": "confidence map"}, overwrite=True)
+    with pytest.raises(RuntimeError):
+        with plan.writing(remove_unwritten=True) as write:
+            write(paths["depth.npy"], lambda tmp: tmp.write_bytes(b"new"))
+            raise RuntimeError("the run fails before its last output")
+    assert (tmp_path / "confidence.png").read_bytes() == b"earlier" and not plan.removed
+
+
 @pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0,
                     reason="needs a user whom file permissions bind")
 def test_a_read_only_folder_is_one_line(tmp_path):
@@ -135,6 +158,32 @@ def test_predict_keeps_earlier_results_unless_overwrite(tmp_path, capsys):
     assert main(_predict(paths, out, "--overwrite")) == 0
     np.testing.assert_array_equal(np.load(out / "depth.npy"), first)  # same depth map
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_predict_overwrite_leaves_no_output_of_the_earlier_run(tmp_path, capsys):
+    """A network gives no confidence map: the label-free run's confidence.png goes, so the
+    folder never mixes two runs (said in the summary)."""
+    from datasets.synthetic import SyntheticScenes
+    from models.training import TrainConfig, Trainer
+
+    config = TrainConfig(steps=1, batch_size=1, width=4, out_dir=tmp_path / "run",
+                         progress=False, supervision="depth", depth_min=0.6, depth_max=4.5)
+    Trainer(config, SyntheticScenes(1, (16, 16), seed=0)).fit()
+    paths = _photos(tmp_path, ("aif", "near", "far"))
+    out = tmp_path / "out"
+    assert main(_predict(paths[1:], out, "--image", str(paths[0]))) == 0
+    assert (out / "confidence.png").is_file()
+    (out / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    argv = ["predict", str(tmp_path / "run" / "checkpoints" / "last.pt"), "--image",
+            str(paths[0]), "--focused", *map(str, paths[1:]), "--focus-distance", "1", "3",
+            "--f-number", "2", "--focal-length", "0.05", "--pixel-pitch", "2e-5", "--out",
+            str(out), "--overwrite", "--quiet"]
+    assert main(argv) == 0
+    assert "removed confidence.png of the earlier run" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["depth.npy", "depth_mm.png", "depth.png", "all_in_focus.png", "figure.png",
+         "notes.txt"])
 
 
 def test_predict_refuses_a_symbolic_link_in_out(tmp_path, capsys):
