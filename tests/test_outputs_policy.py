@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 
 import numpy as np
 import pytest
@@ -244,3 +245,68 @@ def test_render_and_demo_keep_earlier_results(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--steps", "1"]) == 2
     assert "--overwrite" in _error(capsys)
     assert (tmp_path / "metrics.json").read_text() == "{}"
+
+
+# ---- the example scripts' --json and train's run folder -------------------------------------
+def test_benchmark_example_json_keeps_an_earlier_table_and_the_dataset(tmp_path, monkeypatch):
+    from test_examples import _benchmark_fixtures, load_example
+
+    write, extra = _benchmark_fixtures()["zedd"]
+    root = tmp_path / "data"
+    write(root)
+    module = load_example("zedd", monkeypatch)
+    earlier = tmp_path / "metrics.json"
+    earlier.write_text("{}")
+    argv = ["--root", str(root), "--device", "cpu", *extra, "--json"]
+    with pytest.raises(SystemExit, match=r"metrics\.json already exists .*--overwrite"):
+        module.main([*argv, str(earlier)])
+    assert earlier.read_text() == "{}"
+    data_file = next(p for p in sorted(root.rglob("*")) if p.is_file())
+    before = data_file.read_bytes()
+    with pytest.raises(SystemExit, match="input --root .*never written"):
+        module.main([*argv, str(data_file), "--overwrite"])
+    assert data_file.read_bytes() == before
+
+
+def test_dslr_example_json_is_checked_before_any_work(tmp_path, monkeypatch):
+    from test_examples import load_example
+
+    module = load_example("dslr", monkeypatch)
+    earlier, camera = tmp_path / "table.json", tmp_path / "cam.json"
+    earlier.write_text("{}")
+    camera.write_text("{}")
+    argv = ["--root", str(tmp_path / "absent"), "--out", str(tmp_path / "run"), "--json"]
+    with pytest.raises(SystemExit, match=r"table\.json already exists .*--overwrite"):
+        module.main([*argv, str(earlier)])  # refused before the missing --root is read
+    with pytest.raises(SystemExit, match="input --camera"):
+        module.main([*argv, str(camera), "--camera", str(camera), "--overwrite"])
+    assert earlier.read_text() == "{}" and camera.read_text() == "{}"
+
+
+def test_train_refuses_an_out_that_is_a_file_or_the_dataset(tmp_path, capsys):
+    from test_datasets_fixtures import write_nyu
+
+    root = tmp_path / "nyu"
+    write_nyu(root)
+    before = sorted(p.name for p in root.rglob("*"))
+    for out, message in ((root, "--out .* is the input --root"),
+                         (root / "run", "--out .* lies inside the input --root")):
+        assert main(["train", "--data", "nyu", "--root", str(root), "--out", str(out),
+                     "--set", "steps=1", "--overwrite"]) == 2
+        assert re.search(message, _error(capsys))
+    assert sorted(p.name for p in root.rglob("*")) == before
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("mine")
+    assert main(["train", "--out", str(a_file), "--set", "steps=1"]) == 2
+    assert f"--out {a_file} is a file, not a folder" in _error(capsys)
+    assert a_file.read_text() == "mine"
+
+
+def test_train_overwrite_never_deletes_the_config_it_reads(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("steps: 1  # mine\n")
+    assert main(["train", "--config", str(run / "config.yaml"), "--out", str(run),
+                 "--overwrite"]) == 2
+    assert "which --overwrite deletes" in _error(capsys)
+    assert (run / "config.yaml").read_text() == "steps: 1  # mine\n"

@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
@@ -214,3 +215,60 @@ def plan_files(folder: Path, names: Mapping[str, str], overwrite: bool,
     if folder.exists() and not folder.is_dir():
         raise NotADirectoryError(f"{option} {folder} is a file, not a folder")
     return plan, {name: plan.add(folder / name, what) for name, what in names.items()}
+
+
+def check_output_folder(folder: Path | str, option: str = "--out",
+                        input_folders: Inputs | None = None) -> Path:
+    """Refuse an output folder (a command's own folder, e.g. a training run's) that is a file,
+    a symbolic link, or an input folder (`--root`) or a folder inside one; returns `folder`.
+
+    Example:
+        >>> check_output_folder(Path("data/run"), "--out", {"--root": Path("data")})
+        Traceback (most recent call last):
+        ...
+        ValueError: --out data/run lies inside the input --root data: a run never writes into its input; choose an --out outside it
+    """
+    folder = Path(folder)
+    if folder.is_symlink():
+        raise ValueError(f"{option} {folder} is a symbolic link (to {os.readlink(folder)}); "
+                         f"outputs are never written through a link: choose another {option}")
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(f"{option} {folder} is a file, not a folder; choose another "
+                                 f"{option}")
+    resolved = _resolved(folder)
+    for name, given in _pairs(input_folders):
+        if _inside(resolved, _resolved(given)):
+            where = "is" if resolved == _resolved(given) else "lies inside"
+            raise ValueError(f"{option} {folder} {where} the input {name} {given}: a run never "
+                             f"writes into its input; choose an {option} outside it")
+    return folder
+
+
+def plan_json(path: Path | None, overwrite: bool, inputs: Inputs | None = None,
+              input_folders: Inputs | None = None, what: str = "metrics JSON",
+              option: str = "--json") -> OutputPlan | None:
+    """The checked plan of one JSON output `path` (an option such as `--json`), None without
+    one: not an input nor an existing file of an input folder, no earlier result replaced
+    without `overwrite`.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "metrics.json"
+        >>> write_json(plan_json(path, overwrite=False), path, {"abs_rel": 0.1})
+        >>> plan_json(path, overwrite=False)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        FileExistsError: ...metrics.json already exists (an earlier metrics JSON); give --overwrite to replace it, or choose another --json
+    """
+    if path is None:
+        return None
+    plan = OutputPlan(inputs, input_folders, overwrite, how=f"or choose another {option}")
+    plan.add(path, what)
+    return plan
+
+
+def write_json(plan: OutputPlan, path: Path, data: Any) -> None:
+    """Write `data` as JSON at `path`, whole or not at all, through `plan` (`plan_json`)."""
+    text = json.dumps(data, indent=2)
+    with plan.writing() as write:
+        write(path, lambda tmp: tmp.write_text(text))
