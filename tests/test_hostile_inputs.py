@@ -84,6 +84,36 @@ def test_a_huge_png_header_stays_far_below_3_gb(tmp_path):
     assert refused == "refused" and int(peak_kib) < 3 * 1024 * 1024
 
 
+def test_a_raw_file_over_the_pixel_limit_is_refused_before_decoding(tmp_path, monkeypatch):
+    """LibRaw's sizes are read before anything is unpacked: a raw file stating more than
+    MAX_IMAGE_PIXELS photosites is refused, its pixels never decoded."""
+    import rawpy
+    from _synthetic_dng import write_dng
+
+    from optics.raw import RawReadError, read_raw
+
+    path = write_dng(tmp_path / "small.dng", np.full((32, 48), 2000, np.uint16))
+    with pytest.raises(RawReadError, match="states 32x48 photosites .*at most 0.001 megapixels"):
+        read_raw(path, max_pixels=1000)  # the real file's own sizes, through LibRaw
+
+    class HugeRaw:  # what LibRaw states of a 20000x20000 sensor, without its pixels
+        sizes = type("Sizes", (), {"raw_height": 20_000, "raw_width": 20_000, "height": 20_000,
+                                   "width": 20_000})()
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def __getattr__(self, name):  # raw_image_visible, postprocess, ...: never reached
+            raise AssertionError(f"{name} read before the size was checked")
+
+    monkeypatch.setattr(rawpy, "imread", lambda *args, **kwargs: HugeRaw())
+    with pytest.raises(DataFormatError, match="20000x20000 photosites .*at most 100 megapixels"):
+        read_photo(path)
+
+
 def test_an_npy_header_claiming_1e10_values_is_refused_before_loading(tmp_path):
     path = tmp_path / "depth.npy"
     with open(path, "wb") as file:
