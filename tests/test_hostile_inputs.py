@@ -153,6 +153,45 @@ def test_per_shot_camera_values_of_another_count_name_the_file(tmp_path, capsys)
     assert f'{camera}: "f_number" holds 2 different values' in _one_line(capsys)
 
 
+def test_dataset_camera_json_per_shot_values_are_honoured_or_named(tmp_path):
+    """The loaders' door: a DSLR scene has one focused photo, so a camera JSON with two
+    different f-numbers is refused naming the file and key (not cut to the first, nor a shape
+    error at the first sample); one value repeated is that value."""
+    from test_datasets_fixtures import write_dslr_release
+
+    from datasets import DSLR
+
+    write_dslr_release(tmp_path / "data")
+    camera = tmp_path / "cam.json"
+    CameraSettings(0.035, [2.8, 2.0], [1.9], 6e-5).to_json(camera)
+    with pytest.raises(DataFormatError, match=f'{camera}: "f_number" holds 2 different values '
+                                              r"\[2.8, 2.0\], one per shot, but a DSLR scene"):
+        DSLR(tmp_path / "data", camera=camera)
+    with pytest.raises(DataFormatError, match='camera: "f_number" holds 2 different values'):
+        DSLR(tmp_path / "data", camera=CameraSettings(0.035, [2.8, 2.0], [1.9], 6e-5))
+    CameraSettings(0.035, [2.8, 2.8], [1.9], 6e-5).to_json(camera)
+    assert DSLR(tmp_path / "data", camera=camera)[0]["camera"].f_number.tolist() == \
+        pytest.approx([2.8])
+
+
+def test_photo_folder_camera_per_shot_values_are_honoured_or_named(tmp_path):
+    from datasets import PhotoFolder
+
+    scene = tmp_path / "root" / "scene"
+    scene.mkdir(parents=True)
+    for index, name in enumerate(("aif", "near", "far")):
+        Image.fromarray(_texture(index, (16, 16))).save(scene / f"{name}.png")
+    data = {**CameraSettings(0.05, [8.3, 2.0], [1.0, 3.0], 2e-5).to_dict(),
+            "photos": ["near.png", "far.png"]}
+    (scene / "camera.json").write_text(json.dumps(data))
+    assert PhotoFolder(scene.parent)[0]["camera"].f_number.tolist() == pytest.approx([8.3, 2.0])
+    data["f_number"] = [8.3, 2.0, 4.0]
+    (scene / "camera.json").write_text(json.dumps(data))
+    with pytest.raises(DataFormatError, match=f'{scene / "camera.json"}: "f_number" holds 3 '
+                                              'different values .* "photos" names 2 focused'):
+        PhotoFolder(scene.parent)
+
+
 def test_the_same_photo_twice_is_refused(tmp_path, capsys):
     photos = _photos(tmp_path, [_texture()])
     assert main(_predict(photos * 2, tmp_path / "o", "--f-number", "2", "--depth-range", "0.5",
