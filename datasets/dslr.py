@@ -31,6 +31,7 @@ import torch
 from optics import CameraSettings
 
 from .base import DepthDataset
+from .camera_json import camera_for_shots, camera_from_json, load_camera_json
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
 from .io import DataFormatError, read_depth_png, read_rgb, require_root
@@ -42,6 +43,8 @@ WIDE_FOLDER = "dfd_dataset_indoor_N2_8"
 #: Folder of the release holding the f/8 photos.
 REFERENCE_FOLDER = "dfd_dataset_indoor_N8"
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: What the scenes have, for the error on a camera of several shots.
+ONE_SHOT = "a DSLR scene has one focused (f/2.8) photo"
 LAYOUT = (
     "  <root>/dfd_dataset_indoor_N2_8/rgb/<split>/<time>.JPG    (f/2.8 photos)\n"
     "  <root>/dfd_dataset_indoor_N8/rgb/<split>/<time>.JPG      (f/8 photos)\n"
@@ -138,7 +141,9 @@ class DSLR(DepthDataset):
         preset: the camera of the wide photo (`datasets.presets.DSLR` by default).
         camera: a camera JSON (`defocus calibrate --dataset dslr`) or settings for
             the wide photos at the stored resolution, replacing the preset; a JSON's
-            `reference_f_number` sets `reference_f_number`.
+            `reference_f_number` sets `reference_f_number`. Values per shot must be one
+            (the scenes' one focused photo): a list of different values is refused by name
+            (`datasets.camera_json`), never cut to its first value.
         max_gap_s: the largest time difference, seconds, of a photo and its depth file.
         scenes: keep only these scenes (indices or a slice of the split in time order, e.g.
             `slice(0, 61)` for training and `slice(61, None)` for validation).
@@ -157,7 +162,8 @@ class DSLR(DepthDataset):
     Raises:
         FileNotFoundError: `root` or a folder is missing, or a photo has no f/8 photo or depth
             file (the message names the file).
-        DataFormatError: an unreadable file, or photos and depth of different sizes.
+        DataFormatError: an unreadable file, photos and depth of different sizes, or a
+            camera with different values for several shots.
 
     Example:
         >>> import tempfile, numpy as np, imageio.v3 as iio
@@ -207,10 +213,12 @@ class DSLR(DepthDataset):
         self.register = self.relative if register is None else bool(register)
         self.exposure_gain: list[float] | None = None
         self.settings: CameraSettings | None = None
+        # one focused photo per scene: per-shot values of another count are refused by name
         if isinstance(camera, CameraSettings):
-            self.settings = camera
+            self.settings = camera_for_shots(camera, 1, "camera", ONE_SHOT)
         elif camera is not None:
-            self.settings, extra = CameraSettings.read_json(camera)
+            self.settings, extra = camera_from_json(load_camera_json(camera), str(camera), 1,
+                                                    ONE_SHOT)
             self.reference_f_number = float(extra.get("reference_f_number", 8.0))
             self.floor_px = float(extra.get("focus_floor_px", 0.0))
             gain = extra.get("exposure_gain")

@@ -17,6 +17,8 @@ import torch
 from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 
+from optics.photo_metadata import MAX_IMAGE_PIXELS as PHOTO_PIXEL_LIMIT
+
 
 class DataFormatError(ValueError):
     """A dataset file exists but does not hold what the loader expects."""
@@ -75,9 +77,10 @@ def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[i
         raise DataFormatError(f"{str(path)!r}: {name} must have shape {wanted}, got {shape}")
 
 
-#: The most pixels of an image file that is decoded (100 megapixels): a file whose header
+#: The most pixels of an image file that is decoded (100 megapixels, the limit of every photo
+#: format, raw files included: `optics.photo_metadata.MAX_IMAGE_PIXELS`): a file whose header
 #: states more is refused before any pixel is read (`check_image_size`).
-MAX_IMAGE_PIXELS = 100_000_000
+MAX_IMAGE_PIXELS = PHOTO_PIXEL_LIMIT
 
 
 def check_image_size(path: Path, what: str = "an image",

@@ -27,6 +27,7 @@ import torch
 from optics import CameraSettings
 
 from .base import DepthDataset
+from .camera_json import camera_from_json, load_camera_json
 from .focus import CameraPreset
 from .io import DataFormatError, require_root
 
@@ -37,12 +38,16 @@ AIF_NAMES = ("aif.png", "aif.tif", "aif.tiff", "aif.jpg", "aif.jpeg", "aif.dng")
 
 
 def read_scene_camera(path: Path) -> tuple[CameraSettings, list[str]]:
-    """The settings and the focused photos' file names of a scene's camera JSON."""
-    settings, extra = CameraSettings.read_json(path)
-    photos = extra.get("photos")
+    """The settings and the focused photos' file names of a scene's camera JSON: values per
+    shot are one per photo of `"photos"` (a list of another count is refused naming the key,
+    `datasets.camera_json`)."""
+    data = load_camera_json(path)
+    photos = data.get("photos")
     if not isinstance(photos, list) or not all(isinstance(p, str) for p in photos):
         raise DataFormatError(f"{path}: \"photos\" must list the focused photos' file names, in "
                               f"the order of the camera's shots; got {photos!r}")
+    settings, _ = camera_from_json(data, str(path), len(photos),
+                                   f'"photos" names {len(photos)} focused photos')
     if len(photos) != settings.n_shots:
         raise DataFormatError(f"{path}: \"photos\" names {len(photos)} photos but the camera has "
                               f"{settings.n_shots} shots (one focus distance per photo)")

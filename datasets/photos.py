@@ -122,8 +122,9 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
 
     Raises:
         FileNotFoundError: `path` does not exist.
-        DataFormatError: the file cannot be read as an RGB photo, or its header states more
-            than `datasets.io.MAX_IMAGE_PIXELS` (read before any pixel is decoded).
+        DataFormatError: the file cannot be read as an RGB photo, or its header (a raw
+            file's metadata) states more than `datasets.io.MAX_IMAGE_PIXELS` (read before any
+            pixel is decoded).
 
     Example:
         >>> import tempfile, pathlib

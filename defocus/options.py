@@ -222,8 +222,17 @@ def benchmark_parser(description: str, split: str | None) -> argparse.ArgumentPa
     parser.add_argument("--max-pixels", type=int, default=None,
                         help="most pixels of the method's working resolution (default: CPU "
                              "250000, GPU 1500000); metrics use the native resolution")
-    parser.add_argument("--json", type=Path, default=None, help="also write the metrics here")
+    add_json_argument(parser, "also write the metrics here")
     return parser
+
+
+def add_json_argument(parser: argparse.ArgumentParser, text: str) -> None:
+    """`--json PATH` and `--overwrite` of an example script: the JSON goes through the output
+    policy (`defocus.app.experiment.plan_json_option`): an existing file is replaced only
+    with `--overwrite`, an input is never written, and it is written whole or not at all."""
+    parser.add_argument("--json", type=Path, default=None, metavar="PATH",
+                        help=f"{text} (an existing file is replaced only with --overwrite)")
+    add_overwrite_argument(parser)
 
 
 #: Defaults per device kind of the training examples: crop side (pixels), steps, time budget

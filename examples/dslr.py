@@ -50,8 +50,9 @@ from typing import Any
 import torch
 
 from datasets import DSLR, JointAugment
-from defocus.app.experiment import train_and_evaluate, training_crop
-from defocus.options import device_kind, example_parser
+from defocus.app.experiment import plan_json_option, train_and_evaluate, training_crop
+from defocus.app.outputs import write_json
+from defocus.options import add_json_argument, device_kind, example_parser
 from optics import DEFAULT_APERTURE
 
 #: The scenes' depth lies within this range, metres (the release's depth: about 0.4 to 10 m).
@@ -133,8 +134,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
                         help="the side prior of the label-free predict (on the training scenes "
                              "its depth range beyond the focus plane scored worse than the "
                              "whole range: abs rel 0.51 vs 0.47)")
-    parser.add_argument("--json", type=Path, default=None, metavar="PATH",
-                        help="write the table (method name -> metrics) to this JSON file")
+    add_json_argument(parser, "write the table (method name -> metrics) to this JSON file")
     # the blur of this pair is linear in inverse depth and ambiguous about the focus plane: an
     # output even in depth starts far out, where the blur no longer changes (abs rel 2.3 vs 0.63)
     # a prior chosen on the training scenes: 22 % of their pixels are nearer than the fitted
@@ -209,6 +209,10 @@ def network_rows(args: argparse.Namespace, train: DSLR, val: DSLR,
 
 def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
+    # --json is checked before any work: not the camera JSON, not a file of --root, no earlier
+    # table replaced without --overwrite
+    plan = plan_json_option(args, "table", [("--camera", args.camera),
+                                            ("camera JSON of this run", args.out / "camera.json")])
     train, val, lens, camera = datasets(args)
     scored = "validation" if args.eval_split is None else f"{args.eval_split} split"
     print(f"DSLR: {len(train)} training scenes, {len(val)} {scored} scenes "
@@ -223,9 +227,8 @@ def main(argv: list[str] | None = None) -> int:
     print(format_table(rows))
     for name, row in rows.items():
         print(f"  {name}: abs rel {row['abs_rel'] / constant['abs_rel']:.2f}x the constant's")
-    if args.json is not None:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(rows, indent=2))
+    if plan is not None:
+        write_json(plan, args.json, rows)
         print(f"table -> {args.json}")
     return 0
 

@@ -38,6 +38,10 @@ from .camera import SETTING_FIELDS
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".rw2",
                 ".raw", ".rwl", ".orf", ".raf", ".pef", ".srw", ".x3f", ".mrw", ".3fr", ".iiq",
                 ".erf", ".kdc", ".dcr", ".mos", ".mef")
+#: The most pixels of a photo that is decoded (100 megapixels), for every format: a PNG, JPEG
+#: or TIFF whose header states more (`datasets.io.check_image_size`) or a raw file whose
+#: metadata states more photosites (`optics.read_raw`) is refused before any pixel is decoded.
+MAX_IMAGE_PIXELS = 100_000_000
 #: Diagonal of a 36 x 24 mm frame, metres: what a 35 mm equivalent focal length is defined on.
 FULL_FRAME_DIAGONAL = float(np.hypot(0.036, 0.024))
 #: Metres per unit of the EXIF FocalPlaneResolutionUnit (2: inch, the default; 3: cm; 4: mm;

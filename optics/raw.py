@@ -27,7 +27,13 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .photo_metadata import PhotoMetadata, RawReadError, metadata_from_libraw, open_raw
+from .photo_metadata import (
+    MAX_IMAGE_PIXELS,
+    PhotoMetadata,
+    RawReadError,
+    metadata_from_libraw,
+    open_raw,
+)
 
 #: White-balance choices of `read_raw`.
 WHITE_BALANCES = ("camera", "daylight", "none")
@@ -92,12 +98,33 @@ def _require_image_data(path: Path, visible: np.ndarray) -> None:
         )
 
 
-def _decode(path: Path, demosaic: str, binning: int) -> tuple[np.ndarray, PhotoMetadata, bool]:
+def check_raw_size(path: Path, sizes: Any, max_pixels: int = MAX_IMAGE_PIXELS) -> None:
+    """Refuse (`RawReadError`) a raw file whose metadata (LibRaw's `sizes`, read before any
+    pixel is unpacked) states more than `max_pixels` photosites.
+
+    Example:
+        >>> from types import SimpleNamespace
+        >>> check_raw_size(Path("x.dng"), SimpleNamespace(raw_height=12000, raw_width=12000))
+        Traceback (most recent call last):
+        ...
+        optics.photo_metadata.RawReadError: x.dng: its metadata states 12000x12000 photosites (144 megapixels); at most 100 megapixels are read
+    """
+    height, width = int(sizes.raw_height), int(sizes.raw_width)
+    if height * width > max_pixels:
+        raise RawReadError(f"{path}: its metadata states {height}x{width} photosites "
+                           f"({height * width / 1e6:.4g} megapixels); at most "
+                           f"{max_pixels / 1e6:g} megapixels are read")
+
+
+def _decode(path: Path, demosaic: str, binning: int,
+            max_pixels: int = MAX_IMAGE_PIXELS) -> tuple[np.ndarray, PhotoMetadata, bool]:
     """LibRaw's linear camera RGB `(H, W, 3)` uint16 of `path`, its metadata, and whether the
-    Bayer quads were binned (half size)."""
+    Bayer quads were binned (half size); a file of more than `max_pixels` photosites is
+    refused before anything is unpacked (`check_raw_size`)."""
     import rawpy
 
     with open_raw(path) as raw:
+        check_raw_size(path, raw.sizes, max_pixels)
         meta = metadata_from_libraw(path, raw)
         _require_image_data(path, raw.raw_image_visible)
         half = meta.cfa_pattern is not None and binning % 2 == 0
@@ -148,6 +175,7 @@ def read_raw(
     demosaic: str = "ahd",
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
+    max_pixels: int = MAX_IMAGE_PIXELS,
 ) -> tuple[Tensor, PhotoMetadata]:
     """Decode a raw photo to linear RGB (no gamma, no auto-brightness) and read its metadata.
 
@@ -165,6 +193,8 @@ def read_raw(
         demosaic: LibRaw algorithm, one of `DEMOSAIC_ALGORITHMS`.
         dtype: floating-point dtype of the image.
         device: device of the image.
+        max_pixels: the most photosites decoded (`MAX_IMAGE_PIXELS`, the limit of every photo
+            format): a file whose metadata states more is refused before it is unpacked.
 
     Returns:
         `(image, metadata)`: the image `(1, 3, H, W)` with 0 at the black level and 1 at the
@@ -173,8 +203,9 @@ def read_raw(
 
     Raises:
         FileNotFoundError: if `path` does not exist.
-        RawReadError: if LibRaw cannot decode the file, or it decodes to no data (a constant
-            image, e.g. a file whose pixel data were stripped).
+        RawReadError: if LibRaw cannot decode the file, it decodes to no data (a constant
+            image, e.g. a file whose pixel data were stripped), or its metadata states more
+            than `max_pixels` photosites.
         ValueError: for an unknown option, or a colour conversion without a colour matrix or
             without white balance.
         TypeError: if `dtype` is not a floating-point dtype (integers would truncate the
@@ -190,7 +221,7 @@ def read_raw(
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"raw file not found: {path}")
-    rgb, meta, half = _decode(path, demosaic, binning)
+    rgb, meta, half = _decode(path, demosaic, binning, max_pixels)
     image = torch.from_numpy(rgb.astype("float32")).to(device=device, dtype=dtype)
     image = image.permute(2, 0, 1).unsqueeze(0) / 65535.0
     pool = binning // 2 if half else binning

@@ -84,6 +84,36 @@ def test_a_huge_png_header_stays_far_below_3_gb(tmp_path):
     assert refused == "refused" and int(peak_kib) < 3 * 1024 * 1024
 
 
+def test_a_raw_file_over_the_pixel_limit_is_refused_before_decoding(tmp_path, monkeypatch):
+    """LibRaw's sizes are read before anything is unpacked: a raw file stating more than
+    MAX_IMAGE_PIXELS photosites is refused, its pixels never decoded."""
+    import rawpy
+    from _synthetic_dng import write_dng
+
+    from optics.raw import RawReadError, read_raw
+
+    path = write_dng(tmp_path / "small.dng", np.full((32, 48), 2000, np.uint16))
+    with pytest.raises(RawReadError, match="states 32x48 photosites .*at most 0.001 megapixels"):
+        read_raw(path, max_pixels=1000)  # the real file's own sizes, through LibRaw
+
+    class HugeRaw:  # what LibRaw states of a 20000x20000 sensor, without its pixels
+        sizes = type("Sizes", (), {"raw_height": 20_000, "raw_width": 20_000, "height": 20_000,
+                                   "width": 20_000})()
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def __getattr__(self, name):  # raw_image_visible, postprocess, ...: never reached
+            raise AssertionError(f"{name} read before the size was checked")
+
+    monkeypatch.setattr(rawpy, "imread", lambda *args, **kwargs: HugeRaw())
+    with pytest.raises(DataFormatError, match="20000x20000 photosites .*at most 100 megapixels"):
+        read_photo(path)
+
+
 def test_an_npy_header_claiming_1e10_values_is_refused_before_loading(tmp_path):
     path = tmp_path / "depth.npy"
     with open(path, "wb") as file:
@@ -121,6 +151,45 @@ def test_per_shot_camera_values_of_another_count_name_the_file(tmp_path, capsys)
             str(camera), "--depth-range", "0.5", "5", "--out", str(tmp_path / "o")]
     assert main(argv) == 2
     assert f'{camera}: "f_number" holds 2 different values' in _one_line(capsys)
+
+
+def test_dataset_camera_json_per_shot_values_are_honoured_or_named(tmp_path):
+    """The loaders' door: a DSLR scene has one focused photo, so a camera JSON with two
+    different f-numbers is refused naming the file and key (not cut to the first, nor a shape
+    error at the first sample); one value repeated is that value."""
+    from test_datasets_fixtures import write_dslr_release
+
+    from datasets import DSLR
+
+    write_dslr_release(tmp_path / "data")
+    camera = tmp_path / "cam.json"
+    CameraSettings(0.035, [2.8, 2.0], [1.9], 6e-5).to_json(camera)
+    with pytest.raises(DataFormatError, match=f'{camera}: "f_number" holds 2 different values '
+                                              r"\[2.8, 2.0\], one per shot, but a DSLR scene"):
+        DSLR(tmp_path / "data", camera=camera)
+    with pytest.raises(DataFormatError, match='camera: "f_number" holds 2 different values'):
+        DSLR(tmp_path / "data", camera=CameraSettings(0.035, [2.8, 2.0], [1.9], 6e-5))
+    CameraSettings(0.035, [2.8, 2.8], [1.9], 6e-5).to_json(camera)
+    assert DSLR(tmp_path / "data", camera=camera)[0]["camera"].f_number.tolist() == \
+        pytest.approx([2.8])
+
+
+def test_photo_folder_camera_per_shot_values_are_honoured_or_named(tmp_path):
+    from datasets import PhotoFolder
+
+    scene = tmp_path / "root" / "scene"
+    scene.mkdir(parents=True)
+    for index, name in enumerate(("aif", "near", "far")):
+        Image.fromarray(_texture(index, (16, 16))).save(scene / f"{name}.png")
+    data = {**CameraSettings(0.05, [8.3, 2.0], [1.0, 3.0], 2e-5).to_dict(),
+            "photos": ["near.png", "far.png"]}
+    (scene / "camera.json").write_text(json.dumps(data))
+    assert PhotoFolder(scene.parent)[0]["camera"].f_number.tolist() == pytest.approx([8.3, 2.0])
+    data["f_number"] = [8.3, 2.0, 4.0]
+    (scene / "camera.json").write_text(json.dumps(data))
+    with pytest.raises(DataFormatError, match=f'{scene / "camera.json"}: "f_number" holds 3 '
+                                              'different values .* "photos" names 2 focused'):
+        PhotoFolder(scene.parent)
 
 
 def test_the_same_photo_twice_is_refused(tmp_path, capsys):

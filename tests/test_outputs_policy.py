@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 
 import numpy as np
 import pytest
@@ -97,6 +98,29 @@ def test_a_failed_write_leaves_no_half_file_and_the_earlier_ones(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json"]  # no temporary left
 
 
+def test_overwrite_removes_the_earlier_outputs_this_run_does_not_write(tmp_path):
+    names = {"depth.npy": "depth map", "confidence.png": "confidence map"}
+    for name in (*names, "notes.txt"):
+        (tmp_path / name).write_bytes(b"earlier")
+    plan, paths = plan_files(tmp_path, names, overwrite=True)
+    with plan.writing(remove_unwritten=True) as write:
+        write(paths["depth.npy"], lambda tmp: tmp.write_bytes(b"new"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["depth.npy", "notes.txt"]
+    assert plan.removed == [paths["confidence.png"]]
+    assert (tmp_path / "notes.txt").read_bytes() == b"earlier"  # not an output: kept
+
+
+def test_an_unwritten_output_is_kept_when_the_run_fails(tmp_path):
+    (tmp_path / "confidence.png").write_bytes(b"earlier")
+    plan, paths = plan_files(tmp_path, {"depth.npy": "depth map",
+                                        "confidence.png": "confidence map"}, overwrite=True)
+    with pytest.raises(RuntimeError):
+        with plan.writing(remove_unwritten=True) as write:
+            write(paths["depth.npy"], lambda tmp: tmp.write_bytes(b"new"))
+            raise RuntimeError("the run fails before its last output")
+    assert (tmp_path / "confidence.png").read_bytes() == b"earlier" and not plan.removed
+
+
 @pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0,
                     reason="needs a user whom file permissions bind")
 def test_a_read_only_folder_is_one_line(tmp_path):
@@ -135,6 +159,32 @@ def test_predict_keeps_earlier_results_unless_overwrite(tmp_path, capsys):
     assert main(_predict(paths, out, "--overwrite")) == 0
     np.testing.assert_array_equal(np.load(out / "depth.npy"), first)  # same depth map
     assert not [p for p in out.iterdir() if p.name.startswith(".")]
+
+
+def test_predict_overwrite_leaves_no_output_of_the_earlier_run(tmp_path, capsys):
+    """A network gives no confidence map: the label-free run's confidence.png goes, so the
+    folder never mixes two runs (said in the summary)."""
+    from datasets.synthetic import SyntheticScenes
+    from models.training import TrainConfig, Trainer
+
+    config = TrainConfig(steps=1, batch_size=1, width=4, out_dir=tmp_path / "run",
+                         progress=False, supervision="depth", depth_min=0.6, depth_max=4.5)
+    Trainer(config, SyntheticScenes(1, (16, 16), seed=0)).fit()
+    paths = _photos(tmp_path, ("aif", "near", "far"))
+    out = tmp_path / "out"
+    assert main(_predict(paths[1:], out, "--image", str(paths[0]))) == 0
+    assert (out / "confidence.png").is_file()
+    (out / "notes.txt").write_text("mine")
+    capsys.readouterr()
+    argv = ["predict", str(tmp_path / "run" / "checkpoints" / "last.pt"), "--image",
+            str(paths[0]), "--focused", *map(str, paths[1:]), "--focus-distance", "1", "3",
+            "--f-number", "2", "--focal-length", "0.05", "--pixel-pitch", "2e-5", "--out",
+            str(out), "--overwrite", "--quiet"]
+    assert main(argv) == 0
+    assert "removed confidence.png of the earlier run" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["depth.npy", "depth_mm.png", "depth.png", "all_in_focus.png", "figure.png",
+         "notes.txt"])
 
 
 def test_predict_refuses_a_symbolic_link_in_out(tmp_path, capsys):
@@ -195,3 +245,68 @@ def test_render_and_demo_keep_earlier_results(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--steps", "1"]) == 2
     assert "--overwrite" in _error(capsys)
     assert (tmp_path / "metrics.json").read_text() == "{}"
+
+
+# ---- the example scripts' --json and train's run folder -------------------------------------
+def test_benchmark_example_json_keeps_an_earlier_table_and_the_dataset(tmp_path, monkeypatch):
+    from test_examples import _benchmark_fixtures, load_example
+
+    write, extra = _benchmark_fixtures()["zedd"]
+    root = tmp_path / "data"
+    write(root)
+    module = load_example("zedd", monkeypatch)
+    earlier = tmp_path / "metrics.json"
+    earlier.write_text("{}")
+    argv = ["--root", str(root), "--device", "cpu", *extra, "--json"]
+    with pytest.raises(SystemExit, match=r"metrics\.json already exists .*--overwrite"):
+        module.main([*argv, str(earlier)])
+    assert earlier.read_text() == "{}"
+    data_file = next(p for p in sorted(root.rglob("*")) if p.is_file())
+    before = data_file.read_bytes()
+    with pytest.raises(SystemExit, match="input --root .*never written"):
+        module.main([*argv, str(data_file), "--overwrite"])
+    assert data_file.read_bytes() == before
+
+
+def test_dslr_example_json_is_checked_before_any_work(tmp_path, monkeypatch):
+    from test_examples import load_example
+
+    module = load_example("dslr", monkeypatch)
+    earlier, camera = tmp_path / "table.json", tmp_path / "cam.json"
+    earlier.write_text("{}")
+    camera.write_text("{}")
+    argv = ["--root", str(tmp_path / "absent"), "--out", str(tmp_path / "run"), "--json"]
+    with pytest.raises(SystemExit, match=r"table\.json already exists .*--overwrite"):
+        module.main([*argv, str(earlier)])  # refused before the missing --root is read
+    with pytest.raises(SystemExit, match="input --camera"):
+        module.main([*argv, str(camera), "--camera", str(camera), "--overwrite"])
+    assert earlier.read_text() == "{}" and camera.read_text() == "{}"
+
+
+def test_train_refuses_an_out_that_is_a_file_or_the_dataset(tmp_path, capsys):
+    from test_datasets_fixtures import write_nyu
+
+    root = tmp_path / "nyu"
+    write_nyu(root)
+    before = sorted(p.name for p in root.rglob("*"))
+    for out, message in ((root, "--out .* is the input --root"),
+                         (root / "run", "--out .* lies inside the input --root")):
+        assert main(["train", "--data", "nyu", "--root", str(root), "--out", str(out),
+                     "--set", "steps=1", "--overwrite"]) == 2
+        assert re.search(message, _error(capsys))
+    assert sorted(p.name for p in root.rglob("*")) == before
+    a_file = tmp_path / "notes.txt"
+    a_file.write_text("mine")
+    assert main(["train", "--out", str(a_file), "--set", "steps=1"]) == 2
+    assert f"--out {a_file} is a file, not a folder" in _error(capsys)
+    assert a_file.read_text() == "mine"
+
+
+def test_train_overwrite_never_deletes_the_config_it_reads(tmp_path, capsys):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yaml").write_text("steps: 1  # mine\n")
+    assert main(["train", "--config", str(run / "config.yaml"), "--out", str(run),
+                 "--overwrite"]) == 2
+    assert "which --overwrite deletes" in _error(capsys)
+    assert (run / "config.yaml").read_text() == "steps: 1  # mine\n"

@@ -195,16 +195,38 @@ def run_example(
                               **evaluate_kwargs)
 
 
+def plan_json_option(args: argparse.Namespace, what: str = "metrics JSON",
+                     inputs: Any = None) -> Any:
+    """The checked plan of an example's `--json` (`defocus.options.add_json_argument`), None
+    without it, made before any work: not an existing file of `--root` nor one of `inputs`
+    (`(name, path)` pairs), no earlier result replaced without `--overwrite`
+    (`defocus.app.outputs.plan_json`); a refusal ends the script in one line (`SystemExit`).
+
+    Example:
+        >>> plan_json_option(argparse.Namespace(json=None)) is None
+        True
+    """
+    from .outputs import plan_json
+
+    try:
+        return plan_json(getattr(args, "json", None), getattr(args, "overwrite", False),
+                         inputs, {"--root": getattr(args, "root", None)}, what)
+    except (OSError, ValueError) as error:
+        raise SystemExit(str(error)) from None
+
+
 def run_benchmark_example(name: str, args: argparse.Namespace, dataset: Dataset,
                           protocol: str | None, report: Report = _silent) -> dict[str, float] | None:
     """Score `args.method` on `dataset` with `protocol` (`models.metrics.PROTOCOLS`) and report
     the paper-style table; with no protocol (no ground truth) report the depth range of each
-    scene instead. Returns the metrics."""
-    import json
-
+    scene instead. Returns the metrics; `--json` is planned before any sample is scored and
+    written through the output policy (`plan_json_option`)."""
     from models.evaluation import label_free_method
     from models.metrics import PROTOCOLS, format_table
 
+    from .outputs import write_json
+
+    plan = plan_json_option(args)
     if args.threads:
         torch.set_num_threads(args.threads)
     kind = device_kind(args.device)
@@ -227,8 +249,8 @@ def run_benchmark_example(name: str, args: argparse.Namespace, dataset: Dataset,
     report(format_table({f"{method.name} (label-free)": metrics},
                         metrics=PROTOCOLS[protocol].metrics, number_format="{:.4g}"))
     report(f"protocol: {PROTOCOLS[protocol].source}")
-    if args.json:
-        args.json.write_text(json.dumps(metrics, indent=2))
+    if plan is not None:
+        write_json(plan, args.json, metrics)
     return metrics
 
 

@@ -14,6 +14,11 @@ the work, and writes them through it:
 5. Each file is written to a temporary name in its own folder and renamed over its path
    (`os.replace`) only once every output of the run is whole: a failure (a full disk, an
    interrupt) leaves the earlier files as they were and no half-written file behind.
+6. A folder never mixes two runs: with `--overwrite`, an earlier run's file of one of the
+   command's own output names that this run does not write (e.g. `confidence.png` of an
+   earlier `predict` whose method now gives none) is removed once the new files are in place
+   (`writing(remove_unwritten=True)`, reported in `OutputPlan.removed`); no other file is ever
+   touched.
 
 Example:
     >>> import tempfile
@@ -34,6 +39,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from pathlib import Path
@@ -83,6 +89,10 @@ class OutputPlan:
         self.overwrite = bool(overwrite)
         self.how = how
         self.outputs: dict[Path, tuple[Path, str]] = {}
+        #: planned outputs that held an earlier result when they were planned
+        self.earlier: set[Path] = set()
+        #: earlier results removed by `writing(remove_unwritten=True)`
+        self.removed: list[Path] = []
 
     def add(self, path: Path | str, what: str) -> Path:
         """Check that `path` may receive output `what` and plan it; returns `path`.
@@ -109,6 +119,8 @@ class OutputPlan:
             raise FileExistsError(f"{path} already exists (an earlier {what}); give --overwrite "
                                   f"to replace it, {self.how}")
         self.outputs[resolved] = (path, what)
+        if path.exists():
+            self.earlier.add(resolved)
         return path
 
     def _check_not_input(self, path: Path, resolved: Path, what: str) -> None:
@@ -128,10 +140,17 @@ class OutputPlan:
                                  "choose an output outside it")
 
     @contextlib.contextmanager
-    def writing(self) -> Iterator[Callable[[Path, Writer], Path]]:
+    def writing(self, remove_unwritten: bool = False) -> Iterator[Callable[[Path, Writer], Path]]:
         """A context that gives `write(path, writer)`: `writer` writes a planned output at a
         temporary path beside it (same suffix); on leaving the context every output is
-        renamed over its path, and on an error every temporary file is removed."""
+        renamed over its path, and on an error every temporary file is removed.
+
+        Args:
+            remove_unwritten: once every output is in place, also remove the planned outputs
+                that held an earlier result (replaced under `overwrite`) and that this run did
+                not write, so that the folder holds one run (policy 6); they are listed in
+                `removed`. Only planned paths are ever removed.
+        """
         staged: list[tuple[Path, Path]] = []
 
         def write(path: Path, writer: Writer) -> Path:
@@ -148,10 +167,20 @@ class OutputPlan:
             yield write
             for temporary, path in staged:
                 _guarded(path, lambda t=temporary, p=path: os.replace(t, p))
+            if remove_unwritten:
+                self._remove_unwritten({_resolved(path) for _, path in staged})
         finally:
             for temporary, _ in staged:
                 with contextlib.suppress(OSError):
                     temporary.unlink()
+
+    def _remove_unwritten(self, written: set[Path]) -> None:
+        """Remove the earlier results among the planned outputs that are not in `written`."""
+        for resolved in sorted(self.earlier - written):
+            path = self.outputs[resolved][0]
+            if path.is_symlink() or path.is_file():  # a link itself, never what it points to
+                _guarded(path, lambda p=path: p.unlink(missing_ok=True))
+                self.removed.append(path)
 
 
 def _guarded(path: Path, action: Callable[[], Any]) -> None:
@@ -186,3 +215,60 @@ def plan_files(folder: Path, names: Mapping[str, str], overwrite: bool,
     if folder.exists() and not folder.is_dir():
         raise NotADirectoryError(f"{option} {folder} is a file, not a folder")
     return plan, {name: plan.add(folder / name, what) for name, what in names.items()}
+
+
+def check_output_folder(folder: Path | str, option: str = "--out",
+                        input_folders: Inputs | None = None) -> Path:
+    """Refuse an output folder (a command's own folder, e.g. a training run's) that is a file,
+    a symbolic link, or an input folder (`--root`) or a folder inside one; returns `folder`.
+
+    Example:
+        >>> check_output_folder(Path("data/run"), "--out", {"--root": Path("data")})
+        Traceback (most recent call last):
+        ...
+        ValueError: --out data/run lies inside the input --root data: a run never writes into its input; choose an --out outside it
+    """
+    folder = Path(folder)
+    if folder.is_symlink():
+        raise ValueError(f"{option} {folder} is a symbolic link (to {os.readlink(folder)}); "
+                         f"outputs are never written through a link: choose another {option}")
+    if folder.exists() and not folder.is_dir():
+        raise NotADirectoryError(f"{option} {folder} is a file, not a folder; choose another "
+                                 f"{option}")
+    resolved = _resolved(folder)
+    for name, given in _pairs(input_folders):
+        if _inside(resolved, _resolved(given)):
+            where = "is" if resolved == _resolved(given) else "lies inside"
+            raise ValueError(f"{option} {folder} {where} the input {name} {given}: a run never "
+                             f"writes into its input; choose an {option} outside it")
+    return folder
+
+
+def plan_json(path: Path | None, overwrite: bool, inputs: Inputs | None = None,
+              input_folders: Inputs | None = None, what: str = "metrics JSON",
+              option: str = "--json") -> OutputPlan | None:
+    """The checked plan of one JSON output `path` (an option such as `--json`), None without
+    one: not an input nor an existing file of an input folder, no earlier result replaced
+    without `overwrite`.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "metrics.json"
+        >>> write_json(plan_json(path, overwrite=False), path, {"abs_rel": 0.1})
+        >>> plan_json(path, overwrite=False)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        FileExistsError: ...metrics.json already exists (an earlier metrics JSON); give --overwrite to replace it, or choose another --json
+    """
+    if path is None:
+        return None
+    plan = OutputPlan(inputs, input_folders, overwrite, how=f"or choose another {option}")
+    plan.add(path, what)
+    return plan
+
+
+def write_json(plan: OutputPlan, path: Path, data: Any) -> None:
+    """Write `data` as JSON at `path`, whole or not at all, through `plan` (`plan_json`)."""
+    text = json.dumps(data, indent=2)
+    with plan.writing() as write:
+        write(path, lambda tmp: tmp.write_text(text))

@@ -220,7 +220,9 @@ def image_shot_settings(request: PredictRequest, settings):
 
 def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]:
     """Run `defocus predict`'s whole job and write its outputs under `request.out`; returns
-    `estimate_depth`'s result with `written` (the files) and `method` added.
+    `estimate_depth`'s result with `written` (the files), `removed` (the files of an earlier
+    run that this one does not write, removed under `--overwrite` so that the folder holds one
+    run) and `method` added.
 
     Example:
         >>> out = predict(PredictRequest([Path("near.jpg"), Path("far.jpg")],
@@ -261,6 +263,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     out["low_confidence"] = None if out["confidence"] is None else \
         float((out["confidence"] < LOW_CONFIDENCE).float().mean())
     out["written"] = write_outputs(request.out, out, photos, plan)
+    out["removed"] = [path.name for path in plan.removed]
     return out
 
 
@@ -327,8 +330,9 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
     colour-mapped preview), confidence.png, all_in_focus.png and figure.png (the depths that may
     lie mirrored across the focus plane, `out["mirrored_depths"]`, hatched) under `folder`,
     each whole or not at all, through `plan`
-    (by default one that replaces no earlier result, `defocus.app.outputs`); returns the
-    names written."""
+    (by default one that replaces no earlier result, `defocus.app.outputs`); an earlier run's
+    file of `OUTPUT_FILES` that this run does not write (confidence.png where the method gives
+    no confidence) is removed (`plan.removed`); returns the names written."""
     import numpy as np
     from PIL import Image
 
@@ -356,7 +360,7 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
         confidence=confidence, image_label="all in focus (input)"
         if photos.image is not None else "all in focus (fused)",
         mirrored_depths=out.get("mirrored_depths"))
-    with plan.writing() as write:
+    with plan.writing(remove_unwritten=True) as write:
         for name, writer in files.items():
             write(folder / name, writer)
     return [name for name in files if name != "figure.png"]

@@ -58,6 +58,29 @@ def training_config(config: Path | None = None, overrides: Sequence[str] = (),
     return cfg.override(overrides)
 
 
+def check_out_dir(out_dir: Path, root: Path | None = None, config: Path | None = None,
+                  overwrite: bool = False) -> None:
+    """Refuse a run folder `out_dir` (`--out`) that cannot hold a run or would write an input,
+    before any data is read: a file, a symbolic link, the dataset folder `--root` or a folder
+    inside it (`defocus.app.outputs.check_output_folder`), or, with `--overwrite` (which
+    deletes the earlier run's files), a folder whose `config.yaml` is the `--config` given.
+
+    Example:
+        >>> check_out_dir(Path("data"), root=Path("data"))
+        Traceback (most recent call last):
+        ...
+        ValueError: --out data is the input --root data: a run never writes into its input; choose an --out outside it
+    """
+    from .outputs import check_output_folder
+
+    check_output_folder(out_dir, "--out", {"--root": root})
+    if overwrite and config is not None and (Path(out_dir) / "config.yaml").is_file() and \
+            (Path(out_dir) / "config.yaml").samefile(config):
+        raise ValueError(f"--config {config} is the config.yaml of the run in --out {out_dir}, "
+                         "which --overwrite deletes: copy it elsewhere first, or continue the "
+                         "run with --resume")
+
+
 def given_fields(config: Path | None = None, overrides: Sequence[str] = ()) -> set[str]:
     """The `TrainConfig` fields that a YAML file or `KEY=VALUE` overrides set."""
     import yaml

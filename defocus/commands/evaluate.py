@@ -4,10 +4,10 @@ of a method on a focal-stack benchmark with the benchmark's own protocol (`--dat
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from datasets.registry import STACK_DATASET_NAMES
+from defocus.app.outputs import write_json
 from defocus.errors import CommandError
 from defocus.options import (
     METHOD_NAMES,
@@ -52,22 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def plan_json(args: argparse.Namespace):
-    """The checked plan of `--json` (`defocus.app.outputs`), None without it: not the
+    """The checked plan of `--json` (`defocus.app.outputs.plan_json`), None without it: not the
     checkpoint nor a file of `--root`, no earlier result replaced without `--overwrite`."""
-    from defocus.app.outputs import OutputPlan
+    from defocus.app.outputs import plan_json as plan_one
 
-    if args.json is None:
-        return None
-    plan = OutputPlan({"CHECKPOINT": args.checkpoint}, {"--root": args.root}, args.overwrite,
-                      how="or choose another --json")
-    plan.add(args.json, "metrics JSON")
-    return plan
-
-
-def write_json(plan, path: Path, data: dict) -> None:
-    """Write `data` as JSON at `path`, whole or not at all, through `plan`."""
-    with plan.writing() as write:
-        write(path, lambda tmp: tmp.write_text(json.dumps(data, indent=2)))
+    return plan_one(args.json, args.overwrite, {"CHECKPOINT": args.checkpoint},
+                    {"--root": args.root})
 
 
 def run(args: argparse.Namespace) -> int:

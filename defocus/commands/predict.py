@@ -77,7 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "CPU), 'cpu' or 'cuda[:N]'")
     parser.add_argument("--out", type=Path, default=Path("runs/predict"),
                         help="output folder: depth.npy (metres), depth_mm.png (16-bit "
-                             "millimetres), confidence.png, all_in_focus.png, figure.png")
+                             "millimetres), confidence.png, all_in_focus.png, figure.png; with "
+                             "--overwrite an earlier run's files of these names that this run "
+                             "does not write are removed (one run per folder)")
     add_overwrite_argument(parser)
 
 
@@ -107,7 +109,9 @@ def run(args: argparse.Namespace) -> int:
     if mirrored is not None:
         doubt += (f"; depths {mirrored[0]:.2f}-{mirrored[1]:.2f} m may lie mirrored across the "
                   "focus plane (hatched in figure.png)")
+    removed = "" if not out["removed"] else \
+        f"; removed {', '.join(out['removed'])} of the earlier run (this run writes none)"
     print(f"depth {float(depth.min()):.2f}-{float(depth.max()):.2f} m (most pixels {low:.2f}-"
           f"{high:.2f} m){doubt}; wrote {', '.join(out['written'])} and figure.png under "
-          f"{args.out}")
+          f"{args.out}{removed}")
     return 0

@@ -6,7 +6,12 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from defocus.app.train import config_fields_help, fit_config_to_data, given_fields
+from defocus.app.train import (
+    check_out_dir,
+    config_fields_help,
+    fit_config_to_data,
+    given_fields,
+)
 from defocus.options import DefaultsOnceFormatter, add_data_arguments, dataset_from_options, say
 
 
@@ -59,6 +64,8 @@ def run(args: argparse.Namespace) -> int:
     from models.metrics import format_table
 
     cfg = training_config(args.config, args.overrides, args.out, args.resume, args.overwrite)
+    # before any data is read: a file, the dataset folder or a link is no run folder
+    check_out_dir(cfg.out_dir, args.root, args.config, args.overwrite)
     validation = None
     if args.data == "synthetic":
         def validation():
