@@ -85,22 +85,31 @@ def test_resume_with_workers_is_exact(tmp_path, augmented):
     assert _losses(resumed.fit()) == _losses(full)
 
 
-class _Broken(torch.utils.data.Dataset):
-    def __init__(self, scenes, bad_index):
-        self.scenes, self.bad_index = scenes, bad_index
+class _Hooked(torch.utils.data.Dataset):
+    """The scenes, with `before(index)` called before each is read."""
+
+    def __init__(self, scenes, before):
+        self.scenes, self.before = scenes, before
 
     def __len__(self):
         return len(self.scenes)
 
     def __getitem__(self, index):
-        if index == self.bad_index:
-            raise FileNotFoundError(f"scene {index}: missing file 'x.png'")
+        self.before(index)
         return self.scenes[index]
+
+
+def _missing_file_at(bad_index):
+    def before(index):
+        if index == bad_index:
+            raise FileNotFoundError(f"scene {index}: missing file 'x.png'")
+    return before
 
 
 @pytest.mark.parametrize("workers", [0, 1])
 def test_a_worker_error_arrives_with_its_type_and_words(tmp_path, scenes, workers):
-    trainer = Trainer(tiny_config(tmp_path / "run", workers=workers, steps=3), _Broken(scenes, 4))
+    broken = _Hooked(scenes, _missing_file_at(4))
+    trainer = Trainer(tiny_config(tmp_path / "run", workers=workers, steps=3), broken)
     with pytest.raises(FileNotFoundError, match="scene 4: missing file 'x.png'"):
         trainer.fit()
 
@@ -126,22 +135,11 @@ def test_each_step_is_split_into_data_wait_and_compute(tmp_path, scenes):
     assert {"data_s", "compute_s"} <= set(rows[0]) and len(rows) == 4
 
 
-class _Slow(torch.utils.data.Dataset):
-    def __init__(self, scenes, seconds):
-        self.scenes, self.seconds = scenes, seconds
-
-    def __len__(self):
-        return len(self.scenes)
-
-    def __getitem__(self, index):
-        time.sleep(self.seconds)
-        return self.scenes[index]
-
-
 def test_a_step_that_waits_for_its_data_warns(tmp_path, scenes):
     steps = WARMUP_STEPS + JUDGED_AFTER
+    slow = _Hooked(scenes, lambda _: time.sleep(0.05))
     trainer = Trainer(tiny_config(tmp_path / "run", workers=0, steps=steps, batch_size=1,
-                                  supervision="depth"), _Slow(scenes, 0.05))
+                                  supervision="depth"), slow)
     with pytest.warns(DataWaitWarning, match=r"waiting for data took \d+% .*workers=0 now"):
         trainer.fit()
     assert len(trainer.warnings) == 1
