@@ -135,15 +135,18 @@ def test_each_step_is_split_into_data_wait_and_compute(tmp_path, scenes):
     assert {"data_s", "compute_s"} <= set(rows[0]) and len(rows) == 4
 
 
-def test_a_step_that_waits_for_its_data_warns(tmp_path, scenes):
+def test_a_step_that_waits_for_its_data_warns(tmp_path, scenes, monkeypatch):
+    """Each batch arrives after a (simulated) second: the run warns once, in warnings.log too."""
+    arrive = BatchStream.__next__
+    monkeypatch.setattr(BatchStream, "__next__", lambda self: (arrive(self)[0], 1.0))
     steps = WARMUP_STEPS + JUDGED_AFTER
-    slow = _Hooked(scenes, lambda _: time.sleep(0.05))
     trainer = Trainer(tiny_config(tmp_path / "run", workers=0, steps=steps, batch_size=1,
-                                  supervision="depth"), slow)
+                                  supervision="depth"), scenes)
     with pytest.warns(DataWaitWarning, match=r"waiting for data took \d+% .*workers=0 now"):
         trainer.fit()
     assert len(trainer.warnings) == 1
     assert "waiting for data" in (tmp_path / "run" / "warnings.log").read_text()
+    assert all(row["data_s"] == 1.0 for row in trainer.history)
 
 
 def test_step_timer_judges_after_the_warm_up():
