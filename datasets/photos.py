@@ -21,7 +21,7 @@ from torch import Tensor
 
 from optics.photo_metadata import RAW_SUFFIXES, PhotoMetadata, read_metadata
 
-from .io import DataFormatError, check_image_size, require_file
+from .io import DataFormatError, check_image_size, check_stated_size, require_file
 
 #: How a JPEG, PNG or TIFF stores intensity (`read_photo`).
 ENCODINGS = ("srgb", "linear")
@@ -40,6 +40,7 @@ def _deep_colour(path: Path, opened) -> np.ndarray | None:
             and max(opened.tag_v2.get(258, (8,)), default=8) > 8)):
         import tifffile
 
+        _check_tiff_header(path)
         try:
             array = tifffile.imread(path, key=0)
         except Exception as error:  # noqa: BLE001 (tifffile raises many kinds)
@@ -70,6 +71,26 @@ def _deep_colour(path: Path, opened) -> np.ndarray | None:
             array[index] = row
         return array.reshape(height, width, planes)
     return None
+
+
+def _check_tiff_header(path: Path) -> None:
+    """Refuse, from its header, a TIFF of floating-point samples or more than
+    `MAX_IMAGE_PIXELS` pixels: Pillow reads no floating-point TIFF's header (`check_image_size`
+    cannot), and tifffile would decode it all first."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tiff:
+            shape, dtype = tuple(tiff.pages[0].shape), tiff.pages[0].dtype
+    except Exception:  # noqa: BLE001 (no readable header: reading the file says what is wrong)
+        return
+    if dtype is not None and not np.issubdtype(dtype, np.integer):
+        raise DataFormatError(
+            f"{str(path)!r}: holds {dtype} samples; save it as an 8- or 16-bit photo "
+            "(floating-point TIFFs say nothing of their encoding)")
+    if len(shape) >= 2:
+        planes = len(shape) == 3 and shape[0] in (3, 4) and shape[-1] not in (3, 4)
+        check_stated_size(path, *(shape[1:3] if planes else shape[:2]))
 
 
 #: EXIF orientation -> the turn that shows the stored `(H,W,C)` array upright.

@@ -84,6 +84,22 @@ def test_a_huge_png_header_stays_far_below_3_gb(tmp_path):
     assert refused == "refused" and int(peak_kib) < 3 * 1024 * 1024
 
 
+@pytest.mark.parametrize("dtype, message", [("float32", "holds float32 samples"),
+                                            ("uint16", "states 12000x12000 pixels")])
+def test_a_huge_tiff_is_refused_from_its_header(tmp_path, dtype, message):
+    """Pillow reads no floating-point TIFF header: tifffile's is read instead, before 144
+    megapixels are decoded (the files hold no pixel data: sparse)."""
+    import tifffile
+
+    path = tmp_path / "huge.tif"
+    tifffile.imwrite(path, shape=(3, 12000, 12000), dtype=dtype, photometric="rgb",
+                     planarconfig="separate")
+    started = time.perf_counter()
+    with pytest.raises(DataFormatError, match=message):
+        read_photo(path)
+    assert time.perf_counter() - started < 2
+
+
 def test_a_raw_file_over_the_pixel_limit_is_refused_before_decoding(tmp_path, monkeypatch):
     """LibRaw's sizes are read before anything is unpacked: a raw file stating more than
     MAX_IMAGE_PIXELS photosites is refused, its pixels never decoded."""
