@@ -117,10 +117,24 @@ def check_image_size(path: Path, what: str = "an image",
         raise DataFormatError(f"{str(path)!r}: its header states {count}; {too_large}") from None
     except Exception:  # noqa: BLE001 (not an image Pillow reads: the caller's reader decides)
         return None
-    if width * height > max_pixels:
-        raise DataFormatError(f"{str(path)!r}: its header states {height}x{width} pixels "
-                              f"({width * height / 1e6:.4g} megapixels); {too_large}")
+    check_stated_size(path, height, width, max_pixels)
     return height, width
+
+
+def check_stated_size(path: Path, height: int, width: int,
+                      max_pixels: int = MAX_IMAGE_PIXELS) -> None:
+    """Refuse (`DataFormatError`) an image whose header states more than `max_pixels` pixels.
+
+    Example:
+        >>> check_stated_size(Path("a.tif"), 20000, 20000)
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: 'a.tif': its header states 20000x20000 pixels (400 megapixels); at most 100 megapixels are read
+    """
+    if int(width) * int(height) > max_pixels:
+        raise DataFormatError(f"{str(path)!r}: its header states {height}x{width} pixels "
+                              f"({width * height / 1e6:.4g} megapixels); at most "
+                              f"{max_pixels / 1e6:g} megapixels are read")
 
 
 def read_image(path: Path, what: str = "an image") -> np.ndarray:

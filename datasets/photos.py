@@ -11,6 +11,7 @@ settings of photos are resolved by `optics.photo_settings`.
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,7 @@ from torch import Tensor
 
 from optics.photo_metadata import RAW_SUFFIXES, PhotoMetadata, read_metadata
 
-from .io import DataFormatError, check_image_size, require_file
+from .io import DataFormatError, check_image_size, check_stated_size, require_file
 
 #: How a JPEG, PNG or TIFF stores intensity (`read_photo`).
 ENCODINGS = ("srgb", "linear")
@@ -39,6 +40,7 @@ def _deep_colour(path: Path, opened) -> np.ndarray | None:
             and max(opened.tag_v2.get(258, (8,)), default=8) > 8)):
         import tifffile
 
+        _check_tiff_header(path)
         try:
             array = tifffile.imread(path, key=0)
         except Exception as error:  # noqa: BLE001 (tifffile raises many kinds)
@@ -69,6 +71,26 @@ def _deep_colour(path: Path, opened) -> np.ndarray | None:
             array[index] = row
         return array.reshape(height, width, planes)
     return None
+
+
+def _check_tiff_header(path: Path) -> None:
+    """Refuse, from its header, a TIFF of floating-point samples or more than
+    `MAX_IMAGE_PIXELS` pixels: Pillow reads no floating-point TIFF's header (`check_image_size`
+    cannot), and tifffile would decode it all first."""
+    import tifffile
+
+    try:
+        with tifffile.TiffFile(path) as tiff:
+            shape, dtype = tuple(tiff.pages[0].shape), tiff.pages[0].dtype
+    except Exception:  # noqa: BLE001 (no readable header: reading the file says what is wrong)
+        return
+    if dtype is not None and not np.issubdtype(dtype, np.integer):
+        raise DataFormatError(
+            f"{str(path)!r}: holds {dtype} samples; save it as an 8- or 16-bit photo "
+            "(floating-point TIFFs say nothing of their encoding)")
+    if len(shape) >= 2:
+        planes = len(shape) == 3 and shape[0] in (3, 4) and shape[-1] not in (3, 4)
+        check_stated_size(path, *(shape[1:3] if planes else shape[:2]))
 
 
 #: EXIF orientation -> the turn that shows the stored `(H,W,C)` array upright.
@@ -103,9 +125,41 @@ def _read_raw_photo(path: Path, dtype: torch.dtype) -> tuple[Tensor, PhotoMetada
     return torch.from_numpy(np.ascontiguousarray(upright)).permute(2, 0, 1), meta
 
 
-def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
-               encoding: str = "srgb") -> tuple[Tensor, PhotoMetadata]:
+#: Values converted at a time when a photo's samples become floating point (`read_photo`): the
+#: conversion holds no full-size temporary besides the photo itself.
+BLOCK_VALUES = 1 << 22
+#: Gives the tensor `(3, H, W)` that a photo of `(H, W)` pixels is decoded into (`read_photo`).
+Allocator = Callable[[tuple[int, int]], Tensor]
+
+
+def _to_linear(array: np.ndarray, dtype: torch.dtype, encoding: str,
+               into: Allocator | None) -> Tensor:
+    """`(H,W)` or `(H,W,C)` integer samples (the first three channels RGB) as a linear `(3,H,W)`
+    tensor in [0, 1], converted a block of rows at a time: no full-size float temporary."""
+    scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
+    if array.ndim == 2:  # grey: the same samples in each channel, copied block by block
+        array = np.broadcast_to(array[..., None], (*array.shape, 3))
+    height, width = array.shape[:2]
+    # the stored layout (rows of RGB triples) unless the caller gives the tensor to fill
+    image = torch.empty((height, width, 3), dtype=dtype).permute(2, 0, 1) if into is None \
+        else into((height, width))
+    if not (isinstance(image, Tensor) and tuple(image.shape) == (3, height, width)):
+        raise ValueError(f"into must give a (3, {height}, {width}) tensor, got "
+                         f"{getattr(image, 'shape', type(image).__name__)}")
+    rows = max(1, BLOCK_VALUES // (3 * width))
+    for start in range(0, height, rows):
+        block = torch.from_numpy(np.array(array[start:start + rows, :, :3]))  # a small copy
+        block = block.to(image.dtype).permute(2, 0, 1).div_(scale)
+        image[:, start:start + rows] = rgb_to_linear_rgb(block) if encoding == "srgb" else block
+    return image
+
+
+def read_photo(path: str | Path, dtype: torch.dtype = torch.float32, encoding: str = "srgb",
+               into: Allocator | None = None) -> tuple[Tensor, PhotoMetadata]:
     """Read an RGB photo upright as linear intensity `(3,H,W)` in [0, 1].
+
+    The samples become floating point a block of rows at a time: a 100-megapixel photo takes
+    its float32 result (1.2 GB) and its decoded samples (0.6 GB at 16 bits), no more.
 
     Args:
         path: JPEG, PNG or TIFF file (16-bit colour TIFFs and PNGs keep all 16 bits), or a raw
@@ -115,6 +169,9 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
         encoding: how a JPEG, PNG or TIFF stores intensity: `"srgb"` (what cameras and phones
             write) or `"linear"` (values proportional to the light, as scientific cameras and
             some 16-bit exports store them). Raw photos are always linear.
+        into: called with the photo's upright `(H, W)` once it is decoded, returns the `(3,H,W)`
+            tensor to write it into (e.g. one photo of a stack allocated for all of them, which
+            spares a copy of each; its dtype is kept); it may refuse a size.
 
     Returns:
         `(image, info)`: the photo and its `optics.PhotoMetadata` (what the file states; the
@@ -134,39 +191,47 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32,
         >>> image, info = read_photo(path)
         >>> image.shape, info.focal_length
         (torch.Size([3, 2, 4]), None)
+        >>> stack = torch.zeros(2, 3, 2, 4)
+        >>> _ = read_photo(path, into=lambda size: stack[1])
+        >>> stack[1, 0, 0, 0].item()
+        1.0
     """
-    from PIL import Image, ImageOps, UnidentifiedImageError
-
     if encoding not in ENCODINGS:
         raise ValueError(f"encoding must be one of {ENCODINGS}, got {encoding!r}")
     path = Path(path)
     require_file(path, "a photo")
     if path.suffix.lower() in RAW_SUFFIXES:
-        return _read_raw_photo(path, dtype)
+        image, info = _read_raw_photo(path, dtype)
+        if into is not None:
+            image = into(tuple(image.shape[-2:])).copy_(image)
+        return image, info
     check_image_size(path, "a photo")  # refused before decoding above MAX_IMAGE_PIXELS
+    array, info = _decoded(path)
+    return _to_linear(array, dtype, encoding, into), info
+
+
+def _decoded(path: Path) -> tuple[np.ndarray, PhotoMetadata]:
+    """The samples of a JPEG, PNG or TIFF, upright, as stored (uint8 or uint16), and what the
+    file states."""
+    from PIL import Image, ImageOps, UnidentifiedImageError
+
     try:
-        with Image.open(path) as opened:
-            info = read_metadata(path, image_size=(opened.height, opened.width))
-            deep = _deep_colour(path, opened)
-            if deep is None:
-                upright = ImageOps.exif_transpose(opened)
-                array = np.array(upright.convert("RGB") if upright.mode not in ("RGB", "I;16")
-                                 else upright)
+        with warnings.catch_warnings():  # the size was checked: `check_image_size`
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as opened:
+                info = read_metadata(path, image_size=(opened.height, opened.width))
+                deep = _deep_colour(path, opened)
+                if deep is None:
+                    upright = ImageOps.exif_transpose(opened)
+                    return np.asarray(upright.convert("RGB") if upright.mode not in
+                                      ("RGB", "I;16") else upright), info
     except (UnidentifiedImageError, OSError, ValueError) as error:
         # Pillow reads no floating-point colour TIFF: tifffile says what it holds
         deep = _deep_colour(path, None)
         if deep is None:
             raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
         info = PhotoMetadata(path)
-    if deep is not None:
-        array = _orient(deep, info.orientation)
-    if array.ndim == 2:
-        array = np.repeat(array[..., None], 3, axis=2)
-    scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
-    image = torch.from_numpy(np.ascontiguousarray(array[..., :3])).to(dtype).permute(2, 0, 1)
-    del array, deep
-    image = image.div_(scale)
-    return (rgb_to_linear_rgb(image) if encoding == "srgb" else image), info
+    return _orient(deep, info.orientation), info
 
 
 #: The largest share of a photo's pixels that may be black or saturated (clipped) for defocus to
@@ -189,9 +254,12 @@ def check_photo_content(photo: Tensor, name: str = "photo") -> None:
     if high - low <= 1e-6:
         raise ValueError(f"{name} is one flat colour (every pixel {low:.3g} in linear "
                          "intensity): it has no texture for defocus to blur")
-    black = photo.amax(0) <= 1e-4
-    saturated = photo.amin(0) >= 0.999
-    fraction = float((black | saturated).float().mean())
+    clipped, height, width = 0, photo.shape[-2], photo.shape[-1]
+    rows = max(1, BLOCK_VALUES // (3 * width))
+    for start in range(0, height, rows):  # block by block: no full-size temporary
+        block = photo[:, start:start + rows]
+        clipped += int(((block.amax(0) <= 1e-4) | (block.amin(0) >= 0.999)).sum())
+    fraction = clipped / max(height * width, 1)
     if fraction > MAX_CLIPPED_FRACTION:
         raise ValueError(f"{name} is {fraction:.1%} black or saturated pixels (at most "
                          f"{MAX_CLIPPED_FRACTION:.0%} may be): too little texture for defocus "

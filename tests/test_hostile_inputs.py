@@ -84,6 +84,22 @@ def test_a_huge_png_header_stays_far_below_3_gb(tmp_path):
     assert refused == "refused" and int(peak_kib) < 3 * 1024 * 1024
 
 
+@pytest.mark.parametrize("dtype, message", [("float32", "holds float32 samples"),
+                                            ("uint16", "states 12000x12000 pixels")])
+def test_a_huge_tiff_is_refused_from_its_header(tmp_path, dtype, message):
+    """Pillow reads no floating-point TIFF header: tifffile's is read instead, before 144
+    megapixels are decoded (the files hold no pixel data: sparse)."""
+    import tifffile
+
+    path = tmp_path / "huge.tif"
+    tifffile.imwrite(path, shape=(3, 12000, 12000), dtype=dtype, photometric="rgb",
+                     planarconfig="separate")
+    started = time.perf_counter()
+    with pytest.raises(DataFormatError, match=message):
+        read_photo(path)
+    assert time.perf_counter() - started < 2
+
+
 def test_a_raw_file_over_the_pixel_limit_is_refused_before_decoding(tmp_path, monkeypatch):
     """LibRaw's sizes are read before anything is unpacked: a raw file stating more than
     MAX_IMAGE_PIXELS photosites is refused, its pixels never decoded."""
@@ -112,6 +128,33 @@ def test_a_raw_file_over_the_pixel_limit_is_refused_before_decoding(tmp_path, mo
     monkeypatch.setattr(rawpy, "imread", lambda *args, **kwargs: HugeRaw())
     with pytest.raises(DataFormatError, match="20000x20000 photosites .*at most 100 megapixels"):
         read_photo(path)
+
+
+def test_a_16_bit_photo_is_read_without_full_size_temporaries(tmp_path):
+    """Reading holds the float32 photo and its decoded samples, no float copies (a 100-megapixel
+    16-bit photo, the limit, took 5.2 GB, now 2.2 GB), and checking it is finite holds nothing
+    of its size: measured on a 16-megapixel one in a fresh process."""
+    import tifffile
+
+    path = tmp_path / "photo.tif"
+    rng = np.random.default_rng(0)
+    tifffile.imwrite(path, rng.integers(0, 65535, (4000, 4000, 3), dtype=np.uint16),
+                     photometric="rgb")
+    code = ("import resource, sys, torch\n"
+            "from datasets.photos import read_photo\n"
+            "from optics.checks import check_finite\n"
+            "peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss\n"
+            "before = peak()\n"
+            "photo, _ = read_photo(sys.argv[1])\n"
+            "read = peak()\n"
+            "check_finite('photo', photo[None].expand(2, -1, -1, -1))\n"
+            "print(before, read, peak(), photo.numel() * photo.element_size() // 1024)\n")
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
+                          text=True, timeout=300, check=True)
+    before, read, checked, photo_kib = map(int, done.stdout.split())
+    # the photo (1) and its 16-bit samples (0.5), with room for the allocator (before: 4.3)
+    assert read - before < 3 * photo_kib
+    assert checked - read < 0.1 * photo_kib  # before: 0.25
 
 
 def test_an_npy_header_claiming_1e10_values_is_refused_before_loading(tmp_path):
@@ -197,6 +240,20 @@ def test_the_same_photo_twice_is_refused(tmp_path, capsys):
     assert main(_predict(photos * 2, tmp_path / "o", "--f-number", "2", "--depth-range", "0.5",
                          "5")) == 2
     assert "is the same photo as" in _one_line(capsys)
+    assert not (tmp_path / "o").exists()
+
+
+def test_photos_of_another_size_are_refused_by_name(tmp_path, capsys):
+    """The focused photos are decoded straight into their stack: a photo of another size is
+    refused naming it and the first, whether that is --image or the first --focused photo."""
+    small, large = _texture(0, (40, 48)), _texture(1, (40, 50))
+    photos = _photos(tmp_path, [small, large])
+    argv = _predict(photos, tmp_path / "o", "--f-number", "2", "--depth-range", "0.5", "5")
+    assert main(argv) == 2
+    assert f"{photos[1]} is (40, 50) pixels but {photos[0]} is (40, 48)" in _one_line(capsys)
+    (tmp_path / "aif").mkdir()
+    assert main([*argv, "--image", _photos(tmp_path / "aif", [_texture(2, (30, 48))])[0]]) == 2
+    assert "is (40, 48) pixels but" in _one_line(capsys)
     assert not (tmp_path / "o").exists()
 
 

@@ -159,36 +159,56 @@ def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_mode
 
 def read_photos(request: PredictRequest) -> Photos:
     """Read `--image` and the `--focused` photos: one size, none identical to another, none
-    without texture (`datasets.photos.check_photo_content`)."""
-    from datasets.photos import check_photo_content, read_photo
+    without texture (`datasets.photos.check_photo_content`). The focused photos are decoded
+    straight into their stack (`read_photo(into=...)`): no second copy of any photo."""
+    from datasets.photos import read_photo
 
     encoding = "linear" if request.linear else "srgb"
     image, image_info = read_photo(request.image, encoding=encoding) if request.image \
         else (None, None)
-    photos = [read_photo(path, encoding=encoding) for path in request.focused]
-    first_path, first = (request.image, image) if image is not None \
-        else (request.focused[0], photos[0][0])
-    named = ([("--image", request.image, image)] if image is not None else []) + \
-        [("--focused", path, photo) for path, (photo, _) in zip(request.focused, photos,
-                                                                strict=True)]
-    for index, (option, path, photo) in enumerate(named):
-        check_photo_content(photo, f"{option} {path}")
-        if photo.shape != first.shape:
-            raise ValueError(f"{path} is {tuple(photo.shape[-2:])} pixels but {first_path} is "
-                             f"{tuple(first.shape[-2:])}; all photos must have one size")
-        for other_option, other, earlier in named[:index]:
-            # --image may name a --focused file itself (that shot then also serves as the sharp
-            # one, as before); any other pair of identical shots is refused
-            if (other_option != option and Path(other) == Path(path)):
-                continue
-            if torch.equal(photo, earlier):
-                raise ValueError(f"{option} {path} is the same photo as {other_option} {other}: "
-                                 "two identical shots have no defocus between them to read; "
-                                 "give photos focused at different distances")
-    del first, named
+    named = [] if image is None else [("--image", request.image, image)]
+    _check_photo(named, 0)
+    stack: list[torch.Tensor] = []
+
+    def slot(index: int, path: Path):
+        def allocate(size: tuple[int, int]) -> torch.Tensor:
+            first_path, first = named[0][1:] if named else (path, None)
+            if first is not None and tuple(first.shape[-2:]) != tuple(size):
+                raise ValueError(f"{path} is {tuple(size)} pixels but {first_path} is "
+                                 f"{tuple(first.shape[-2:])}; all photos must have one size")
+            if not stack:
+                stack.append(torch.empty((len(request.focused), 3, *size)))
+            return stack[0][index]
+        return allocate
+
+    infos = []
+    for index, path in enumerate(request.focused):
+        infos.append(read_photo(path, encoding=encoding, into=slot(index, path))[1])
+        named.append(("--focused", path, stack[0][index]))
+        _check_photo(named, len(named) - 1)
     # without focused photos only a network that reads the all-in-focus photo alone runs
-    focused = torch.stack([p for p, _ in photos]) if photos else image[None]
-    return Photos(image, focused, image_info, [info for _, info in photos], first_path)
+    focused = stack[0] if stack else image[None]
+    return Photos(image, focused, image_info, infos, named[0][1])
+
+
+def _check_photo(named: list[tuple[str, Path, torch.Tensor]], index: int) -> None:
+    """Refuse photo `index` of `named` (`(option, path, photo)`) without texture or the same
+    as an earlier one."""
+    from datasets.photos import check_photo_content
+
+    if index >= len(named):
+        return
+    option, path, photo = named[index]
+    check_photo_content(photo, f"{option} {path}")
+    for other_option, other, earlier in named[:index]:
+        # --image may name a --focused file itself (that shot then also serves as the sharp
+        # one, as before); any other pair of identical shots is refused
+        if other_option != option and Path(other) == Path(path):
+            continue
+        if torch.equal(photo, earlier):
+            raise ValueError(f"{option} {path} is the same photo as {other_option} {other}: "
+                             "two identical shots have no defocus between them to read; "
+                             "give photos focused at different distances")
 
 
 def depth_range_of(request: PredictRequest, model: Any, n_photos: int) -> tuple[float, float]:
