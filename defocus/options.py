@@ -179,6 +179,13 @@ def add_training_arguments(parser: argparse.ArgumentParser, out: str) -> None:
     parser.add_argument("--out", type=Path, default=Path(out), help="run folder (logs, checkpoints)")
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    parser.add_argument("--workers", type=int, default=-1,
+                        help="processes preparing batches ahead of the step (-1: up to 4 on a "
+                             "GPU, none on a small CPU machine)")
+    parser.add_argument("--precision", choices=["float32", "bfloat16"], default="float32",
+                        help="the network's arithmetic (bfloat16: autocast; the renderer and "
+                             "the loss stay float32)")
+    parser.add_argument("--compile", action="store_true", help="torch.compile the network")
 
 
 def add_sample_arguments(parser: argparse.ArgumentParser) -> None:
