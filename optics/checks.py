@@ -100,7 +100,9 @@ def is_tracing(*tensors: Tensor) -> bool:
     """Whether `torch.compile` or `torch.export` is tracing (or any of `tensors` is a fake
     tensor made for tracing), or the block is `values_checked`: value checks are skipped then,
     since a traced graph cannot branch on tensor values; eager calls check them."""
-    if _VALUES_CHECKED.get() or torch.compiler.is_compiling() or torch.compiler.is_exporting():
+    if torch.compiler.is_compiling() or torch.compiler.is_exporting():
+        return True  # first: a traced graph must not read the context variable
+    if _VALUES_CHECKED.get():
         return True
     return any(type(t).__name__ == "FakeTensor" for t in tensors)
 
