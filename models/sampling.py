@@ -53,23 +53,19 @@ class StepSampler:
             indices.append(int(permutations[epoch][position % n]))
         return indices
 
-    def sample_seed(self, step: int, position: int) -> int:
-        """The seed of torch's global generator while the sample at `position` of this
-        process's part of the batch of `step` is prepared."""
-        return sample_seed(self.seed, step, self.rank, position)
-
     def samples(self, step: int) -> list[Mapping[str, Any]]:
         """This process's samples of step `step` (0-based).
 
-        From a map-style dataset each sample is prepared under `sample_seed(step, position)`
-        (torch's global generator is restored afterwards), so its random augmentation depends on
-        the step alone; an iterable's samples come in their own order and randomness.
+        From a map-style dataset each sample is prepared under torch's global generator seeded
+        by `sample_seed(seed, step, rank, position)` (and restored afterwards), so its random
+        augmentation depends on the step alone; an iterable's samples come in their own order
+        and randomness.
         """
         if self.is_map_style():
             samples = []
             with torch.random.fork_rng(devices=[]):
                 for position, index in enumerate(self.indices(step)):
-                    torch.manual_seed(self.sample_seed(step, position))
+                    torch.manual_seed(sample_seed(self.seed, step, self.rank, position))
                     samples.append(self.dataset[index])
             return samples
         per_step = self.batch_size * self.world_size

@@ -15,9 +15,9 @@ gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the 
 after each step, and only rank 0 writes files.
 
 Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
-seconds, `at_depth_limits`, `data_s`, `compute_s`), `val_log.csv` (validation metrics), `checkpoints/last.pt` (and the
-newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and `warnings.log` when a run ends with
-a warning.
+seconds, `at_depth_limits`, `data_s`, `compute_s`), `val_log.csv` (validation metrics),
+`checkpoints/last.pt` (and the newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and
+`warnings.log` when a run ends with a warning.
 
 One folder holds one run. `TrainConfig.resume` says what happens when `out_dir` already holds
 one: `"auto"` (default) continues it when its config is the same and otherwise refuses with
