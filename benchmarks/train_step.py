@@ -3,19 +3,22 @@
 Trains the small (or the paper's) network on a real dataset with the examples' defaults (random
 crops, flips and gains; loaded samples kept in memory, loaded once before timing as the examples
 do) and times each step, split into waiting for the batch (`data_s`) and computing it
-(`compute_s`). Each `--workers` setting is measured `--repeats` times, the settings interleaved
-in one process so that they share the machine's load; the table gives the medians and each
-setting's steps/s against the first setting's. Peak memory comes from a separate process per
-setting. `--profile` adds where a step's time goes: each phase's time and its count of
-elementary operations (on a GPU, about one kernel launch each), and the host time those
-operations take to issue, measured on this machine.
+(`compute_s`). `--network`, `--precision`, `--compile` and `--workers` take comma-separated
+lists; every combination is a setting, measured `--repeats` times, the settings interleaved in
+one process so that they share the machine's load and the samples are loaded once. The table
+gives the medians and each setting's steps/s against the first setting's. Peak memory is the
+CUDA allocator's peak (read in this process, which leaves the allocator as it is) or, on the CPU,
+the largest resident set of a separate process per setting. `--profile` adds where a step's
+time goes for each network: each phase's host time (and, on a GPU, its kernels' time), its
+count of elementary operations (on a GPU, about one kernel launch each), and the host time
+those operations take to issue, measured on this machine.
 
 Usage:
 
     python benchmarks/train_step.py --dataset dslr --root ../shared/data/real/dfd_indoor
     python benchmarks/train_step.py --dataset middlebury --root builtin --profile
-    python benchmarks/train_step.py --dataset dslr --root DIR --device cuda --network paper \\
-        --json out.json
+    python benchmarks/train_step.py --dataset dslr --root DIR --device cuda --network small,paper \\
+        --precision float32,bfloat16 --compile off,on --workers -1 --json out.json
 
 Run `uptime` next to it: on a shared machine the numbers move with the load.
 """
@@ -23,6 +26,7 @@ Run `uptime` next to it: on a shared machine the numbers move with the load.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import resource
 import statistics
@@ -30,6 +34,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -50,6 +55,20 @@ CPU_SPEED_RATIO_GOAL = 0.95
 PHASES = ("data", "network", "loss", "backward", "optimizer")
 
 
+@dataclass(frozen=True)
+class Setting:
+    """One measured combination of the options."""
+
+    network: str
+    precision: str
+    compile: bool
+    workers: int
+
+    def label(self) -> str:
+        return (f"{self.network}, {self.precision}{', compiled' if self.compile else ''}, "
+                f"workers={self.workers}")
+
+
 def training_set(args: argparse.Namespace) -> tuple[torch.utils.data.Dataset, dict]:
     """The augmented training set and the config fields it needs, its samples loaded once."""
     augment = JointAugment(crop_size=(args.crop, args.crop), hflip=0.5, gain=0.1)
@@ -66,43 +85,51 @@ def training_set(args: argparse.Namespace) -> tuple[torch.utils.data.Dataset, di
     return data.with_augment(augment), fields
 
 
-def config(args: argparse.Namespace, fields: dict, workers: int, steps: int,
+def config(args: argparse.Namespace, fields: dict, setting: Setting, steps: int,
            out: Path) -> TrainConfig:
-    return TrainConfig(steps=steps, batch_size=args.batch_size, network=args.network,
-                       out_dir=out, progress=False, device=args.device, workers=workers,
-                       checkpoint_minutes=0, precision=args.precision, compile=args.compile,
-                       resume="overwrite", **fields)
+    return TrainConfig(steps=steps, batch_size=args.batch_size, network=setting.network,
+                       out_dir=out, progress=False, device=args.device, workers=setting.workers,
+                       checkpoint_minutes=0, precision=setting.precision,
+                       compile=setting.compile, resume="overwrite", **fields)
 
 
-def measure(args: argparse.Namespace, data, fields: dict, workers: int) -> dict:
-    """Median step seconds and the data-wait share of one run of `--steps` timed steps."""
-    cfg = config(args, fields, workers, args.warmup + args.steps,
+def _is_cuda(args: argparse.Namespace) -> bool:
+    return torch.device(args.device).type == "cuda"
+
+
+def measure(args: argparse.Namespace, data, fields: dict, setting: Setting) -> dict:
+    """Median step seconds, the data-wait share and (CUDA) the allocator's peak of one run of
+    `--steps` timed steps."""
+    cfg = config(args, fields, setting, args.warmup + args.steps,
                  Path(tempfile.mkdtemp(prefix="defocus-bench-")))
+    if _is_cuda(args):
+        torch.cuda.reset_peak_memory_stats(args.device)
     trainer = Trainer(cfg, data)
     rows = trainer.fit()[args.warmup:]
     walls = [b["seconds"] - a["seconds"] for a, b in zip(rows, rows[1:], strict=False)]
     data_s = sum(r["data_s"] for r in rows)
+    peak = torch.cuda.max_memory_allocated(args.device) / 2**20 if _is_cuda(args) else None
     return {"s_per_step": statistics.median(walls),
             "data_share": data_s / sum(r["data_s"] + r["compute_s"] for r in rows),
-            "workers": trainer.workers}
+            "workers": trainer.workers, "peak_mb": peak}
 
 
-def peak_memory_mb(args: argparse.Namespace, workers: int) -> float:
-    """Peak memory of a separate process running a few steps of this setting, MiB (GPU: the
-    allocator's peak; CPU: the largest resident set of the process or a worker)."""
-    command = [sys.executable, __file__, *args.argv, "--memory-of", str(workers)]
+def peak_memory_mb(args: argparse.Namespace, setting: Setting) -> float:
+    """CPU: the largest resident set of a separate process (or of its workers) running a few
+    steps of this setting, MiB."""
+    command = [sys.executable, __file__, *args.argv, "--network", setting.network,
+               "--precision", setting.precision, "--compile", "on" if setting.compile else "off",
+               "--memory-of", str(setting.workers)]
     done = subprocess.run(command, capture_output=True, text=True, check=True)
     return float(done.stdout.strip().splitlines()[-1])
 
 
 def memory_of(args: argparse.Namespace) -> None:
     data, fields = training_set(args)
-    cfg = config(args, fields, args.memory_of, args.warmup + 3,
+    setting = Setting(args.network[-1], args.precision[-1], args.compile[-1], args.memory_of)
+    cfg = config(args, fields, setting, args.warmup + 3,
                  Path(tempfile.mkdtemp(prefix="defocus-bench-")))
     Trainer(cfg, data).fit()
-    if torch.device(cfg.device).type == "cuda":
-        print(torch.cuda.max_memory_allocated() / 2**20)
-        return
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     workers = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
     print(max(own, workers) / 1024)  # Linux: KiB
@@ -128,40 +155,53 @@ def _leaf_ops(event) -> int:
     return sum(_leaf_ops(c) for c in event.cpu_children)
 
 
-def profile(args: argparse.Namespace, data, fields: dict, workers: int) -> dict[str, dict]:
-    """Per phase of a step: milliseconds (mean over the profiled steps) and elementary ops."""
+def _kernel_us(event) -> float:
+    """Microseconds of device kernels launched under a profiled range."""
+    own = sum(k.duration for k in getattr(event, "kernels", []))
+    return own + sum(_kernel_us(c) for c in event.cpu_children)
+
+
+def profile(args: argparse.Namespace, data, fields: dict, setting: Setting) -> dict[str, dict]:
+    """Per phase of a step: host and kernel milliseconds (means over the profiled steps) and
+    elementary ops."""
     from torch.profiler import ProfilerActivity
     from torch.profiler import profile as torch_profile
 
     steps = 3
-    cfg = config(args, fields, workers, args.warmup + steps,
+    cfg = config(args, fields, setting, args.warmup + steps,
                  Path(tempfile.mkdtemp(prefix="defocus-bench-")))
     trainer = Trainer(cfg, data)
     trainer.fit(until=args.warmup)
     activities = [ProfilerActivity.CPU]
-    if torch.device(cfg.device).type == "cuda":
+    if _is_cuda(args):
         activities.append(ProfilerActivity.CUDA)
     with torch_profile(activities=activities) as prof:
         trainer.fit()
-    phases = {name: {"ms": 0.0, "ops": 0} for name in PHASES}
+    phases = {name: {"ms": 0.0, "kernel_ms": 0.0, "ops": 0} for name in PHASES}
     for event in prof.events():
         if event.name in phases and event.cpu_parent is None:
             phases[event.name]["ms"] += event.cpu_time_total / 1e3 / steps
+            phases[event.name]["kernel_ms"] += _kernel_us(event) / 1e3 / steps
             phases[event.name]["ops"] += _leaf_ops(event) // steps
     return phases
 
 
-def print_profile(phases: dict[str, dict], per_op_s: float) -> None:
+def print_profile(setting: Setting, phases: dict[str, dict], per_op_s: float,
+                  cuda: bool) -> None:
     total = sum(p["ms"] for p in phases.values())
     ops = sum(p["ops"] for p in phases.values())
-    print(f"\nWhere a step's time goes (host time to issue one op here: {per_op_s * 1e6:.1f} us)")
-    print("| phase | ms/step | share | elementary ops | issue time, ms |")
-    print("|---|---|---|---|---|")
+    kernel = " kernels, ms/step |" if cuda else ""
+    print(f"\nWhere a step's time goes ({setting.label()}; host time to issue one op here: "
+          f"{per_op_s * 1e6:.1f} us)")
+    print(f"| phase | host ms/step | share |{kernel} elementary ops | issue time, ms |")
+    print("|---|---|---|---|---|" + ("---|" if cuda else ""))
     for name, p in phases.items():
-        print(f"| {name} | {p['ms']:.1f} | {p['ms'] / max(total, 1e-9):.0%} | {p['ops']} | "
+        k = f" {p['kernel_ms']:.1f} |" if cuda else ""
+        print(f"| {name} | {p['ms']:.1f} | {p['ms'] / max(total, 1e-9):.0%} |{k} {p['ops']} | "
               f"{p['ops'] * per_op_s * 1e3:.1f} |")
     floor = ops * per_op_s
-    print(f"| all | {total:.1f} | 100% | {ops} | {floor * 1e3:.1f} |")
+    k = f" {sum(p['kernel_ms'] for p in phases.values()):.1f} |" if cuda else ""
+    print(f"| all | {total:.1f} | 100% |{k} {ops} | {floor * 1e3:.1f} |")
     print(f"Issuing the ops alone caps a step at {1 / floor:.0f} steps/s on any device; on a GPU "
           "the step takes at least that long unless the ops are fused (torch.compile) or "
           "captured (CUDA graphs).")
@@ -170,15 +210,29 @@ def print_profile(phases: dict[str, dict], per_op_s: float) -> None:
 def goals(kind: str, rows: list[dict], args: argparse.Namespace) -> list[tuple[str, bool]]:
     """(goal, met) for the table's rows."""
     best = max(rows, key=lambda r: r["steps_per_s"])
-    out = [(f"data wait <= {DATA_WAIT_GOAL[kind]:.0%} of the step (workers={best['workers']})",
+    out = [(f"data wait <= {DATA_WAIT_GOAL[kind]:.0%} of the step ({best['setting']})",
             best["data_share"] <= DATA_WAIT_GOAL[kind])]
     if kind == "cpu":
-        out += [(f"workers={r['workers']}: steps/s >= {CPU_SPEED_RATIO_GOAL:.2f}x the first "
-                 "setting", r["ratio"] >= CPU_SPEED_RATIO_GOAL) for r in rows[1:]]
-    elif args.network == "small" and args.batch_size == 8 and args.crop == 256:
-        out.append((f"small network >= {GPU_STEPS_PER_S_GOAL:.0f} steps/s",
-                    best["steps_per_s"] >= GPU_STEPS_PER_S_GOAL))
+        out += [(f"{r['setting']}: steps/s >= {CPU_SPEED_RATIO_GOAL:.2f}x the first setting",
+                 r["ratio"] >= CPU_SPEED_RATIO_GOAL) for r in rows[1:]]
+        return out
+    small = [r for r in rows if r["network"] == "small"]
+    if small and args.batch_size == 8 and args.crop == 256:
+        fastest = max(small, key=lambda r: r["steps_per_s"])
+        out.append((f"small network >= {GPU_STEPS_PER_S_GOAL:.0f} steps/s ({fastest['setting']})",
+                    fastest["steps_per_s"] >= GPU_STEPS_PER_S_GOAL))
     return out
+
+
+def _choices(name: str, allowed: tuple[str, ...]):
+    def parse_list(text: str) -> list[str]:
+        values = [v.strip() for v in text.split(",")]
+        bad = [v for v in values if v not in allowed]
+        if bad:
+            raise argparse.ArgumentTypeError(
+                f"{name} takes a comma-separated list of {', '.join(allowed)}; got {text!r}")
+        return values
+    return parse_list
 
 
 def parse(argv: list[str] | None) -> argparse.Namespace:
@@ -188,14 +242,18 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
                         "'builtin' for the scene embedded in scikit-image)")
     parser.add_argument("--camera", type=Path, default=None, help="dslr: a fitted camera JSON")
     parser.add_argument("--device", default="cpu", help="cpu, cuda, cuda:1, ...")
-    parser.add_argument("--network", choices=["small", "paper"], default="small")
+    parser.add_argument("--network", type=_choices("--network", ("small", "paper")),
+                        default=["small"], help="small, paper, or both: small,paper")
     parser.add_argument("--batch-size", type=int, default=8)
     parser.add_argument("--crop", type=int, default=None,
                         help="crop side, pixels (default: 128 on the CPU, 256 on a GPU)")
     parser.add_argument("--workers", default="0,-1",
                         help="comma-separated worker counts to compare (-1: automatic)")
-    parser.add_argument("--precision", choices=["float32", "bfloat16"], default="float32")
-    parser.add_argument("--compile", action="store_true", help="torch.compile the network")
+    parser.add_argument("--precision", type=_choices("--precision", ("float32", "bfloat16")),
+                        default=["float32"], help="float32, bfloat16, or both")
+    parser.add_argument("--compile", nargs="?", const=["on"], default=["off"],
+                        type=_choices("--compile", ("off", "on")),
+                        help="torch.compile the network: off, on (the flag alone), or off,on")
     parser.add_argument("--steps", type=int, default=10, help="timed steps per repetition")
     parser.add_argument("--warmup", type=int, default=3, help="untimed first steps")
     parser.add_argument("--repeats", type=int, default=3, help="repetitions per setting")
@@ -211,6 +269,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     if args.crop is None:
         args.crop = 256 if torch.device(args.device).type == "cuda" else 128
     args.workers = [int(w) for w in str(args.workers).split(",")]
+    args.compile = [c == "on" for c in args.compile]
     return args
 
 
@@ -222,29 +281,36 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     kind = torch.device(args.device).type
     data, fields = training_set(args)
-    runs: dict[int, list[dict]] = {w: [] for w in args.workers}
+    settings = [Setting(*s) for s in itertools.product(
+        args.network, args.precision, args.compile, args.workers)]
+    runs: dict[Setting, list[dict]] = {s: [] for s in settings}
     for _ in range(args.repeats):  # settings interleaved: they share the machine's load
-        for workers in args.workers:
-            runs[workers].append(measure(args, data, fields, workers))
+        for setting in settings:
+            runs[setting].append(measure(args, data, fields, setting))
     rows = []
-    for workers, measured in runs.items():
+    for setting, measured in runs.items():
         s = statistics.median(m["s_per_step"] for m in measured)
-        rows.append({"workers": measured[0]["workers"], "setting": workers,
-                     "steps_per_s": 1 / s, "s_per_step": s,
+        if kind == "cuda":
+            peak = max(m["peak_mb"] for m in measured)
+        else:
+            peak = None if args.no_memory else peak_memory_mb(args, setting)
+        rows.append({"setting": setting.label(), "network": setting.network,
+                     "precision": setting.precision, "compile": setting.compile,
+                     "workers": measured[0]["workers"], "steps_per_s": 1 / s, "s_per_step": s,
                      "data_share": statistics.median(m["data_share"] for m in measured),
-                     "protocol_minutes": PROTOCOL_STEPS * s / 60,
-                     "peak_mb": None if args.no_memory else peak_memory_mb(args, workers)})
+                     "protocol_minutes": PROTOCOL_STEPS * s / 60, "peak_mb": peak})
     for row in rows:
         row["ratio"] = row["steps_per_s"] / rows[0]["steps_per_s"]
-    print(f"{args.dataset}, {args.network} network, batch {args.batch_size}, "
-          f"{args.crop}x{args.crop} crops, {args.device}, {args.threads} thread(s), "
-          f"{args.precision}{', compiled' if args.compile else ''}; medians of {args.repeats} "
-          f"runs of {args.steps} steps")
-    print("| workers | steps/s | vs first | data wait | peak MiB | 20000 steps, min |")
-    print("|---|---|---|---|---|---|")
+    print(f"{args.dataset}, batch {args.batch_size}, {args.crop}x{args.crop} crops, "
+          f"{args.device}, {args.threads} thread(s); medians of {args.repeats} runs of "
+          f"{args.steps} steps")
+    print("| network | precision | compiled | workers | steps/s | vs first | data wait | "
+          "peak MiB | 20000 steps, min |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         peak = "-" if r["peak_mb"] is None else f"{r['peak_mb']:.0f}"
-        print(f"| {r['workers']} | {r['steps_per_s']:.2f} | {r['ratio']:.2f}x | "
+        print(f"| {r['network']} | {r['precision']} | {'yes' if r['compile'] else 'no'} | "
+              f"{r['workers']} | {r['steps_per_s']:.2f} | {r['ratio']:.2f}x | "
               f"{r['data_share']:.1%} | {peak} | {r['protocol_minutes']:.0f} |")
     results = {"args": {k: str(v) for k, v in vars(args).items() if k != "argv"}, "rows": rows,
                "goals": [{"goal": g, "met": met} for g, met in goals(kind, rows, args)]}
@@ -256,9 +322,13 @@ def main(argv: list[str] | None = None) -> int:
               "wait <= 5 %) are not measured.")
     if args.profile:
         per_op = issue_seconds_per_op()
-        results["profile"] = profile(args, data, fields, rows[-1]["workers"])
         results["issue_seconds_per_op"] = per_op
-        print_profile(results["profile"], per_op)
+        results["profile"] = {}
+        for network in args.network:
+            setting = Setting(network, args.precision[0], args.compile[0], args.workers[-1])
+            phases = profile(args, data, fields, setting)
+            results["profile"][setting.label()] = phases
+            print_profile(setting, phases, per_op, kind == "cuda")
     if args.json:
         args.json.write_text(json.dumps(results, indent=2))
     return 0

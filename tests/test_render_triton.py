@@ -64,7 +64,7 @@ def kernels(triton: bool):
                 stack.enter_context(op.set_kernel_enabled(DEVICE, triton))
         stack.enter_context(mock.patch.object(_render_cpp, "usable", lambda x: False))
         if not triton:
-            for name in ("render", "render_backward", "spread", "spread_backward"):
+            for name in ("render", "render_backward", "spread", "spread_backward", "window_sums"):
                 stack.enter_context(mock.patch.object(_render_triton, name, _not_triton))
         yield
 
@@ -198,6 +198,40 @@ def test_spread_operators_match_pytorch_path(kind, channels, dtype):
                         torch.utils._pytree.tree_leaves(expected), strict=True):
             scale = float(e.abs().max()) or 1.0
             torch.testing.assert_close(a / scale, e / scale, **tol)
+
+
+@pytest.mark.parametrize("half", [0, 1, 4])
+@pytest.mark.parametrize("kind", ["gaussian", "clamp"])
+def test_window_sums_match_pytorch_path(kind, half, dtype):
+    """The unit-energy sums of the spreads (`gaussian_window_sums`, `clamp_window_sums`), over
+    more pixels than one program holds; the clamp's window is cut from a wider table."""
+    _, _, _, param, dist = _spread_inputs(kind, 1, dtype, half=4, seed=6)
+    param = param.repeat(1, 1, 2, 1)  # 2 x 22 x 19 values: two programs and a partial one
+    half_t = torch.tensor(half)
+    if kind == "gaussian":
+        def call():
+            return _render_ops.gaussian_window_sums(param, half_t)
+    else:
+        def call():
+            return _render_ops.clamp_window_sums(param, dist, half_t)
+    with kernels(False):
+        expected = call()
+    with kernels(True):
+        got = call()
+    tol = {"rtol": 1e-5, "atol": 1e-5} if dtype == torch.float32 else {"rtol": 1e-12,
+                                                                        "atol": 1e-12}
+    for a, e in zip(got, expected, strict=True):
+        assert a.dtype == e.dtype == dtype
+        torch.testing.assert_close(a, e, **tol)
+
+
+def test_layered_mode_needs_no_host_read_of_the_window_sums():
+    """The disk's window sums on the Triton path read nothing back to the host (the PyTorch
+    loop lists the window's distinct distances)."""
+    _, _, _, rho, dist = _spread_inputs("clamp", 1, torch.float32, half=3)
+    with kernels(True), mock.patch.object(torch.Tensor, "tolist",
+                                          side_effect=AssertionError("host read")):
+        _render_ops.clamp_window_sums(rho, dist, torch.tensor(3))
 
 
 @pytest.mark.parametrize("name", list(APERTURES))

@@ -4,7 +4,8 @@
 |---|---|---|
 | fused scatter (`gaussian_render`, `clamp_render`, backwards) | C++ | Triton |
 | spreads (`gaussian_scatter`, `clamp_scatter`, backwards) | C++ | Triton |
-| gather, window sums, norms | C++ | PyTorch loops |
+| window sums (the spreads' unit-energy norms) | C++ | Triton |
+| gather | C++ | Triton (the spreads' backward kernels) |
 | layered (`layered_render`, backward) | C++ | (the renderer composes the spreads) |
 
 - **CPU**: the compiled C++ kernels (`optics.render.cpp`) run where `compiled_cpu(x)` holds (a
@@ -76,6 +77,14 @@ def _clamp_scatter_backward(grad, x, rho, dist, half):
     return _cast(triton_kernels.spread_backward(grad, x, rho, int(half), table), x, rho)
 
 
+def _gaussian_window_sums(sigma, half):
+    return _cast(triton_kernels.window_sums(sigma, int(half), None), sigma, sigma)
+
+
+def _clamp_window_sums(rho, dist, half):
+    return _cast(triton_kernels.window_sums(rho, int(half), window(dist, int(half))), rho, rho)
+
+
 #: The operators with Triton kernels and those kernels' wrappers.
 TRITON_KERNELS = (
     (ops.gaussian_render, _gaussian_render),
@@ -86,6 +95,8 @@ TRITON_KERNELS = (
     (ops.gaussian_scatter_backward, _gaussian_scatter_backward),
     (ops.clamp_scatter, _clamp_scatter),
     (ops.clamp_scatter_backward, _clamp_scatter_backward),
+    (ops.gaussian_window_sums, _gaussian_window_sums),
+    (ops.clamp_window_sums, _clamp_window_sums),
 )
 
 

@@ -329,15 +329,12 @@ def composite_layers(spread: Tensor, n_layers: int) -> Tensor:
     seen through the transmittance left by the layers in front; normalised by the coverage."""
     b, _, h, w = spread.shape
     spread = spread.view(b, n_layers, -1, h, w)
-    colour = torch.zeros_like(spread[:, 0, :-1])
-    coverage = torch.zeros_like(spread[:, 0, -1:])
-    transmittance = torch.ones_like(coverage)
-    for layer in range(n_layers):
-        layer_alpha = spread[:, layer, -1:]
-        colour = colour + transmittance * spread[:, layer, :-1]
-        coverage = coverage + transmittance * layer_alpha
-        transmittance = transmittance * (1 - layer_alpha.clamp(max=1.0))
-    return colour / coverage.clamp_min(torch.finfo(spread.dtype).tiny)
+    clear = 1 - spread[:, :, -1:].clamp(max=1.0)  # (B, L, 1, H, W): what each layer lets through
+    seen = [torch.ones_like(clear[:, 0])]
+    for layer in range(n_layers - 1):  # a product over (B, 1, H, W) maps: few kernels on a GPU
+        seen.append(seen[-1] * clear[:, layer])
+    total = (torch.stack(seen, 1) * spread).sum(1)  # colour, then coverage
+    return total[:, :-1] / total[:, -1:].clamp_min(torch.finfo(spread.dtype).tiny)
 
 
 class DefocusRenderer(nn.Module):

@@ -13,6 +13,8 @@ and loops over the `K x K` offsets, so no atomics are needed.
 - Backward, per source `q`: `sum_u w_q(u) G(q + u)` and `sum_u w'_q(u) G(q + u)` with `G` the
   gradient of the unnormalised spread `s` (`ops.grad_of_spread`), finished in the same
   program into `dL/dx` and `dL/dsigma` (or `dL/drho`), as `optics.render.ops` does in PyTorch.
+- The window sums (`defocus::gaussian_window_sums`, `defocus::clamp_window_sums`: the unit-energy
+  factor of the spreads and its derivative) in one per-pixel pass.
 - The unnormalised spreads take any number of channels (the layered mode spreads `L (C + 1)`),
   `CHANNEL_GROUP` of them per program (axis 2 of the grid), with the per-source factor `norm`
   applied beforehand; their backward returns `sum_u w_q(u) g(q + u)` per channel and, summed over
@@ -95,29 +97,41 @@ def _within(d, tap, limit, GAUSSIAN: tl.constexpr):
 
 
 @_jit
+def _window_sums(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
+    """`(Z, dZ)` over a source's full window: Gaussian (`param` = sigma, `coef = -1 / (2
+    sigma^2)`) the line sums `sum_d t(d)` and `sum_d t(d) d^2`, `t(d) = exp(coef d^2)`,
+    `d = -half..half` (the weight factorises, `Z` is the first squared); clamp (`param` = rho,
+    `coef` unused) `sum_u clamp(rho - D(u), 0, 1)` and its slope in rho."""
+    if GAUSSIAN:
+        total = tl.zeros_like(param) + 1.0
+        second = tl.zeros_like(param)
+        for d in range(1, half + 1):
+            term = 2.0 * tl.exp(coef * (d * d))
+            total += term
+            second += term * (d * d)
+    else:
+        total = tl.zeros_like(param)
+        second = tl.zeros_like(param)
+        for i in range(0, (2 * half + 1) * (2 * half + 1)):
+            t = param - tl.load(table_ptr + i)
+            total += tl.minimum(tl.maximum(t, 0.0), 1.0)
+            second += tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
+    return total, second
+
+
+@_jit
 def _unit_energy(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
     """`(norm, dnorm)`: `1 / Z` over the full window and its derivative in sigma (or rho).
 
     `param` is sigma (Gaussian, `coef = -1 / (2 sigma^2)`) or rho (clamp, `coef` unused).
     """
+    total, second = _window_sums(param, coef, table_ptr, half, GAUSSIAN)
     if GAUSSIAN:
-        line = tl.zeros_like(param) + 1.0
-        moment = tl.zeros_like(param)
-        for d in range(1, half + 1):
-            term = 2.0 * tl.exp(coef * (d * d))
-            line += term
-            moment += term * (d * d)
-        norm = 1.0 / (line * line)
-        dnorm = -2.0 * moment / (param * param * param * line * line * line)
+        norm = 1.0 / (total * total)
+        dnorm = -2.0 * second / (param * param * param * total * total * total)
     else:
-        total = tl.zeros_like(param)
-        slope = tl.zeros_like(param)
-        for i in range(0, (2 * half + 1) * (2 * half + 1)):
-            t = param - tl.load(table_ptr + i)
-            total += tl.minimum(tl.maximum(t, 0.0), 1.0)
-            slope += tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
         norm = 1.0 / total
-        dnorm = -slope * norm * norm
+        dnorm = -second * norm * norm
     return norm, dnorm
 
 
@@ -229,6 +243,18 @@ def _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W, half, PLANES: tl
                        limit, row0, r, col, ch < PLANES, H, W, half, GAUSSIAN, BLOCK_H)
     row = row0 + r
     return acc, b, HW, ch, row * W + col, (row < H) & (col < W)
+
+
+@_jit
+def _window_sums_kernel(param_ptr, table_ptr, total_ptr, second_ptr, N, half,
+                        GAUSSIAN: tl.constexpr, BLOCK: tl.constexpr):
+    """Per pixel of a `param` map (`N` values): `_window_sums`, stored in two maps."""
+    pix = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
+    inside = pix < N
+    param = tl.load(param_ptr + pix, mask=inside, other=1.0)
+    total, second = _window_sums(param, -0.5 / (param * param), table_ptr, half, GAUSSIAN)
+    tl.store(total_ptr + pix, total, mask=inside)
+    tl.store(second_ptr + pix, second, mask=inside)
 
 
 @_jit
@@ -433,3 +459,17 @@ def spread_backward(grad: Tensor, x: Tensor, param: Tensor, half: int,
             GAUSSIAN=gaussian, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS,
         )
     return dx_raw, shares.sum(1, keepdim=True)
+
+
+def window_sums(param: Tensor, half: int, table: Tensor | None) -> tuple[Tensor, Tensor]:
+    """The window sums of `ops.gaussian_window_sums` (`param` = sigma, `table` None: `sum_d t(d)`
+    and `sum_d t(d) d^2`) or `ops.clamp_window_sums` (`param` = rho, `table` the distance
+    table: `Z` and `dZ/drho`), per pixel of `param`, in one pass."""
+    param, _, table, gaussian = _operands(param, param, table)
+    total, second = torch.empty_like(param), torch.empty_like(param)
+    with _device_of(param):
+        _window_sums_kernel[(triton.cdiv(param.numel(), BLOCK_PREP),)](
+            param, table, total, second, param.numel(), half, GAUSSIAN=gaussian,
+            BLOCK=BLOCK_PREP, num_warps=NUM_WARPS,
+        )
+    return total, second
