@@ -26,7 +26,10 @@ other split is scored, the paper's protocol):
    far side's bound near (`models.networks.DepthHead`);
 4. scores them on the held-out scenes beside the label-free `predict` (no training: the f/8
    photo as one more shot, `estimate_depth(image_settings=...)`, with the fitted camera) and the
-   best constant depth of the training scenes, prints the table (``--json PATH`` writes it).
+   best constant depth of the training scenes, prints the table (``--json PATH`` writes it). A
+   row marked ``bound:`` scores the true depth with its ambiguous blur put on ``--side``
+   (`models.diagnostics.fold_to_side`): what a self-supervised network that found the loss's
+   best everywhere would score under that prior. No training can do better on those scenes.
 
 CPU (default: 2.5 minutes per network, about 10 minutes on 2 cores)::
 
@@ -57,6 +60,25 @@ from optics import DEFAULT_APERTURE
 
 #: The scenes' depth lies within this range, metres (the release's depth: about 0.4 to 10 m).
 DEPTH_RANGE = (0.5, 10.0)
+
+
+def side_bound_row(val: DSLR, depth_range: tuple[float, float],
+                   side: str) -> dict[str, dict[str, float]]:
+    """The error that no self-supervised training removes under the side prior: each scored
+    scene's true depth with its ambiguous blur put on `side` (`fold_to_side`), averaged."""
+    from models.diagnostics import fold_to_side
+    from models.metrics import depth_metrics
+
+    totals: dict[str, float] = {}
+    for index in range(len(val)):
+        sample = val[index]
+        focus = float(sample["camera"].focus_distance.reshape(-1)[0])
+        folded = fold_to_side(sample["depth"], focus, depth_range, side)
+        found = depth_metrics(pred=folded[None], target=sample["depth"][None],
+                              mask=sample["mask"][None])
+        for key, value in found.items():
+            totals[key] = totals.get(key, 0.0) + value / len(val)
+    return {f"bound: the true depth through one focus plane, side {side}": totals}
 
 
 def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int,
@@ -219,6 +241,8 @@ def main(argv: list[str] | None = None) -> int:
           f"({val.ids[0]} to {val.ids[-1]}), camera {json.loads(Path(camera).read_text())}")
     depth_range = DEPTH_RANGE if args.depth_range is None else tuple(args.depth_range)
     rows = network_rows(args, train, val, depth_range)
+    if args.side != "both":
+        rows.update(side_bound_row(val, depth_range, args.side))
     rows.update(label_free_rows(lens, depth_range, args.predict_pixels, args.predict_side))
     from models.metrics import format_table
 

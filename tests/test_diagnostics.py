@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from datasets.pairs import register_focused, relative_pair
-from models.diagnostics import loss_at_depths, mirror_depth, true_depth_wins
+from models.diagnostics import fold_to_side, loss_at_depths, mirror_depth, true_depth_wins
 from models.losses import DefocusLoss
 from models.networks import DepthHead
 from models.train_config import TrainConfig
@@ -105,6 +105,30 @@ def test_depth_head_side_prior(side):
         # beyond the plane wherever the far side explains the blur, near only above the bound
         assert bool((blur[~beyond] > bound - 1e-4).all()) and bool(beyond[:1000].all())
         assert float(head(torch.tensor(0.0))) > FOCUS  # an untrained network starts beyond
+
+
+@pytest.mark.parametrize("side", ["beyond", "before"])
+def test_fold_to_side_is_what_the_depth_head_can_output(side, dtype):
+    """Every folded depth has its true blur and is the one depth of that blur the head outputs
+    (the head's curve, sampled densely, interpolated in blur)."""
+    depth = torch.linspace(0.5, 10.0, 400, dtype=dtype)
+    folded = fold_to_side(depth, FOCUS, (0.5, 10.0), side)
+    blur, folded_blur = (1 / depth - 1 / FOCUS).abs(), (1 / folded - 1 / FOCUS).abs()
+    inside = (folded > 0.5 + 1e-6) & (folded < 10.0 - 1e-6)
+    torch.testing.assert_close(folded_blur[inside], blur[inside])
+    head = DepthHead(0.5, 10.0, side=side, focus_distance=FOCUS).to(dtype)
+    curve = head(torch.linspace(-14, 14, 20001, dtype=dtype))
+    curve_blur = (1 / curve - 1 / FOCUS).abs()
+    nearest = (curve_blur[None, :] - folded_blur[inside, None]).abs().argmin(1)
+    torch.testing.assert_close(curve[nearest], folded[inside], rtol=2e-3, atol=0)
+    if side == "before":
+        assert bool((folded <= FOCUS + 1e-6).all())
+    else:  # near only where the far side cannot explain the blur
+        bound = 1 / FOCUS - 1 / 10.0
+        assert bool((blur[folded < FOCUS] > bound - 1e-6).all())
+    assert torch.equal(fold_to_side(depth, FOCUS, (0.5, 10.0), "both"), depth)
+    with pytest.raises(ValueError, match="side must be"):
+        fold_to_side(depth, FOCUS, (0.5, 10.0), "left")
 
 
 def test_side_prior_needs_a_focus_distance():

@@ -161,9 +161,10 @@ REAL_DSLR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "re
 def _check_dslr_table(out: str, scenes: int) -> None:
     assert f"DSLR validation ({scenes} scenes, never used to fit or train)" in out
     for row in ("[self-supervised", "[depth-supervised]", "label-free predict",
-                "the paper's setting", "best constant depth"):
+                "the paper's setting", "best constant depth",
+                "bound: the true depth through one focus plane, side beyond"):
         assert row in out
-    assert out.count("x the constant's") == 5
+    assert out.count("x the constant's") == 6
 
 
 def test_dslr_example_help(monkeypatch, capsys):
