@@ -269,8 +269,13 @@ class CameraSettings:
         return dataclasses.replace(self, **{k: fn(v) for k, v in self.tensors().items()})
 
     def to(self, *args: Any, **kwargs: Any) -> CameraSettings:
-        """Move or cast every tensor, as `Tensor.to`."""
+        """Move or cast every tensor, as `Tensor.to` (`non_blocking=True` too)."""
         return self._map(lambda t: t.to(*args, **kwargs))
+
+    def pin_memory(self) -> CameraSettings:
+        """The settings with their tensors in page-locked memory (what a `DataLoader` with
+        `pin_memory=True` calls), so that `.to("cuda", non_blocking=True)` does not wait."""
+        return self._map(lambda t: t.pin_memory())
 
     def replace(self, **changes: Any) -> CameraSettings:
         """A copy with some fields changed (checked again).

@@ -62,6 +62,36 @@ def test_workers_give_the_same_batches_as_the_loop(augmented):
     assert not torch.equal(inline[0]["image"], inline[1]["image"])
 
 
+def test_moving_a_batch_to_the_device_reads_no_values(augmented, monkeypatch):
+    """The batch was checked where it was prepared: moving it (camera settings included) runs
+    no value check, which on a GPU would wait for the device's queue each step."""
+    from optics import CameraSettings
+
+    sampler = StepSampler(augmented, batch_size=3, seed=5)
+    with BatchStream(sampler, 0, 2, torch.device("cpu"), workers=0) as stream:
+        batch = stream.batches.batch(0)
+        assert isinstance(batch["camera"], CameraSettings)
+
+        def refuse(self):
+            raise AssertionError("a value check while moving the batch")
+
+        monkeypatch.setattr(stream.batches, "batch", lambda step: batch)  # prepared already
+        monkeypatch.setattr(CameraSettings, "check", refuse)
+        moved, _ = next(stream)
+    assert isinstance(moved["camera"], CameraSettings)
+    assert torch.equal(moved["camera"].focus_distance, batch["camera"].focus_distance)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="pinned memory needs CUDA")
+def test_camera_settings_pin_and_move_without_waiting():
+    from optics import CameraSettings
+
+    pinned = CameraSettings(0.05, 2.0, [[2.0, 6.0]], 1e-5).pin_memory()
+    assert all(t.is_pinned() for t in pinned.tensors().values())
+    moved = pinned.to("cuda", non_blocking=True)
+    assert moved.focus_distance.is_cuda
+
+
 def test_sample_randomness_leaves_the_global_generator_alone(augmented):
     torch.manual_seed(123)
     expected = torch.rand(3)

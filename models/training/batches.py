@@ -29,6 +29,7 @@ import torch
 from torch.utils.data import DataLoader, Dataset
 
 from optics import collate
+from optics.checks import values_checked
 
 from ..sampling import StepSampler
 from .state import to_device
@@ -160,7 +161,8 @@ class BatchStream:
         batch = next(iter(self)._iterator)
         if isinstance(batch, _Failure):
             batch.reraise()
-        batch = to_device(batch, self.device, non_blocking=True)
+        with values_checked():  # checked where prepared; a check here would wait for the device
+            batch = to_device(batch, self.device, non_blocking=True)
         return batch, time.perf_counter() - started
 
     def close(self) -> None:

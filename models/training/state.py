@@ -69,5 +69,7 @@ def to_device(batch: Any, device: torch.device, dtype: torch.dtype | None = None
     if isinstance(batch, list | tuple):
         return type(batch)(to_device(v, device, dtype, non_blocking) for v in batch)
     if isinstance(batch, CameraSettings):
-        return batch.to(device=device, dtype=dtype) if dtype is not None else batch.to(device)
+        if dtype is not None:
+            return batch.to(device=device, dtype=dtype, non_blocking=non_blocking)
+        return batch.to(device, non_blocking=non_blocking)
     return batch
