@@ -20,7 +20,8 @@ and whether the self-supervised loss (`DefocusLoss`, the fitted camera, relative
 scene by scene, its value at the true depth, at its mirror across the focus plane, at the ends
 of the depth range, at the focus plane and at the best constant of the training depths
 (`models.diagnostics.loss_at_depths`), with the pairs as loaded and registered
-(`datasets.pairs.register_focused`). Where the true depth does not score best, no network
+(`datasets.pairs.register_focused`), and registered with the fitted blur scaled to the one the
+loss prefers on the training scenes (`models.diagnostics.match_blur_scale`). Where the true depth does not score best, no network
 trained through the loss can find it.
 
 CPU, about 10 minutes on 2 cores::
@@ -41,7 +42,7 @@ from datasets import DSLR
 from datasets.calibration import calibrate_dataset
 from datasets.pairs import soften
 from models.depth_from_photos import estimate_depth
-from models.diagnostics import loss_at_depths, true_depth_wins
+from models.diagnostics import loss_at_depths, match_blur_scale, true_depth_wins
 from models.losses import DefocusLoss
 from models.metrics import best_constant_depth, depth_metrics
 from optics.progress import progress_bar
@@ -123,20 +124,39 @@ def photo_differences(train: DSLR, indices: list[int]) -> dict[str, str]:
     }
 
 
-def loss_diagnostic(root: Path, scenes: range, camera: Path, constant: float) -> None:
-    """Print the loss at the true depth and the alternatives, each scene, loaded and registered."""
-    for register in (False, True):
+def loss_diagnostic(root: Path, scenes: range, cameras: dict[str, Path], constant: float) -> None:
+    """Print the loss at the true depth and the alternatives, each scene: the pairs as loaded
+    and registered with the fitted camera, then registered with each other camera of
+    `cameras` (label -> camera JSON; the first is the fitted one)."""
+    fitted = next(iter(cameras.values()))
+    variants = [("as loaded", fitted, False), ("registered", fitted, True)]
+    variants += [(f"registered, {label}", path, True) for label, path in list(cameras.items())[1:]]
+    for label, camera, register in variants:
         pairs = DSLR(root, scenes=scenes, camera=camera, relative=True, register=register)
         rows = loss_at_depths(pairs, DefocusLoss(), DEPTH_RANGE, constants=(constant,))
         wins = sum(true_depth_wins(row) for row in rows)
         names = [k for k in rows[0] if k != "id"]
-        print(f"\nthe loss on the {len(rows)} validation scenes, pairs "
-              f"{'registered' if register else 'as loaded'}: the true depth within 2 % of the "
-              f"best constant on {wins} of {len(rows)}")
+        print(f"\nthe loss on the {len(rows)} validation scenes, pairs {label}: the true depth "
+              f"within 2 % of the best constant on {wins} of {len(rows)}")
         print("  " + " ".join(f"{n:>14}" for n in names))
         for row in rows:
             mark = "" if true_depth_wins(row) else "  <- a constant wins"
             print("  " + " ".join(f"{row[n]:14.4f}" for n in names) + f"  {row['id']}{mark}")
+
+
+def loss_matched_camera(root: Path, scenes: list[int], camera: Path, out: Path) -> Path:
+    """The fitted camera with its blur scaled to what the loss prefers at the true depth of the
+    training `scenes` (`match_blur_scale`), written to `out`."""
+    from optics import CameraSettings
+
+    pairs = DSLR(root, scenes=scenes, camera=camera, relative=True)
+    scale = match_blur_scale(pairs, DefocusLoss())
+    settings, extra = CameraSettings.read_json(camera)
+    settings.replace(pixel_pitch=settings.pixel_pitch / scale).to_json(
+        out, **extra, loss_blur_scale=scale)
+    print(f"the loss prefers {scale:g}x the fitted blur at the true depth of the training "
+          f"scenes -> {out}")
+    return out
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -176,8 +196,11 @@ def main(argv: list[str] | None = None) -> int:
     print(f"pixels nearer than the focus plane: {100 * sum(near) / len(near):.0f} % (training)")
     from models.experiment import constant_from_training
 
-    loss_diagnostic(args.root, range(count - args.val, count), args.out / "camera.json",
-                    constant_from_training(train))
+    matched = loss_matched_camera(args.root, every, args.out / "camera.json",
+                                  args.out / "camera_loss.json")
+    loss_diagnostic(args.root, range(count - args.val, count),
+                    {"fitted camera": args.out / "camera.json",
+                     "the blur the loss prefers": matched}, constant_from_training(train))
     val = DSLR(args.root, scenes=range(count - args.val, count), camera=args.out / "camera.json")
     stated = DSLR(args.root, scenes=range(count - args.val, count))
     print(f"\nestimate_depth on the {len(val)} validation scenes, mean abs rel, depth range "

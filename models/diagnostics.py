@@ -7,6 +7,13 @@ the focus plane (the depth of the same blur on the other side: `1/d' = 2/f - 1/d
 range), the two ends of the depth range and constant depths. If the true depth does not score
 best, no network trained through that loss can find it: the model of the pair is wrong
 (unregistered photos, an exposure difference, a blur floor, the wrong PSF).
+
+A camera calibrated by the blur's squared error need not be the one the loss agrees with: the
+paper's loss (SSIM, L1, sharpness) may prefer a larger or smaller blur at the true depth.
+`blur_scale_losses` measures the loss at the true depth with every CoC scaled, and
+`match_blur_scale` picks the scale the loss prefers on the training scenes (by dividing the
+camera's effective pixel pitch by it), so that the true depth scores best under the loss that
+trains the network.
 """
 
 from __future__ import annotations
@@ -120,6 +127,78 @@ def loss_at_depths(samples: Iterable[Mapping[str, Any]], loss: Loss,
                 row[name] = float(terms["loss"])
         rows.append(row)
     return rows
+
+
+#: the CoC scales `match_blur_scale` tries by default
+BLUR_SCALES = (0.7, 0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4, 1.5, 1.6)
+
+
+def blur_scale_losses(samples: Iterable[Mapping[str, Any]], loss: Loss,
+                      scales: Sequence[float] = BLUR_SCALES) -> dict[float, float]:
+    """The loss at the true depth with every CoC scaled by each of `scales` (the samples'
+    effective pixel pitch divided by it), averaged over the samples, each sample's losses
+    divided by its loss at scale 1 so that every scene counts alike.
+
+    Args:
+        samples: unbatched samples with `image`, `focused`, `camera` and `depth` (metres).
+        loss: the loss, called as `loss(depth, image, focused, camera)["loss"]`.
+        scales: the CoC scales to score, each > 0.
+
+    Example:
+        >>> from models.losses import DefocusLoss
+        >>> from optics import CameraSettings, render_focal_stack
+        >>> camera = CameraSettings(0.05, 2.0, [2.0], 30e-6)
+        >>> image = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(0))
+        >>> depth = torch.full((1, 32, 32), 4.0)
+        >>> depth[..., 16:] = 1.2
+        >>> focused = render_focal_stack(image[None], depth[None], camera.batched())[0]
+        >>> sample = {"image": image, "focused": focused, "camera": camera, "depth": depth}
+        >>> losses = blur_scale_losses([sample], DefocusLoss(), (0.8, 1.0, 1.25))
+        >>> min(losses, key=losses.get)
+        1.0
+    """
+    bad = [s for s in scales if not s > 0]
+    if not scales or bad:
+        raise ValueError(f"scales must be a non-empty sequence of numbers > 0, got {scales!r}")
+    totals = dict.fromkeys(scales, 0.0)
+    count = 0
+    for sample in samples:
+        batch = collate([sample])
+        camera = batch["camera"]
+        values = {}
+        with torch.no_grad():
+            for scale in {1.0, *scales}:
+                scaled = camera.replace(pixel_pitch=camera.pixel_pitch / scale)
+                terms = loss(batch["depth"], batch["image"], batch["focused"], scaled)
+                values[scale] = float(terms["loss"])
+        for scale in scales:
+            totals[scale] += values[scale] / max(values[1.0], 1e-12)
+        count += 1
+    if count == 0:
+        raise ValueError("blur_scale_losses needs at least one sample")
+    return {scale: total / count for scale, total in totals.items()}
+
+
+def match_blur_scale(samples: Iterable[Mapping[str, Any]], loss: Loss,
+                     scales: Sequence[float] = BLUR_SCALES) -> float:
+    """The CoC scale of `scales` at which `loss` scores the true depth best on `samples` (see
+    `blur_scale_losses`): divide the camera's effective pixel pitch by it to train with the
+    blur the loss agrees with. Choose it on training scenes, never on the scored ones.
+
+    Example:
+        >>> from models.losses import DefocusLoss
+        >>> from optics import CameraSettings, render_focal_stack
+        >>> camera = CameraSettings(0.05, 2.0, [2.0], 30e-6)
+        >>> image = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(0))
+        >>> depth = torch.full((1, 32, 32), 4.0)
+        >>> focused = render_focal_stack(image[None], depth[None], camera.batched())[0]
+        >>> overstated = camera.replace(pixel_pitch=camera.pixel_pitch / 1.3)  # 1.3x the blur
+        >>> sample = {"image": image, "focused": focused, "camera": overstated, "depth": depth}
+        >>> match_blur_scale([sample], DefocusLoss(), (0.7, 0.77, 1.0, 1.3))
+        0.77
+    """
+    losses = blur_scale_losses(samples, loss, scales)
+    return min(losses, key=losses.get)
 
 
 def true_depth_wins(row: Mapping[str, Any], tolerance: float = 0.02) -> bool:

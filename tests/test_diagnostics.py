@@ -8,7 +8,14 @@ import pytest
 import torch
 
 from datasets.pairs import register_focused, relative_pair
-from models.diagnostics import fold_to_side, loss_at_depths, mirror_depth, true_depth_wins
+from models.diagnostics import (
+    blur_scale_losses,
+    fold_to_side,
+    loss_at_depths,
+    match_blur_scale,
+    mirror_depth,
+    true_depth_wins,
+)
 from models.losses import DefocusLoss
 from models.networks import DepthHead
 from models.train_config import TrainConfig
@@ -82,6 +89,25 @@ def test_relative_pair_applies_floor_and_gain():
     assert torch.allclose(gained[0], 2 * image[0]) and torch.equal(gained[1:], image[1:])
     with pytest.raises(ValueError, match="must exceed"):
         relative_pair(image, camera, 2.0)
+
+
+@pytest.mark.parametrize("stated", [1.0, 1.25, 0.8])
+def test_match_blur_scale_finds_the_blur_the_photos_have(stated):
+    """Pairs rendered by a known camera, given with a camera whose blur is `stated` times the
+    real one: the matched scale undoes it (on the default grid)."""
+    pairs = rendered_pairs(3)
+    for pair in pairs:
+        pair["camera"] = pair["camera"].replace(pixel_pitch=PITCH / stated)
+    assert match_blur_scale(pairs, DefocusLoss()) == pytest.approx(1 / stated, abs=0.051)
+    losses = blur_scale_losses(pairs[:1], DefocusLoss(), (1.0, 2.0))
+    assert losses[1.0] == 1.0 and losses[2.0] > 1.0
+
+
+def test_blur_scales_must_be_positive():
+    with pytest.raises(ValueError, match="scales must be"):
+        blur_scale_losses(rendered_pairs(1), DefocusLoss(), (1.0, 0.0))
+    with pytest.raises(ValueError, match="at least one sample"):
+        blur_scale_losses([], DefocusLoss(), (1.0,))
 
 
 def test_mirror_depth_keeps_the_blur():

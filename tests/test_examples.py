@@ -178,6 +178,8 @@ def test_dslr_example_help(monkeypatch, capsys):
 @pytest.mark.slow
 def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
     """The whole protocol on a release rendered with a known camera (7 scenes, 2 held out)."""
+    import json
+
     from test_dslr import write_rendered_release
 
     write_rendered_release(tmp_path / "data")
@@ -190,6 +192,10 @@ def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
     _check_dslr_table(out, 2)
     assert "camera fitted on 5 training scenes" in out
     assert (tmp_path / "run" / "camera.json").is_file()
+    # rendered with the thin lens it was fitted to: the loss agrees with the fitted blur
+    matched = json.loads((tmp_path / "run" / "camera_loss.json").read_text())
+    assert 0.9 <= matched["loss_blur_scale"] <= 1.1
+    assert "the networks train with" in out
     assert (tmp_path / "run" / "self" / "train_log.csv").is_file()
     assert (tmp_path / "run" / "depth" / "train_log.csv").is_file()
     with pytest.raises(SystemExit, match="--val must leave training scenes"):
@@ -211,9 +217,10 @@ def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypat
     argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--no-progress",
             "--device", "cpu", "--eval-split", "test", "--json", str(table), "--steps", "2",
             "--batch-size", "2", "--width", "8", "--calibrate-every", "1", "--crop", "48",
-            "--no-paper-setting"]
+            "--no-paper-setting", "--no-blur-match"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
+    assert not (tmp_path / "run" / "camera_loss.json").exists()
     assert "camera fitted on 5 training scenes" in out
     assert "DSLR test split (2 scenes, never used to fit or train)" in out
     rows = json.loads(table.read_text())
