@@ -188,13 +188,12 @@ def match_blur_scale(samples: Iterable[Mapping[str, Any]], loss: Loss,
     Example:
         >>> from models.losses import DefocusLoss
         >>> from optics import CameraSettings, render_focal_stack
-        >>> camera = CameraSettings(0.05, 2.0, [2.0], 30e-6)
-        >>> image = torch.rand(3, 32, 32, generator=torch.Generator().manual_seed(0))
-        >>> depth = torch.full((1, 32, 32), 4.0)
-        >>> focused = render_focal_stack(image[None], depth[None], camera.batched())[0]
-        >>> overstated = camera.replace(pixel_pitch=camera.pixel_pitch / 1.3)  # 1.3x the blur
-        >>> sample = {"image": image, "focused": focused, "camera": overstated, "depth": depth}
-        >>> match_blur_scale([sample], DefocusLoss(), (0.7, 0.77, 1.0, 1.3))
+        >>> true = CameraSettings(0.05, 2.0, [2.0], 30e-6)
+        >>> image, depth = torch.rand(3, 32, 32), torch.full((1, 32, 32), 4.0)
+        >>> focused = render_focal_stack(image[None], depth[None], true.batched())[0]
+        >>> stated = true.replace(pixel_pitch=true.pixel_pitch / 1.3)  # says 1.3x the real blur
+        >>> match_blur_scale([{"image": image, "focused": focused, "camera": stated,
+        ...                    "depth": depth}], DefocusLoss(), (0.77, 1.0, 1.3))
         0.77
     """
     losses = blur_scale_losses(samples, loss, scales)
