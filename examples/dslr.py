@@ -70,18 +70,17 @@ def side_bound_row(val: DSLR, depth_range: tuple[float, float],
     """The error that no self-supervised training removes under the side prior: each scored
     scene's true depth with its ambiguous blur put on `side` (`fold_to_side`), averaged."""
     from models.diagnostics import fold_to_side
+    from models.evaluation import MeanMetrics
     from models.metrics import depth_metrics
 
-    totals: dict[str, float] = {}
+    means = MeanMetrics()
     for index in range(len(val)):
         sample = val[index]
         focus = float(sample["camera"].focus_distance.reshape(-1)[0])
         folded = fold_to_side(sample["depth"], focus, depth_range, side)
-        found = depth_metrics(pred=folded[None], target=sample["depth"][None],
-                              mask=sample["mask"][None])
-        for key, value in found.items():
-            totals[key] = totals.get(key, 0.0) + value / len(val)
-    return {f"bound: the true depth through one focus plane, side {side}": totals}
+        means.add(depth_metrics(pred=folded[None], target=sample["depth"][None],
+                                mask=sample["mask"][None], max_depth=depth_range[1]))
+    return {f"bound: the true depth through one focus plane, side {side}": means.mean()}
 
 
 def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int,
@@ -89,10 +88,11 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
     """`estimate_depth` on each scored scene (the f/8 photo as one more shot), averaged; with a
     side prior, over the depth range on that side of the fitted focus plane only."""
     from models.depth_from_photos import estimate_depth
+    from models.evaluation import MeanMetrics
     from models.metrics import depth_metrics
     from optics.progress import progress_bar
 
-    totals: dict[str, float] = {}
+    means = MeanMetrics()
     for index in progress_bar(range(len(val)), desc="label-free predict"):
         sample = val[index]
         settings = sample["camera"]
@@ -105,12 +105,10 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
                                    image=sample["image"], image_settings=reference,
                                    all_in_focus=False, max_pixels=max_pixels,
                                    refine_range=side == "both")["depth"]
-        values = depth_metrics(pred=depth, target=sample["depth"], mask=sample["mask"],
-                               max_depth=depth_range[1])
-        for key, value in values.items():
-            totals[key] = totals.get(key, 0.0) + value / len(val)
+        means.add(depth_metrics(pred=depth, target=sample["depth"], mask=sample["mask"],
+                                max_depth=depth_range[1]))
     prior = "" if side == "both" else f", side {side}"
-    return {f"label-free predict (f/8 as a shot, fitted camera{prior})": totals}
+    return {f"label-free predict (f/8 as a shot, fitted camera{prior})": means.mean()}
 
 
 def calibrate(args: argparse.Namespace, train: DSLR) -> Path:
@@ -133,19 +131,15 @@ def match_loss_camera(args: argparse.Namespace, camera: Path, pair: dict[str, An
                       scenes: range) -> Path:
     """The camera JSON whose blur the training loss agrees with: its effective pixel pitch
     divided by the CoC scale at which the loss scores the true depth best on the calibration
-    scenes (`models.diagnostics.match_blur_scale`); the scale rides along as `loss_blur_scale`."""
-    from models.diagnostics import match_blur_scale
+    scenes (`models.diagnostics.write_blur_matched_camera`)."""
+    from models.diagnostics import write_blur_matched_camera
     from models.losses import DefocusLoss
-    from optics import CameraSettings
 
     every = scenes[::args.calibrate_every]
-    samples = DSLR(args.root, args.split, scenes=every, **{**pair, "camera": camera})
-    scale = match_blur_scale(samples, DefocusLoss())
-    settings, extra = CameraSettings.read_json(camera)
     args.out.mkdir(parents=True, exist_ok=True)
     path = args.out / "camera_loss.json"
-    settings.replace(pixel_pitch=settings.pixel_pitch / scale).to_json(
-        path, **extra, loss_blur_scale=scale)
+    scale = write_blur_matched_camera(DSLR(args.root, args.split, scenes=every, **pair), camera,
+                                      path, DefocusLoss())
     print(f"the loss prefers {scale:g}x the fitted blur on {len(every)} training scenes: the "
           f"networks train with {path}")
     return path

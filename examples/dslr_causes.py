@@ -21,8 +21,8 @@ scene by scene, its value at the true depth, at its mirror across the focus plan
 of the depth range, at the focus plane and at the best constant of the training depths
 (`models.diagnostics.loss_at_depths`), with the pairs as loaded and registered
 (`datasets.pairs.register_focused`), and registered with the fitted blur scaled to the one the
-loss prefers on the training scenes (`models.diagnostics.match_blur_scale`). Where the true depth does not score best, no network
-trained through the loss can find it.
+loss prefers on the training scenes (`models.diagnostics.match_blur_scale`). Where the true
+depth does not score best, no network trained through the loss can find it.
 
 CPU, about 10 minutes on 2 cores::
 
@@ -42,7 +42,7 @@ from datasets import DSLR
 from datasets.calibration import calibrate_dataset
 from datasets.pairs import soften
 from models.depth_from_photos import estimate_depth
-from models.diagnostics import loss_at_depths, match_blur_scale, true_depth_wins
+from models.diagnostics import loss_at_depths, true_depth_wins, write_blur_matched_camera
 from models.losses import DefocusLoss
 from models.metrics import best_constant_depth, depth_metrics
 from optics.progress import progress_bar
@@ -146,14 +146,9 @@ def loss_diagnostic(root: Path, scenes: range, cameras: dict[str, Path], constan
 
 def loss_matched_camera(root: Path, scenes: list[int], camera: Path, out: Path) -> Path:
     """The fitted camera with its blur scaled to what the loss prefers at the true depth of the
-    training `scenes` (`match_blur_scale`), written to `out`."""
-    from optics import CameraSettings
-
+    training `scenes` (`write_blur_matched_camera`), written to `out`."""
     pairs = DSLR(root, scenes=scenes, camera=camera, relative=True)
-    scale = match_blur_scale(pairs, DefocusLoss())
-    settings, extra = CameraSettings.read_json(camera)
-    settings.replace(pixel_pitch=settings.pixel_pitch / scale).to_json(
-        out, **extra, loss_blur_scale=scale)
+    scale = write_blur_matched_camera(pairs, camera, out, DefocusLoss())
     print(f"the loss prefers {scale:g}x the fitted blur at the true depth of the training "
           f"scenes -> {out}")
     return out

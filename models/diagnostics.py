@@ -12,19 +12,20 @@ A camera calibrated by the blur's squared error need not be the one the loss agr
 paper's loss (SSIM, L1, sharpness) may prefer a larger or smaller blur at the true depth.
 `blur_scale_losses` measures the loss at the true depth with every CoC scaled, and
 `match_blur_scale` picks the scale the loss prefers on the training scenes (by dividing the
-camera's effective pixel pitch by it), so that the true depth scores best under the loss that
-trains the network.
+camera's effective pixel pitch by it; `write_blur_matched_camera` writes the camera JSON so
+scaled), so that the true depth scores best under the loss that trains the network.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from os import PathLike
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from optics import collate
+from optics import CameraSettings, collate
 
 #: a self-supervised loss: `(depth (B,1,H,W), image (B,3,H,W), focused (B,F,3,H,W), settings)`
 #: -> a dict with "loss" (e.g. `models.losses.DefocusLoss`)
@@ -198,6 +199,39 @@ def match_blur_scale(samples: Iterable[Mapping[str, Any]], loss: Loss,
     """
     losses = blur_scale_losses(samples, loss, scales)
     return min(losses, key=losses.get)
+
+
+def write_blur_matched_camera(samples: Iterable[Mapping[str, Any]], camera: str | PathLike,
+                              out: str | PathLike, loss: Loss,
+                              scales: Sequence[float] = BLUR_SCALES) -> float:
+    """Write the camera JSON `camera` to `out` with its blur scaled to what `loss` prefers on
+    `samples` (`match_blur_scale`; samples rendered with that camera, e.g. training scenes):
+    its effective pixel pitch divided by the scale, its extra values kept and the scale added
+    as `loss_blur_scale`. Returns the scale.
+
+    Example:
+        >>> import tempfile
+        >>> from pathlib import Path
+        >>> from models.losses import DefocusLoss
+        >>> from optics import render_focal_stack
+        >>> folder = Path(tempfile.mkdtemp())
+        >>> true = CameraSettings(0.05, 2.0, [2.0], 30e-6)
+        >>> stated = true.replace(pixel_pitch=true.pixel_pitch / 1.3)  # says 1.3x the real blur
+        >>> stated.to_json(folder / "camera.json", reference_f_number=8.0)
+        >>> image, depth = torch.rand(3, 32, 32), torch.full((1, 32, 32), 4.0)
+        >>> focused = render_focal_stack(image[None], depth[None], true.batched())[0]
+        >>> sample = {"image": image, "focused": focused, "camera": stated, "depth": depth}
+        >>> write_blur_matched_camera([sample], folder / "camera.json", folder / "matched.json",
+        ...                           DefocusLoss(), (0.77, 1.0, 1.3))
+        0.77
+        >>> CameraSettings.read_json(folder / "matched.json")[1]
+        {'reference_f_number': 8.0, 'loss_blur_scale': 0.77}
+    """
+    scale = match_blur_scale(samples, loss, scales)
+    settings, extra = CameraSettings.read_json(camera)
+    settings.replace(pixel_pitch=settings.pixel_pitch / scale).to_json(
+        out, **extra, loss_blur_scale=scale)
+    return scale
 
 
 def true_depth_wins(row: Mapping[str, Any], tolerance: float = 0.02) -> bool:
