@@ -123,11 +123,8 @@ def main(argv=None) -> int:
     print(f"torch {torch.__version__}, {torch.cuda.get_device_name()}, Triton kernels: "
           f"{_render_triton.available()} (tiles {tiles}), copy bandwidth "
           f"{bandwidth / 1e9:.0f} GB/s (read+write)\n")
-    lines = ["| shape | K | method | fwd+bwd ms | / gaussian_blur2d | / Gaussian scatter | "
-             "floor ms | / floor |", "|---|---|---|---|---|---|---|---|"]
-    results = {}
     if not args.no_main:
-        main_table(args, bandwidth, lines, results)
+        main_table(args, bandwidth)
     if not args.no_other:
         other_table(args, bandwidth)
     if args.profile:
@@ -156,8 +153,10 @@ def kernel_profile(name: str, runs: int = 5) -> str:
     return prof.key_averages().table(sort_by="cuda_time_total", row_limit=15)
 
 
-def main_table(args, bandwidth: float, lines: list[str], results: dict) -> None:
-    print("\n".join(lines), flush=True)
+def main_table(args, bandwidth: float) -> None:
+    print("| shape | K | method | fwd+bwd ms | / gaussian_blur2d | / Gaussian scatter | floor ms | "
+          "/ floor |\n|---|---|---|---|---|---|---|---|", flush=True)
+    results = {}
     for shape in SHAPES:
         floor = floor_bytes(shape) / bandwidth
         for k in KERNELS:
