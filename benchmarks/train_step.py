@@ -52,7 +52,8 @@ DATA_WAIT_GOAL = {"cpu": 0.10, "cuda": 0.05}
 GPU_STEPS_PER_S_GOAL = 40.0
 #: goal on the CPU: steps/s of every setting at least this share of the first setting's
 CPU_SPEED_RATIO_GOAL = 0.95
-PHASES = ("data", "network", "loss", "backward", "optimizer")
+#: the phases of a step (compiled: the network and the loss are one phase)
+PHASES = ("data", "network", "loss", "network and loss", "backward", "optimizer")
 
 
 @dataclass(frozen=True)
@@ -61,12 +62,13 @@ class Setting:
 
     network: str
     precision: str
-    compile: bool
+    #: "off", "on" (`torch.compile` of the network and the loss) or "graphs" (and CUDA graphs)
+    compile: str
     workers: int
 
     def label(self) -> str:
-        return (f"{self.network}, {self.precision}{', compiled' if self.compile else ''}, "
-                f"workers={self.workers}")
+        compiled = {"off": "", "on": ", compiled", "graphs": ", compiled with CUDA graphs"}
+        return f"{self.network}, {self.precision}{compiled[self.compile]}, workers={self.workers}"
 
 
 def training_set(args: argparse.Namespace) -> tuple[torch.utils.data.Dataset, dict]:
@@ -90,7 +92,9 @@ def config(args: argparse.Namespace, fields: dict, setting: Setting, steps: int,
     return TrainConfig(steps=steps, batch_size=args.batch_size, network=setting.network,
                        out_dir=out, progress=False, device=args.device, workers=setting.workers,
                        checkpoint_minutes=0, precision=setting.precision,
-                       compile=setting.compile, resume="overwrite", **fields)
+                       compile=setting.compile != "off", resume="overwrite",
+                       compile_mode="reduce-overhead" if setting.compile == "graphs" else "default",
+                       **fields)
 
 
 def _is_cuda(args: argparse.Namespace) -> bool:
@@ -118,7 +122,7 @@ def peak_memory_mb(args: argparse.Namespace, setting: Setting) -> float:
     """CPU: the largest resident set of a separate process (or of its workers) running a few
     steps of this setting, MiB."""
     command = [sys.executable, __file__, *args.argv, "--network", setting.network,
-               "--precision", setting.precision, "--compile", "on" if setting.compile else "off",
+               "--precision", setting.precision, "--compile", setting.compile,
                "--memory-of", str(setting.workers)]
     done = subprocess.run(command, capture_output=True, text=True, check=True)
     return float(done.stdout.strip().splitlines()[-1])
@@ -196,6 +200,8 @@ def print_profile(setting: Setting, phases: dict[str, dict], per_op_s: float,
     print(f"| phase | host ms/step | share |{kernel} elementary ops | issue time, ms |")
     print("|---|---|---|---|---|" + ("---|" if cuda else ""))
     for name, p in phases.items():
+        if not (p["ms"] or p["ops"]):
+            continue
         k = f" {p['kernel_ms']:.1f} |" if cuda else ""
         print(f"| {name} | {p['ms']:.1f} | {p['ms'] / max(total, 1e-9):.0%} |{k} {p['ops']} | "
               f"{p['ops'] * per_op_s * 1e3:.1f} |")
@@ -252,8 +258,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--precision", type=_choices("--precision", ("float32", "bfloat16")),
                         default=["float32"], help="float32, bfloat16, or both")
     parser.add_argument("--compile", nargs="?", const=["on"], default=["off"],
-                        type=_choices("--compile", ("off", "on")),
-                        help="torch.compile the network: off, on (the flag alone), or off,on")
+                        type=_choices("--compile", ("off", "on", "graphs")),
+                        help="torch.compile the network and the loss: off, on (the flag alone), "
+                             "graphs (and CUDA graphs: compile_mode=reduce-overhead), or a list")
     parser.add_argument("--steps", type=int, default=10, help="timed steps per repetition")
     parser.add_argument("--warmup", type=int, default=3, help="untimed first steps")
     parser.add_argument("--repeats", type=int, default=3, help="repetitions per setting")
@@ -269,7 +276,6 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     if args.crop is None:
         args.crop = 256 if torch.device(args.device).type == "cuda" else 128
     args.workers = [int(w) for w in str(args.workers).split(",")]
-    args.compile = [c == "on" for c in args.compile]
     return args
 
 
@@ -309,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         peak = "-" if r["peak_mb"] is None else f"{r['peak_mb']:.0f}"
-        print(f"| {r['network']} | {r['precision']} | {'yes' if r['compile'] else 'no'} | "
+        print(f"| {r['network']} | {r['precision']} | {r['compile']} | "
               f"{r['workers']} | {r['steps_per_s']:.2f} | {r['ratio']:.2f}x | "
               f"{r['data_share']:.1%} | {peak} | {r['protocol_minutes']:.0f} |")
     results = {"args": {k: str(v) for k, v in vars(args).items() if k != "argv"}, "rows": rows,

@@ -28,9 +28,12 @@ RESUME_MODES = ("auto", "resume", "overwrite")
 #: config keys that may differ between a run and its continuation (they do not change the
 #: numbers: where it runs, what it shows and how often it saves)
 RUN_CONTROL_KEYS = ("out_dir", "resume", "device", "progress", "checkpoint_every",
-                    "checkpoint_minutes", "keep_checkpoints", "workers", "compile")
+                    "checkpoint_minutes", "keep_checkpoints", "workers", "compile",
+                    "compile_mode")
 #: values of `TrainConfig.precision`
 PRECISIONS = ("float32", "bfloat16")
+#: values of `TrainConfig.compile_mode` (`torch.compile`'s modes)
+COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
 
 
 @dataclass
@@ -130,8 +133,12 @@ class TrainConfig:
     #: the network's arithmetic: "float32", or "bfloat16" (autocast around the network; the
     #: renderer, its PSF weights and the loss stay float32)
     precision: str = "float32"
-    #: run the network through `torch.compile` (slow first steps, faster later ones on a GPU)
+    #: run the network and the loss through `torch.compile`, fused into one graph (the first
+    #: step compiles for a minute or two; later ones are faster on a GPU)
     compile: bool = False
+    #: `torch.compile`'s mode when `compile`: "default", "reduce-overhead" (CUDA graphs as
+    #: well: on a GPU the host launches a step's kernels in one call), "max-autotune", ...
+    compile_mode: str = "default"
     #: tqdm progress bar
     progress: bool = True
     #: extra keys for your own code (kept in config.yaml)
@@ -150,7 +157,7 @@ class TrainConfig:
                    "depth_spacing": DEPTH_SPACINGS, "side": SIDES,
                    "supervision": SUPERVISIONS, "lr_schedule": ("cosine", "constant"),
                    "render_mode": RENDER_MODES, "resume": RESUME_MODES,
-                   "precision": PRECISIONS}
+                   "precision": PRECISIONS, "compile_mode": COMPILE_MODES}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")

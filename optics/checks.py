@@ -154,6 +154,9 @@ _UNIT_WARNINGS = contextvars.ContextVar("optics_unit_warnings", default=True)
 def no_unit_warnings() -> Iterator[None]:
     """Turn `warn_unit` off inside the block (e.g. for the *effective* pitch of a heavily
     downsampled image, which may legitimately exceed 1 mm)."""
+    if torch.compiler.is_compiling():  # traced code warns of nothing (`warn_unit`)
+        yield
+        return
     token = _UNIT_WARNINGS.set(False)
     try:
         yield
@@ -172,7 +175,7 @@ def implausible_length(name: str, value: Tensor) -> float | None:
 def warn_unit(name: str, value: Tensor) -> None:
     """Warn (`UserWarning`) when a length is implausibly large for metres: a focal length over
     2 m or a pixel pitch over 1 mm ("did you give millimetres?"). Other names are not checked."""
-    if name not in UNIT_LIMITS or not _UNIT_WARNINGS.get() or is_tracing(value):
+    if name not in UNIT_LIMITS or is_tracing(value) or not _UNIT_WARNINGS.get():
         return
     largest = implausible_length(name, value)
     if largest is not None:

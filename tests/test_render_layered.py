@@ -125,3 +125,42 @@ def test_fused_layered_with_layers_absent_from_row_bands(monkeypatch, threads):
     for got, want in zip(results[:2], results[2:], strict=True):
         for a, b in zip(got, want, strict=True):
             torch.testing.assert_close(a, b, rtol=0, atol=1e-10)
+
+
+def _composite_by_autograd(spread, n_layers):
+    """Front-to-back compositing as a plain product over layers, differentiated by autograd."""
+    b, _, h, w = spread.shape
+    layers = spread.view(b, n_layers, -1, h, w)
+    total, seen = 0, torch.ones_like(layers[:, 0, -1:])
+    for layer in range(n_layers):
+        total = total + seen * layers[:, layer]
+        seen = seen * (1 - layers[:, layer, -1:].clamp(max=1.0))
+    return total[:, :-1] / total[:, -1:].clamp_min(torch.finfo(spread.dtype).tiny)
+
+
+@pytest.mark.parametrize("n_layers", [1, 2, 5, 8])
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_composite_layers_gradient_matches_autograd(n_layers, dtype):
+    gen = torch.Generator().manual_seed(n_layers)
+    layers = torch.rand(2, n_layers, 4, 6, 7, generator=gen, dtype=dtype) * 1.3
+    layers[:, :, 3, :2] = 1.0  # layers that cover fully: nothing behind them is seen
+    layers[:, :, 3, 2] = 0.0  # and pixels that no layer covers
+    layers[:, :, :3] *= layers[:, :, 3:]  # colour premultiplied by coverage
+    spread = layers.reshape(2, -1, 6, 7).requires_grad_()
+    weights = torch.randn(2, 3, 6, 7, generator=gen, dtype=dtype)
+    got = composite_layers(spread, n_layers)
+    want = _composite_by_autograd(spread, n_layers)
+    torch.testing.assert_close(got, want)
+    grad = torch.autograd.grad((got * weights).sum(), spread)[0]
+    torch.testing.assert_close(grad, torch.autograd.grad((want * weights).sum(), spread)[0])
+    assert torch.isfinite(grad).all()
+
+
+def test_composite_layers_gradcheck():
+    spread = (torch.rand(1, 12, 4, 5, dtype=torch.float64) * 1.3).requires_grad_()
+    assert torch.autograd.gradcheck(lambda s: composite_layers(s, 3), (spread,))
+
+
+def test_composite_layers_refuses_a_channel_count_not_a_multiple_of_layers():
+    with pytest.raises(ValueError, match="n_layers=3"):
+        composite_layers(torch.rand(1, 8, 2, 2), 3)

@@ -114,12 +114,12 @@ class Trainer:
         if self.world_size > 1:
             ids = [self.device.index] if self.device.type == "cuda" else None
             self.ddp_model = nn.parallel.DistributedDataParallel(self.model, device_ids=ids)
-        #: the network as each training step runs it (compiled when `config.compile`)
-        self.step_model: nn.Module = torch.compile(self.ddp_model) if cfg.compile \
-            else self.ddp_model
         #: processes preparing batches ahead of the step (`config.workers`, resolved)
         self.workers = auto_workers(self.device) if cfg.workers < 0 else cfg.workers
         self.step_timer = StepTimer()
+        #: `_network_and_loss` through `torch.compile` (made at the first step when
+        #: `config.compile`)
+        self._compiled_forward: Callable[..., tuple[Tensor, dict[str, Tensor]]] | None = None
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
@@ -190,13 +190,25 @@ class Trainer:
         return ((depth <= cfg.depth_min + tol) | (depth >= cfg.depth_max - tol)).float().mean()
 
     def _forward(self, batch: Mapping[str, Any]) -> tuple[Tensor, dict[str, Tensor]]:
+        """The predicted depth and the loss terms of a batch: the network and the loss in one
+        compiled graph when `config.compile`, so that both are fused (their ~1000 small
+        operations otherwise each cost a launch, and a GPU step waits for the host)."""
+        if self._compiled_forward is None and self.config.compile:
+            self._compiled_forward = torch.compile(self._network_and_loss,
+                                                   mode=self.config.compile_mode)
+        if self._compiled_forward is not None:
+            with record_function("network and loss"):
+                return self._compiled_forward(batch)
+        return self._network_and_loss(batch)
+
+    def _network_and_loss(self, batch: Mapping[str, Any]) -> tuple[Tensor, dict[str, Tensor]]:
         image = batch["image"]
         with record_function("network"), torch.autocast(
                 self.device.type, torch.bfloat16, enabled=self.config.precision == "bfloat16"):
             if self.config.input_mode == "aif":
-                depth = self.step_model(image)
+                depth = self.ddp_model(image)
             else:
-                depth = self.step_model(image, batch["focused"], batch["camera"])
+                depth = self.ddp_model(image, batch["focused"], batch["camera"])
         depth = depth.float()  # the renderer and the loss in float32
         if self.config.supervision == "self":
             with record_function("loss"):

@@ -108,13 +108,14 @@ def render_defocus(
         tensor([0.0970, 0.1592, 0.0970])
     """
     image, coc_px = _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset)
+    if mode == "layered":
+        depth = _check_layered_inputs(image, depth, n_layers)
+    largest_coc = _read_checked(image, coc_px, depth if mode == "layered" else None)
     if preset is not None:
         return _render_paper(image, coc_px)
     psf = Gaussian() if psf is None else psf
-    half = _window_half(psf, coc_px, max_kernel_size)
+    half = _window_half(psf, coc_px, max_kernel_size, largest_coc)
     if mode == "layered":
-        if depth is None:
-            raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
         return _render_layered(image, coc_px, psf, half, depth, n_layers, max_kernel_size // 2)
     kind = _fast_kind(psf)
     if mode == "scatter" and kind == "gaussian":  # fused: spread, normalisation, division
@@ -143,8 +144,10 @@ def _fast_kind(psf: Aperture) -> str | None:
     return None
 
 
-def _window_half(psf: Aperture, coc_px: Tensor, max_kernel_size: int) -> int | Tensor:
-    """Window half-width: a Python int, or under `torch.compile` a 0-d tensor computed in-graph.
+def _window_half(psf: Aperture, coc_px: Tensor, max_kernel_size: int,
+                 largest_coc: float | None) -> int | Tensor:
+    """Window half-width: a Python int for the `largest_coc` in pixels, or under `torch.compile`
+    a 0-d tensor computed in-graph.
 
     The tensor form repeats `half_width` in float64, which is what the Python floats are, so both
     give the same window.
@@ -163,7 +166,7 @@ def _window_half(psf: Aperture, coc_px: Tensor, max_kernel_size: int) -> int | T
         else:
             half = torch.ceil(largest / 2 - 0.5 - 1e-9)
         return half.clamp(0, cap).to(torch.int64)
-    max_coc = float(coc_px.detach().max()) if coc_px.numel() else 0.0
+    max_coc = float(coc_px.detach().max()) if largest_coc is None else largest_coc
     half = min(psf.half_width(max_coc), cap)
     if psf.half_width(max_coc) > half:
         warnings.warn(
@@ -180,7 +183,6 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
     check_shape("coc_px", coc_px, ["B", "1", "H", "W"])
     if not image.is_floating_point():
         raise TypeError(f"image must be a floating-point tensor, got dtype {image.dtype}")
-    check_finite("image", image)
     if not coc_px.is_floating_point():
         raise TypeError(f"coc_px must be a floating-point tensor, got dtype {coc_px.dtype}")
     b, _, h, w = image.shape
@@ -189,12 +191,6 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
             f"coc_px must have shape ({b} or 1, 1, {h}, {w}) to match image, "
             f"got {tuple(coc_px.shape)}"
         )
-    valid = torch.all(torch.isfinite(coc_px) & (coc_px >= 0))
-    message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
-    if _compiling():
-        torch._assert_async(valid, message)
-    elif not is_tracing() and not bool(valid):  # `values_checked` skips the read
-        raise ValueError(message)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if psf is not None and not isinstance(psf, Aperture):
@@ -216,6 +212,56 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
             )
     coc_px = coc_px.to(image.dtype).expand(b, 1, h, w)
     return image, coc_px
+
+
+def _check_layered_inputs(image: Tensor, depth: Tensor | None, n_layers: int) -> Tensor:
+    """The layered mode's depth, broadcast to the image's batch (its values are checked by
+    `_read_checked`)."""
+    if depth is None:
+        raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
+    check_shape("depth", depth, ["B", "1", "H", "W"])
+    if not depth.is_floating_point():
+        raise TypeError(f"depth must be a floating-point tensor, got dtype {depth.dtype}")
+    b, _, h, w = image.shape
+    if depth.shape[2:] != image.shape[2:] or depth.shape[0] not in (1, b):
+        raise ValueError(f"depth must have shape ({b} or 1, 1, {h}, {w}) to match image, "
+                         f"got {tuple(depth.shape)}")
+    if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
+        raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
+    return depth.to(image.dtype).expand(b, 1, h, w)
+
+
+def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None) -> float | None:
+    """The largest CoC in pixels, once the image is checked finite, the CoC finite and >= 0 and
+    `depth` (layered mode) > 0 metres and not NaN: one read from the device for all (on a GPU
+    each read waits for every queued kernel). Under `torch.compile`: None, the checks asserted
+    in the graph; under `values_checked`: the largest CoC alone."""
+    coc_message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
+    depth_message = "depth must be > 0 metres and not NaN everywhere"
+    coc_ok = torch.all(torch.isfinite(coc_px) & (coc_px >= 0))
+    if _compiling():
+        torch._assert_async(coc_ok, coc_message)
+        if depth is not None:
+            torch._assert_async(torch.all(~torch.isnan(depth) & (depth > 0)), depth_message)
+        return None
+    coc = coc_px.detach()
+    largest = coc.amax() if coc.numel() else coc.new_zeros(())
+    if is_tracing():  # `values_checked`: the window's size is the one value read
+        return float(largest)
+    # a NaN or an infinity in the image makes its sum not finite (see `check_finite`)
+    read = [largest, coc_ok, image.detach().sum(dtype=torch.promote_types(image.dtype,
+                                                                           torch.float32))]
+    if depth is not None:
+        read.append(torch.all(~torch.isnan(depth) & (depth > 0)))
+    largest, coc_valid, image_sum, *depth_valid = torch.stack(
+        [v.to(torch.float64) for v in read]).tolist()
+    if not math.isfinite(image_sum):
+        check_finite("image", image)  # names the bad values (a sum that overflowed passes)
+    if not coc_valid:
+        raise ValueError(coc_message)
+    if depth_valid and not depth_valid[0]:
+        check_depth("depth", depth)  # raises, describing the values
+    return largest
 
 
 def _half_tensor(half: int | Tensor) -> Tensor:
@@ -291,16 +337,7 @@ def _layer_position(depth: Tensor, n_layers: int) -> Tensor:
 
 
 def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
-    check_shape("depth", depth, ["B", "1", "H", "W"])
-    if _compiling():
-        torch._assert_async(torch.all(torch.isfinite(depth) & (depth > 0)),
-                            "depth must be finite and > 0 metres")
-    else:
-        check_depth("depth", depth)
-    if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
-        raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
-    b, _, h, w = image.shape
-    depth = depth.to(image.dtype).expand(b, 1, h, w)
+    """The layered mode on inputs checked by `render_defocus`."""
     kind = _fast_kind(psf)
     if kind is not None and n_layers <= 32 and backends.compiled_cpu(image):
         # One fused pass each way: layers present nowhere near a pixel cost nothing there.
@@ -326,15 +363,62 @@ def split_layers(image: Tensor, depth: Tensor, n_layers: int) -> Tensor:
 
 def composite_layers(spread: Tensor, n_layers: int) -> Tensor:
     """Composite blurred layers (`split_layers` layout) front to back: each layer's colour is
-    seen through the transmittance left by the layers in front; normalised by the coverage."""
-    b, _, h, w = spread.shape
-    spread = spread.view(b, n_layers, -1, h, w)
-    clear = 1 - spread[:, :, -1:].clamp(max=1.0)  # (B, L, 1, H, W): what each layer lets through
-    seen = [torch.ones_like(clear[:, 0])]
-    for layer in range(n_layers - 1):  # a product over (B, 1, H, W) maps: few kernels on a GPU
-        seen.append(seen[-1] * clear[:, layer])
-    total = (torch.stack(seen, 1) * spread).sum(1)  # colour, then coverage
-    return total[:, :-1] / total[:, -1:].clamp_min(torch.finfo(spread.dtype).tiny)
+    seen through the transmittance left by the layers in front; normalised by the coverage.
+
+    The backward pass is written out (`_CompositeLayers`): about 25 operations for any number
+    of layers, where autograd through the product over layers issues over 100 (on a GPU each is
+    a launch the host must issue).
+
+    Example:
+        >>> front = torch.tensor([1.0, 1.0]).view(1, 2, 1, 1)  # colour 1, full coverage
+        >>> back = torch.tensor([5.0, 1.0]).view(1, 2, 1, 1)  # hidden behind it
+        >>> composite_layers(torch.cat([front, back], 1), 2).flatten()
+        tensor([1.])
+    """
+    if spread.shape[1] % n_layers:
+        raise ValueError(f"spread has {spread.shape[1]} channels, not a multiple of "
+                         f"n_layers={n_layers}")
+    return _CompositeLayers.apply(spread, n_layers)
+
+
+class _CompositeLayers(torch.autograd.Function):
+    """`composite_layers` with its gradient in closed form.
+
+    With `clear_l = 1 - min(coverage_l, 1)` and `seen_l = prod_{k<l} clear_k`, the total is
+    `T = sum_l seen_l spread_l`; a layer's coverage also dims every layer behind it:
+    `dL/dclear_l = seen_l R_l`, `R_l = g_{l+1} + clear_{l+1} R_{l+1}` (`R_{L-1} = 0`), where
+    `g_m = <dL/dT, spread_m>`, a recursion with no division (a fully covering layer is exact).
+    """
+
+    @staticmethod
+    def forward(ctx, spread: Tensor, n_layers: int) -> Tensor:
+        b, _, h, w = spread.shape
+        layers = spread.view(b, n_layers, -1, h, w)
+        clear = 1 - layers[:, :, -1:].clamp(max=1.0)  # (B, L, 1, H, W): what each layer lets by
+        seen = torch.cumprod(torch.cat([torch.ones_like(clear[:, :1]), clear[:, :-1]], 1), 1)
+        total = (seen * layers).sum(1)  # colour, then coverage
+        out = total[:, :-1] / total[:, -1:].clamp_min(torch.finfo(spread.dtype).tiny)
+        ctx.save_for_backward(layers, clear, seen, total, out)
+        return out
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_out: Tensor) -> tuple[Tensor, None]:
+        layers, clear, seen, total, out = ctx.saved_tensors
+        b, n_layers, _, h, w = layers.shape
+        tiny = torch.finfo(layers.dtype).tiny
+        coverage = total[:, -1:]
+        grad_colour = grad_out / coverage.clamp_min(tiny)
+        grad_coverage = -(grad_colour * out).sum(1, keepdim=True) * (coverage >= tiny)
+        grad_total = torch.cat([grad_colour, grad_coverage], 1)[:, None]  # (B, 1, C + 1, H, W)
+        grad_layers = seen * grad_total
+        through = (grad_total * layers).sum(2, keepdim=True)  # dL/dseen, (B, L, 1, H, W)
+        behind = [torch.zeros_like(through[:, 0])]  # R_l, from the back layer forward
+        for layer in range(n_layers - 2, -1, -1):
+            behind.append(torch.addcmul(through[:, layer + 1], clear[:, layer + 1], behind[-1]))
+        grad_clear = seen * torch.stack(behind[::-1], 1)
+        grad_layers[:, :, -1:] -= grad_clear * (layers[:, :, -1:] <= 1)
+        return grad_layers.view(b, -1, h, w), None
 
 
 class DefocusRenderer(nn.Module):
