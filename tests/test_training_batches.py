@@ -62,6 +62,50 @@ def test_workers_give_the_same_batches_as_the_loop(augmented):
     assert not torch.equal(inline[0]["image"], inline[1]["image"])
 
 
+@pytest.mark.parametrize("workers", [0, 2])
+def test_the_device_thread_gives_the_same_batches(augmented, workers):
+    """`device_thread` moves the batches in a thread (on a GPU, on a side stream): same batches,
+    same order, and the stream ends where the loop's does."""
+    sampler = StepSampler(augmented, batch_size=3, seed=5)
+    device = torch.device("cpu")
+    with BatchStream(sampler, 1, 5, device, workers=0) as stream:
+        inline = [batch for batch, _ in stream]
+    with BatchStream(sampler, 1, 5, device, workers=workers, device_thread=True) as stream:
+        moved = [batch for batch, _ in stream]
+        with pytest.raises(StopIteration):  # and again after the end
+            next(stream)
+    assert [b["id"] for b in moved] == [b["id"] for b in inline]
+    for a, b in zip(inline, moved, strict=True):
+        assert torch.equal(a["image"], b["image"])
+        assert torch.equal(a["camera"].focus_distance, b["camera"].focus_distance)
+
+
+def test_the_device_thread_raises_a_worker_error_where_the_batch_is_taken(scenes):
+    broken = _Hooked(scenes, _missing_file_at(1))
+    sampler = StepSampler(broken, batch_size=2, seed=0)
+    with BatchStream(sampler, 0, 4, torch.device("cpu"), workers=1, device_thread=True) as stream:
+        with pytest.raises(FileNotFoundError, match="scene 1: missing file"):
+            for _ in stream:
+                pass
+
+
+def test_closing_the_stream_stops_the_device_thread(augmented):
+    sampler = StepSampler(augmented, batch_size=2, seed=0)
+    stream = BatchStream(sampler, 0, 50, torch.device("cpu"), workers=1, device_thread=True)
+    next(stream)
+    thread = stream._mover.thread
+    stream.close()
+    assert not thread.is_alive()
+
+
+def test_a_gpu_stream_moves_batches_in_a_thread_only_with_workers():
+    sampler = StepSampler([{"image": torch.zeros(3, 2, 2)}] * 2, batch_size=1, seed=0)
+    cuda = torch.device("cuda")
+    assert BatchStream(sampler, 0, 1, cuda, workers=2).device_thread
+    assert not BatchStream(sampler, 0, 1, cuda, workers=0).device_thread
+    assert not BatchStream(sampler, 0, 1, torch.device("cpu"), workers=2).device_thread
+
+
 def test_moving_a_batch_to_the_device_reads_no_values(augmented, monkeypatch):
     """The batch was checked where it was prepared: moving it (camera settings included) runs
     no value check, which on a GPU would wait for the device's queue each step."""
@@ -213,13 +257,19 @@ def test_bfloat16_network_trains_with_float32_weights(tmp_path, scenes):
 
 
 @pytest.mark.slow
-def test_compiled_network_matches_the_eager_one(tmp_path, scenes):
+def test_compiled_network_and_loss_match_the_eager_ones(tmp_path, scenes):
+    """Self-supervised: the network, the renderer and the loss in one compiled graph (no graph
+    break: a break would fall back to eager and keep the host-bound step)."""
     pytest.importorskip("torch._inductor")
-    eager = Trainer(tiny_config(tmp_path / "eager", steps=2, input_mode="aif",
-                                supervision="depth"), scenes).fit()
-    compiled = Trainer(tiny_config(tmp_path / "compiled", steps=2, input_mode="aif",
-                                   supervision="depth", compile=True), scenes).fit()
+    from torch._dynamo.utils import counters
+
+    eager = Trainer(tiny_config(tmp_path / "eager", steps=2), scenes).fit()
+    torch._dynamo.reset()
+    counters.clear()
+    compiled = Trainer(tiny_config(tmp_path / "compiled", steps=2, compile=True,
+                                   compile_mode="reduce-overhead"), scenes).fit()
     assert _losses(compiled) == pytest.approx(_losses(eager), rel=1e-4)
+    assert not counters["graph_break"], dict(counters["graph_break"])
 
 
 @pytest.mark.slow
