@@ -182,6 +182,9 @@ def profile(args: argparse.Namespace, data, fields: dict, setting: Setting) -> d
     with torch_profile(activities=activities) as prof:
         trainer.fit()
     phases = {name: {"ms": 0.0, "kernel_ms": 0.0, "ops": 0} for name in PHASES}
+    # every kernel of the steps, those the backward pass launches from autograd's thread too
+    busy = sum(getattr(e, "self_device_time_total", 0.0) for e in prof.key_averages())
+    phases["device busy"] = {"ms": 0.0, "kernel_ms": busy / 1e3 / steps, "ops": 0}
     for event in prof.events():
         if event.name in phases and event.cpu_parent is None:
             phases[event.name]["ms"] += event.cpu_time_total / 1e3 / steps
@@ -199,6 +202,7 @@ def print_profile(setting: Setting, phases: dict[str, dict], per_op_s: float,
           f"{per_op_s * 1e6:.1f} us)")
     print(f"| phase | host ms/step | share |{kernel} elementary ops | issue time, ms |")
     print("|---|---|---|---|---|" + ("---|" if cuda else ""))
+    busy = phases.pop("device busy", None)
     for name, p in phases.items():
         if not (p["ms"] or p["ops"]):
             continue
@@ -208,6 +212,9 @@ def print_profile(setting: Setting, phases: dict[str, dict], per_op_s: float,
     floor = ops * per_op_s
     k = f" {sum(p['kernel_ms'] for p in phases.values()):.1f} |" if cuda else ""
     print(f"| all | {total:.1f} | 100% |{k} {ops} | {floor * 1e3:.1f} |")
+    if cuda and busy is not None:
+        print(f"The GPU runs kernels {busy['kernel_ms']:.1f} ms per step, every phase's (the "
+              "backward's kernels too, which the table's backward row cannot see).")
     print(f"Issuing the ops alone caps a step at {1 / floor:.0f} steps/s on any device; on a GPU "
           "the step takes at least that long unless the ops are fused (torch.compile) or "
           "captured (CUDA graphs).")
@@ -266,6 +273,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=3, help="repetitions per setting")
     parser.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
     parser.add_argument("--profile", action="store_true", help="add where a step's time goes")
+    parser.add_argument("--cudnn-benchmark", action="store_true",
+                        help="let cuDNN time its convolution algorithms (fixed crop sizes)")
     parser.add_argument("--no-memory", action="store_true", help="skip the peak-memory runs")
     parser.add_argument("--json", type=Path, default=None, help="also write the results here")
     parser.add_argument("--memory-of", type=int, default=None, help=argparse.SUPPRESS)
@@ -282,6 +291,7 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
     torch.set_num_threads(args.threads)
+    torch.backends.cudnn.benchmark = args.cudnn_benchmark
     if args.memory_of is not None:
         memory_of(args)
         return 0

@@ -275,7 +275,7 @@ class CameraSettings:
     def pin_memory(self) -> CameraSettings:
         """The settings with their tensors in page-locked memory (what a `DataLoader` with
         `pin_memory=True` calls), so that `.to("cuda", non_blocking=True)` does not wait."""
-        return self._map(lambda t: t.pin_memory())
+        return self._map(lambda t: t.contiguous().pin_memory())  # broadcast fields too
 
     def replace(self, **changes: Any) -> CameraSettings:
         """A copy with some fields changed (checked again).

@@ -126,7 +126,8 @@ class Trainer:
         self.scheduler = build_scheduler(self.optimizer, cfg)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
                                    cfg.ssim_window, parse_aperture(cfg.aperture),
-                                   mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size)
+                                   mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size
+                                   ).to(self.device)  # its aperture too: no CPU tensor in a step
         self.sampler = StepSampler(train_set, cfg.batch_size, cfg.seed, self.rank,
                                    self.world_size)
         self.checkpoints = CheckpointStore(cfg.out_dir / "checkpoints", keep=cfg.keep_checkpoints)
