@@ -174,13 +174,21 @@ def profile(args: argparse.Namespace, data, fields: dict, setting: Setting) -> d
     steps = 3
     cfg = config(args, fields, setting, args.warmup + steps,
                  Path(tempfile.mkdtemp(prefix="defocus-bench-")))
-    trainer = Trainer(cfg, data)
-    trainer.fit(until=args.warmup)
     activities = [ProfilerActivity.CPU]
     if _is_cuda(args):
         activities.append(ProfilerActivity.CUDA)
-    with torch_profile(activities=activities) as prof:
-        trainer.fit()
+    prof = torch_profile(activities=activities)
+
+    def profile_steps(trainer: Trainer, step: int, losses: dict) -> None:
+        # one run: the workers and the device thread keep going between warm-up and profile
+        if step == args.warmup:
+            prof.start()
+        elif step == args.warmup + steps:
+            if _is_cuda(args):
+                torch.cuda.synchronize(args.device)
+            prof.stop()
+
+    Trainer(cfg, data, step_callback=profile_steps).fit()
     phases = {name: {"ms": 0.0, "kernel_ms": 0.0, "ops": 0} for name in PHASES}
     # every kernel of the steps, those the backward pass launches from autograd's thread too
     busy = sum(getattr(e, "self_device_time_total", 0.0) for e in prof.key_averages())
