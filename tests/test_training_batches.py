@@ -306,3 +306,15 @@ def test_no_warnings_from_a_quick_run(tmp_path, scenes):
     with warnings.catch_warnings():
         warnings.simplefilter("error", DataWaitWarning)
         Trainer(tiny_config(tmp_path / "run", workers=0), scenes).fit()
+
+
+def test_precision_and_compile_mode_are_checked_by_name():
+    from models.train_config import TrainConfig
+
+    with pytest.raises(ValueError, match=r"compile_mode must be one of .*'reduce-overhead'.*"
+                                         r"got 'fast'"):
+        TrainConfig(compile_mode="fast")
+    with pytest.raises(ValueError, match="precision must be one of"):
+        TrainConfig(precision="float16")
+    assert TrainConfig().override(["compile_mode=reduce-overhead"]).compile_mode \
+        == "reduce-overhead"

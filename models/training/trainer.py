@@ -195,6 +195,8 @@ class Trainer:
         compiled graph when `config.compile`, so that both are fused (their ~1000 small
         operations otherwise each cost a launch, and a GPU step waits for the host)."""
         if self._compiled_forward is None and self.config.compile:
+            _log.info("compiling the network and the loss (mode %s): the first step takes a "
+                      "minute or two", self.config.compile_mode)
             self._compiled_forward = torch.compile(self._network_and_loss,
                                                    mode=self.config.compile_mode)
         if self._compiled_forward is not None:
