@@ -110,6 +110,8 @@ def measure(args: argparse.Namespace, data, fields: dict, setting: Setting) -> d
     if _is_cuda(args):
         torch.cuda.reset_peak_memory_stats(args.device)
     trainer = Trainer(cfg, data)
+    if args.channels_last:  # the same Parameter objects, their memory in NHWC order
+        trainer.model.to(memory_format=torch.channels_last)
     rows = trainer.fit()[args.warmup:]
     walls = [b["seconds"] - a["seconds"] for a, b in zip(rows, rows[1:], strict=False)]
     data_s = sum(r["data_s"] for r in rows)
@@ -285,6 +287,8 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     parser.add_argument("--repeats", type=int, default=3, help="repetitions per setting")
     parser.add_argument("--threads", type=int, default=1, help="torch.set_num_threads")
     parser.add_argument("--profile", action="store_true", help="add where a step's time goes")
+    parser.add_argument("--channels-last", action="store_true",
+                        help="the network's weights in channels-last order (NHWC convolutions)")
     parser.add_argument("--cudnn-benchmark", action="store_true",
                         help="let cuDNN time its convolution algorithms (fixed crop sizes)")
     parser.add_argument("--no-memory", action="store_true", help="skip the peak-memory runs")
@@ -330,8 +334,10 @@ def main(argv: list[str] | None = None) -> int:
     for row in rows:
         row["ratio"] = row["steps_per_s"] / rows[0]["steps_per_s"]
     print(f"{args.dataset}, batch {args.batch_size}, {args.crop}x{args.crop} crops, "
-          f"{args.device}, {args.threads} thread(s); medians of {args.repeats} runs of "
-          f"{args.steps} steps")
+          f"{args.device}, {args.threads} thread(s)"
+          f"{', channels-last weights' if args.channels_last else ''}"
+          f"{', cuDNN benchmark mode' if args.cudnn_benchmark else ''}; medians of "
+          f"{args.repeats} runs of {args.steps} steps")
     print("| network | precision | compiled | workers | steps/s | vs first | data wait | "
           "peak MiB | 20000 steps, min |")
     print("|---|---|---|---|---|---|---|---|---|")
