@@ -27,9 +27,10 @@ starts from `checkpoints/last.pt` with its logs cut back to that step, so its lo
 match those of an uninterrupted run.
 
 Speed: each step's batch is prepared ahead in `TrainConfig.workers` worker processes
-(`models.training.batches.BatchStream`; the same batches as without them); the network may run
-under bfloat16 autocast (`precision`) and `torch.compile` (`compile`); each step waits for the
-device once. Every logged step's time is split into `data_s` (waiting for the batch) and
+(`models.training.batches.BatchStream`; the same batches as without them) and, on a GPU, moved
+to the device in a thread (`DevicePrefetch`); the network may run under bfloat16 autocast
+(`precision`), and the network and the loss through one `torch.compile` graph (`compile`,
+`compile_mode`; `models.training.forward.NetworkAndLoss`); each step waits for the device once. Every logged step's time is split into `data_s` (waiting for the batch) and
 `compute_s`, shown in the progress bar, and a `DataWaitWarning` says when the wait exceeds a
 quarter of the steps (`models.training.step_timing`).
 

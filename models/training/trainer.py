@@ -22,7 +22,7 @@ from optics.checks import values_checked
 from ..checkpoints import CHECKPOINT_FORMAT, CheckpointStore, load_checkpoint, to_plain
 from ..evaluation import MeanMetrics
 from ..loading import read_checkpoint
-from ..losses import DefocusLoss, supervised_depth_loss
+from ..losses import DefocusLoss
 from ..metrics import depth_metrics
 from ..networks import build_network
 from ..plotting import plot_prediction
@@ -31,6 +31,7 @@ from ..sampling import StepSampler, random_flip
 from ..train_config import TrainConfig, select_device
 from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
+from .forward import NetworkAndLoss
 from .interruption import SignalGuard, TrainingInterrupted
 from .run_folder import RunFolder
 from .run_warnings import (
@@ -117,9 +118,6 @@ class Trainer:
         #: processes preparing batches ahead of the step (`config.workers`, resolved)
         self.workers = auto_workers(self.device) if cfg.workers < 0 else cfg.workers
         self.step_timer = StepTimer()
-        #: `_network_and_loss` through `torch.compile` (made at the first step when
-        #: `config.compile`)
-        self._compiled_forward: Callable[..., tuple[Tensor, dict[str, Tensor]]] | None = None
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
@@ -128,6 +126,8 @@ class Trainer:
                                    cfg.ssim_window, parse_aperture(cfg.aperture),
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size
                                    ).to(self.device)  # its aperture too: no CPU tensor in a step
+        #: the step's network and loss (one compiled graph when `config.compile`)
+        self.forward = NetworkAndLoss(cfg, self.ddp_model, self.loss_fn, self.device)
         self.sampler = StepSampler(train_set, cfg.batch_size, cfg.seed, self.rank,
                                    self.world_size)
         self.checkpoints = CheckpointStore(cfg.out_dir / "checkpoints", keep=cfg.keep_checkpoints)
@@ -190,37 +190,6 @@ class Trainer:
         depth = depth.detach()
         return ((depth <= cfg.depth_min + tol) | (depth >= cfg.depth_max - tol)).float().mean()
 
-    def _forward(self, batch: Mapping[str, Any]) -> tuple[Tensor, dict[str, Tensor]]:
-        """The predicted depth and the loss terms of a batch: the network and the loss in one
-        compiled graph when `config.compile`, so that both are fused (their ~1000 small
-        operations otherwise each cost a launch, and a GPU step waits for the host)."""
-        if self._compiled_forward is None and self.config.compile:
-            _log.info("compiling the network and the loss (mode %s): the first step takes a "
-                      "minute or two", self.config.compile_mode)
-            self._compiled_forward = torch.compile(self._network_and_loss,
-                                                   mode=self.config.compile_mode)
-        if self._compiled_forward is not None:
-            with record_function("network and loss"):
-                return self._compiled_forward(batch)
-        return self._network_and_loss(batch)
-
-    def _network_and_loss(self, batch: Mapping[str, Any]) -> tuple[Tensor, dict[str, Tensor]]:
-        image = batch["image"]
-        with record_function("network"), torch.autocast(
-                self.device.type, torch.bfloat16, enabled=self.config.precision == "bfloat16"):
-            if self.config.input_mode == "aif":
-                depth = self.ddp_model(image)
-            else:
-                depth = self.ddp_model(image, batch["focused"], batch["camera"])
-        depth = depth.float()  # the renderer and the loss in float32
-        if self.config.supervision == "self":
-            with record_function("loss"):
-                return depth, self.loss_fn(depth, image, batch["focused"], batch["camera"])
-        target, mask = batch["depth"], batch.get("mask")
-        if mask is not None:  # masked-out labels may be anything (inf, nan): keep them out
-            target = torch.where(mask.bool(), target, torch.ones_like(target))
-        return depth, {"loss": supervised_depth_loss(depth, target, mask)}
-
     def train_step(self, batch: Mapping[str, Any]) -> dict[str, float]:
         """One optimisation step on a collated batch; returns the losses (mean over processes)
         and `at_depth_limits` (the share of predicted pixels at a depth limit).
@@ -231,7 +200,7 @@ class Trainer:
         """
         self.model.train()
         with values_checked():  # checked on the host where prepared; the loss checked below
-            depth, terms = self._forward(batch)
+            depth, terms = self.forward(batch)
         self.optimizer.zero_grad(set_to_none=True)
         with record_function("backward"):
             terms["loss"].backward()
