@@ -277,3 +277,34 @@ def test_spread_gradcheck(kind):
             return _render_ops.clamp_scatter(x, p, n, dist, half)
     with kernels(triton=True):
         assert gradcheck(fn, (x, param, norm), fast_mode=True)
+
+
+@pytest.mark.parametrize("mode", ["scatter", "gather", "layered"])
+@pytest.mark.parametrize("name", ["gaussian", "disk"])
+def test_window_on_the_device_gives_the_host_window_render(name, mode, monkeypatch):
+    """In a training step on a GPU (`values_checked`) the window's half-width is computed on the
+    device and read by the kernels alone, from a distance table as wide as `max_kernel_size`:
+    the same values and gradients as the window the host reads."""
+    from optics.checks import values_checked
+    from optics.render import renderer
+
+    image, coc, weights = make_inputs(name, (1, 3, 10, 13), 7, torch.float64, seed=4)
+    depth = (1.0 + coc).detach() if mode == "layered" else None
+    expected = render(name, image, coc, weights, True, mode, depth)
+    monkeypatch.setattr(renderer, "_window_on_device", lambda psf, image: True)
+    halves = []
+
+    def spy(fn):
+        def wrapped(*args):
+            halves.append(args[-2])
+            return fn(*args)
+        return wrapped
+
+    for launcher in ("render", "render_backward", "spread", "spread_backward", "window_sums"):
+        monkeypatch.setattr(_render_triton, launcher, spy(getattr(_render_triton, launcher)))
+    with values_checked(), mock.patch.object(torch.Tensor, "tolist",
+                                             side_effect=AssertionError("host read")):
+        got = render(name, image, coc, weights, True, mode, depth)
+    assert halves and all(isinstance(h, torch.Tensor) for h in halves)
+    for a, e in zip(got, expected, strict=True):
+        torch.testing.assert_close(a, e, rtol=1e-9, atol=1e-11)

@@ -21,7 +21,6 @@ from __future__ import annotations
 from torch import Tensor
 
 from . import cpp, ops, triton_kernels
-from .taps import window
 
 
 def compiled_cpu(x: Tensor) -> bool:
@@ -39,50 +38,48 @@ def _cast(outputs: tuple[Tensor, Tensor], *like: Tensor) -> tuple[Tensor, Tensor
 
 
 # The operators' signatures, adapted to the Triton launchers (looked up on `triton_kernels` at
-# call time, so that they can be patched).
+# call time, so that they can be patched). The window half-width `half` and the distance table
+# `dist` go to the kernels as they are, on the device: the host reads neither.
 
 
 def _gaussian_render(x, sigma, half):
-    return _cast(triton_kernels.render(x, sigma, int(half), None), x, sigma)
+    return _cast(triton_kernels.render(x, sigma, half, None), x, sigma)
 
 
 def _gaussian_render_backward(grad, y, den, x, sigma, half):
-    return _cast(triton_kernels.render_backward(grad, y, den, x, sigma, int(half), None), x, sigma)
+    return _cast(triton_kernels.render_backward(grad, y, den, x, sigma, half, None), x, sigma)
 
 
 def _clamp_render(x, rho, dist, half):
-    return _cast(triton_kernels.render(x, rho, int(half), window(dist, int(half))), x, rho)
+    return _cast(triton_kernels.render(x, rho, half, dist), x, rho)
 
 
 def _clamp_render_backward(grad, y, den, x, rho, dist, half):
-    table, k = window(dist, int(half)), int(half)
-    return _cast(triton_kernels.render_backward(grad, y, den, x, rho, k, table), x, rho)
+    return _cast(triton_kernels.render_backward(grad, y, den, x, rho, half, dist), x, rho)
 
 
 def _gaussian_scatter(x, sigma, norm, half):
-    return triton_kernels.spread(x, sigma, norm, int(half), None).to(x.dtype)
+    return triton_kernels.spread(x, sigma, norm, half, None).to(x.dtype)
 
 
 def _gaussian_scatter_backward(grad, x, sigma, half):
-    return _cast(triton_kernels.spread_backward(grad, x, sigma, int(half), None), x, sigma)
+    return _cast(triton_kernels.spread_backward(grad, x, sigma, half, None), x, sigma)
 
 
 def _clamp_scatter(x, rho, norm, dist, half):
-    table = window(dist, int(half))
-    return triton_kernels.spread(x, rho, norm, int(half), table).to(x.dtype)
+    return triton_kernels.spread(x, rho, norm, half, dist).to(x.dtype)
 
 
 def _clamp_scatter_backward(grad, x, rho, dist, half):
-    table = window(dist, int(half))
-    return _cast(triton_kernels.spread_backward(grad, x, rho, int(half), table), x, rho)
+    return _cast(triton_kernels.spread_backward(grad, x, rho, half, dist), x, rho)
 
 
 def _gaussian_window_sums(sigma, half):
-    return _cast(triton_kernels.window_sums(sigma, int(half), None), sigma, sigma)
+    return _cast(triton_kernels.window_sums(sigma, half, None), sigma, sigma)
 
 
 def _clamp_window_sums(rho, dist, half):
-    return _cast(triton_kernels.window_sums(rho, int(half), window(dist, int(half))), rho, rho)
+    return _cast(triton_kernels.window_sums(rho, half, dist), rho, rho)
 
 
 #: The operators with Triton kernels and those kernels' wrappers.

@@ -39,7 +39,7 @@ from torch import Tensor, nn
 
 from ..aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
 from ..checks import check_depth, check_finite, check_shape, is_tracing
-from . import backends, layer_ops, ops
+from . import backends, layer_ops, ops, triton_kernels
 from .profile import ProfileFilter
 
 MODES = ("gather", "scatter", "layered")
@@ -110,11 +110,13 @@ def render_defocus(
     image, coc_px = _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset)
     if mode == "layered":
         depth = _check_layered_inputs(image, depth, n_layers)
-    largest_coc = _read_checked(image, coc_px, depth if mode == "layered" else None)
+    psf = Gaussian() if psf is None else psf
+    on_device = preset is None and _window_on_device(psf, image)
+    largest_coc = _read_checked(image, coc_px, depth if mode == "layered" else None,
+                                need_largest=not on_device)
     if preset is not None:
         return _render_paper(image, coc_px)
-    psf = Gaussian() if psf is None else psf
-    half = _window_half(psf, coc_px, max_kernel_size, largest_coc)
+    half = _window_half(psf, coc_px, max_kernel_size, largest_coc, on_device)
     if mode == "layered":
         return _render_layered(image, coc_px, psf, half, depth, n_layers, max_kernel_size // 2)
     kind = _fast_kind(psf)
@@ -144,19 +146,28 @@ def _fast_kind(psf: Aperture) -> str | None:
     return None
 
 
+def _window_on_device(psf: Aperture, image: Tensor) -> bool:
+    """Whether the window's half-width is computed on the image's device and handed to the
+    kernels as a tensor, never read by the host: under `torch.compile` (a graph cannot read it)
+    and, on a GPU with the Triton kernels, inside `values_checked` (a training step: a read
+    would wait for every queued kernel). For the Gaussian, the disk and polygons."""
+    if _fast_kind(psf) is None or type(psf).half_width not in (Gaussian.half_width,
+                                                                Disk.half_width):
+        return False
+    return _compiling() or (is_tracing() and image.is_cuda and triton_kernels.available())
+
+
 def _window_half(psf: Aperture, coc_px: Tensor, max_kernel_size: int,
-                 largest_coc: float | None) -> int | Tensor:
-    """Window half-width: a Python int for the `largest_coc` in pixels, or under `torch.compile`
-    a 0-d tensor computed in-graph.
+                 largest_coc: float | None, on_device: bool = False) -> int | Tensor:
+    """Window half-width: a Python int for the `largest_coc` in pixels, or (`on_device`, see
+    `_window_on_device`) a 0-d tensor computed on the device.
 
     The tensor form repeats `half_width` in float64, which is what the Python floats are, so both
     give the same window.
     """
     cap = max_kernel_size // 2
     kind = _fast_kind(psf)
-    if _compiling() and kind is not None and type(psf).half_width in (
-        Gaussian.half_width, Disk.half_width
-    ):
+    if on_device:
         largest = coc_px.detach().amax().double()
         if kind == "gaussian":
             sigma = (psf.scale.detach().double() * largest).clamp_min(MIN_SIGMA_PX)
@@ -231,11 +242,13 @@ def _check_layered_inputs(image: Tensor, depth: Tensor | None, n_layers: int) ->
     return depth.to(image.dtype).expand(b, 1, h, w)
 
 
-def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None) -> float | None:
+def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
+                  need_largest: bool = True) -> float | None:
     """The largest CoC in pixels, once the image is checked finite, the CoC finite and >= 0 and
     `depth` (layered mode) > 0 metres and not NaN: one read from the device for all (on a GPU
     each read waits for every queued kernel). Under `torch.compile`: None, the checks asserted
-    in the graph; under `values_checked`: the largest CoC alone."""
+    in the graph; under `values_checked`: the largest CoC alone, or nothing (None) unless
+    `need_largest`."""
     coc_message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
     depth_message = "depth must be > 0 metres and not NaN everywhere"
     coc_ok = torch.all(torch.isfinite(coc_px) & (coc_px >= 0))
@@ -246,8 +259,8 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None) -> float 
         return None
     coc = coc_px.detach()
     largest = coc.amax() if coc.numel() else coc.new_zeros(())
-    if is_tracing():  # `values_checked`: the window's size is the one value read
-        return float(largest)
+    if is_tracing():  # `values_checked`: the window's size is the one value read, if needed
+        return float(largest) if need_largest else None
     # a NaN or an infinity in the image makes its sum not finite (see `check_finite`)
     read = [largest, coc_ok, image.detach().sum(dtype=torch.promote_types(image.dtype,
                                                                            torch.float32))]

@@ -62,12 +62,13 @@ def _jit(fn):
 
 
 @_jit
-def _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN: tl.constexpr):
-    """`D(dy, dx)` from the distance table where `tap` (clamp); 0 for the Gaussian (no table)."""
+def _tap_distance(dy, dx, table_ptr, T, tap, GAUSSIAN: tl.constexpr):
+    """`D(dy, dx)` from the distance table of half-width `T` where `tap` (clamp); 0 for the
+    Gaussian (no table)."""
     if GAUSSIAN:
         d = 0.0
     else:
-        d = tl.load(table_ptr + (dy + half) * (2 * half + 1) + (dx + half), mask=tap, other=0.0)
+        d = tl.load(table_ptr + (dy + T) * (2 * T + 1) + (dx + T), mask=tap, other=0.0)
     return d
 
 
@@ -97,11 +98,12 @@ def _within(d, tap, limit, GAUSSIAN: tl.constexpr):
 
 
 @_jit
-def _window_sums(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
+def _window_sums(param, coef, table_ptr, half, T, GAUSSIAN: tl.constexpr):
     """`(Z, dZ)` over a source's full window: Gaussian (`param` = sigma, `coef = -1 / (2
     sigma^2)`) the line sums `sum_d t(d)` and `sum_d t(d) d^2`, `t(d) = exp(coef d^2)`,
     `d = -half..half` (the weight factorises, `Z` is the first squared); clamp (`param` = rho,
-    `coef` unused) `sum_u clamp(rho - D(u), 0, 1)` and its slope in rho."""
+    `coef` unused) `sum_u clamp(rho - D(u), 0, 1)` and its slope in rho, `D` the distance
+    table of half-width `T >= half`."""
     if GAUSSIAN:
         total = tl.zeros_like(param) + 1.0
         second = tl.zeros_like(param)
@@ -112,20 +114,21 @@ def _window_sums(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
     else:
         total = tl.zeros_like(param)
         second = tl.zeros_like(param)
-        for i in range(0, (2 * half + 1) * (2 * half + 1)):
-            t = param - tl.load(table_ptr + i)
-            total += tl.minimum(tl.maximum(t, 0.0), 1.0)
-            second += tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
+        for dy in range(-half, half + 1):
+            for dx in range(-half, half + 1):
+                t = param - tl.load(table_ptr + (dy + T) * (2 * T + 1) + (dx + T))
+                total += tl.minimum(tl.maximum(t, 0.0), 1.0)
+                second += tl.where((t >= 0.0) & (t <= 1.0), 1.0, 0.0).to(t.dtype)
     return total, second
 
 
 @_jit
-def _unit_energy(param, coef, table_ptr, half, GAUSSIAN: tl.constexpr):
+def _unit_energy(param, coef, table_ptr, half, T, GAUSSIAN: tl.constexpr):
     """`(norm, dnorm)`: `1 / Z` over the full window and its derivative in sigma (or rho).
 
     `param` is sigma (Gaussian, `coef = -1 / (2 sigma^2)`) or rho (clamp, `coef` unused).
     """
-    total, second = _window_sums(param, coef, table_ptr, half, GAUSSIAN)
+    total, second = _window_sums(param, coef, table_ptr, half, T, GAUSSIAN)
     if GAUSSIAN:
         norm = 1.0 / (total * total)
         dnorm = -2.0 * second / (param * param * param * total * total * total)
@@ -149,7 +152,7 @@ def _tile(W, BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr, CP: tl.constexpr):
 
 @_jit
 def _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, used, H, W, half,
-                 GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr):
+                 T, GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr):
     """`acc + sum_q w_q(p - q) xn(q)` for the tile's outputs `p` (rows `row0 + r`, columns
     `col`): `xn_base` points at the channel planes, `used` masks the channels, `param_base` holds
     each source's `-1 / (2 sigma^2)` (Gaussian) or rho. Clamp: offsets farther than `limit` weigh
@@ -160,7 +163,7 @@ def _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, used,
             dy = r - j
             tap = (dy >= -half) & (dy <= half)
             for dx in range(-half, half + 1):
-                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                d = _tap_distance(dy, dx, table_ptr, T, tap, GAUSSIAN)
                 if _within(d, tap, limit, GAUSSIAN):
                     src_col = col - dx
                     ok = (src_col >= 0) & (src_col < W)
@@ -174,7 +177,7 @@ def _spread_taps(acc, xn_base, param_base, table_ptr, limit, row0, r, col, used,
 
 @_jit
 def _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col, used, H, W, half,
-                  GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr):
+                  T, GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr):
     """For the tile's sources `q` (rows `row0 + r`, columns `col`), with `own` their
     `-1 / (2 sigma^2)` or rho: `acc + sum_u w_q(u) g(q + u)` and `acc_slope + sum_u w'_q(u)
     g(q + u)` (`_tap_weight`'s `dw`), `g_base` pointing at the gradient's channel planes and
@@ -185,7 +188,7 @@ def _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col, u
             dy = j - r
             tap = (dy >= -half) & (dy <= half)
             for dx in range(-half, half + 1):
-                d = _tap_distance(dy, dx, table_ptr, half, tap, GAUSSIAN)
+                d = _tap_distance(dy, dx, table_ptr, T, tap, GAUSSIAN)
                 if _within(d, tap, limit, GAUSSIAN):
                     out_col = col + dx
                     ok = (out_col >= 0) & (out_col < W)
@@ -203,7 +206,7 @@ def _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col, u
 
 
 @_jit
-def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half,
+def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half_ptr, T,
                     C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
                     BLOCK: tl.constexpr):
     """Per pixel: `xn = (x * norm, norm)` and, for the Gaussian, `coef = -1 / (2 sigma^2)`."""
@@ -213,7 +216,7 @@ def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half,
     ch = tl.arange(0, CP)[:, None]
     param = tl.load(param_ptr + b * HW + pix, mask=inside, other=1.0)
     coef = -0.5 / (param * param)
-    norm, _ = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
+    norm, _ = _unit_energy(param, coef, table_ptr, tl.load(half_ptr), T, GAUSSIAN)
     x = tl.load(x_ptr + b * C * HW + ch * HW + pix[None, :], mask=(ch < C) & inside[None, :],
                 other=1.0)
     xn = tl.where(ch < C, x, 1.0) * norm[None, :]
@@ -224,7 +227,8 @@ def _prepare_kernel(x_ptr, param_ptr, table_ptr, xn_ptr, coef_ptr, HW, half,
 
 
 @_jit
-def _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W, half, PLANES: tl.constexpr,
+def _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W, half_ptr, T,
+                 PLANES: tl.constexpr,
                  CP: tl.constexpr, GAUSSIAN: tl.constexpr, BLOCK_H: tl.constexpr,
                  BLOCK_W: tl.constexpr):
     """This program's tile of `sum_q w_q(p - q) xn(q)` over its channels (group `program_id(2)`
@@ -240,33 +244,36 @@ def _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W, half, PLANES: tl
     limit = tl.load(limit_ptr)  # unused by the Gaussian
     acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=xn_ptr.dtype.element_ty)
     acc = _spread_taps(acc, xn_ptr + b * PLANES * HW + ch * HW, param_ptr + b * HW, table_ptr,
-                       limit, row0, r, col, ch < PLANES, H, W, half, GAUSSIAN, BLOCK_H)
+                       limit, row0, r, col, ch < PLANES, H, W, tl.load(half_ptr), T,
+                       GAUSSIAN, BLOCK_H)
     row = row0 + r
     return acc, b, HW, ch, row * W + col, (row < H) & (col < W)
 
 
 @_jit
-def _window_sums_kernel(param_ptr, table_ptr, total_ptr, second_ptr, N, half,
+def _window_sums_kernel(param_ptr, table_ptr, total_ptr, second_ptr, N, half_ptr, T,
                         GAUSSIAN: tl.constexpr, BLOCK: tl.constexpr):
     """Per pixel of a `param` map (`N` values): `_window_sums`, stored in two maps."""
     pix = tl.program_id(0).to(tl.int64) * BLOCK + tl.arange(0, BLOCK)
     inside = pix < N
     param = tl.load(param_ptr + pix, mask=inside, other=1.0)
-    total, second = _window_sums(param, -0.5 / (param * param), table_ptr, half, GAUSSIAN)
+    total, second = _window_sums(param, -0.5 / (param * param), table_ptr, tl.load(half_ptr),
+                                 T, GAUSSIAN)
     tl.store(total_ptr + pix, total, mask=inside)
     tl.store(second_ptr + pix, second, mask=inside)
 
 
 @_jit
-def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, W, half,
-                    C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, W, half_ptr,
+                    T, C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
                     BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
     """`s(p) = sum_q w_q(p - q) xn(q)`; stores `y = s[:C] / s[C]` and `den = s[C]`.
 
     Clamp: offsets farther than the largest rho (`limit_ptr`) weigh nothing and are skipped.
     """
     acc, b, HW, ch, pix, inside = _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W,
-                                               half, C + 1, CP, GAUSSIAN, BLOCK_H, BLOCK_W)
+                                               half_ptr, T, C + 1, CP, GAUSSIAN, BLOCK_H,
+                                               BLOCK_W)
     den = tl.sum(tl.where(ch == C, acc, 0.0), axis=1)[:, None, :]
     safe = tl.where(inside, den, 1.0)  # pixels off the image are not stored
     tl.store(y_ptr + b * C * HW + ch * HW + pix, acc / safe, mask=inside & (ch < C))
@@ -275,7 +282,7 @@ def _forward_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, den_ptr, H, 
 
 @_jit
 def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_ptr, H, W,
-                     half, C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
+                     half_ptr, T, C: tl.constexpr, CP: tl.constexpr, GAUSSIAN: tl.constexpr,
                      BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
     """Per source `q`: `dL/dx(q)` and `dL/dparam(q)` from `G`, the gradient of the spread.
 
@@ -283,6 +290,7 @@ def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_
     """
     b = tl.program_id(1).to(tl.int64)
     HW = H * W
+    half = tl.load(half_ptr)
     row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CP)
     row = row0 + r
     inside = (row < H) & (col < W)
@@ -295,8 +303,8 @@ def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_
     acc = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
     acc_slope = tl.zeros([BLOCK_H, CP, BLOCK_W], dtype=g_ptr.dtype.element_ty)
     acc, acc_slope = _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col,
-                                   ch <= C, H, W, half, GAUSSIAN, BLOCK_H)
-    norm, dnorm = _unit_energy(param, coef, table_ptr, half, GAUSSIAN)
+                                   ch <= C, H, W, half, T, GAUSSIAN, BLOCK_H)
+    norm, dnorm = _unit_energy(param, coef, table_ptr, half, T, GAUSSIAN)
     # (x, 1): the spread's input, whose last channel carries the normalisation
     x = tl.load(x_ptr + b * C * HW + ch * HW + pix, mask=inside & (ch < C), other=0.0)
     ones = tl.where(ch == C, 1.0, x)
@@ -309,7 +317,7 @@ def _backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, grad_x_ptr, grad_param_
 
 
 @_jit
-def _spread_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, H, W, half,
+def _spread_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, H, W, half_ptr, T,
                    C: tl.constexpr, CG: tl.constexpr, GAUSSIAN: tl.constexpr,
                    BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
     """`y(p) = sum_q w_q(p - q) xn(q)` for the channels of this program's group (grid axis 2).
@@ -317,13 +325,13 @@ def _spread_kernel(xn_ptr, param_ptr, table_ptr, limit_ptr, y_ptr, H, W, half,
     Clamp: offsets farther than the largest rho (`limit_ptr`) weigh nothing and are skipped.
     """
     acc, b, HW, ch, pix, inside = _spread_tile(xn_ptr, param_ptr, table_ptr, limit_ptr, H, W,
-                                               half, C, CG, GAUSSIAN, BLOCK_H, BLOCK_W)
+                                               half_ptr, T, C, CG, GAUSSIAN, BLOCK_H, BLOCK_W)
     tl.store(y_ptr + b * C * HW + ch * HW + pix, acc, mask=inside & (ch < C))
 
 
 @_jit
-def _spread_backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, dx_ptr, m_ptr, H, W, half,
-                            C: tl.constexpr, CG: tl.constexpr, GAUSSIAN: tl.constexpr,
+def _spread_backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, dx_ptr, m_ptr, H, W, half_ptr,
+                            T, C: tl.constexpr, CG: tl.constexpr, GAUSSIAN: tl.constexpr,
                             BLOCK_H: tl.constexpr, BLOCK_W: tl.constexpr):
     """Per source `q`, for this program's channels: `dx_raw(q) = sum_u w_q(u) g(q + u)` and its
     group's share `sum_c x_c(q) sum_u w'_q(u) g_c(q + u)` of `m` (row `group` of `m_ptr`).
@@ -333,6 +341,7 @@ def _spread_backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, dx_ptr, m_ptr, H
     b = tl.program_id(1).to(tl.int64)
     group = tl.program_id(2)
     HW = H * W
+    half = tl.load(half_ptr)
     row0, r, col, ch = _tile(W, BLOCK_H, BLOCK_W, CG)
     ch = group * CG + ch
     used = ch < C
@@ -349,7 +358,7 @@ def _spread_backward_kernel(g_ptr, x_ptr, param_ptr, table_ptr, dx_ptr, m_ptr, H
     acc = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=g_ptr.dtype.element_ty)
     acc_slope = tl.zeros([BLOCK_H, CG, BLOCK_W], dtype=g_ptr.dtype.element_ty)
     acc, acc_slope = _adjoint_taps(acc, acc_slope, g_base, own, table_ptr, limit, row0, r, col,
-                                   used, H, W, half, GAUSSIAN, BLOCK_H)
+                                   used, H, W, half, T, GAUSSIAN, BLOCK_H)
     x = tl.load(x_ptr + b * C * HW + ch * HW + pix, mask=inside & used, other=0.0)
     tl.store(dx_ptr + b * C * HW + ch * HW + pix, acc, mask=inside & used)
     share = tl.sum(x * acc_slope, axis=1)[:, None, :]
@@ -370,14 +379,21 @@ def _grid(x: Tensor) -> tuple[int, int]:
     return triton.cdiv(h, BLOCK_H) * triton.cdiv(w, BLOCK_W), b
 
 
-def _operands(x: Tensor, param: Tensor, table: Tensor | None):
-    """`(x, param, table, gaussian)` ready for the kernels: float32 or float64, contiguous, the
-    table on the device (the Gaussian has none: `param` stands in for the unused pointer)."""
+def _operands(x: Tensor, param: Tensor, half: int | Tensor, table: Tensor | None):
+    """`(x, param, table, gaussian, half, T)` ready for the kernels: float32 or float64,
+    contiguous, the table on the device (the Gaussian has none: `param` stands in for the unused
+    pointer), the window half-width in a one-element device tensor (read by the kernels, never
+    by the host: a 0-d tensor computed on the GPU stays there) and the table's half-width `T`
+    (at least the window's)."""
     dtype = x.dtype if x.dtype in (torch.float32, torch.float64) else torch.float32
     x, param = x.to(dtype).contiguous(), param.to(dtype).contiguous()
+    if isinstance(half, Tensor) and half.device == x.device:
+        half = half.reshape(1)
+    else:  # a Python int or a CPU tensor: its value is on the host already
+        half = torch.full((1,), int(half), dtype=torch.int64, device=x.device)
     if table is None:
-        return x, param, param, True
-    return x, param, table.to(x.device, dtype).contiguous(), False
+        return x, param, param, True, half, 0
+    return x, param, table.to(x.device, dtype).contiguous(), False, half, table.shape[-1] // 2
 
 
 def _channels(x: Tensor) -> dict:
@@ -385,10 +401,11 @@ def _channels(x: Tensor) -> dict:
     return {"C": c, "CP": triton.next_power_of_2(c + 1)}
 
 
-def render(x: Tensor, param: Tensor, half: int, table: Tensor | None) -> tuple[Tensor, Tensor]:
+def render(x: Tensor, param: Tensor, half: int | Tensor,
+           table: Tensor | None) -> tuple[Tensor, Tensor]:
     """`(y, den)` of the normalised scatter: Gaussian (`param` = sigma, `table` None) or clamp
-    (`param` = rho, `table` the `(2 half + 1)^2` distance table)."""
-    x, param, table, gaussian = _operands(x, param, table)
+    (`param` = rho, `table` a square distance table at least `2 half + 1` wide, centred)."""
+    x, param, table, gaussian, half, T = _operands(x, param, half, table)
     b, c, h, w = x.shape
     xn = x.new_empty(b, c + 1, h, w)
     coef = torch.empty_like(param) if gaussian else param
@@ -396,25 +413,26 @@ def render(x: Tensor, param: Tensor, half: int, table: Tensor | None) -> tuple[T
     meta = {**_channels(x), "GAUSSIAN": gaussian, "num_warps": NUM_WARPS}
     with _device_of(x):
         _prepare_kernel[(triton.cdiv(h * w, BLOCK_PREP), b)](
-            x, param, table, xn, coef, h * w, half, BLOCK=BLOCK_PREP, **meta
+            x, param, table, xn, coef, h * w, half, T, BLOCK=BLOCK_PREP, **meta
         )
         limit = param if gaussian else param.amax()  # the Gaussian ignores it
         _forward_kernel[_grid(x)](
-            xn, coef, table, limit, y, den, h, w, half, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, **meta
+            xn, coef, table, limit, y, den, h, w, half, T, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W,
+            **meta
         )
     return y, den
 
 
-def render_backward(grad: Tensor, y: Tensor, den: Tensor, x: Tensor, param: Tensor, half: int,
-                    table: Tensor | None) -> tuple[Tensor, Tensor]:
+def render_backward(grad: Tensor, y: Tensor, den: Tensor, x: Tensor, param: Tensor,
+                    half: int | Tensor, table: Tensor | None) -> tuple[Tensor, Tensor]:
     """`(dL/dx, dL/dparam)` of `render` from `dL/dy`."""
-    x, param, table, gaussian = _operands(x, param, table)
+    x, param, table, gaussian, half, T = _operands(x, param, half, table)
     g = grad_of_spread(*(t.to(x.dtype) for t in (grad, y, den)))
     grad_x, grad_param = torch.empty_like(x), torch.empty_like(param)
     _, _, h, w = x.shape
     with _device_of(x):
         _backward_kernel[_grid(x)](
-            g, x, param, table, grad_x, grad_param, h, w, half, GAUSSIAN=gaussian,
+            g, x, param, table, grad_x, grad_param, h, w, half, T, GAUSSIAN=gaussian,
             BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS, **_channels(x),
         )
     return grad_x, grad_param
@@ -424,11 +442,12 @@ def _spread_grid(x: Tensor) -> tuple[int, int, int]:
     return (*_grid(x), triton.cdiv(x.shape[1], CHANNEL_GROUP))
 
 
-def spread(x: Tensor, param: Tensor, norm: Tensor, half: int, table: Tensor | None) -> Tensor:
+def spread(x: Tensor, param: Tensor, norm: Tensor, half: int | Tensor,
+           table: Tensor | None) -> Tensor:
     """The unnormalised spread `y(p) = sum_q norm_q w_q(p - q) x(q)` of any number of channels:
     Gaussian (`param` = sigma, `table` None) or clamp (`param` = rho, `table` the distance
     table)."""
-    x, param, table, gaussian = _operands(x, param, table)
+    x, param, table, gaussian, half, T = _operands(x, param, half, table)
     b, c, h, w = x.shape
     xn = (x * norm.to(x.dtype)).contiguous()
     source = -0.5 / (param * param) if gaussian else param
@@ -436,40 +455,41 @@ def spread(x: Tensor, param: Tensor, norm: Tensor, half: int, table: Tensor | No
     y = torch.empty_like(x)
     with _device_of(x):
         _spread_kernel[_spread_grid(x)](
-            xn, source, table, limit, y, h, w, half, C=c, CG=CHANNEL_GROUP, GAUSSIAN=gaussian,
+            xn, source, table, limit, y, h, w, half, T, C=c, CG=CHANNEL_GROUP, GAUSSIAN=gaussian,
             BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS,
         )
     return y
 
 
-def spread_backward(grad: Tensor, x: Tensor, param: Tensor, half: int,
+def spread_backward(grad: Tensor, x: Tensor, param: Tensor, half: int | Tensor,
                     table: Tensor | None) -> tuple[Tensor, Tensor]:
     """`(dx_raw, m)` of `spread` (see `ops.gaussian_scatter_backward` and
     `clamp_scatter_backward`): `sum_u w_q(u) g(q + u)` per channel and
     `sum_c x_c(q) sum_u w'_q(u) g_c(q + u)`, `w'` the weight's derivative without its
     `1 / sigma^3` (Gaussian: `w |u|^2`) or the clamp's slope."""
-    x, param, table, gaussian = _operands(x, param, table)
+    x, param, table, gaussian, half, T = _operands(x, param, half, table)
     g = grad.to(x.dtype).contiguous()
     b, c, h, w = x.shape
     grid = _spread_grid(x)
     dx_raw, shares = torch.empty_like(x), x.new_empty(b, grid[2], h, w)
     with _device_of(x):
         _spread_backward_kernel[grid](
-            g, x, param, table, dx_raw, shares, h, w, half, C=c, CG=CHANNEL_GROUP,
+            g, x, param, table, dx_raw, shares, h, w, half, T, C=c, CG=CHANNEL_GROUP,
             GAUSSIAN=gaussian, BLOCK_H=BLOCK_H, BLOCK_W=BLOCK_W, num_warps=NUM_WARPS,
         )
     return dx_raw, shares.sum(1, keepdim=True)
 
 
-def window_sums(param: Tensor, half: int, table: Tensor | None) -> tuple[Tensor, Tensor]:
+def window_sums(param: Tensor, half: int | Tensor,
+                table: Tensor | None) -> tuple[Tensor, Tensor]:
     """The window sums of `ops.gaussian_window_sums` (`param` = sigma, `table` None: `sum_d t(d)`
     and `sum_d t(d) d^2`) or `ops.clamp_window_sums` (`param` = rho, `table` the distance
     table: `Z` and `dZ/drho`), per pixel of `param`, in one pass."""
-    param, _, table, gaussian = _operands(param, param, table)
+    param, _, table, gaussian, half, T = _operands(param, param, half, table)
     total, second = torch.empty_like(param), torch.empty_like(param)
     with _device_of(param):
         _window_sums_kernel[(triton.cdiv(param.numel(), BLOCK_PREP),)](
-            param, table, total, second, param.numel(), half, GAUSSIAN=gaussian,
+            param, table, total, second, param.numel(), half, T, GAUSSIAN=gaussian,
             BLOCK=BLOCK_PREP, num_warps=NUM_WARPS,
         )
     return total, second
