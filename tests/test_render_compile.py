@@ -51,10 +51,12 @@ def test_compile_fullgraph_matches_eager_cpu(make, mode):
     _check_compiled_matches_eager(make, mode, torch.device("cpu"))
 
 
-def test_compile_fullgraph_pure_path(monkeypatch):
-    """The PyTorch loops (the GPU path) compile the same way: they run inside the operators."""
+@pytest.mark.parametrize("mode", ["scatter", "layered"])
+def test_compile_fullgraph_pure_path(monkeypatch, mode):
+    """The PyTorch loops (the GPU path) compile the same way: they run inside the operators;
+    the layered mode's compositing (a custom autograd function) traces too."""
     monkeypatch.setattr(_render_cpp, "usable", lambda x: False)
-    _check_compiled_matches_eager(Disk, "scatter", torch.device("cpu"))
+    _check_compiled_matches_eager(Disk, mode, torch.device("cpu"))
 
 
 @pytest.mark.cuda
