@@ -298,6 +298,9 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
     args.argv = list(sys.argv[1:] if argv is None else argv)
     if args.dataset == "dslr" and args.root is None:
         parser.error("--dataset dslr needs --root (the DSLR release's folder)")
+    if args.steps < 2:
+        parser.error(f"--steps must be at least 2 (a step's time is the interval between two), "
+                     f"got {args.steps}")
     if args.crop is None:
         args.crop = 256 if torch.device(args.device).type == "cuda" else 128
     args.workers = [int(w) for w in str(args.workers).split(",")]

@@ -192,6 +192,9 @@ class TrainConfig:
         if self.side != "both" and not self.depth_min < self.focus_distance < self.depth_max:
             raise ValueError(f"side {self.side!r} needs a focus_distance between depth_min and "
                              f"depth_max, got {self.focus_distance!r}")
+        if self.compile_mode != "default" and not self.compile:
+            raise ValueError(f"compile_mode={self.compile_mode!r} needs compile=true (without it "
+                             "nothing is compiled)")
         check_device(self.device)
 
     def to_dict(self) -> dict[str, Any]:

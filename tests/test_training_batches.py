@@ -316,5 +316,7 @@ def test_precision_and_compile_mode_are_checked_by_name():
         TrainConfig(compile_mode="fast")
     with pytest.raises(ValueError, match="precision must be one of"):
         TrainConfig(precision="float16")
-    assert TrainConfig().override(["compile_mode=reduce-overhead"]).compile_mode \
+    assert TrainConfig(compile=True).override(["compile_mode=reduce-overhead"]).compile_mode \
         == "reduce-overhead"
+    with pytest.raises(ValueError, match="compile_mode='reduce-overhead' needs compile=true"):
+        TrainConfig(compile_mode="reduce-overhead")
