@@ -108,12 +108,10 @@ def render_defocus(
         tensor([0.0970, 0.1592, 0.0970])
     """
     image, coc_px = _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset)
-    if mode == "layered":
-        depth = _check_layered_inputs(image, depth, n_layers)
+    depth = _check_layered_inputs(image, depth, n_layers) if mode == "layered" else None
     psf = Gaussian() if psf is None else psf
     on_device = preset is None and _window_on_device(psf, image)
-    largest_coc = _read_checked(image, coc_px, depth if mode == "layered" else None,
-                                need_largest=not on_device)
+    largest_coc = _read_checked(image, coc_px, depth, need_largest=not on_device)
     if preset is not None:
         return _render_paper(image, coc_px)
     half = _window_half(psf, coc_px, max_kernel_size, largest_coc, on_device)
