@@ -98,6 +98,18 @@ def test_closing_the_stream_stops_the_device_thread(augmented):
     assert not thread.is_alive()
 
 
+def test_closing_the_stream_stops_its_workers_even_if_the_iterator_lives_on(augmented):
+    """A reference that outlives `close` (as an exception's traceback may hold) must not keep
+    workers alive: they ignore SIGTERM, and would hold up the process's exit."""
+    sampler = StepSampler(augmented, batch_size=2, seed=0)
+    stream = BatchStream(sampler, 0, 50, torch.device("cpu"), workers=2)
+    next(stream)
+    kept = stream._iterator
+    workers = list(kept._workers)
+    stream.close()
+    assert workers and not any(w.is_alive() for w in workers)
+
+
 def test_a_gpu_stream_moves_batches_in_a_thread_only_with_workers():
     sampler = StepSampler([{"image": torch.zeros(3, 2, 2)}] * 2, batch_size=1, seed=0)
     cuda = torch.device("cuda")

@@ -212,9 +212,11 @@ class DevicePrefetch:
         return batch
 
     def close(self) -> None:
-        """Stop the thread (it ends after the batch it is moving)."""
+        """Stop the thread (it ends after the batch it is moving) and let go of the source."""
         self.stopping.set()
         self.thread.join(timeout=30)
+        if not self.thread.is_alive():
+            self.source = None
 
     def __enter__(self) -> DevicePrefetch:
         return self
@@ -293,6 +295,12 @@ class BatchStream:
         if self._mover is not None:
             self._mover.close()
             self._mover = None
+        # Stopped now, not when the iterator is collected: one kept alive by a reference cycle
+        # (an exception's traceback) would outlive the process's exit, and workers that ignore
+        # SIGTERM would then hold that exit up.
+        shutdown = getattr(self._iterator, "_shutdown_workers", None)
+        if shutdown is not None:
+            shutdown()
         self._iterator = None
 
     def __enter__(self) -> BatchStream:
