@@ -19,7 +19,6 @@ Example:
 
 from __future__ import annotations
 
-import dataclasses
 import os
 import pickle
 import queue
@@ -130,8 +129,7 @@ def tensors(batch: Any) -> Iterator[Tensor]:
         for value in batch:
             yield from tensors(value)
     elif isinstance(batch, CameraSettings):
-        for item in dataclasses.fields(batch):
-            yield from tensors(getattr(batch, item.name))
+        yield from batch.tensors().values()
 
 
 _END = object()

@@ -189,17 +189,9 @@ def _window_half(psf: Aperture, coc_px: Tensor, max_kernel_size: int,
 
 def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Tensor, Tensor]:
     check_shape("image", image, ["B", "C", "H", "W"])
-    check_shape("coc_px", coc_px, ["B", "1", "H", "W"])
     if not image.is_floating_point():
         raise TypeError(f"image must be a floating-point tensor, got dtype {image.dtype}")
-    if not coc_px.is_floating_point():
-        raise TypeError(f"coc_px must be a floating-point tensor, got dtype {coc_px.dtype}")
-    b, _, h, w = image.shape
-    if coc_px.shape[2:] != image.shape[2:] or coc_px.shape[0] not in (1, b):
-        raise ValueError(
-            f"coc_px must have shape ({b} or 1, 1, {h}, {w}) to match image, "
-            f"got {tuple(coc_px.shape)}"
-        )
+    coc_px = _per_pixel_map("coc_px", coc_px, image)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if psf is not None and not isinstance(psf, Aperture):
@@ -219,8 +211,20 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
                 f"preset={preset!r} fixes a Gaussian PSF (scale 0.5) in scatter mode, got "
                 f"psf={psf!r} and mode={mode!r}"
             )
-    coc_px = coc_px.to(image.dtype).expand(b, 1, h, w)
     return image, coc_px
+
+
+def _per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
+    """A `(B or 1, 1, H, W)` floating-point map of `image`'s pixels (shape and type checked;
+    its values by `_read_checked`), in the image's dtype and broadcast to its batch."""
+    check_shape(name, values, ["B", "1", "H", "W"])
+    if not values.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor, got dtype {values.dtype}")
+    b, _, h, w = image.shape
+    if values.shape[2:] != image.shape[2:] or values.shape[0] not in (1, b):
+        raise ValueError(f"{name} must have shape ({b} or 1, 1, {h}, {w}) to match image, "
+                         f"got {tuple(values.shape)}")
+    return values.to(image.dtype).expand(b, 1, h, w)
 
 
 def _check_layered_inputs(image: Tensor, depth: Tensor | None, n_layers: int) -> Tensor:
@@ -228,16 +232,9 @@ def _check_layered_inputs(image: Tensor, depth: Tensor | None, n_layers: int) ->
     `_read_checked`)."""
     if depth is None:
         raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
-    check_shape("depth", depth, ["B", "1", "H", "W"])
-    if not depth.is_floating_point():
-        raise TypeError(f"depth must be a floating-point tensor, got dtype {depth.dtype}")
-    b, _, h, w = image.shape
-    if depth.shape[2:] != image.shape[2:] or depth.shape[0] not in (1, b):
-        raise ValueError(f"depth must have shape ({b} or 1, 1, {h}, {w}) to match image, "
-                         f"got {tuple(depth.shape)}")
     if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
         raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
-    return depth.to(image.dtype).expand(b, 1, h, w)
+    return _per_pixel_map("depth", depth, image)
 
 
 def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
@@ -249,19 +246,21 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     `need_largest`."""
     coc_message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
     depth_message = "depth must be > 0 metres and not NaN everywhere"
-    coc_ok = torch.all(torch.isfinite(coc_px) & (coc_px >= 0))
     if _compiling():
-        torch._assert_async(coc_ok, coc_message)
+        torch._assert_async(torch.all(torch.isfinite(coc_px) & (coc_px >= 0)), coc_message)
         if depth is not None:
             torch._assert_async(torch.all(~torch.isnan(depth) & (depth > 0)), depth_message)
         return None
+    checking = not is_tracing()  # `values_checked`: the window's size alone, if it is needed
+    if not (checking or need_largest):
+        return None
     coc = coc_px.detach()
     largest = coc.amax() if coc.numel() else coc.new_zeros(())
-    if is_tracing():  # `values_checked`: the window's size is the one value read, if needed
-        return float(largest) if need_largest else None
+    if not checking:
+        return float(largest)
     # a NaN or an infinity in the image makes its sum not finite (see `check_finite`)
-    read = [largest, coc_ok, image.detach().sum(dtype=torch.promote_types(image.dtype,
-                                                                           torch.float32))]
+    read = [largest, torch.all(torch.isfinite(coc) & (coc >= 0)),
+            image.detach().sum(dtype=torch.promote_types(image.dtype, torch.float32))]
     if depth is not None:
         read.append(torch.all(~torch.isnan(depth) & (depth > 0)))
     largest, coc_valid, image_sum, *depth_valid = torch.stack(
