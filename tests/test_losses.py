@@ -1,5 +1,9 @@
 """Self-supervised losses: perfect prediction is the minimum, gradients reach the depth."""
 
+import importlib.util
+import json
+from pathlib import Path
+
 import kornia
 import pytest
 import torch
@@ -9,6 +13,7 @@ from models.losses import (
     edge_aware_smoothness,
     photometric_loss,
     sharpness_loss,
+    ssim_map,
     supervised_depth_loss,
 )
 from optics import CameraSettings, render_focal_stack
@@ -33,6 +38,49 @@ def test_photometric_matches_definition(dtype):
     expected = 0.85 * ((1 - ssim) / 2).clamp(0, 1).mean() + 0.15 * (a - b).abs().mean()
     torch.testing.assert_close(photometric_loss(a, b), expected)
     assert float(photometric_loss(a, a)) == pytest.approx(0.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("window_size", [3, 7, 11])
+def test_ssim_map_matches_kornia_values_and_gradients(dtype, window_size):
+    g = torch.Generator().manual_seed(2)
+    a = torch.rand(2, 3, 13, 17, generator=g).to(dtype).requires_grad_()
+    b = torch.rand(2, 3, 13, 17, generator=g).to(dtype).requires_grad_()
+    ours = ssim_map(a, b, window_size)
+    theirs = kornia.metrics.ssim(a, b, window_size)
+    tol = {"atol": 1e-5, "rtol": 1e-5} if dtype == torch.float32 else {}
+    torch.testing.assert_close(ours, theirs, **tol)
+    weight = torch.rand(ours.shape, generator=g).to(dtype)
+    grads = torch.autograd.grad((ours * weight).sum(), (a, b))
+    expected = torch.autograd.grad((theirs * weight).sum(), (a, b))
+    for got, want in zip(grads, expected, strict=True):
+        torch.testing.assert_close(got, want, **tol)
+
+
+def test_ssim_map_gradcheck():
+    g = torch.Generator().manual_seed(3)
+    a = torch.rand(1, 2, 6, 7, generator=g, dtype=torch.float64, requires_grad=True)
+    b = torch.rand(1, 2, 6, 7, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda x, y: ssim_map(x, y, 5), (a, b))
+
+
+def test_ssim_map_window_made_in_inference_mode_still_trains():
+    a, b = torch.rand(1, 3, 9, 9), torch.rand(1, 3, 9, 9)
+    with torch.inference_mode():
+        ssim_map(a, b, 9)  # the first call makes the cached window
+    x = a.clone().requires_grad_()
+    ssim_map(x, b, 9).mean().backward()
+    assert x.grad is not None and torch.isfinite(x.grad).all()
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"window_size": 4}, "window_size must be an odd number of pixels >= 1, got 4"),
+    ({"y": torch.rand(1, 3, 8, 9)}, "x and y must have the same shape"),
+])
+def test_ssim_map_refuses_bad_input(kwargs, match):
+    args = {"x": torch.rand(1, 3, 8, 8), "y": torch.rand(1, 3, 8, 8), **kwargs}
+    with pytest.raises(ValueError, match=match):
+        ssim_map(**args)
 
 
 def test_render_focal_stack_matches_camera_render():
@@ -117,3 +165,17 @@ def test_errors():
         photometric_loss(torch.rand(1, 3, 8, 8), torch.rand(1, 3, 8, 8), ssim_weight=2.0)
     with pytest.raises(ValueError, match="depth"):
         render_focal_stack(torch.rand(1, 3, 8, 8), torch.rand(1, 2, 8, 8) + 1, _camera(torch.float32))
+
+
+def test_loss_benchmark_prints_its_table_and_goals(tmp_path, capsys):
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "loss.py"
+    spec = importlib.util.spec_from_file_location("loss_benchmark", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "ssim.json"
+    assert bench.main(["--sizes", "8,12", "--repeats", "2", "--batch", "2", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "goal: forward operations <= half Kornia's" in printed
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["size"] for r in rows] == [8, 12]
+    assert all(r["ops"][0] < r["kornia_ops"][0] and r["max_difference"] <= 1e-4 for r in rows)
