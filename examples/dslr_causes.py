@@ -15,6 +15,7 @@ scenes when each cause is taken into account:
 | JPEG, demosaicing, a softer lens wide open | the fitted floor: blur in focus |
 | PSF shape | the residual of the disk and of the Gaussian at their best blur per depth bin |
 | near or far of the focus plane | an oracle that picks the side from the true depth |
+| cues to that side in the photos | `optics.side_cues`: the red minus blue blur, and the disk's fit over the Gaussian's, in front of the plane against behind it at the same blur |
 
 and whether the self-supervised loss (`DefocusLoss`, the fitted camera, relative pairs) is right:
 scene by scene, its value at the true depth, at its mirror across the focus plane, at the ends
@@ -24,7 +25,7 @@ of the depth range, at the focus plane and at the best constant of the training 
 loss prefers on the training scenes (`models.diagnostics.match_blur_scale`). Where the true
 depth does not score best, no network trained through the loss can find it.
 
-CPU, about 10 minutes on 2 cores::
+CPU, about 13 minutes on 2 cores::
 
     python examples/dslr_causes.py --root data/dfd_indoor
 """
@@ -39,12 +40,13 @@ from pathlib import Path
 import torch
 
 from datasets import DSLR
-from datasets.calibration import calibrate_dataset
+from datasets.calibration import calibrate_dataset, depth_pairs
 from datasets.pairs import soften
 from models.depth_from_photos import estimate_depth
 from models.diagnostics import loss_at_depths, true_depth_wins, write_blur_matched_camera
 from models.losses import DefocusLoss
 from models.metrics import best_constant_depth, depth_metrics
+from optics import side_cues
 from optics.progress import progress_bar
 
 DEPTH_RANGE = (0.5, 10.0)
@@ -124,6 +126,29 @@ def photo_differences(train: DSLR, indices: list[int]) -> dict[str, str]:
     }
 
 
+def print_side_cues(train: DSLR, focus_m: float) -> None:
+    """Print whether the photos tell near from far of the focus plane (`optics.side_cues` on
+    every training scene): per depth bin, then in front against behind at the same blur."""
+    cues = side_cues(depth_pairs(train, progress=True), focus_m, progress=True)
+    print(f"\ncues to the side of the focus plane ({focus_m:.2f} m), {len(train)} training scenes "
+          "(mean over the scenes that measure the bin, standard error in brackets):")
+    print(f"  {'depth m':>8} {'side':>6} {'scenes':>6} {'R px':>6} {'G px':>6} {'B px':>6} "
+          f"{'R - B px':>16} {'log disk/Gaussian':>18}")
+    for row in cues.by_bin():
+        side = "front" if row["side"] < 0 else "behind"
+        print(f"  {row['depth_m']:8.2f} {side:>6} {row['pairs']:6.0f} "
+              + " ".join(f"{row[f'channel {c} px']:6.2f}" for c in range(3))
+              + f" {row['colour spread px']:+8.3f} ({row['colour spread px se']:.3f})"
+              f" {row['shape log ratio']:+9.4f} ({row['shape log ratio se']:.4f})")
+    for name, c in cues.contrast().items():
+        if c["pairs"] == 0:
+            print(f"  front minus behind at the same blur, {name}: no scene measures both sides")
+            continue
+        print(f"  front minus behind at the same blur, {name}: {c['mean']:+.4f} "
+              f"(standard error {c['standard_error']:.4f}, z {c['z']:+.1f}, {c['pairs']:.0f} "
+              "scenes with both sides)")
+
+
 def loss_diagnostic(root: Path, scenes: range, cameras: dict[str, Path], constant: float) -> None:
     """Print the loss at the true depth and the alternatives, each scene: the pairs as loaded
     and registered with the fitted camera, then registered with each other camera of
@@ -189,6 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     near = [float((s["depth"][s["mask"]] < fit.fit.focus_distance).float().mean())
             for s in (train[i] for i in every)]
     print(f"pixels nearer than the focus plane: {100 * sum(near) / len(near):.0f} % (training)")
+    print_side_cues(train, fit.fit.focus_distance)
     from models.experiment import constant_from_training
 
     matched = loss_matched_camera(args.root, every, args.out / "camera.json",

@@ -14,10 +14,12 @@ from .calibration import (
     CalibrationPair,
     CalibrationResult,
     DepthCalibration,
+    SideCues,
     calibrate,
     calibrate_from_depth,
     fit_thin_lens_curve,
     measure_blur,
+    side_cues,
 )
 from .camera import Camera, CameraSettings
 from .collate import collate
@@ -68,6 +70,8 @@ __all__ = [
     "calibrate_from_depth",
     "fit_thin_lens_curve",
     "measure_blur",
+    "SideCues",
+    "side_cues",
     "plot_calibration",
     "plot_depth_calibration",
     # raw photos

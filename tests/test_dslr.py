@@ -261,3 +261,25 @@ def test_train_step_benchmark_runs_on_the_release(tmp_path, capsys, monkeypatch)
     results = json.loads(out.read_text())
     assert [row["workers"] for row in results["rows"]] == [0, 1]
     assert all(row["steps_per_s"] > 0 and 0 <= row["data_share"] <= 1 for row in results["rows"])
+
+
+def test_dslr_causes_prints_the_side_cues_of_a_release(tmp_path, capsys):
+    """`examples/dslr_causes.py`'s side-cue table on a release rendered by a thin lens with one
+    focus for every colour: both sides binned, and no colour cue."""
+    import importlib.util
+
+    write_rendered_release(tmp_path, scenes=7)
+    path = Path(__file__).resolve().parents[1] / "examples" / "dslr_causes.py"
+    spec = importlib.util.spec_from_file_location("dslr_causes_example", path)
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    example.print_side_cues(DSLR(tmp_path), 1.7)
+    printed = capsys.readouterr().out
+    assert "cues to the side of the focus plane (1.70 m), 7 training scenes" in printed
+    assert " front " in printed and " behind " in printed
+    rows = [line.split() for line in printed.splitlines()
+            if line.split()[1:2] in (["front"], ["behind"])]
+    assert {r[1] for r in rows} == {"front", "behind"}
+    assert all(abs(float(r[6])) < 0.25 for r in rows)  # red minus blue blur, pixels
+    # each scene has one band per side, at different blurs: no scene to compare
+    assert "colour spread px: no scene measures both sides" in printed

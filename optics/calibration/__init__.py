@@ -12,6 +12,7 @@ and `calibrate_from_depth` (photos with depth maps), one job per module.
 | `optimise` | Adam then L-BFGS, and the Gauss-Newton uncertainty |
 | `result` | `CalibrationResult` |
 | `blur_curve` | from photos with depth maps: the blur by depth, the thin lens with a floor |
+| `side` | from photos with depth maps: does the lens tell near from far of the focus plane |
 
 Everything public here is also in `optics`; the figures are `optics.plotting.plot_calibration`
 and `optics.plotting.plot_depth_calibration`.
@@ -30,6 +31,7 @@ from .measure import fit_thin_lens_curve, measure_blur
 from .pair import CalibrationPair
 from .problem import PARAMETERS, PSF_FAMILIES
 from .result import CalibrationResult
+from .side import SideCues, mirror_bin_edges, side_cues
 
 __all__ = [
     "PARAMETERS",
@@ -40,10 +42,13 @@ __all__ = [
     "CalibrationPair",
     "CalibrationResult",
     "DepthCalibration",
+    "SideCues",
     "calibrate",
     "calibrate_from_depth",
     "fit_blur_curve",
     "fit_thin_lens_curve",
     "measure_blur",
     "measure_blur_curve",
+    "mirror_bin_edges",
+    "side_cues",
 ]
