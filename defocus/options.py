@@ -171,6 +171,9 @@ def add_training_arguments(parser: argparse.ArgumentParser, out: str) -> None:
                              "the self-supervised network puts a blur both sides explain; a blur "
                              "above the far side's bound is put near either way")
     parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
+    parser.add_argument("--smoothness-weight", type=float, default=0.001,
+                        help="weight of the self-supervised loss's edge-aware depth smoothness "
+                             "(the paper: 0.001)")
     parser.add_argument("--network", choices=["small", "paper"], default="small",
                         help="depth network (the paper's is large; use a GPU)")
     parser.add_argument("--width", type=int, default=32, help="channel width of the small network")

@@ -101,6 +101,17 @@ def test_example_trains_on_crops(tmp_path, monkeypatch, capsys):
     assert "plan: 3 steps" in out and "ours (small, aif+focused, 3 steps)" in out
 
 
+def test_example_passes_the_smoothness_weight_to_the_run(tmp_path, monkeypatch, capsys):
+    root = tmp_path / "data"
+    write_middlebury(root, h=12, w=16)
+    module = load_example("middlebury", monkeypatch)
+    argv = ["--root", str(root), "--out", str(tmp_path / "run"), "--no-progress", "--no-cache",
+            "--steps", "1", "--batch-size", "1", "--width", "4", "--device", "cpu",
+            "--smoothness-weight", "0.05"]
+    assert module.main(argv) == 0
+    assert "smoothness_weight: 0.05" in (tmp_path / "run" / "config.yaml").read_text()
+
+
 def test_example_rejects_bad_crop(monkeypatch, tmp_path):
     monkeypatch.setenv("DEFOCUS_CACHE_DIR", str(tmp_path / "cache"))
     module = load_example("middlebury", monkeypatch)
