@@ -270,11 +270,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.side != "both":
         rows.update(side_bound_row(val, depth_range, args.side))
     rows.update(label_free_rows(lens, depth_range, args.predict_pixels, args.predict_side))
-    from models.metrics import format_table
+    from models.metrics import METRIC_NAMES, format_table
 
     constant = next(row for name, row in rows.items() if name.startswith("best constant"))
-    print(f"\nDSLR {scored} ({len(val)} scenes, never used to fit or train):")
-    print(format_table(rows))
+    print(f"\nDSLR {scored} ({len(val)} scenes, never used to fit or train; order: the rank "
+          "correlation of a network's depth with the true depth, mean over the scenes):")
+    print(format_table(rows, metrics=(*METRIC_NAMES, "depth_order")))
     for name, row in rows.items():
         print(f"  {name}: abs rel {row['abs_rel'] / constant['abs_rel']:.2f}x the constant's")
     if plan is not None:

@@ -7,7 +7,7 @@ The names most work needs are here; each lives in one module:
 | `estimate_depth` | `models.depth_from_photos` | depth of one scene from its photos (the label-free methods, or a trained model) |
 | `load_depth_model` | `models.loading` | a trained model from any weight file (`defocus train` checkpoint or weights file) |
 | `evaluate`, `label_free_method` | `models.evaluation` | a method's metrics over samples, with a benchmark's protocol |
-| `depth_metrics`, `best_constant_depth`, `format_table`, `PROTOCOLS` | `models.metrics` | metrics and the paper-style table |
+| `depth_metrics`, `depth_order`, `best_constant_depth`, `format_table`, `PROTOCOLS` | `models.metrics` | metrics and the paper-style table |
 | `Trainer`, `TrainConfig` | `models.training` | training runs |
 | `DefocusLoss`, `supervised_depth_loss` | `models.losses` | the training losses |
 | `loss_at_depths` | `models.diagnostics` | is the loss right: its value at the true depth and the alternatives |
@@ -34,6 +34,7 @@ from .metrics import (
     Protocol,
     best_constant_depth,
     depth_metrics,
+    depth_order,
     format_table,
     protocol_metrics,
 )
@@ -63,6 +64,7 @@ __all__ = [
     "Trainer",
     "TrainingInterrupted",
     "best_constant_depth",
+    "depth_order",
     "build_network",
     "compare_on_scene",
     "depth_metrics",

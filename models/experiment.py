@@ -26,7 +26,7 @@ from .depth_from_photos import estimate_depth
 from .depth_from_photos.tiling import apply_in_tiles, check_tiling
 from .direct import fit_depth_direct
 from .evaluation import MeanMetrics
-from .metrics import best_constant_depth, depth_metrics
+from .metrics import best_constant_depth, depth_metrics, depth_order
 from .training import TrainConfig, Trainer
 
 #: Whole images above this many pixels are predicted tile by tile (`predict_tiled`).
@@ -111,7 +111,9 @@ def evaluate_whole_images(
     """Mean metrics of the network and of a constant depth over whole test images, one pass.
 
     Each sample is read once (its focal stack synthesised or loaded once) and predicted whole,
-    tiled above `max_pixels` (`predict_tiled`).
+    tiled above `max_pixels` (`predict_tiled`). The network's metrics include `depth_order`
+    (`models.metrics.depth_order`: whether it orders each scene's depths, which abs rel alone
+    does not show).
 
     Returns:
         (the network's metrics, the constant's metrics or None without `constant`).
@@ -123,7 +125,9 @@ def evaluate_whole_images(
                               batch.get("camera"), max_pixels=max_pixels).cpu()
         kwargs = {"target": batch["depth"], "mask": batch.get("mask"), "max_depth": depth_cap,
                   "crop": crop}
-        ours.add(depth_metrics(pred=depth, **kwargs))
+        ours.add({**depth_metrics(pred=depth, **kwargs), "depth_order": depth_order(
+            pred=depth, target=batch["depth"], mask=batch.get("mask"), max_depth=depth_cap,
+            crop=crop)})
         if constant is not None:
             const.add(depth_metrics(pred=torch.full_like(batch["depth"], constant), **kwargs))
     if ours.count == 0:

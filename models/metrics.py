@@ -36,12 +36,13 @@ import torch.nn.functional as F
 from torch import Tensor
 
 METRIC_NAMES = ("abs_rel", "sq_rel", "rmse", "rmse_log", "log10", "delta1", "delta2", "delta3")
-HIGHER_IS_BETTER = frozenset({"delta1", "delta2", "delta3", "delta1.05", "delta1.15"})
+HIGHER_IS_BETTER = frozenset({"delta1", "delta2", "delta3", "delta1.05", "delta1.15",
+                              "depth_order"})
 LABELS = {
     "abs_rel": "abs rel", "sq_rel": "sq rel", "rmse": "RMSE", "rmse_log": "RMSE log",
     "log10": "log10", "delta1": "d<1.25", "delta2": "d<1.25^2", "delta3": "d<1.25^3",
     "mse": "MSE", "silog": "silog", "delta1.05": "d<1.05", "delta1.15": "d<1.15",
-    "bumpiness": "bump",
+    "bumpiness": "bump", "depth_order": "order",
 }
 #: KITTI crops as fractions (top, bottom, left, right) of the image height and width.
 CROPS = {
@@ -215,6 +216,57 @@ def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
     weights = torch.cumsum(1.0 / g, 0)
     index = int(torch.searchsorted(weights, weights[-1] / 2))
     return float(g[min(index, g.numel() - 1)])
+
+
+@_maps_by_keyword
+def depth_order(*, pred: Tensor, target: Tensor, mask: Tensor | None = None,
+                max_depth: float | None = None, crop: str | Sequence[float] | None = None,
+                ) -> float:
+    """Spearman's rank correlation of `pred` and `target` over the valid pixels of each image,
+    averaged over the batch: whether a prediction orders the scene's depths (1: in the same order,
+    0: no relation, -1: reversed), whatever its scale and level. Abs rel cannot tell a network that
+    learned depth from one that shrinks toward a constant; this can. Ties share their mean rank;
+    a constant map scores 0.
+
+    Args:
+        pred: predicted depth `(H,W)`, `(1,H,W)` or `(B,1,H,W)`, metres.
+        target: ground truth of the same shape, metres.
+        mask: optional boolean mask of valid ground truth (same shape).
+        max_depth: ground truth at or beyond it is ignored (as in `depth_metrics`).
+        crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
+
+    Raises:
+        ValueError: maps of different shapes, or an image with fewer than two valid pixels.
+
+    Example:
+        >>> target = torch.tensor([[1.0, 2.0, 3.0, 4.0]])
+        >>> round(depth_order(pred=target ** 2, target=target), 6)  # the same order
+        1.0
+        >>> round(depth_order(pred=1 / target, target=target), 6)  # near and far swapped
+        -1.0
+    """
+    pred, target = _as_batch("pred", pred), _as_batch("target", target)
+    if pred.shape != target.shape:
+        raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
+                         f"and {tuple(target.shape)}")
+    valid = valid_mask(target=target, mask=mask, max_depth=max_depth, crop=crop)
+    total = 0.0
+    for d, g, v in zip(pred.detach(), target.detach(), valid, strict=True):
+        if int(v.sum()) < 2:
+            raise ValueError("an image has fewer than two valid ground-truth pixels")
+        ranks = torch.stack([_mean_ranks(d[v].double()), _mean_ranks(g[v].double())])
+        ranks = ranks - ranks.mean(1, keepdim=True)
+        norms = ranks.norm(dim=1)
+        total += float((ranks[0] * ranks[1]).sum() / (norms[0] * norms[1])) \
+            if bool((norms > 0).all()) else 0.0
+    return total / pred.shape[0]
+
+
+def _mean_ranks(x: Tensor) -> Tensor:
+    """Ranks 0..n-1 of `x`, tied values sharing the mean of their ranks."""
+    values, inverse, counts = torch.unique(x, return_inverse=True, return_counts=True)
+    first = torch.cumsum(counts, 0) - counts
+    return (first + (counts - 1) / 2).to(x.dtype)[inverse]
 
 
 def confident_half_error(error: Tensor, confidence: Tensor) -> float:

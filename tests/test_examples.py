@@ -170,7 +170,8 @@ REAL_DSLR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "re
 
 
 def _check_dslr_table(out: str, scenes: int) -> None:
-    assert f"DSLR validation ({scenes} scenes, never used to fit or train)" in out
+    assert f"DSLR validation ({scenes} scenes, never used to fit or train; order:" in out
+    assert "order ↑ |" in out  # the networks' depth order beside the paper's metrics
     for row in ("[self-supervised", "[depth-supervised]", "label-free predict",
                 "the paper's setting", "best constant depth",
                 "bound: the true depth through one focus plane, side beyond"):
@@ -233,7 +234,7 @@ def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypat
     out = capsys.readouterr().out
     assert not (tmp_path / "run" / "camera_loss.json").exists()
     assert "camera fitted on 5 training scenes" in out
-    assert "DSLR test split (2 scenes, never used to fit or train)" in out
+    assert "DSLR test split (2 scenes, never used to fit or train; order:" in out
     rows = json.loads(table.read_text())
     names = " ".join(rows)
     for row in ("[self-supervised, side beyond]", "[depth-supervised]", "label-free predict",
@@ -241,6 +242,8 @@ def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypat
         assert row in names
     assert "the paper's setting" not in names
     assert all(set(row) >= {"abs_rel", "rmse"} for row in rows.values())
+    networks = [row for name, row in rows.items() if name.startswith("ours")]
+    assert networks and all(-1 <= row["depth_order"] <= 1 for row in networks)
 
 
 @pytest.mark.slow

@@ -4,6 +4,7 @@ import math
 
 import pytest
 import torch
+from scipy.stats import spearmanr
 
 from models.metrics import (
     METRIC_NAMES,
@@ -11,6 +12,7 @@ from models.metrics import (
     confident_half_error,
     crop_mask,
     depth_metrics,
+    depth_order,
     format_table,
 )
 
@@ -111,3 +113,24 @@ def test_confident_half_error_is_the_mean_over_the_confident_half():
     assert confident_half_error(error, error) == pytest.approx(3.5 / 2.5)  # trusts the large
     with pytest.raises(ValueError, match="one shape"):
         confident_half_error(error, error.flatten())
+
+
+def test_depth_order_is_spearmans_rank_correlation():
+    g = torch.Generator().manual_seed(0)
+    target = 1 + 4 * torch.rand(2, 1, 9, 11, generator=g, dtype=torch.float64)
+    pred = (target + torch.rand(target.shape, generator=g, dtype=torch.float64)).round()  # ties
+    mask = torch.rand(target.shape, generator=g) > 0.3
+    expected = sum(spearmanr(pred[i][mask[i]].numpy(), target[i][mask[i]].numpy())[0]
+                   for i in range(2)) / 2
+    assert depth_order(pred=pred, target=target, mask=mask) == pytest.approx(expected, abs=1e-12)
+
+
+def test_depth_order_of_a_constant_is_zero_and_bad_maps_are_refused():
+    target = torch.tensor([[1.0, 2.0, 3.0]])
+    assert depth_order(pred=torch.full_like(target, 2.0), target=target) == 0.0
+    with pytest.raises(ValueError, match="same shape"):
+        depth_order(pred=torch.ones(1, 2), target=target)
+    with pytest.raises(ValueError, match="fewer than two valid"):
+        depth_order(pred=target, target=target, mask=torch.tensor([[True, False, False]]))
+    with pytest.raises(TypeError, match="by keyword"):
+        depth_order(target, target)
