@@ -11,11 +11,14 @@ can break the tie in two ways, both measurable on pairs with depth maps:
 
 `side_cues` measures both per pair and per depth bin with `measure_blur_curve`: the Gaussian
 blur of each colour channel alone, and the residual of the disk over that of the Gaussian at
-each one's best blur. `SideCues.contrast` compares, pair by pair, the bins in front of the focus
-plane with the bins behind it at the same measured blur, and gives the mean and standard error
-of that difference over the pairs. A cue a model could use has a contrast
-many standard errors from zero; a contrast within a few standard errors means the photos do not
-carry it (or too weakly for their noise and resolution), and the side stays a prior.
+each one's best blur. The bins are even in inverse depth and mirrored about the focus plane
+(`mirror_bin_edges`): each bin in front has a bin behind with the same thin-lens blur, so that
+a PSF's shape, which changes with its size, is compared at one size. `SideCues.contrast`
+compares, pair by pair, each bin in front with its mirror bin, and gives the mean and standard
+error of that difference over the pairs. A cue a model could use has a contrast many standard
+errors from zero; a contrast within a few standard errors means the photos do not carry it (or
+too weakly for their noise and resolution), and the side stays a prior. Pixels next to a depth
+edge mix the blurs of both depths: scenes with smooth depth measure best.
 """
 
 from __future__ import annotations
@@ -39,8 +42,8 @@ def mirror_bin_edges(focus_distance: float, bins_per_side: int = 8, nearest: flo
 
     Example:
         >>> edges = mirror_bin_edges(2.0, bins_per_side=2, nearest=1.0)
-        >>> [round(float(e), 3) for e in edges]
-        [1.0, 1.333, 2.0, 4.0, inf]
+        >>> tuple(round(float(e), 3) for e in edges)
+        (1.0, 1.333, 2.0, 4.0, inf)
     """
     if bins_per_side < 1:
         raise ValueError(f"bins_per_side must be >= 1, got {bins_per_side!r}")
