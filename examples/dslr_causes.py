@@ -25,7 +25,7 @@ of the depth range, at the focus plane and at the best constant of the training 
 loss prefers on the training scenes (`models.diagnostics.match_blur_scale`). Where the true
 depth does not score best, no network trained through the loss can find it.
 
-CPU, about 13 minutes on 2 cores::
+CPU, about 20 minutes on 2 cores (19 measured, 2026-11-27)::
 
     python examples/dslr_causes.py --root data/dfd_indoor
 """
