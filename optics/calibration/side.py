@@ -107,8 +107,7 @@ class SideCues:
             weight = torch.where(diff.isnan(), torch.zeros_like(weight), weight)
             measured = weight.sum(1) > 0
             d = ((diff.nan_to_num() * weight).sum(1)[measured] / weight.sum(1)[measured])
-            mean = float(d.mean()) if len(d) else float("nan")
-            se = float(d.std() / math.sqrt(len(d))) if len(d) > 1 else float("nan")
+            mean, se = _mean_and_error(d)
             out[name] = {"mean": mean, "standard_error": se, "pairs": float(len(d)),
                          "z": mean / se if se > 0 else float("nan")}
         return out
@@ -117,7 +116,7 @@ class SideCues:
         """One row per bin measured by at least one pair: its depth, side (`-1` in front of
         the plane, `1` behind it), the pairs, the mean blur per channel, and the colour spread
         and shape ratio with their standard errors."""
-        near, far = self.sides()
+        near = self.sides()[0]
         rows = []
         for k in range(len(self.centres)):
             ok = ~self.shape_log_ratio[:, k].isnan()
@@ -130,11 +129,16 @@ class SideCues:
             for c in range(self.channel_px.shape[1]):
                 row[f"channel {c} px"] = float(self.channel_px[ok, c, k].mean())
             for name, v in (("colour spread px", spread), ("shape log ratio", shape)):
-                row[name] = float(v.mean())
-                row[f"{name} se"] = float(v.std() / math.sqrt(len(v))) if len(v) > 1 \
-                    else float("nan")
+                row[name], row[f"{name} se"] = _mean_and_error(v)
             rows.append(row)
         return rows
+
+
+def _mean_and_error(values: Tensor) -> tuple[float, float]:
+    """The mean of `values` and its standard error (NaN where there are too few values)."""
+    mean = float(values.mean()) if len(values) else float("nan")
+    error = float(values.std() / math.sqrt(len(values))) if len(values) > 1 else float("nan")
+    return mean, error
 
 
 def side_cues(pairs: Sequence[CalibrationPair], focus_distance: float, bins_per_side: int = 8,

@@ -247,9 +247,9 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     coc_message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
     depth_message = "depth must be > 0 metres and not NaN everywhere"
     if _compiling():
-        torch._assert_async(torch.all(torch.isfinite(coc_px) & (coc_px >= 0)), coc_message)
+        torch._assert_async(_all_valid_coc(coc_px), coc_message)
         if depth is not None:
-            torch._assert_async(torch.all(~torch.isnan(depth) & (depth > 0)), depth_message)
+            torch._assert_async(_all_valid_depth(depth), depth_message)
         return None
     checking = not is_tracing()  # `values_checked`: the window's size alone, if it is needed
     if not (checking or need_largest):
@@ -259,10 +259,10 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     if not checking:
         return float(largest)
     # a NaN or an infinity in the image makes its sum not finite (see `check_finite`)
-    read = [largest, torch.all(torch.isfinite(coc) & (coc >= 0)),
+    read = [largest, _all_valid_coc(coc),
             image.detach().sum(dtype=torch.promote_types(image.dtype, torch.float32))]
     if depth is not None:
-        read.append(torch.all(~torch.isnan(depth) & (depth > 0)))
+        read.append(_all_valid_depth(depth))
     largest, coc_valid, image_sum, *depth_valid = torch.stack(
         [v.to(torch.float64) for v in read]).tolist()
     if not math.isfinite(image_sum):
@@ -272,6 +272,16 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     if depth_valid and not depth_valid[0]:
         check_depth("depth", depth)  # raises, describing the values
     return largest
+
+
+def _all_valid_coc(coc: Tensor) -> Tensor:
+    """True (a 0-d tensor) where every CoC is finite and >= 0 pixels."""
+    return torch.all(torch.isfinite(coc) & (coc >= 0))
+
+
+def _all_valid_depth(depth: Tensor) -> Tensor:
+    """True (a 0-d tensor) where every depth is > 0 metres and not NaN."""
+    return torch.all(~torch.isnan(depth) & (depth > 0))
 
 
 def _half_tensor(half: int | Tensor) -> Tensor:
