@@ -91,7 +91,7 @@ def _training_config(args: argparse.Namespace, first: dict, depth_range: tuple[f
         n_focus=int(first["focused"].shape[0]), width=args.width, progress=not args.no_progress,
         max_kernel_size=loss_window(first["image"].shape[-2:]),
         workers=args.workers, precision=args.precision, compile=args.compile,
-        smoothness_weight=getattr(args, "smoothness_weight", 0.001),
+        smoothness_weight=getattr(args, "smoothness_weight", TrainConfig.smoothness_weight),
     )
 
 
