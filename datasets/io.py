@@ -18,6 +18,7 @@ from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
 
 from optics.photo_metadata import MAX_IMAGE_PIXELS as PHOTO_PIXEL_LIMIT
+from optics.photo_metadata import oversize_reason
 
 
 class DataFormatError(ValueError):
@@ -131,10 +132,9 @@ def check_stated_size(path: Path, height: int, width: int,
         ...
         datasets.io.DataFormatError: 'a.tif': its header states 20000x20000 pixels (400 megapixels); at most 100 megapixels are read
     """
-    if int(width) * int(height) > max_pixels:
-        raise DataFormatError(f"{str(path)!r}: its header states {height}x{width} pixels "
-                              f"({width * height / 1e6:.4g} megapixels); at most "
-                              f"{max_pixels / 1e6:g} megapixels are read")
+    reason = oversize_reason(height, width, "pixels", max_pixels)
+    if reason is not None:
+        raise DataFormatError(f"{str(path)!r}: its header states {reason}")
 
 
 def read_image(path: Path, what: str = "an image") -> np.ndarray:

@@ -11,7 +11,7 @@ settings of photos are resolved by `optics.photo_settings`.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
@@ -132,6 +132,13 @@ BLOCK_VALUES = 1 << 22
 Allocator = Callable[[tuple[int, int]], Tensor]
 
 
+def _row_blocks(height: int, width: int) -> Iterator[slice]:
+    """Slices of rows that cover `height` rows of `width` RGB pixels in blocks of at most
+    `BLOCK_VALUES` values (at least one row each)."""
+    rows = max(1, BLOCK_VALUES // (3 * width))
+    return (slice(start, start + rows) for start in range(0, height, rows))
+
+
 def _to_linear(array: np.ndarray, dtype: torch.dtype, encoding: str,
                into: Allocator | None) -> Tensor:
     """`(H,W)` or `(H,W,C)` integer samples (the first three channels RGB) as a linear `(3,H,W)`
@@ -146,11 +153,10 @@ def _to_linear(array: np.ndarray, dtype: torch.dtype, encoding: str,
     if not (isinstance(image, Tensor) and tuple(image.shape) == (3, height, width)):
         raise ValueError(f"into must give a (3, {height}, {width}) tensor, got "
                          f"{getattr(image, 'shape', type(image).__name__)}")
-    rows = max(1, BLOCK_VALUES // (3 * width))
-    for start in range(0, height, rows):
-        block = torch.from_numpy(np.array(array[start:start + rows, :, :3]))  # a small copy
+    for rows in _row_blocks(height, width):
+        block = torch.from_numpy(np.array(array[rows, :, :3]))  # a small copy
         block = block.to(image.dtype).permute(2, 0, 1).div_(scale)
-        image[:, start:start + rows] = rgb_to_linear_rgb(block) if encoding == "srgb" else block
+        image[:, rows] = rgb_to_linear_rgb(block) if encoding == "srgb" else block
     return image
 
 
@@ -255,9 +261,8 @@ def check_photo_content(photo: Tensor, name: str = "photo") -> None:
         raise ValueError(f"{name} is one flat colour (every pixel {low:.3g} in linear "
                          "intensity): it has no texture for defocus to blur")
     clipped, height, width = 0, photo.shape[-2], photo.shape[-1]
-    rows = max(1, BLOCK_VALUES // (3 * width))
-    for start in range(0, height, rows):  # block by block: no full-size temporary
-        block = photo[:, start:start + rows]
+    for rows in _row_blocks(height, width):  # block by block: no full-size temporary
+        block = photo[:, rows]
         clipped += int(((block.amax(0) <= 1e-4) | (block.amin(0) >= 0.999)).sum())
     fraction = clipped / max(height * width, 1)
     if fraction > MAX_CLIPPED_FRACTION:

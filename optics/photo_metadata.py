@@ -58,6 +58,24 @@ class RawReadError(ValueError):
     """A raw file that LibRaw cannot decode, or that decodes to no image data."""
 
 
+def oversize_reason(height: int, width: int, what: str = "pixels",
+                    max_pixels: int = MAX_IMAGE_PIXELS) -> str | None:
+    """Why a photo whose file states `height` x `width` `what` (pixels, photosites) is not
+    decoded, or None where it is within `max_pixels`.
+
+    Example:
+        >>> oversize_reason(20000, 20000)
+        '20000x20000 pixels (400 megapixels); at most 100 megapixels are read'
+        >>> oversize_reason(4000, 6000) is None
+        True
+    """
+    height, width = int(height), int(width)
+    if height * width <= max_pixels:
+        return None
+    return (f"{height}x{width} {what} ({height * width / 1e6:.4g} megapixels); at most "
+            f"{max_pixels / 1e6:g} megapixels are read")
+
+
 @dataclass(frozen=True)
 class PhotoMetadata:
     """What a photo's file states about how it was taken (`None` where it says nothing).

@@ -33,6 +33,7 @@ from .photo_metadata import (
     RawReadError,
     metadata_from_libraw,
     open_raw,
+    oversize_reason,
 )
 
 #: White-balance choices of `read_raw`.
@@ -109,11 +110,9 @@ def check_raw_size(path: Path, sizes: Any, max_pixels: int = MAX_IMAGE_PIXELS) -
         ...
         optics.photo_metadata.RawReadError: x.dng: its metadata states 12000x12000 photosites (144 megapixels); at most 100 megapixels are read
     """
-    height, width = int(sizes.raw_height), int(sizes.raw_width)
-    if height * width > max_pixels:
-        raise RawReadError(f"{path}: its metadata states {height}x{width} photosites "
-                           f"({height * width / 1e6:.4g} megapixels); at most "
-                           f"{max_pixels / 1e6:g} megapixels are read")
+    reason = oversize_reason(sizes.raw_height, sizes.raw_width, "photosites", max_pixels)
+    if reason is not None:
+        raise RawReadError(f"{path}: its metadata states {reason}")
 
 
 def _decode(path: Path, demosaic: str, binning: int,
