@@ -114,7 +114,7 @@ def resolve_cache_dir(cache_dir: str | Path | None) -> Path | None:
 
 
 #: Bumped when the synthesis changes in a way the cache key cannot see (e.g. a renderer fix).
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 
 
 def focal_stack_key(
@@ -130,11 +130,13 @@ def focal_stack_key(
     key and a stale stack is never reused.
     """
     digest = hashlib.sha1(f"v{CACHE_VERSION}".encode())
-    for tensor in (image, depth, *settings.tensors().values()):
+    # the aperture's own tensors too: a Mask's repr names its shape, not its pixels
+    state = {} if aperture is None else aperture.state_dict()
+    for tensor in (image, depth, *settings.tensors().values(), *state.values()):
         tensor = tensor.detach().cpu().contiguous()
         digest.update(f"{tensor.dtype}{tuple(tensor.shape)}".encode())
-        digest.update(tensor.numpy().tobytes())
-    digest.update(f"{settings.aperture}|{aperture!r}".encode())
+        digest.update(tensor.reshape(-1).view(torch.uint8).numpy().tobytes())  # any dtype
+    digest.update(f"{settings.aperture}|{aperture!r}|{sorted(state)}".encode())
     digest.update(repr(sorted(render_kwargs.items())).encode())
     return digest.hexdigest()
 

@@ -113,6 +113,30 @@ def test_cache_key_changes_with_content(tmp_path):
     assert len(list(tmp_path.glob("*.pt"))) == 2 and not torch.equal(first, second)
 
 
+def test_cache_key_changes_with_the_pixels_of_a_mask_aperture(tmp_path):
+    from optics import Mask
+
+    settings = PRESETS["nyu"].settings()
+    image = torch.rand(3, 12, 12)
+    depth = torch.linspace(1.0, 8.0, 12).expand(1, 12, 12).contiguous()
+    row = torch.zeros(5, 5)
+    row[2] = 1.0
+    horizontal = cached_focal_stack(image, depth, settings, Mask(row), cache_dir=tmp_path)
+    vertical = cached_focal_stack(image, depth, settings, Mask(row.T.clone()), cache_dir=tmp_path)
+    uncached = cached_focal_stack(image, depth, settings, Mask(row.T.clone()))
+    assert len(list(tmp_path.glob("*.pt"))) == 2
+    assert torch.equal(vertical, uncached) and not torch.equal(horizontal, vertical)
+
+
+def test_cache_takes_every_float_dtype(tmp_path):
+    settings = PRESETS["nyu"].settings()
+    image, depth = torch.rand(3, 6, 6), torch.full((1, 6, 6), 3.0)
+    for dtype in (torch.bfloat16, torch.float16, torch.float64):
+        stack = cached_focal_stack(image.to(dtype), depth.to(dtype), settings, cache_dir=tmp_path)
+        assert stack.dtype == dtype
+    assert len(list(tmp_path.glob("*.pt"))) == 3
+
+
 def test_dataloader_with_workers(tmp_path):
     write_nyu(tmp_path)
     loader = torch.utils.data.DataLoader(NYUv2(tmp_path, split="all"), batch_size=2, num_workers=2,
