@@ -13,13 +13,46 @@ bilinear resampling, whose averaging of neighbours is itself a blur of up to hal
 from __future__ import annotations
 
 import math
+import numbers
+from collections.abc import Sequence
 
 import kornia
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .checks import check_shape
+from .checks import check_finite, check_positive, check_shape
+
+#: Gaussian smoothing (pixels) of the images whose motion is estimated, by default.
+_SIGMA_PX = 1.5
+
+
+def _check_image(name: str, image: Tensor, dims: Sequence[str] = ("B", "C", "H", "W")) -> None:
+    """Refuse `image` unless it is a floating-point tensor of shape `dims` without a NaN or an
+    infinity (one NaN spreads over the whole image through the Fourier transform)."""
+    check_shape(name, image, dims)
+    if not image.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor (float16, bfloat16, float32 or "
+                        f"float64), got dtype {image.dtype}; convert it first, e.g. "
+                        f"{name}.float() / 255 for 8-bit pixels")
+    check_finite(name, image)
+
+
+def _check_values(name: str, value: Tensor, described: str, *shapes: tuple[int, ...]) -> None:
+    """Refuse `value` unless it is a real tensor of one of `shapes` holding finite values."""
+    if not isinstance(value, Tensor):
+        raise TypeError(f"{name} must be a tensor {described}, got {type(value).__name__}")
+    if value.is_complex() or value.dtype == torch.bool:
+        raise TypeError(f"{name} must hold real numbers ({described}), got dtype {value.dtype}")
+    if tuple(value.shape) not in shapes:
+        raise ValueError(f"{name} must be {described}, got shape {tuple(value.shape)}")
+    check_finite(name, value)
+
+
+def _working(image: Tensor) -> Tensor:
+    """`image` in at least float32: the FFT and the resampling have no half-precision kernels
+    on every device, and a bfloat16 phase ramp would be off by a percent."""
+    return image.to(torch.promote_types(image.dtype, torch.float32))
 
 
 def translate(image: Tensor, shift: Tensor) -> Tensor:
@@ -28,6 +61,12 @@ def translate(image: Tensor, shift: Tensor) -> Tensor:
     Exact for band-limited content: the shift is a phase ramp in the Fourier domain (no
     interpolation blur). The image is mirrored at its borders first, so content entering the
     frame is a reflection rather than the opposite border. Differentiable in `image` and `shift`.
+    Computed in at least float32 (a `float16`/`bfloat16` image is returned in its dtype); an
+    image 1 pixel high (wide) moves along its length only.
+
+    Raises:
+        TypeError: for an image that is not floating-point, or a shift that is not a real tensor.
+        ValueError: on wrong shapes, or a NaN or infinite value in `image` or `shift`.
 
     Example:
         >>> image = torch.rand(1, 3, 16, 16)
@@ -35,31 +74,36 @@ def translate(image: Tensor, shift: Tensor) -> Tensor:
         >>> torch.allclose(moved[..., 4:12, 4:12], image[..., 3:11, 6:14], atol=1e-4)
         True
     """
-    check_shape("image", image, ["B", "C", "H", "W"])
-    b, _, h, w = image.shape
-    if shift.shape != (b, 2):
-        raise ValueError(f"shift must be (B, 2) = ({b}, 2) pixels (dy, dx), got "
-                         f"{tuple(shift.shape)}")
-    if not bool(torch.isfinite(shift).all()):
-        raise ValueError(f"shift must be finite pixels, got {shift.detach().tolist()}")
-    shift = shift.to(image)
-    reach = int(math.ceil(float(shift.detach().abs().max()))) if shift.numel() else 0
+    _check_image("image", image)
+    b = image.shape[0]
+    _check_values("shift", shift, f"(B, 2) = ({b}, 2) pixels (dy, dx)", (b, 2))
+    return _translate(image, shift)
+
+
+def _translate(image: Tensor, shift: Tensor) -> Tensor:
+    if image.numel() == 0:
+        return image.clone()
+    work = _working(image)
+    h, w = work.shape[-2:]
+    shift = shift.to(work)
+    reach = int(math.ceil(float(shift.detach().abs().max())))
     pad_y, pad_x = min(h - 1, reach + 16), min(w - 1, reach + 16)
-    padded = _periodic_padding(image, pad_y, pad_x)
+    padded = _periodic_padding(work, pad_y, pad_x)
     hp, wp = padded.shape[-2:]
-    fy = torch.fft.fftfreq(hp, device=image.device, dtype=image.dtype)[:, None]
-    fx = torch.fft.rfftfreq(wp, device=image.device, dtype=image.dtype)[None, :]
+    fy = torch.fft.fftfreq(hp, device=work.device, dtype=work.dtype)[:, None]
+    fx = torch.fft.rfftfreq(wp, device=work.device, dtype=work.dtype)[None, :]
     angle = -2 * math.pi * (fy * shift[:, 0, None, None] + fx * shift[:, 1, None, None])
     ramp = torch.polar(torch.ones_like(angle), angle)[:, None]
     out = torch.fft.irfft2(torch.fft.rfft2(padded) * ramp, s=(hp, wp))
-    return out[..., pad_y:pad_y + h, pad_x:pad_x + w]
+    return out[..., pad_y:pad_y + h, pad_x:pad_x + w].to(image.dtype)
 
 
 def _periodic_padding(image: Tensor, pad_y: int, pad_x: int) -> Tensor:
     """`image` mirrored by `pad_y`, `pad_x` pixels and faded to its mean over the mirrored part
     (a raised cosine): the padded frame repeats smoothly, so its Fourier transform rings at no
-    edge (a plain mirror still jumps where the frame wraps around)."""
-    if pad_y < 1 or pad_x < 1:
+    edge (a plain mirror still jumps where the frame wraps around). A pad of 0 leaves that axis
+    as it is (an image 1 pixel high or wide)."""
+    if pad_y < 1 and pad_x < 1:
         return image
     padded = F.pad(image, (pad_x, pad_x, pad_y, pad_y), mode="reflect")
     mean = image.mean((-2, -1), keepdim=True)
@@ -91,7 +135,14 @@ def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None,
 
     Without a zoom or an angle (a zoom within 1e-4 of 1, an angle within 1e-6 rad) this is
     `translate` (no interpolation blur); otherwise bicubic resampling, which blurs fine detail
-    slightly.
+    slightly. Computed in at least float32 (a `float16`/`bfloat16` image is returned in its
+    dtype).
+
+    Raises:
+        TypeError: for an image that is not floating-point, or a shift, zoom or angle that is not
+            a real tensor.
+        ValueError: on wrong shapes, a NaN or infinite value in `image`, `shift`, `zoom` or
+            `angle`, or a zoom <= 0.
 
     Example:
         >>> image = torch.rand(1, 1, 8, 8)
@@ -101,14 +152,26 @@ def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None,
         >>> torch.allclose(quarter, image.rot90(-1, (-2, -1)), atol=1e-5)
         True
     """
+    _check_image("image", image)
     b = image.shape[0]
+    _check_values("shift", shift, f"(B, 2) = ({b}, 2) pixels (dy, dx)", (b, 2))
+    if zoom is not None:
+        _check_values("zoom", zoom, f"(B,) = ({b},) magnifications", (b,))
+        check_positive("zoom", zoom)
+    if angle is not None:
+        _check_values("angle", angle, f"(B,) = ({b},) radians", (b,))
+    return _warp(image, shift, zoom, angle)
+
+
+def _warp(image: Tensor, shift: Tensor, zoom: Tensor | None, angle: Tensor | None) -> Tensor:
+    b, c, h, w = image.shape
     zoom = torch.ones(b, device=image.device) if zoom is None else zoom
     angle = torch.zeros(b, device=image.device) if angle is None else angle
-    if bool(((zoom - 1).abs() < 1e-4).all()) and bool((angle.abs() < 1e-6).all()):
-        return translate(image, shift)
-    check_shape("image", image, ["B", "C", "H", "W"])
-    _, c, h, w = image.shape
-    zoom, angle, shift = zoom.to(image).reshape(b), angle.to(image).reshape(b), shift.to(image)
+    if image.numel() == 0 or (bool(((zoom - 1).abs() < 1e-4).all())
+                              and bool((angle.abs() < 1e-6).all())):
+        return _translate(image, shift)
+    work = _working(image)
+    zoom, angle, shift = zoom.to(work), angle.to(work), shift.to(work)
     # sample at q = c + R(-angle) (p - c - shift) / zoom, written in align_corners=False
     # coordinates about the centre (x_n = 2 (x - c_x) / w, y_n = 2 (y - c_y) / h)
     cos, sin = torch.cos(angle) / zoom, torch.sin(angle) / zoom
@@ -117,7 +180,8 @@ def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None,
         torch.stack([-sin * w / h, cos, -2 * (cos * shift[:, 0] - sin * shift[:, 1]) / h], -1),
     ], 1)
     grid = F.affine_grid(theta, [b, c, h, w], align_corners=False)
-    return F.grid_sample(image, grid, mode="bicubic", padding_mode="border", align_corners=False)
+    out = F.grid_sample(work, grid, mode="bicubic", padding_mode="border", align_corners=False)
+    return out.to(image.dtype)
 
 
 def _lucas_kanade(reference: Tensor, moving: Tensor, motion: Tensor, iterations: int,
@@ -138,7 +202,7 @@ def _lucas_kanade(reference: Tensor, moving: Tensor, motion: Tensor, iterations:
     radial_y, radial_x = (t.expand(full_h, full_w)[inner[1:]] for t in (y, x))
     for _ in range(iterations):
         # back(p) = moving(c + zoom R(angle) (p - c) + shift) ~ reference(p)
-        back = undo_motion(moving, motion)
+        back = _undo_motion(moving, motion)
         grad = kornia.filters.spatial_gradient(back, normalized=True)[0, 0]  # (2: dx, dy, H, W)
         gx, gy = grad[0][inner[1:]].double(), grad[1][inner[1:]].double()
         level = back[inner][0, 0].double()
@@ -164,6 +228,11 @@ def undo_motion(moving: Tensor, motion: Tensor) -> Tensor:
     `(dy, dx, zoom, angle)` (pixels, radians; as `estimate_motion` and `align_shots` give it):
     `moving` `(1,C,H,W)` brought back onto the reference.
 
+    Raises:
+        TypeError: for an image that is not floating-point, or a motion that is not a real tensor.
+        ValueError: on wrong shapes, a NaN or infinite value in `moving` or `motion`, or a
+            zoom <= 0.
+
     Example:
         >>> image = torch.rand(1, 1, 8, 8, generator=torch.Generator().manual_seed(0))
         >>> moved = translate(image, torch.tensor([[1.0, 0.0]]))
@@ -171,58 +240,107 @@ def undo_motion(moving: Tensor, motion: Tensor) -> Tensor:
         >>> torch.allclose(back[..., 2:-2, :], image[..., 2:-2, :], atol=1e-6)
         True
     """
+    _check_image("moving", moving, ("1", "C", "H", "W"))
+    _check_values("motion", motion, "(2,) pixels (dy, dx) or (4,) (dy, dx, zoom, angle)",
+                  (2,), (4,))
+    if len(motion) == 4:
+        check_positive("motion[2] (the zoom)", motion[2:3])
+    return _undo_motion(moving, motion)
+
+
+def _undo_motion(moving: Tensor, motion: Tensor) -> Tensor:
     if len(motion) == 2:
-        return translate(moving, -motion[None])
+        return _translate(moving, -motion[None])
     zoom, angle = motion[2:3], motion[3:4]
     # warp(s', 1 / zoom, -angle) samples moving at c + zoom R(angle) (p - c - s'), which is
     # c + zoom R(angle) (p - c) + shift for s' = -R(-angle) shift / zoom
     cos, sin = torch.cos(angle), torch.sin(angle)
     dy, dx = motion[0:1], motion[1:2]
     shift = -torch.stack([cos * dy - sin * dx, cos * dx + sin * dy], -1) / zoom
-    return warp(moving, shift, 1 / zoom, -angle)
+    return _warp(moving, shift, 1 / zoom, -angle)
+
+
+def _smallest_size(sigma_px: float) -> int:
+    # the smoothing mirrors ceil(3 sigma) pixels at each border, and Lucas-Kanade needs a
+    # margin of at least a pixel, a third of the size at most
+    return max(4, math.ceil(3 * sigma_px) + 1)
+
+
+def _check_pair(names: tuple[str, str], reference: Tensor, moving: Tensor, sigma_px: float,
+                moving_dims: Sequence[str] = ("B", "C", "H", "W")) -> None:
+    """Refuse images whose motion cannot be estimated: `reference` `(B,C,H,W)` and `moving`
+    (`moving_dims`) checked, of one batch size and one image size, with a channel and at least
+    `_smallest_size(sigma_px)` pixels each way."""
+    _check_image(names[0], reference)
+    _check_image(names[1], moving, moving_dims)
+    if reference.shape[0] != moving.shape[0] or reference.shape[-2:] != moving.shape[-2:]:
+        raise ValueError(f"{names[0]} {tuple(reference.shape)} and {names[1]} "
+                         f"{tuple(moving.shape)} must have one batch size and one image size")
+    smallest = _smallest_size(sigma_px)
+    if min(reference.shape[-2:]) < smallest or 0 in (reference.shape[1], moving.shape[-3]):
+        raise ValueError(f"{names[0]} {tuple(reference.shape)} and {names[1]} "
+                         f"{tuple(moving.shape)} are too small to estimate a motion from: they "
+                         f"need a channel and at least {smallest}x{smallest} pixels (for "
+                         f"sigma_px={sigma_px:g})")
 
 
 def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: float,
               zoomed: bool) -> Tensor:
-    check_shape("reference", reference, ["B", "C", "H", "W"])
-    check_shape("moving", moving, ["B", "C", "H", "W"])
-    if reference.shape[0] != moving.shape[0] or reference.shape[-2:] != moving.shape[-2:]:
-        raise ValueError(f"reference {tuple(reference.shape)} and moving {tuple(moving.shape)} "
-                         "must have one batch size and one image size")
-    if iterations < 1 or not sigma_px > 0:
-        raise ValueError(f"need iterations >= 1 and sigma_px > 0, got {iterations!r}, "
+    if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral):
+        raise TypeError(f"iterations must be an int >= 1, got {iterations!r}")
+    if isinstance(sigma_px, bool) or not isinstance(sigma_px, numbers.Real):
+        raise TypeError(f"sigma_px must be a number > 0 (pixels), got {sigma_px!r}")
+    if iterations < 1 or not (math.isfinite(sigma_px) and sigma_px > 0):
+        raise ValueError(f"need iterations >= 1 and a finite sigma_px > 0, got {iterations!r}, "
                          f"{sigma_px!r}")
-    motions = []
+    _check_pair(("reference", "moving"), reference, moving, sigma_px)
+    for name, image in (("reference", reference), ("moving", moving)) if zoomed else ():
+        if image.dtype in (torch.float16, torch.bfloat16):
+            raise TypeError(
+                f"{name} has dtype {image.dtype}; estimate_motion needs float32 or float64 "
+                f"images: the zoom it returns (within about 2 % of 1) would be rounded to "
+                f"{torch.finfo(image.dtype).eps:g} in {image.dtype}; pass {name}.float()")
+    dtype = torch.promote_types(reference.dtype, moving.dtype)
+    work = torch.promote_types(dtype, torch.float32)
+    smallest = _smallest_size(sigma_px)
+    motions = [reference.new_zeros((0, 4 if zoomed else 2), dtype=dtype)]  # B may be 0
     with torch.no_grad():
-        for ref, mov in zip(reference, moving, strict=True):
+        for ref, mov in zip(reference.to(work), moving.to(work), strict=True):
             levels = max(0, min(4, int(math.log2(max(1, min(ref.shape[-2:]) // 16)))))
             motion = torch.tensor([0.0, 0.0, 1.0, 0.0] if zoomed else [0.0, 0.0],
-                                  dtype=ref.dtype, device=ref.device)
+                                  dtype=work, device=ref.device)
             for level in range(levels, -1, -1):
                 factor = 2**level
                 r = F.avg_pool2d(ref[None], factor) if factor > 1 else ref[None]
                 m = F.avg_pool2d(mov[None], factor) if factor > 1 else mov[None]
+                if min(r.shape[-2:]) < smallest:
+                    continue  # a level too coarse for the smoothing
                 margin = min(math.ceil(3 * sigma_px) + 4, (min(r.shape[-2:]) - 1) // 3)
-                if margin < 1:
-                    continue
                 per_level = motion.clone()
                 per_level[:2] /= factor
                 per_level = _lucas_kanade(_smoothed_grey(r, sigma_px), _smoothed_grey(m, sigma_px),
                                           per_level, iterations, margin)
                 motion = per_level.clone()
                 motion[:2] *= factor
-            motions.append(motion)
-    return torch.stack(motions)
+            motions.append(motion[None].to(dtype))
+    return torch.cat(motions)
 
 
 def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = 10,
-                   sigma_px: float = 1.5) -> Tensor:
+                   sigma_px: float = _SIGMA_PX) -> Tensor:
     """The translation `(B,2)` pixels `(dy, dx)` of `moving` relative to `reference`, both
     `(B,C,H,W)`: `moving(p) ~ reference(p - shift)` up to a symmetric blur, exposure and noise.
 
     Lucas-Kanade on Gaussian-smoothed grey images (`sigma_px`), coarse to fine over a small
     pyramid (shifts of several pixels converge), each level iterated until the update is under a
-    thousandth of a pixel. A textureless pair gives a zero shift.
+    thousandth of a pixel. A textureless pair gives a zero shift. Computed in at least float32
+    and returned in the images' dtype (`float16`/`bfloat16` round the shift).
+
+    Raises:
+        TypeError: for images that are not floating-point, or settings of the wrong type.
+        ValueError: on wrong or mismatched shapes, a NaN or infinite pixel, images smaller than
+            `max(4, ceil(3 sigma_px) + 1)` pixels either way (6 by default), or
+            `iterations < 1` or `sigma_px <= 0`.
 
     Example:
         >>> image = torch.rand(1, 3, 64, 64)
@@ -234,13 +352,18 @@ def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = 10,
 
 
 def estimate_motion(reference: Tensor, moving: Tensor, iterations: int = 20,
-                    sigma_px: float = 1.5) -> Tensor:
+                    sigma_px: float = _SIGMA_PX) -> Tensor:
     """The translation, magnification and rotation `(B,4)` `(dy, dx, zoom, angle)` (pixels,
     ratio, radians) of `moving` relative to `reference`:
     `moving ~ warp(reference, (dy, dx), zoom, angle)` up to a symmetric blur, exposure and noise.
     A lens whose image scale changes with focus ("focus breathing") magnifies each focused photo
     a little (about 0.1-2 %), and a hand-held camera turns a little between shots;
     `estimate_shift` ignores both.
+
+    Raises:
+        TypeError: as `estimate_shift`, and for `float16`/`bfloat16` images (the zoom needs
+            more precision than they hold near 1; pass `.float()` images).
+        ValueError: as `estimate_shift`.
 
     Example:
         >>> image = kornia.filters.gaussian_blur2d(torch.rand(1, 1, 96, 96), (9, 9), (2.0, 2.0))
@@ -264,32 +387,47 @@ def align_shots(image: Tensor, focused: Tensor) -> tuple[Tensor, Tensor]:
 
     Each photo's `estimate_motion` is undone by `warp`. A zoom and rotation that move the
     corners by less than `ZOOM_TOLERANCE_PX` are taken for noise: the photo is then only moved,
-    by its `estimate_shift`, with `translate` (no resampling blur).
+    by its `estimate_shift`, with `translate` (no resampling blur). Computed in at least
+    float32; `float16`/`bfloat16` photos come back in their dtype, and so do the motions
+    (rounded: the zoom to about 1e-3 in float16, 8e-3 in bfloat16).
 
     Returns:
         `(aligned (B,F,C,H,W), motions (B,F,4))`, the `(dy, dx, zoom, angle)` of each focused
         photo relative to `image` (zoom 1 and angle 0 where they were ignored).
 
+    Raises:
+        TypeError: for images that are not floating-point.
+        ValueError: on wrong or mismatched shapes, no focused photo (`F = 0`), a NaN or infinite
+            pixel, or images smaller than 6x6 pixels.
+
     Example:
         >>> image = kornia.filters.gaussian_blur2d(torch.rand(1, 3, 48, 48), (7, 7), (1.0, 1.0))
         >>> focused = translate(image, torch.tensor([[1.0, 0.5]]))[:, None]
         >>> aligned, motions = align_shots(image, focused)
-        >>> torch.allclose(aligned[0, 0, :, 8:-8, 8:-8], image[0, :, 8:-8, 8:-8], atol=1e-2)
+        >>> torch.allclose(aligned[0, :, :, 8:-8, 8:-8], image[:, :, 8:-8, 8:-8], atol=1e-2)
         True
     """
-    check_shape("focused", focused, ["B", "F", "C", "H", "W"])
+    _check_pair(("image", "focused"), image, focused, _SIGMA_PX, ("B", "F", "C", "H", "W"))
     b, n = focused.shape[:2]
+    if n == 0:
+        raise ValueError(f"focused must hold at least one photo (F >= 1 in (B, F, C, H, W)), "
+                         f"got shape {tuple(focused.shape)}")
+    dtype = torch.promote_types(image.dtype, focused.dtype)
+    if b == 0:
+        return focused.clone(), focused.new_zeros((0, n, 4), dtype=dtype)
+    work = torch.promote_types(dtype, torch.float32)
+    reference = image.to(work)
     half_diagonal = math.hypot(*focused.shape[-2:]) / 2
     aligned, motions = [], []
     for i in range(n):
-        motion = estimate_motion(image, focused[:, i])
+        shots = focused[:, i].to(work)
+        motion = estimate_motion(reference, shots)
         corner = ((motion[:, 2] - 1).abs() + motion[:, 3].abs()) * half_diagonal
         small = corner < ZOOM_TOLERANCE_PX
         if bool(small.any()):  # nothing to undo but the translation, estimated as such
-            motion[small, :2] = estimate_shift(image[small], focused[small, i])
+            motion[small, :2] = estimate_shift(reference[small], shots[small])
             motion[small, 2:] = torch.tensor([1.0, 0.0], dtype=motion.dtype,
                                              device=motion.device)
-        aligned.append(torch.cat([undo_motion(focused[j:j + 1, i], motion[j])
-                                  for j in range(b)]))
+        aligned.append(torch.cat([_undo_motion(shots[j:j + 1], motion[j]) for j in range(b)]))
         motions.append(motion)
-    return torch.stack(aligned, 1), torch.stack(motions, 1)
+    return torch.stack(aligned, 1).to(focused.dtype), torch.stack(motions, 1).to(dtype)
