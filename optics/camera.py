@@ -356,11 +356,20 @@ class CameraSettings:
 
     # ---- JSON ----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """Plain numbers and lists (metres), and the aperture spec under `aperture`."""
+        """Plain numbers and lists (metres), and the aperture spec under `aperture`; the
+        values are checked again (`check`), so that no file is written that `from_dict`
+        refuses. One shot's `(1,)` settings are written as numbers, batched ones as nested
+        lists.
+
+        Example:
+            >>> CameraSettings(0.05, 2.0, [[2.0]], 1e-5).to_dict()["focus_distance"]
+            [[2.0]]
+        """
+        self.check()
         data: dict[str, Any] = {}
         for name, value in self.tensors().items():
             values = [_shortest(v, value.dtype) for v in value.detach().cpu().reshape(-1).tolist()]
-            data[name] = values[0] if value.numel() == 1 else \
+            data[name] = values[0] if value.numel() == 1 and not self.is_batched else \
                 torch.tensor(values, dtype=torch.float64).reshape(value.shape).tolist()
         data["aperture"] = self.aperture
         return data
@@ -394,10 +403,28 @@ class CameraSettings:
             raise ValueError(f"{source}: {error}") from None
 
     def to_json(self, path: str | PathLike, **extra: Any) -> None:
-        """Write `to_dict()` and any `extra` JSON values to `path`."""
+        """Write `to_dict()` and any `extra` JSON values to `path`.
+
+        Raises:
+            ValueError: an `extra` key that names a setting (or `psf`), an `aperture` entry
+                for another aperture than the settings' own, or an `extra` value that is not
+                finite (JSON has no NaN or infinity).
+        """
         data = self.to_dict()
+        taken = sorted(set(extra) & {*SETTING_FIELDS, "psf"})
+        if "aperture" in extra and _spec_of_entry(extra["aperture"]) != self.aperture:
+            taken.append("aperture")
+        if taken:
+            raise ValueError(f"to_json extra values must not replace the settings, got {taken}; "
+                             "change the settings themselves with .replace()")
         data.update(extra)
-        Path(path).write_text(json.dumps(data, indent=2) + "\n")
+        try:
+            text = json.dumps(data, indent=2, allow_nan=False)
+        except ValueError:
+            bad = {k: v for k, v in extra.items() if not _json_finite(v)}
+            raise ValueError(f"to_json extra values must be finite numbers (JSON has no NaN or "
+                             f"infinity), got {bad}") from None
+        Path(path).write_text(text + "\n")
 
     @classmethod
     def from_json(cls, path: str | PathLike) -> CameraSettings:
@@ -434,6 +461,26 @@ class CameraSettings:
         )
 
     __hash__ = None  # type: ignore[assignment]
+
+
+def _spec_of_entry(entry: Any) -> str | None:
+    """The aperture spec a JSON `aperture` entry (a spec or a `{"family": ...}` object) reads
+    as, or None where it reads as none."""
+    try:
+        return aperture_spec(aperture_from_json(entry))
+    except (TypeError, ValueError):
+        return None
+
+
+def _json_finite(value: Any) -> bool:
+    """Whether a JSON value holds no NaN or infinity, at any depth."""
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if isinstance(value, Mapping):
+        return all(_json_finite(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return all(_json_finite(v) for v in value)
+    return True
 
 
 torch.export.register_dataclass(CameraSettings, serialized_type_name="optics.CameraSettings")

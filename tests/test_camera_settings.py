@@ -147,3 +147,33 @@ def test_json_numbers_carry_no_float32_noise(tmp_path):
     data = json.loads((tmp_path / "cam.json").read_text())
     assert data["f_number"] == [2.8, 8.3] and data["pixel_pitch"] == [4.88e-6, 4.88e-6]
     assert CameraSettings.from_json(tmp_path / "cam.json").to(torch.float32) == s
+
+
+@pytest.mark.parametrize("focus", [[2.0], [[2.0]], [[2.0, 6.0]], [[2.0], [3.0]]])
+def test_json_round_trip_keeps_the_batch_shape(tmp_path, focus):
+    s = CameraSettings(0.05, 2.0, focus, 1e-5)
+    s.to_json(tmp_path / "cam.json")
+    back = CameraSettings.from_json(tmp_path / "cam.json")
+    assert back.shape == s.shape and back == s
+    assert CameraSettings.from_dict(s.to_dict()) == s
+
+
+def test_to_json_refuses_extras_that_replace_a_setting_or_are_not_finite(tmp_path):
+    s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-5, "disk")
+    path = tmp_path / "cam.json"
+    for extra in ({"f_number": 99}, {"psf": "gaussian"}, {"aperture": "gaussian"}):
+        with pytest.raises(ValueError, match="must not replace the settings"):
+            s.to_json(path, **extra)
+    with pytest.raises(ValueError, match=r"finite numbers .*'gain': \[1.0, nan\]"):
+        s.to_json(path, gain=[1.0, float("nan")])
+    assert not path.exists()
+    s.to_json(path, aperture={"family": "disk"}, note="the same aperture, written as an object")
+    assert CameraSettings.read_json(path) == (s, {"note": "the same aperture, written as an object"})
+
+
+def test_to_json_checks_values_changed_in_place(tmp_path):
+    s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-5)
+    s.f_number[0] = -1.0
+    with pytest.raises(ValueError, match="f_number"):
+        s.to_json(tmp_path / "cam.json")
+    assert not (tmp_path / "cam.json").exists()

@@ -394,3 +394,12 @@ def test_estimate_depth_refuses_settings_that_are_not_camera_settings():
         estimate_depth(torch.rand(2, 3, 16, 16), [0.05, 2.0, [2.0, 6.0], 1e-4], (1.0, 10.0))
     with pytest.raises(TypeError, match="focused must be a torch.Tensor, got ndarray"):
         estimate_depth(np.zeros((2, 3, 16, 16)), SETTINGS, (1.0, 10.0))
+
+
+def test_estimate_depth_refuses_the_settings_of_several_scenes():
+    batch = CameraSettings(0.05, 2.0, [[2.0, 6.0], [3.0, 5.0]], 1e-4)
+    with pytest.raises(ValueError, match=r"settings must be one scene's .* shape \(2, 2\)"):
+        estimate_depth(torch.rand(2, 3, 16, 16), batch, (1.0, 10.0))
+    photos = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0))
+    one = estimate_depth(photos, batch[:1], (1.0, 10.0))["depth"]
+    assert torch.equal(one, estimate_depth(photos, batch[0], (1.0, 10.0))["depth"])

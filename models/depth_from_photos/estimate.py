@@ -283,6 +283,11 @@ def check_arguments(focused: Any, settings: Any, depth_range: Any, image: Any = 
             len(depth_range) != 2 or not all(_is_number(d) for d in depth_range):
         raise TypeError(f"depth_range must be two numbers (near, far) in metres, got "
                         f"{depth_range!r}")
+    for name, value in (("settings", settings), ("image_settings", image_settings)):
+        if value is not None and value.is_batched and value.shape[0] != 1:
+            raise ValueError(f"{name} must be one scene's (F,) settings, got shape "
+                             f"{tuple(value.shape)} (a batch of {value.shape[0]} scenes); "
+                             f"estimate_depth takes one scene: give {name}[i]")
     check_photos(photos[0], photos[1])
     near, _ = _check_depth_range(depth_range)
     if settings is not None and near <= float(settings.focal_length.max()):
