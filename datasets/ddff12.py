@@ -19,7 +19,7 @@ Disparity is the shift in pixels between neighbouring sub-aperture views, so dep
 `B = K2 / f_lens * 1e-3` m from the toolbox's `IntParamLF.mat` (`K2 = 1982.02508`,
 `f_lens = 7317.02064`): `f_sub * B = 0.141237` m px. The official evaluation ignores
 disparities outside [0.0202, 0.2825] px (0.5 m to 7 m) and scores disparity, not depth
-(`models.metrics.PROTOCOLS["ddff12"]`).
+(`models.protocols.PROTOCOLS["ddff12"]`).
 
 Slice `i` of a stack is the light field refocused (shift-and-add over the whole view grid) at
 disparity `d_i = linspace(f_sub B / 0.5, f_sub B / 7, 10)[i]`: slice 0 is focused at 0.5 m, the

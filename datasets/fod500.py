@@ -16,7 +16,7 @@ stacks train, the last 100 test). The camera (DefocusNet readme and `run_trainin
 length 2.9 mm, f/1, focus distances above; the sensor is 3.1 mm wide (FOSSA's
 `util/gen_focal_stack.py`, the same 2.9 mm lens), so the 256-pixel renders have a pitch of
 12.1 um. DefocusNet trains on depth clipped at 3 m; DFV's evaluation clips depth and
-prediction at 1.5 m (`models.metrics.PROTOCOLS["fod500"]`).
+prediction at 1.5 m (`models.protocols.PROTOCOLS["fod500"]`).
 """
 
 from __future__ import annotations

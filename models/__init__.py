@@ -7,7 +7,8 @@ The names most work needs are here; each lives in one module:
 | `estimate_depth` | `models.depth_from_photos` | depth of one scene from its photos (the label-free methods, or a trained model) |
 | `load_depth_model` | `models.loading` | a trained model from any weight file (`defocus train` checkpoint or weights file) |
 | `evaluate`, `label_free_method` | `models.evaluation` | a method's metrics over samples, with a benchmark's protocol |
-| `depth_metrics`, `depth_order`, `best_constant_depth`, `format_table`, `PROTOCOLS` | `models.metrics` | metrics and the paper-style table |
+| `depth_metrics`, `depth_order`, `best_constant_depth`, `format_table` | `models.metrics` | metrics and the paper-style table |
+| `PROTOCOLS`, `protocol_metrics` | `models.protocols` | the focal-stack benchmarks' own scoring |
 | `Trainer`, `TrainConfig` | `models.training` | training runs |
 | `DefocusLoss`, `supervised_depth_loss` | `models.losses` | the training losses |
 | `loss_at_depths` | `models.diagnostics` | is the loss right: its value at the true depth and the alternatives |
@@ -30,15 +31,13 @@ from .loading import is_weights_file, load_depth_model, load_weights, save_weigh
 from .losses import DefocusLoss, supervised_depth_loss
 from .metrics import (
     METRIC_NAMES,
-    PROTOCOLS,
-    Protocol,
     best_constant_depth,
     depth_metrics,
     depth_order,
     format_table,
-    protocol_metrics,
 )
 from .networks import NETWORKS, PaperDepthNet, SmallDepthNet, build_network
+from .protocols import PROTOCOLS, Protocol, protocol_metrics
 from .training import (
     CheckpointError,
     DepthCollapseWarning,

@@ -6,7 +6,7 @@ returns depth `(1,H,W)` in metres; `label_free_method` makes one of the methods 
 `models.depth_from_photos.estimate_depth` (the sweep where the sample has a real all-in-focus
 image, the relative blur between the shots where it has not), a trained model of
 `models.loading.load_depth_model` runs through it too, and any other callable can be swapped
-in. `evaluate` runs a method over samples and averages `models.metrics.protocol_metrics` over
+in. `evaluate` runs a method over samples and averages `models.protocols.protocol_metrics` over
 the images with ground truth, as the benchmarks' own code does. `MeanMetrics` is the running
 mean every evaluation loop of the package shares (`Trainer.evaluate`,
 `models.experiment.evaluate_whole_images`).
@@ -30,7 +30,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from .metrics import PROTOCOLS, Protocol, protocol_metrics
+from .protocols import PROTOCOLS, Protocol, protocol_metrics
 
 #: A depth method: a sample in, depth `(1,H,W)` metres out.
 Method = Callable[[Mapping[str, Any]], Tensor]
@@ -110,11 +110,11 @@ def evaluate(predict: Method, samples: Iterable[Mapping[str, Any]], protocol: st
         predict: `(sample) -> depth (1,H,W)` metres (e.g. `label_free_method`).
         samples: samples of `datasets.base` (a dataset, a list, ...), each with `depth`
             `(1,H,W)` metres and `mask`.
-        protocol: a name of `models.metrics.PROTOCOLS` or a `Protocol`.
+        protocol: a name of `models.protocols.PROTOCOLS` or a `Protocol`.
         report: called after each image as `report(index, sample id, its metrics)`.
 
     Returns:
-        the averaged metrics (`models.metrics.PROTOCOL_METRIC_NAMES`), `images` (how many
+        the averaged metrics (`models.protocols.PROTOCOL_METRIC_NAMES`), `images` (how many
         were scored) and `skipped` (samples without ground truth).
 
     Raises:

@@ -14,6 +14,9 @@ into a synthetic focused image that is compared with the real one:
 from __future__ import annotations
 
 import functools
+import inspect
+import math
+import numbers
 from typing import Any
 
 import kornia
@@ -21,8 +24,56 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from optics import Aperture, CameraSettings, render_focal_stack
+from optics import Aperture, CameraSettings, render_defocus, render_focal_stack
 from optics.checks import check_shape
+
+#: Keywords of `optics.render_defocus` that `DefocusLoss` may pass on (the others it sets).
+RENDER_KEYWORDS = tuple(name for name in inspect.signature(render_defocus).parameters
+                        if name not in ("image", "coc_px", "psf", "depth"))
+
+
+def _check_weight(name: str, value: float, high: float = math.inf) -> float:
+    """`value` as a float, refused unless a finite number in `[0, high]`."""
+    if isinstance(value, bool | str | bytes):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}") from None
+    if not (math.isfinite(number) and 0.0 <= number <= high):
+        allowed = "in [0, 1]" if high == 1.0 else "finite and >= 0"
+        raise ValueError(f"{name} must be {allowed}, got {value!r}")
+    return number
+
+
+def _check_window_size(window_size: int) -> None:
+    if isinstance(window_size, bool) or not isinstance(window_size, numbers.Integral) \
+            or window_size < 1 or window_size % 2 == 0:
+        raise ValueError(f"window_size must be an odd number of pixels >= 1, got {window_size!r}")
+
+
+def _check_window_fits(names: str, tensor: Tensor, window_size: int) -> None:
+    """Refuse images smaller than the SSIM window's reflected border needs (a shape check)."""
+    _check_window_size(window_size)
+    half = window_size // 2
+    if min(tensor.shape[-2:]) <= half:
+        raise ValueError(f"{names} must be at least {half + 1} x {half + 1} pixels for "
+                         f"window_size={window_size} (reflected borders of {half} pixels), got "
+                         f"H x W = {tensor.shape[-2]} x {tensor.shape[-1]}")
+
+
+def _check_images(name: str, tensor: Tensor) -> None:
+    """Refuse `(..., C, H, W)` images that hold no pixel (their mean would be NaN); a shape
+    check only, no value is read."""
+    if tensor.ndim < 3 or tensor.numel() == 0:
+        raise ValueError(f"{name} must be non-empty (..., C, H, W) images, got shape "
+                         f"{tuple(tensor.shape)}")
+
+
+def _masked_mean(values: Tensor) -> Tensor:
+    """Mean of `values`, 0 when there are none (e.g. horizontal differences of a 1-pixel-wide
+    image): a shape test, no device sync."""
+    return values.mean() if values.numel() else values.sum()
 
 
 def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85,
@@ -30,10 +81,15 @@ def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85
     """`ssim_weight * (1 - SSIM)/2 + (1 - ssim_weight) * L1`, averaged over pixels and images.
 
     Args:
-        rendered: `(..., C, H, W)` images in [0, 1].
+        rendered: `(..., C, H, W)` images in [0, 1], at least one, each at least
+            `window_size // 2 + 1` pixels high and wide (the SSIM's reflected border).
         target: same shape as `rendered`.
         ssim_weight: weight of the SSIM term in [0, 1] (paper: 0.85).
         window_size: odd SSIM window width in pixels.
+
+    Raises:
+        ValueError: for shapes that differ, no image, images too small for the window, or
+            `ssim_weight` outside [0, 1] (shape and argument checks only: no value is read).
 
     Example:
         >>> x = torch.rand(2, 3, 16, 16)
@@ -43,8 +99,9 @@ def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85
     if rendered.shape != target.shape:
         raise ValueError(f"rendered and target must have the same shape, got "
                          f"{tuple(rendered.shape)} and {tuple(target.shape)}")
-    if not 0.0 <= ssim_weight <= 1.0:
-        raise ValueError(f"ssim_weight must be in [0, 1], got {ssim_weight!r}")
+    _check_weight("ssim_weight", ssim_weight, 1.0)
+    _check_images("rendered", rendered)
+    _check_window_fits("rendered and target", rendered, window_size)
     r = rendered.reshape(-1, *rendered.shape[-3:])
     t = target.reshape(-1, *target.shape[-3:])
     ssim = ((1 - ssim_map(r, t, window_size)) / 2).clamp(0, 1).mean()
@@ -61,7 +118,8 @@ def ssim_map(x: Tensor, y: Tensor, window_size: int = 7, max_val: float = 1.0) -
     which a GPU training step, bound by the host issuing its operations, feels.
 
     Args:
-        x: `(B, C, H, W)` images.
+        x: `(B, C, H, W)` images, `H` and `W` at least `window_size // 2 + 1` (reflected
+            borders of `window_size // 2` pixels need that many).
         y: same shape as `x`.
         window_size: odd width of the Gaussian window, pixels.
         max_val: the images' dynamic range.
@@ -76,8 +134,7 @@ def ssim_map(x: Tensor, y: Tensor, window_size: int = 7, max_val: float = 1.0) -
     if y.shape != x.shape:
         raise ValueError(f"x and y must have the same shape, got {tuple(x.shape)} and "
                          f"{tuple(y.shape)}")
-    if window_size < 1 or window_size % 2 == 0:
-        raise ValueError(f"window_size must be an odd number of pixels >= 1, got {window_size!r}")
+    _check_window_fits("x and y", x, window_size)
     dtype = torch.promote_types(torch.promote_types(x.dtype, y.dtype), torch.float32)
     x, y = x.to(dtype), y.to(dtype)
     stack = torch.cat([x, y, x * x, y * y, x * y], 1)
@@ -129,35 +186,52 @@ def edge_aware_smoothness(depth: Tensor, image: Tensor) -> Tensor:
     """Edge-aware smoothness: `mean(|d_x d*| exp(-|d_x I|)) + mean(|d_y d*| exp(-|d_y I|))`.
 
     `d*` is the depth divided by its per-image mean (scale free) and `|d I|` the channel mean
-    of the image's absolute differences.
+    of the image's absolute differences. The mean is taken at least the dtype's machine epsilon
+    (a depth of mean 0 or below stays finite; a mean depth above it is unchanged), and a
+    direction without neighbours (`W = 1` or `H = 1`) adds 0.
 
     Args:
-        depth: `(B,1,H,W)` metres.
-        image: `(B,C,H,W)`.
+        depth: `(B,1,H,W)` metres, `B >= 1`.
+        image: `(B,C,H,W)` of the depth's `B`, `H` and `W`.
+
+    Raises:
+        ValueError: for wrong or mismatched shapes or an empty batch (no value is read).
 
     Example:
         >>> float(edge_aware_smoothness(torch.full((1, 1, 8, 8), 3.0), torch.rand(1, 3, 8, 8)))
         0.0
     """
     check_shape("depth", depth, ["B", "1", "H", "W"])
-    d = depth / depth.mean((2, 3), keepdim=True)
+    check_shape("image", image, ["B", "C", "H", "W"])
+    if image.shape[0] != depth.shape[0] or image.shape[-2:] != depth.shape[-2:]:
+        raise ValueError(f"image must have the depth's B, H and W, got {tuple(image.shape)} "
+                         f"for depth {tuple(depth.shape)}")
+    _check_images("depth", depth)
+    mean = depth.mean((2, 3), keepdim=True).clamp_min(torch.finfo(depth.dtype).eps)
+    d = depth / mean
     dx, dy = (d[..., :, 1:] - d[..., :, :-1]).abs(), (d[..., 1:, :] - d[..., :-1, :]).abs()
     ix = (image[..., :, 1:] - image[..., :, :-1]).abs().mean(1, keepdim=True)
     iy = (image[..., 1:, :] - image[..., :-1, :]).abs().mean(1, keepdim=True)
-    return (dx * torch.exp(-ix)).mean() + (dy * torch.exp(-iy)).mean()
+    return _masked_mean(dx * torch.exp(-ix)) + _masked_mean(dy * torch.exp(-iy))
 
 
 class DefocusLoss(nn.Module):
     """The paper's self-supervised loss: photometric + sharpness + smoothness.
 
     Args:
-        ssim_weight: SSIM share of the photometric term (paper: 0.85).
-        sharpness_weight: weight of the sharpness-map L1 term (paper: 0.1).
-        smoothness_weight: weight of the edge-aware depth smoothness (paper: 0.001).
-        window_size: SSIM window width in pixels.
+        ssim_weight: SSIM share of the photometric term in [0, 1] (paper: 0.85).
+        sharpness_weight: weight of the sharpness-map L1 term, finite and >= 0 (paper: 0.1).
+        smoothness_weight: weight of the edge-aware depth smoothness, finite and >= 0
+            (paper: 0.001).
+        window_size: odd SSIM window width in pixels.
         aperture: PSF shape used to render, overriding the settings' aperture (None: use the
             aperture of the `CameraSettings` passed to `forward`).
-        **render_kwargs: passed to `optics.render_defocus` (`mode`, ...).
+        **render_kwargs: passed to `optics.render_defocus`: `RENDER_KEYWORDS` (`mode`,
+            `max_kernel_size`, ...).
+
+    Raises:
+        ValueError: at construction, for a weight out of its range, an even or non-positive
+            `window_size`, or a keyword `optics.render_defocus` does not take.
 
     Example:
         >>> loss = DefocusLoss()
@@ -172,9 +246,14 @@ class DefocusLoss(nn.Module):
                  smoothness_weight: float = 0.001, window_size: int = 7,
                  aperture: Aperture | None = None, **render_kwargs: Any):
         super().__init__()
-        self.ssim_weight = float(ssim_weight)
-        self.sharpness_weight = float(sharpness_weight)
-        self.smoothness_weight = float(smoothness_weight)
+        unknown = sorted(set(render_kwargs) - set(RENDER_KEYWORDS))
+        if unknown:
+            raise ValueError(f"DefocusLoss got unknown keyword argument(s) {unknown}; the "
+                             f"renderer takes {list(RENDER_KEYWORDS)}")
+        _check_window_size(window_size)
+        self.ssim_weight = _check_weight("ssim_weight", ssim_weight, 1.0)
+        self.sharpness_weight = _check_weight("sharpness_weight", sharpness_weight)
+        self.smoothness_weight = _check_weight("smoothness_weight", smoothness_weight)
         self.window_size = int(window_size)
         self.aperture = aperture
         self.render_kwargs = render_kwargs
@@ -206,12 +285,36 @@ def supervised_depth_loss(depth: Tensor, target: Tensor, mask: Tensor | None = N
     """Mean relative L1 error `|depth - target| / target` over valid pixels (a baseline that
     uses depth labels; not part of the self-supervised recipe).
 
+    Pixels outside `mask` add exactly 0 to the loss and get a gradient of 0, whatever `depth`
+    and `target` hold there (0, infinity or NaN labels of missing measurements): they are
+    replaced, not multiplied by 0. No value is read (no device sync).
+
+    Args:
+        depth: predicted depth, metres.
+        target: ground truth of the same shape, metres, > 0 where `mask` is set.
+        mask: optional mask of the same shape (boolean, or weights where non-zero counts).
+
+    Raises:
+        ValueError: for shapes that differ.
+
     Example:
         >>> float(supervised_depth_loss(torch.full((1, 1, 2, 2), 3.0), torch.full((1, 1, 2, 2), 2.0)))
         0.5
+        >>> target = torch.tensor([[2.0, 0.0]])  # the second label is missing
+        >>> float(supervised_depth_loss(torch.tensor([[3.0, 1.0]]), target, target > 0))
+        0.5
     """
-    error = (depth - target).abs() / target
+    if depth.shape != target.shape:
+        raise ValueError(f"depth and target must have the same shape, got {tuple(depth.shape)} "
+                         f"and {tuple(target.shape)}")
     if mask is None:
-        return error.mean()
-    mask = mask.to(error.dtype)
-    return (error * mask).sum() / mask.sum().clamp_min(1.0)
+        return ((depth - target).abs() / target).mean()
+    if mask.shape != target.shape:
+        raise ValueError(f"mask must have the target's shape {tuple(target.shape)}, got "
+                         f"{tuple(mask.shape)}")
+    keep = mask if mask.dtype == torch.bool else mask != 0
+    safe_target = torch.where(keep, target, torch.ones_like(target))
+    safe_depth = torch.where(keep, depth, safe_target)  # outside: error 0, gradient 0
+    error = torch.where(keep, (safe_depth - safe_target).abs() / safe_target, 0.0)
+    weight = mask.to(error.dtype)
+    return (error * weight).sum() / weight.sum().clamp_min(1.0)

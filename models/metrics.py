@@ -17,10 +17,7 @@ name           definition                                                better
 Median scaling (multiply the prediction by `median(g) / median(d)`) is off by default: our
 depths are metric. When on, the returned dict also holds the mean `median_scale`.
 
-The focal-stack benchmarks have protocols of their own (`PROTOCOLS`, `protocol_metrics`): the
-space the numbers are computed in (DDFF-12 scores disparity), the valid range and caps, MSE,
-silog, the thresholds 1.05 and 1.15, and DDFF-12's bumpiness, each as the benchmark's own
-evaluation code computes it, so that a number printed here stands next to the paper's table.
+The focal-stack benchmarks score with protocols of their own: `models.protocols`.
 """
 
 from __future__ import annotations
@@ -28,11 +25,9 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from typing import TypeVar
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 METRIC_NAMES = ("abs_rel", "sq_rel", "rmse", "rmse_log", "log10", "delta1", "delta2", "delta3")
@@ -54,9 +49,10 @@ CROPS = {
 _F = TypeVar("_F", bound=Callable)
 
 
-def _maps_by_keyword(fn: _F) -> _F:
-    """Refuse positional depth maps: `pred` and `target` swapped silently give wrong numbers
-    (Monodepth2's `compute_errors(gt, pred)` has the opposite order to most code)."""
+def maps_by_keyword(fn: _F) -> _F:
+    """Decorate a metric so that it refuses positional depth maps: `pred` and `target` swapped
+    silently give wrong numbers (Monodepth2's `compute_errors(gt, pred)` has the opposite order
+    to most code)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -105,7 +101,14 @@ def crop_mask(height: int, width: int, crop: str | Sequence[float] | None,
     return mask
 
 
-def _as_batch(name: str, tensor: Tensor) -> Tensor:
+def as_map_batch(name: str, tensor: Tensor) -> Tensor:
+    """A depth map or mask of shape `(H,W)`, `(1,H,W)` or `(B,1,H,W)` as `(B,1,H,W)`, `B >= 1`;
+    anything else refused naming `name` (the metrics' and the protocols' input check).
+
+    Example:
+        >>> as_map_batch("target", torch.ones(4, 5)).shape
+        torch.Size([1, 1, 4, 5])
+    """
     if not isinstance(tensor, Tensor):
         raise TypeError(f"{name} must be a torch.Tensor, got {type(tensor).__name__}")
     if tensor.ndim == 2:
@@ -113,25 +116,78 @@ def _as_batch(name: str, tensor: Tensor) -> Tensor:
     if tensor.ndim == 3:
         return tensor[None]
     if tensor.ndim == 4 and tensor.shape[1] == 1:
+        if tensor.shape[0] == 0:
+            raise ValueError(f"{name} must hold at least one image (B >= 1), got an empty batch "
+                             f"of shape {tuple(tensor.shape)}")
         return tensor
     raise ValueError(f"{name} must have shape (H,W), (1,H,W) or (B,1,H,W), "
                      f"got {tuple(tensor.shape)}")
 
 
-@_maps_by_keyword
+def refuse_bad_pixels(name: str, tensor: Tensor, bad: Tensor, allowed: str) -> None:
+    """Raise `ValueError` if any pixel of the boolean map `bad` is set: `name` must be `allowed`
+    there; the message gives how many are not and the first one's value and index.
+
+    Example:
+        >>> depth = torch.tensor([[1.0, -2.0]])
+        >>> refuse_bad_pixels("depth", depth, depth <= 0, "> 0 metres")
+        Traceback (most recent call last):
+        ...
+        ValueError: depth must be > 0 metres, got 1 value(s) that are not, the first -2.0 at index (0, 1)
+    """
+    if bool(bad.any()):
+        first = tuple(int(i) for i in bad.nonzero()[0].tolist())
+        raise ValueError(f"{name} must be {allowed}, got {int(bad.sum())} value(s) that are not, "
+                         f"the first {float(tensor[first])!r} at index {first}")
+
+
+def check_prediction(pred: Tensor, valid: Tensor, positive: bool = True) -> None:
+    """Refuse a prediction that is not finite (and > 0 metres when `positive`) at a `valid`
+    pixel; pixels outside `valid` may hold anything.
+
+    Example:
+        >>> pred = torch.tensor([[2.0, float("nan")]])
+        >>> check_prediction(pred, torch.tensor([[True, False]]))  # the NaN is not scored
+    """
+    good = torch.isfinite(pred) & (pred > 0) if positive else torch.isfinite(pred)
+    allowed = "finite and > 0 metres" if positive else "finite"
+    refuse_bad_pixels("pred", pred, valid & ~good, f"{allowed} at every valid pixel")
+
+
+def _check_depth_range(min_depth: float, max_depth: float | None) -> None:
+    """Refuse a `min_depth` below 0 (ground truth must stay > 0: the metrics divide by it and
+    take its logarithm) or not finite, and a `max_depth` not above `min_depth`."""
+    if not (math.isfinite(min_depth) and min_depth >= 0):
+        raise ValueError(f"min_depth must be a finite depth >= 0 metres (ground truth at or below "
+                         f"it is ignored, so that every scored depth is > 0), got {min_depth!r}")
+    if max_depth is not None and not max_depth > min_depth:
+        raise ValueError(f"max_depth must be None or a depth > min_depth ({min_depth!r}) metres, "
+                         f"got {max_depth!r}")
+
+
+@maps_by_keyword
 def valid_mask(*, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
                max_depth: float | None = None, crop: str | Sequence[float] | None = None) -> Tensor:
-    """Pixels that count: `mask`, ground truth in `(min_depth, max_depth)`, inside `crop`."""
-    target = _as_batch("target", target)
+    """Pixels that count: `mask`, ground truth in `(min_depth, max_depth)`, inside `crop`.
+
+    Raises:
+        ValueError: for `min_depth < 0` (or not finite), or `max_depth <= min_depth`.
+
+    Example:
+        >>> valid_mask(target=torch.tensor([[0.0, 2.0, float("nan")]])).int()
+        tensor([[[[0, 1, 0]]]], dtype=torch.int32)
+    """
+    _check_depth_range(min_depth, max_depth)
+    target = as_map_batch("target", target)
     valid = torch.isfinite(target) & (target > min_depth)
     if max_depth is not None:
         valid &= target < max_depth
     if mask is not None:
-        valid &= _as_batch("mask", mask).to(torch.bool)
+        valid &= as_map_batch("mask", mask).to(torch.bool)
     return valid & crop_mask(*target.shape[-2:], crop, target.device)
 
 
-@_maps_by_keyword
+@maps_by_keyword
 def depth_metrics(
     *, pred: Tensor, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
     max_depth: float | None = None, crop: str | Sequence[float] | None = None,
@@ -147,6 +203,7 @@ def depth_metrics(
         target: ground truth of the same shape, metres.
         mask: optional boolean mask of valid ground truth (same shape).
         min_depth: ground truth at or below this is ignored; predictions are clamped to it.
+            Finite and >= 0 (0 keeps every positive depth: the metrics need `g > 0`).
         max_depth: depth cap: ground truth at or beyond it is ignored, predictions clamped to it.
         crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
         median_scaling: scale each prediction by `median(target) / median(pred)` first.
@@ -155,27 +212,27 @@ def depth_metrics(
         dict of the `METRIC_NAMES` (plus `median_scale` when `median_scaling`).
 
     Raises:
-        ValueError: if an image has no valid pixel or a prediction is not finite and positive.
+        ValueError: for an empty batch, `min_depth < 0` or `max_depth <= min_depth`, if an
+            image has no valid pixel or a prediction is not finite and positive at a valid pixel.
 
     Example:
         >>> m = depth_metrics(pred=torch.tensor([[2.0, 4.0]]), target=torch.tensor([[2.0, 5.0]]))
         >>> round(m["abs_rel"], 4), round(m["rmse"], 4), m["delta1"]
         (0.1, 0.7071, 0.5)
     """
-    pred, target = _as_batch("pred", pred), _as_batch("target", target)
+    pred, target = as_map_batch("pred", pred), as_map_batch("target", target)
     if pred.shape != target.shape:
         raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
                          f"and {tuple(target.shape)}")
     valid = valid_mask(target=target, mask=mask, min_depth=min_depth, max_depth=max_depth,
                        crop=crop)
+    check_prediction(pred.detach(), valid)
     totals: dict[str, float] = {}
     for d_all, g_all, v in zip(pred.detach(), target.detach(), valid, strict=True):
         d, g = d_all[v].double(), g_all[v].double()
         if g.numel() == 0:
             raise ValueError("an image has no valid ground-truth pixel (check mask, min_depth, "
                              "max_depth and crop)")
-        if not bool(torch.all(torch.isfinite(d) & (d > 0))):
-            raise ValueError("pred must be finite and > 0 metres at every valid pixel")
         values = {}
         if median_scaling:
             values["median_scale"] = float(g.median() / d.median())
@@ -197,7 +254,7 @@ def depth_metrics(
     return {key: value / pred.shape[0] for key, value in totals.items()}
 
 
-@_maps_by_keyword
+@maps_by_keyword
 def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
     """The constant depth (metres) with the lowest abs rel: the median of `target` weighted by
     `1 / target` over valid pixels (an oracle baseline; it looks at the ground truth).
@@ -218,7 +275,7 @@ def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
     return float(g[min(index, g.numel() - 1)])
 
 
-@_maps_by_keyword
+@maps_by_keyword
 def depth_order(*, pred: Tensor, target: Tensor, mask: Tensor | None = None,
                 max_depth: float | None = None, crop: str | Sequence[float] | None = None,
                 ) -> float:
@@ -236,7 +293,8 @@ def depth_order(*, pred: Tensor, target: Tensor, mask: Tensor | None = None,
         crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
 
     Raises:
-        ValueError: maps of different shapes, or an image with fewer than two valid pixels.
+        ValueError: maps of different shapes, an empty batch, an image with fewer than two valid
+            pixels, or a prediction that is not finite at a valid pixel (its order is undefined).
 
     Example:
         >>> target = torch.tensor([[1.0, 2.0, 3.0, 4.0]])
@@ -245,11 +303,12 @@ def depth_order(*, pred: Tensor, target: Tensor, mask: Tensor | None = None,
         >>> round(depth_order(pred=1 / target, target=target), 6)  # near and far swapped
         -1.0
     """
-    pred, target = _as_batch("pred", pred), _as_batch("target", target)
+    pred, target = as_map_batch("pred", pred), as_map_batch("target", target)
     if pred.shape != target.shape:
         raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
                          f"and {tuple(target.shape)}")
     valid = valid_mask(target=target, mask=mask, max_depth=max_depth, crop=crop)
+    check_prediction(pred.detach(), valid, positive=False)
     total = 0.0
     for d, g, v in zip(pred.detach(), target.detach(), valid, strict=True):
         if int(v.sum()) < 2:
@@ -274,6 +333,14 @@ def confident_half_error(error: Tensor, confidence: Tensor) -> float:
     confident half of the pixels divided by the mean over all of them (1: no better than
     chance; 0: the confident half holds no error). Both tensors hold the same pixels, any shape.
 
+    The errors must be finite and >= 0, and not all 0: without any error the ratio is 0 / 0
+    (every ranking is as good as any other), so such a map is refused rather than scored NaN.
+    The confidence must not be NaN (it has no rank).
+
+    Raises:
+        ValueError: for maps of other shapes or empty ones, an error that is negative, not
+            finite or 0 everywhere, or a NaN confidence.
+
     Example:
         >>> confident_half_error(torch.tensor([0.0, 0.0, 1.0, 3.0]),
         ...                      torch.tensor([0.9, 0.8, 0.2, 0.1]))
@@ -283,6 +350,12 @@ def confident_half_error(error: Tensor, confidence: Tensor) -> float:
         raise ValueError(f"error and confidence must be non-empty and of one shape, got "
                          f"{tuple(error.shape)} and {tuple(confidence.shape)}")
     error, confidence = error.detach().flatten().double(), confidence.detach().flatten()
+    refuse_bad_pixels("error", error, ~(torch.isfinite(error) & (error >= 0)),
+                       "finite and >= 0 at every pixel")
+    refuse_bad_pixels("confidence", confidence, torch.isnan(confidence), "a number (not NaN)")
+    if not bool(error.sum() > 0):
+        raise ValueError(f"error must not be 0 at every pixel (the ratio to its mean would be "
+                         f"0 / 0), got {error.numel()} pixel(s) of error 0")
     top = confidence.argsort(descending=True)[: max(1, error.numel() // 2)]
     return float(error[top].mean() / error.mean())
 
@@ -317,168 +390,3 @@ def format_table(results: Mapping[str, Mapping[str, float]],
 
     separator = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
     return "\n".join([line(headers), separator, *(line(r) for r in rows)])
-
-
-# ---- the focal-stack benchmarks' own protocols -------------------------------------------------
-
-#: Threshold of each delta accuracy: share of pixels with `max(d/g, g/d) < threshold`.
-DELTA_THRESHOLDS = {"delta1.05": 1.05, "delta1.15": 1.15, "delta1": 1.25, "delta2": 1.25**2,
-                    "delta3": 1.25**3}
-#: Every name `protocol_metrics` returns.
-PROTOCOL_METRIC_NAMES = ("mse", "rmse", "rmse_log", "abs_rel", "sq_rel", "log10", "silog",
-                         *DELTA_THRESHOLDS, "bumpiness")
-
-
-@dataclass(frozen=True)
-class Protocol:
-    """How a benchmark scores a depth map (lengths in metres, disparity in pixels).
-
-    Args:
-        name: the benchmark.
-        metrics: the columns of its paper's table, in order.
-        source: the paper table (and evaluation code) the numbers match.
-        disparity_scale: score disparity `disparity_scale / depth` (pixels; `f * B` in
-            metres times pixels) instead of depth when set.
-        valid: ground truth counts inside this closed range (in the scored space).
-        cap: prediction and ground truth are clipped to at most this before scoring.
-        percent: deltas as percentages (the evaluation code multiplies them by 100).
-    """
-
-    name: str
-    metrics: tuple[str, ...]
-    source: str
-    disparity_scale: float | None = None
-    valid: tuple[float, float] = (0.0, math.inf)
-    cap: float | None = None
-    percent: bool = False
-
-
-_DDFF_COLUMNS = ("mse", "rmse", "rmse_log", "abs_rel", "sq_rel", "delta1", "delta2", "delta3",
-                 "bumpiness")
-#: The benchmarks' protocols by dataset name.
-PROTOCOLS: dict[str, Protocol] = {
-    "ddff12": Protocol(
-        "ddff12", _DDFF_COLUMNS,
-        "Hazirbas et al., Deep Depth From Focus (ACCV 2018), Table 2; the official evaluation "
-        "(soyers/ddff-pytorch BaseDDFFEval, also DFV's eval_DDFF12.py): disparity in pixels, "
-        "deltas and bumpiness x100. FOSSA's Table 4 prints the deltas as fractions",
-        # f_sub * B of the toolbox: 521.4052 px x 1982.02508 / 7317.02064 mm
-        disparity_scale=521.4052 * 1982.02508 / 7317.02064 * 1e-3,
-        valid=(0.0202, 0.2825), percent=True),
-    "fod500": Protocol(
-        "fod500", _DDFF_COLUMNS,
-        "Yang et al., Deep Depth from Focus with Differential Focus Volume (CVPR 2022), FoD500 "
-        "table (eval_FoD500.py): depth in metres clipped at 1.5 m, deltas and bumpiness x100",
-        valid=(1e-9, math.inf), cap=1.5, percent=True),
-    "zedd": Protocol(
-        "zedd", ("delta1.05", "delta1.15", "delta1", "abs_rel", "sq_rel", "rmse", "rmse_log"),
-        "Zuo et al., Zero-Shot Depth from Defocus (2026), Table 2 (FOSSA util/metric.py "
-        "eval_depth): depth in metres, ground truth in [0.01, 1000] m, deltas as fractions",
-        valid=(0.01, 1000.0)),
-}
-
-
-def _scharr(image: Tensor, axis: int) -> Tensor:
-    """scikit-image's `scharr_h` (axis 0) or `scharr_v` (axis 1) of `(B,1,H,W)`: the central
-    difference `x[i+1] - x[i-1]` along `axis`, smoothed by `[3, 10, 3] / 16` across it, edge
-    pixels repeated (scikit-image's `mode="reflect"`)."""
-    smooth = torch.tensor([3.0, 10.0, 3.0], dtype=image.dtype, device=image.device) / 16
-    edge = torch.tensor([-1.0, 0.0, 1.0], dtype=image.dtype, device=image.device)
-    kernel = edge[:, None] * smooth[None, :] if axis == 0 else smooth[:, None] * edge[None, :]
-    return F.conv2d(F.pad(image, (1, 1, 1, 1), mode="replicate"), kernel[None, None])
-
-
-@_maps_by_keyword
-def bumpiness(*, pred: Tensor, target: Tensor, mask: Tensor, clip: float = 0.05) -> Tensor:
-    """DDFF-12's bumpiness per image `(B,)`: the Frobenius norm of the Hessian of
-    `pred - target` (Scharr derivatives, each clipped at `clip`), summed over `mask` and divided
-    by its pixel count, x100. Outside `mask` the target counts as 0, as in the official code
-    (`BaseDDFFEval`). Both maps in the scored space (DDFF-12: disparity in pixels).
-
-    Image borders follow the current scikit-image (edge pixels repeated); versions before 0.19
-    zeroed the outer pixel of each derivative, which changes border pixels only.
-
-    Example:
-        >>> target = torch.arange(16.0).reshape(1, 1, 4, 4) / 4
-        >>> mask = torch.ones(1, 1, 4, 4, dtype=torch.bool)
-        >>> bumpiness(pred=target + 0.5, target=target, mask=mask)  # an offset has no curvature
-        tensor([0.], dtype=torch.float64)
-    """
-    pred, target = _as_batch("pred", pred).double(), _as_batch("target", target).double()
-    mask = _as_batch("mask", mask).to(torch.bool)
-    diff = pred - torch.where(mask, target, torch.zeros_like(target))
-    dx, dy = _scharr(diff, 1), _scharr(diff, 0)
-    norm = torch.sqrt(_scharr(dx, 1) ** 2 + _scharr(dx, 0) ** 2 + _scharr(dy, 0) ** 2
-                      + _scharr(dy, 1) ** 2).clamp(0, clip)
-    count = mask.flatten(1).sum(1).clamp_min(1)
-    return (norm * mask).flatten(1).sum(1) / count * 100
-
-
-@_maps_by_keyword
-def protocol_metrics(*, pred: Tensor, target: Tensor, mask: Tensor | None = None,
-                     protocol: str | Protocol) -> dict[str, float]:
-    """The metrics of a benchmark's protocol (`PROTOCOLS`), averaged over the batch's images
-    (each image's value first, as the benchmarks' code does).
-
-    Args:
-        pred: predicted depth `(H,W)`, `(1,H,W)` or `(B,1,H,W)`, metres, finite and > 0.
-        target: ground-truth depth of the same shape, metres.
-        mask: where the ground truth is a measurement (combined with the protocol's range).
-        protocol: a name of `PROTOCOLS` or a `Protocol`.
-
-    Returns:
-        every name of `PROTOCOL_METRIC_NAMES` (the protocol's table shows `protocol.metrics`),
-        in the protocol's space and units, plus `pixels`, the mean count of valid pixels.
-
-    Raises:
-        ValueError: for an unknown protocol, shapes that differ, an image without valid
-            ground truth, or a prediction that is not finite and positive where it counts.
-
-    Example:
-        >>> m = protocol_metrics(pred=torch.tensor([[2.0, 4.0]]), target=torch.tensor([[2.0, 5.0]]),
-        ...                      protocol="zedd")
-        >>> round(m["abs_rel"], 4), m["delta1.05"], m["delta1"]
-        (0.1, 0.5, 0.5)
-    """
-    if isinstance(protocol, str):
-        if protocol not in PROTOCOLS:
-            raise ValueError(f"protocol must be one of {sorted(PROTOCOLS)} or a Protocol, got "
-                             f"{protocol!r}")
-        protocol = PROTOCOLS[protocol]
-    pred, target = _as_batch("pred", pred).detach().double(), _as_batch("target", target).detach().double()
-    if pred.shape != target.shape:
-        raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
-                         f"and {tuple(target.shape)}")
-    valid = torch.isfinite(target) & (target > 0)
-    if mask is not None:
-        valid &= _as_batch("mask", mask).to(torch.bool)
-    if not bool(torch.all(torch.isfinite(pred[valid]) & (pred[valid] > 0))):
-        raise ValueError("pred must be finite and > 0 metres at every valid pixel")
-    if protocol.disparity_scale is not None:  # score disparity: scale / depth
-        pred = protocol.disparity_scale / pred.clamp_min(1e-12)
-        target = torch.where(valid, protocol.disparity_scale / target.clamp_min(1e-12), target)
-    if protocol.cap is not None:
-        pred, target = pred.clamp(max=protocol.cap), target.clamp(max=protocol.cap)
-    valid &= (target >= protocol.valid[0]) & (target <= protocol.valid[1])
-    scale = 100.0 if protocol.percent else 1.0
-    bumps = bumpiness(pred=pred, target=target, mask=valid)
-    totals: dict[str, float] = {}
-    for i, (d_all, g_all, v) in enumerate(zip(pred, target, valid, strict=True)):
-        d, g = d_all[v], g_all[v]
-        if g.numel() == 0:
-            raise ValueError(f"image {i} has no valid ground-truth pixel for the {protocol.name} "
-                             f"protocol (valid range {protocol.valid})")
-        log_diff = d.log() - g.log()
-        ratio = torch.maximum(d / g, g / d)
-        values = {
-            "mse": float(((d - g) ** 2).mean()), "rmse": float(((d - g) ** 2).mean().sqrt()),
-            "rmse_log": float((log_diff**2).mean().sqrt()),
-            "abs_rel": float(((d - g).abs() / g).mean()), "sq_rel": float(((d - g) ** 2 / g).mean()),
-            "log10": float((d.log10() - g.log10()).abs().mean()),
-            "silog": float(((log_diff**2).mean() - 0.5 * log_diff.mean() ** 2).clamp_min(0).sqrt()),
-            **{k: float((ratio < t).double().mean()) * scale for k, t in DELTA_THRESHOLDS.items()},
-            "bumpiness": float(bumps[i]), "pixels": float(v.sum()),
-        }
-        for key, value in values.items():
-            totals[key] = totals.get(key, 0.0) + value
-    return {key: value / pred.shape[0] for key, value in totals.items()}

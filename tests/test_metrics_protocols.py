@@ -1,4 +1,4 @@
-"""The benchmarks' protocols (`models.metrics.PROTOCOLS`) against independent numpy versions of
+"""The benchmarks' protocols (`models.protocols.PROTOCOLS`) against independent numpy versions of
 the benchmarks' own evaluation code (DDFF-12's `BaseDDFFEval`, DFV's FoD500 evaluation,
 FOSSA's `eval_depth`), and the evaluation loop of `models.evaluation`."""
 
@@ -10,14 +10,8 @@ import torch
 from skimage import filters
 
 from models.evaluation import evaluate, label_free_method
-from models.metrics import (
-    PROTOCOL_METRIC_NAMES,
-    PROTOCOLS,
-    bumpiness,
-    depth_metrics,
-    format_table,
-    protocol_metrics,
-)
+from models.metrics import depth_metrics, format_table
+from models.protocols import PROTOCOL_METRIC_NAMES, PROTOCOLS, bumpiness, protocol_metrics
 
 FB = 521.4052 * 1982.02508 / 7317.02064 * 1e-3
 

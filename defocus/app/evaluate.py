@@ -38,7 +38,7 @@ def evaluate_on_benchmark(dataset: Sequence[Any], protocol: str, method: str = "
                           report: Callable[[str], None] = lambda text: None
                           ) -> tuple[str, dict[str, float]]:
     """Score a label-free `method` (or the network of `checkpoint`) on `dataset` with
-    `protocol` (`models.metrics.PROTOCOLS`); returns the method's name and the metrics.
+    `protocol` (`models.protocols.PROTOCOLS`); returns the method's name and the metrics.
 
     Example:
         >>> name, metrics = evaluate_on_benchmark(dataset, "ddff12")  # doctest: +SKIP

@@ -219,12 +219,13 @@ def plan_json_option(args: argparse.Namespace, what: str = "metrics JSON",
 
 def run_benchmark_example(name: str, args: argparse.Namespace, dataset: Dataset,
                           protocol: str | None, report: Report = _silent) -> dict[str, float] | None:
-    """Score `args.method` on `dataset` with `protocol` (`models.metrics.PROTOCOLS`) and report
+    """Score `args.method` on `dataset` with `protocol` (`models.protocols.PROTOCOLS`) and report
     the paper-style table; with no protocol (no ground truth) report the depth range of each
     scene instead. Returns the metrics; `--json` is planned before any sample is scored and
     written through the output policy (`plan_json_option`)."""
     from models.evaluation import label_free_method
-    from models.metrics import PROTOCOLS, format_table
+    from models.metrics import format_table
+    from models.protocols import PROTOCOLS
 
     from .outputs import write_json
 

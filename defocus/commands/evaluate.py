@@ -90,7 +90,8 @@ def run_benchmark(args: argparse.Namespace) -> int:
     """`--dataset NAME --root FOLDER`: the benchmark's protocol table of one method."""
     from datasets.registry import build_stack_dataset
     from defocus.app.evaluate import evaluate_on_benchmark
-    from models.metrics import PROTOCOLS, format_table
+    from models.metrics import format_table
+    from models.protocols import PROTOCOLS
 
     if args.root is None:
         raise CommandError(f"--dataset {args.dataset} needs --root, the dataset folder")
