@@ -251,9 +251,17 @@ def check_shape(name: str, tensor: Tensor, dims: Sequence[str]) -> None:
 def broadcast_to_batch(param: Tensor, like: Tensor) -> Tensor:
     """Reshape a 0-d or `(B,)` parameter to broadcast against `like` (batch first).
 
-    The result follows `like`'s device and dtype.
+    The result follows `like`'s device, and its dtype where `like` is floating-point (an
+    integer `like` keeps the parameter's dtype: a pitch of 5e-6 m cast to an integer is 0).
+
+    Example:
+        >>> broadcast_to_batch(torch.tensor([1.5, 2.5]), torch.zeros(2, 1, 4, 4)).shape
+        torch.Size([2, 1, 1, 1])
+        >>> broadcast_to_batch(torch.tensor(5e-6), torch.tensor([3])).dtype
+        torch.float32
     """
-    param = param.to(device=like.device, dtype=like.dtype)
+    dtype = like.dtype if like.is_floating_point() else param.dtype
+    param = param.to(device=like.device, dtype=dtype)
     if param.ndim == 1 and like.ndim > 1:
         param = param.reshape(-1, *([1] * (like.ndim - 1)))
     return param

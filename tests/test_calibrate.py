@@ -216,3 +216,34 @@ def test_invariant_blur_gradcheck():
     scale = torch.tensor(0.4, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda s: blur(Gaussian(s), coc.detach()), (scale,))
     assert math.isfinite(float(blur(Gaussian(0.5), coc).sum()))
+
+
+def test_thin_lens_curve_takes_infinite_depth_and_refuses_bad_measurements():
+    # A |1 - D_f / D| with A = 8 px, D_f = 2 m; a point at infinity has blur A
+    a, df = fit_thin_lens_curve([1.0, 1.5, 4.0, math.inf], [8.0, 8 / 3, 4.0, 8.0])
+    assert abs(a - 8.0) < 1e-3 and abs(df - 2.0) < 1e-3
+    bad = [(([1.0, 1.5], [4.0, math.nan]), "coc_px must be finite"),
+           (([1.0, 1.5], [4.0, -1.0]), "coc_px must be finite and >= 0"),
+           (([0.0, 1.5], [4.0, 2.0]), "depths must be > 0"),
+           (([1.0, math.nan], [4.0, 2.0]), "depths must be > 0"),
+           (([1.0], [4.0]), "at least 2"),
+           (([1.0, 2.0], [4.0]), "got 2 and 1"),
+           (([math.inf, math.inf], [4.0, 4.0]), "a finite depth")]
+    for (depths, coc), message in bad:
+        with pytest.raises(ValueError, match=message):
+            fit_thin_lens_curve(depths, coc)
+    with pytest.raises(ValueError, match="focus_distance must be None or a finite number > 0"):
+        fit_thin_lens_curve([1.0, 2.0], [4.0, 1.0], focus_distance=0.0)
+
+
+def test_measure_blur_refuses_a_margin_that_leaves_no_image():
+    pair = CalibrationPair(torch.rand(1, 3, 48, 48, dtype=torch.float64),
+                           torch.rand(1, 3, 48, 48, dtype=torch.float64), 3.0)
+    for margin in (-3, 24, 100, 2.5, True):
+        with pytest.raises(ValueError, match="margin_px must be None or a whole number of pixels "
+                                             "from 0 to 23"):
+            measure_blur(pair, Disk(), margin_px=margin)
+    with pytest.raises(ValueError, match="max_coc_px must be a finite number > 0"):
+        measure_blur(pair, Disk(), max_coc_px=0)
+    with pytest.raises(TypeError, match=r"parse_aperture\('disk'\)"):
+        measure_blur(pair, "disk")

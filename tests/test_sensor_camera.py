@@ -106,3 +106,9 @@ def test_render_rejects_bad_depth(bad):
     depth[0, 0, 2, 2] = bad
     with pytest.raises(ValueError, match="depth"):
         make_camera().render(torch.rand(1, 3, 8, 8), depth)
+
+
+def test_integer_lengths_convert_in_the_pitch_dtype():
+    sensor = Sensor(5e-6)
+    assert torch.allclose(sensor.to_pixels(torch.tensor([3])).float(), torch.tensor([6e5]))
+    assert torch.allclose(sensor.to_metres(torch.tensor([3])).float(), torch.tensor([1.5e-5]))

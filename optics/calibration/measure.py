@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
@@ -14,6 +15,10 @@ from ..aperture import Aperture
 
 if TYPE_CHECKING:
     from .pair import CalibrationPair
+
+def _is_real(value: object) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
 
 #: Golden-section iterations of `measure_blur` after its grid search.
 GOLDEN_STEPS = 20
@@ -139,6 +144,23 @@ def measure_blur(
         >>> round(measure_blur(CalibrationPair(sharp, blurred, 3.0), Disk()), 1)
         10.7
     """
+    from .pair import CalibrationPair
+
+    if not isinstance(pair, CalibrationPair):
+        raise TypeError(f"pair must be an optics.CalibrationPair, got {type(pair).__name__}")
+    if not isinstance(aperture, Aperture):
+        raise TypeError(f"aperture must be an optics.Aperture (e.g. Disk(), or "
+                        f"optics.parse_aperture({aperture!r}) for a spec), got "
+                        f"{type(aperture).__name__}")
+    if not (_is_real(max_coc_px) and math.isfinite(max_coc_px) and max_coc_px > 0):
+        raise ValueError(f"max_coc_px must be a finite number > 0 (pixels), got {max_coc_px!r}")
+    if margin_px is not None:
+        largest = (min(pair.sharp.shape[-2:]) - 1) // 2
+        if isinstance(margin_px, bool) or not isinstance(margin_px, numbers.Integral) \
+                or not 0 <= margin_px <= largest:
+            raise ValueError(f"margin_px must be None or a whole number of pixels from 0 to "
+                             f"{largest} (it must leave some of the {tuple(pair.sharp.shape[-2:])} "
+                             f"image), got {margin_px!r}")
     loss = _BlurMismatch(pair, aperture, max_coc_px, margin_px)
     grid = [0.0] + torch.logspace(math.log10(0.5), math.log10(max_coc_px), 24).tolist()
     losses = [loss(c) for c in grid]
@@ -165,11 +187,28 @@ def fit_thin_lens_curve(
         >>> round(a, 3), round(df, 2)
         (8.0, 2.0)
     """
-    depth = torch.tensor(list(depths), dtype=torch.float64)
-    coc = torch.tensor(list(coc_px), dtype=torch.float64)
+    depth = torch.as_tensor(list(depths), dtype=torch.float64).reshape(-1)
+    coc = torch.as_tensor(list(coc_px), dtype=torch.float64).reshape(-1)
+    if depth.numel() != coc.numel() or depth.numel() < (2 if focus_distance is None else 1):
+        raise ValueError(f"depths and coc_px must hold one value per measurement, at least "
+                         f"{2 if focus_distance is None else 1} (2 to fit the focus distance), got "
+                         f"{depth.numel()} and {coc.numel()}")
+    if not bool(torch.all((depth > 0) & ~torch.isnan(depth))):
+        raise ValueError(f"depths must be > 0 metres (infinity allowed), got {depth.tolist()}")
+    if not bool(torch.all(torch.isfinite(coc) & (coc >= 0))):
+        raise ValueError(f"coc_px must be finite and >= 0 (pixels), got {coc.tolist()}")
+    if focus_distance is not None and not (_is_real(focus_distance)
+                                           and math.isfinite(focus_distance)
+                                           and focus_distance > 0):
+        raise ValueError(f"focus_distance must be None or a finite number > 0 (metres), got "
+                         f"{focus_distance!r}")
+    finite = depth[torch.isfinite(depth)]
     if focus_distance is None:
+        if finite.numel() == 0:
+            raise ValueError("depths must hold a finite depth to fit the focus distance, got "
+                             f"{depth.tolist()}")
         candidates = torch.logspace(
-            math.log10(float(depth.min()) / 4), math.log10(float(depth.max()) * 4), 4001,
+            math.log10(float(finite.min()) / 4), math.log10(float(finite.max()) * 4), 4001,
             dtype=torch.float64,
         )
     else:
