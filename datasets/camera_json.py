@@ -12,7 +12,6 @@ another length is refused in one line that names the file and the key (as `defoc
 from __future__ import annotations
 
 import json
-import numbers
 from collections.abc import Mapping
 from os import PathLike
 from pathlib import Path
@@ -20,6 +19,7 @@ from typing import Any
 
 from optics import CameraSettings
 from optics.camera import SETTING_FIELDS
+from optics.checks import is_real_number
 
 from .io import DataFormatError
 
@@ -82,7 +82,7 @@ def camera_from_json(data: Mapping[str, Any], source: str, n_shots: int,
     for key in SETTING_FIELDS:
         values = data.get(key)
         if not isinstance(values, list) or len(values) in (0, n_shots) or not all(
-                isinstance(v, numbers.Real) and not isinstance(v, bool) for v in values):
+                is_real_number(v) for v in values):
             continue  # one per shot, a single number, or no numbers: CameraSettings checks
         if len(set(values)) > 1:
             raise _shot_values_refused(source, key, values, n_shots, shots)

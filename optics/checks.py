@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import json
+import numbers
 import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
@@ -105,6 +106,16 @@ def is_tracing(*tensors: Tensor) -> bool:
     if _VALUES_CHECKED.get():
         return True
     return any(type(t).__name__ == "FakeTensor" for t in tensors)
+
+
+def is_real_number(value: object) -> bool:
+    """Whether `value` is a real number, Python's or numpy's, and not a bool.
+
+    Example:
+        >>> is_real_number(2.8), is_real_number(True), is_real_number("2.8")
+        (True, False, False)
+    """
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
 
 
 def check_positive(name: str, value: Tensor, unit: str = "") -> None:

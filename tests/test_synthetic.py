@@ -69,3 +69,18 @@ def test_default_preset_blur_is_small():
     camera = SYNTHETIC_PRESET.settings().camera()
     depth = torch.linspace(1.5, 6.0, 50).reshape(1, 1, 1, 50).expand(2, 1, 1, 50)
     assert float(camera.coc_px(depth).max()) < 5.01
+
+
+@pytest.mark.parametrize(("min_depth", "depth_cap", "message"), [
+    (1.0, 0.5, "depth_cap must be a depth > min_depth"),
+    (1.0, 1.0, "depth_cap must be a depth > min_depth"),
+    (0.1, float("nan"), "depth_cap must be a depth > min_depth"),
+    (-0.1, 10.0, "min_depth must be a finite depth >= 0"),
+    (float("nan"), 10.0, "min_depth must be a finite depth >= 0"),
+    (True, 10.0, "min_depth must be a finite depth >= 0"),
+])
+def test_camera_preset_refuses_a_depth_range_that_is_not_increasing(min_depth, depth_cap, message):
+    with pytest.raises(ValueError, match=message):
+        CameraPreset(0.05, 100e-6, focus_distances=(2.5,), min_depth=min_depth,
+                     depth_cap=depth_cap)
+    assert CameraPreset(0.05, 100e-6, (2.5,), depth_cap=float("inf")).depth_range == (1e-3, float("inf"))

@@ -21,7 +21,6 @@ with at least `depth` `(B,1,H,W)` metres. Its class attributes say how to run it
 from __future__ import annotations
 
 import math
-import numbers
 import warnings
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -30,6 +29,7 @@ import torch
 from torch import Tensor, nn
 
 from optics import CameraSettings
+from optics.checks import is_real_number
 
 from .all_in_focus import fuse_all_in_focus
 from .depth_from_focus import DepthFromFocus
@@ -247,7 +247,7 @@ def _is_number(value: Any) -> bool:
     """A real number: Python's, numpy's or a one-element tensor (not a bool)."""
     if isinstance(value, Tensor):
         return value.numel() == 1 and not value.is_complex()
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+    return is_real_number(value)
 
 
 def check_arguments(focused: Any, settings: Any, depth_range: Any, image: Any = None,

@@ -12,13 +12,10 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..aperture import Aperture
+from ..checks import is_real_number
 
 if TYPE_CHECKING:
     from .pair import CalibrationPair
-
-def _is_real(value: object) -> bool:
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
 
 #: Golden-section iterations of `measure_blur` after its grid search.
 GOLDEN_STEPS = 20
@@ -152,7 +149,7 @@ def measure_blur(
         raise TypeError(f"aperture must be an optics.Aperture (e.g. Disk(), or "
                         f"optics.parse_aperture({aperture!r}) for a spec), got "
                         f"{type(aperture).__name__}")
-    if not (_is_real(max_coc_px) and math.isfinite(max_coc_px) and max_coc_px > 0):
+    if not (is_real_number(max_coc_px) and math.isfinite(max_coc_px) and max_coc_px > 0):
         raise ValueError(f"max_coc_px must be a finite number > 0 (pixels), got {max_coc_px!r}")
     if margin_px is not None:
         largest = (min(pair.sharp.shape[-2:]) - 1) // 2
@@ -197,7 +194,7 @@ def fit_thin_lens_curve(
         raise ValueError(f"depths must be > 0 metres (infinity allowed), got {depth.tolist()}")
     if not bool(torch.all(torch.isfinite(coc) & (coc >= 0))):
         raise ValueError(f"coc_px must be finite and >= 0 (pixels), got {coc.tolist()}")
-    if focus_distance is not None and not (_is_real(focus_distance)
+    if focus_distance is not None and not (is_real_number(focus_distance)
                                            and math.isfinite(focus_distance)
                                            and focus_distance > 0):
         raise ValueError(f"focus_distance must be None or a finite number > 0 (metres), got "
