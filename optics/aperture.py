@@ -25,7 +25,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .checks import check_positive
+from .checks import check_positive, is_real_number
+
+#: The most blades of a `Polygon` (real irises have 5-20; a polygon of many more is a disk, and
+#: its kernel would cost memory in proportion).
+MAX_BLADES = 64
+#: The largest `Gaussian` scale (sigma per CoC diameter; the paper's is 0.5, fitted lenses
+#: 0.25-1): beyond it the kernel holds far more than the blur.
+MAX_GAUSSIAN_SCALE = 5.0
 
 #: Smallest Gaussian sigma in pixels: below it the PSF is a delta to working precision.
 MIN_SIGMA_PX = 1e-2
@@ -104,7 +111,8 @@ class Gaussian(Aperture):
     The paper's choice is `scale = 0.5`: sigma equals the CoC radius.
 
     Args:
-        scale: sigma per CoC diameter, > 0. A float or an `nn.Parameter` (for calibration).
+        scale: sigma per CoC diameter, > 0 and at most `MAX_GAUSSIAN_SCALE`: one number, a
+            0-d tensor or an `nn.Parameter` (for calibration).
 
     Example:
         >>> Gaussian().kernel(2.0, kernel_size=3)
@@ -117,8 +125,18 @@ class Gaussian(Aperture):
 
     def __init__(self, scale: float | Tensor = 0.5):
         super().__init__()
+        if not (isinstance(scale, Tensor) or is_real_number(scale)):
+            raise TypeError(f"scale must be a number (sigma per CoC diameter), got "
+                            f"{type(scale).__name__} {scale!r}")
         value = scale if isinstance(scale, Tensor) else torch.tensor(float(scale))
+        if value.numel() != 1 or not value.is_floating_point():
+            raise ValueError(f"scale must be one floating-point number (sigma per CoC diameter), "
+                             f"got a {value.dtype} tensor of shape {tuple(value.shape)}; one "
+                             "Gaussian serves every image of a batch")
         check_positive("scale", value.detach())
+        if float(value.detach()) > MAX_GAUSSIAN_SCALE:
+            raise ValueError(f"scale must be at most {MAX_GAUSSIAN_SCALE:g} (sigma per CoC "
+                             f"diameter; the paper's is 0.5), got {float(value.detach()):g}")
         if isinstance(scale, nn.Parameter):
             self.register_parameter("scale", scale)
         else:
@@ -172,7 +190,7 @@ class Polygon(Disk):
     """Regular polygon inscribed in the CoC circle: the bokeh of an `n_blades` iris.
 
     Args:
-        n_blades: number of sides, >= 3.
+        n_blades: number of sides, from 3 to `MAX_BLADES`.
         rotation: rotation of the first vertex from the +x axis, in radians.
 
     Example:
@@ -183,9 +201,11 @@ class Polygon(Disk):
 
     def __init__(self, n_blades: int = 6, rotation: float = 0.0):
         super().__init__()
-        if isinstance(n_blades, bool) or not isinstance(n_blades, int) or n_blades < 3:
-            raise ValueError(f"n_blades must be an integer >= 3, got {n_blades!r}")
-        if not math.isfinite(float(rotation)):
+        if isinstance(n_blades, bool) or not isinstance(n_blades, int) \
+                or not 3 <= n_blades <= MAX_BLADES:
+            raise ValueError(f"n_blades must be an integer from 3 to {MAX_BLADES}, got "
+                             f"{n_blades!r}")
+        if not is_real_number(rotation) or not math.isfinite(rotation):
             raise ValueError(f"rotation must be a finite angle in radians, got {rotation!r}")
         self.n_blades = n_blades
         self.rotation = float(rotation)

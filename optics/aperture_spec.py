@@ -22,7 +22,7 @@ import math
 from collections.abc import Mapping
 from typing import Any
 
-from .aperture import Aperture, Disk, Gaussian, Polygon
+from .aperture import MAX_BLADES, MAX_GAUSSIAN_SCALE, Aperture, Disk, Gaussian, Polygon
 
 #: Families a spec may name, with the arguments each takes after its name.
 APERTURE_FAMILIES: dict[str, str] = {
@@ -37,12 +37,6 @@ DEFAULT_APERTURE = "gaussian:0.5"
 #: calibration fits, renders of a real scene): the iris's disk. The paper's Gaussian is a
 #: training choice; a real lens's blur has a sharp edge.
 LENS_APERTURE = "disk"
-#: The most blades of a `polygon:N` spec (real irises have 5-20; a polygon of many more is a
-#: disk, and its kernel would cost memory in proportion).
-MAX_BLADES = 64
-#: The largest `gaussian:SCALE` (sigma per CoC diameter; the paper's is 0.5, fitted lenses
-#: 0.25-1): beyond it the kernel holds far more than the blur.
-MAX_GAUSSIAN_SCALE = 5.0
 
 
 def _spec_error(spec: object, why: str) -> ValueError:
@@ -118,10 +112,7 @@ def aperture_spec(aperture: Aperture | str) -> str:
     if isinstance(aperture, str):
         return aperture_spec(parse_aperture(aperture))
     if isinstance(aperture, Gaussian):
-        scale = aperture.scale.detach().reshape(-1)
-        if scale.numel() != 1:
-            raise ValueError("a Gaussian with one scale per batch item has no spec")
-        return f"gaussian:{float(scale[0]):.6g}"
+        return f"gaussian:{float(aperture.scale.detach()):.6g}"
     if isinstance(aperture, Polygon):
         rotation = float(aperture.rotation)
         return f"polygon:{aperture.n_blades}" + (f":{rotation:.6g}" if rotation else "")

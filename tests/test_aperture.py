@@ -3,7 +3,7 @@ import math
 import pytest
 import torch
 
-from optics import Disk, Gaussian, Mask, Polygon
+from optics import Camera, Disk, Gaussian, Mask, Polygon, Sensor, ThinLens, parse_aperture
 
 
 def disk_mask(size=65):
@@ -123,3 +123,25 @@ def test_batched_kernels():
 def test_bad_aperture_input(build, exc, name):
     with pytest.raises(exc, match=name):
         build()
+
+
+@pytest.mark.parametrize(("make", "error", "message"), [
+    (lambda: Gaussian(torch.tensor([0.5, 1.0])), ValueError, "one floating-point number"),
+    (lambda: Gaussian(torch.tensor(1)), ValueError, "one floating-point number"),
+    (lambda: Gaussian(6.0), ValueError, "at most 5"),
+    (lambda: Gaussian(True), TypeError, "must be a number"),
+    (lambda: Gaussian("0.5"), TypeError, "must be a number"),
+    (lambda: Polygon(65), ValueError, "from 3 to 64"),
+    (lambda: Polygon(6, rotation="abc"), ValueError, "finite angle"),
+    (lambda: Polygon(6, rotation=None), ValueError, "finite angle"),
+])
+def test_apertures_refuse_what_their_spec_cannot_hold(make, error, message):
+    with pytest.raises(error, match=message):
+        make()
+
+
+@pytest.mark.parametrize("aperture", [Gaussian(5.0), Gaussian(1e-3), Polygon(64), Polygon(3, 0.5)])
+def test_every_aperture_that_can_be_built_has_a_spec(aperture):
+    settings = Camera(ThinLens(0.05, 2.0, 2.0), Sensor(1e-5), aperture).settings()
+    again = parse_aperture(settings.aperture)
+    assert type(again) is type(aperture) and again.extra_repr() == aperture.extra_repr()
