@@ -25,7 +25,13 @@ from torch import Tensor, nn
 
 from .aperture import Aperture, Gaussian
 from .aperture_spec import DEFAULT_APERTURE, aperture_from_json, aperture_spec, parse_aperture
-from .checks import check_positive, check_setting_entry, implausible_length, is_tracing
+from .checks import (
+    check_positive,
+    check_setting_entry,
+    implausible_length,
+    is_real_number,
+    is_tracing,
+)
 from .lens import ThinLens
 from .sensor import Sensor
 
@@ -349,6 +355,9 @@ class CameraSettings:
             >>> round(CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).largest_coc_px(1.0, 10.0), 3)
             10.504
         """
+        if not (is_real_number(near) and is_real_number(far) and 0 < near < far):
+            raise ValueError(f"near and far must be depths with 0 < near < far (metres, far may "
+                             f"be infinite), got {near!r} and {far!r}")
         a = self.coc_at_infinity_px().abs().reshape(-1)
         df = self.focus_distance.reshape(-1)
         edges = torch.stack([(1 - df / near).abs(), (1 - df / far).abs()])

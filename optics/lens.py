@@ -191,13 +191,18 @@ class ThinLens(nn.Module):
     def depth_from_signed_coc(self, signed_coc: Tensor) -> Tensor:
         """Invert `signed_coc_diameter`: the unique depth (metres) of a signed CoC (metres).
 
-        A CoC at or beyond the limit reached at infinite depth maps to `inf`.
+        A CoC at or beyond the limit reached at infinite depth maps to `inf`; a NaN stays NaN.
+
+        Example:
+            >>> lens = ThinLens(0.05, 2.0, 2.0)
+            >>> lens.depth_from_signed_coc(lens.signed_coc_diameter(torch.tensor([1.0, 4.0])))
+            tensor([1., 4.])
         """
         signed_coc = signed_coc.to(compute_dtype(signed_coc.dtype))
         f, n, df = self._params(signed_coc)
         denominator = f * f - signed_coc * n * (df - f)
         safe = denominator.clamp_min(torch.finfo(denominator.dtype).tiny)
-        return torch.where(denominator > 0, f * f * df / safe, torch.full_like(safe, float("inf")))
+        return torch.where(denominator <= 0, torch.full_like(safe, float("inf")), f * f * df / safe)
 
     def depth_from_coc(self, coc_diameter: Tensor) -> tuple[Tensor, Tensor]:
         """The two depths (near, far), in metres, whose CoC diameter equals `coc_diameter`.
@@ -205,9 +210,10 @@ class ThinLens(nn.Module):
         The near solution lies in front of the focus plane, the far one behind it (`inf` when the
         CoC is larger than any depth behind the focus plane produces).
         """
-        if bool(torch.any(coc_diameter < 0)):
+        if not bool(torch.all(coc_diameter >= 0)):  # NaN too
+            bad = coc_diameter[~(coc_diameter >= 0)]
             raise ValueError(
                 "coc_diameter must be >= 0 metres (use depth_from_signed_coc for signed values), "
-                f"got minimum {coc_diameter.min().item():.4g}"
+                f"got {bad.numel()} value(s) that are not, the first {float(bad[0]):.4g}"
             )
         return self.depth_from_signed_coc(-coc_diameter), self.depth_from_signed_coc(coc_diameter)

@@ -177,3 +177,9 @@ def test_to_json_checks_values_changed_in_place(tmp_path):
     with pytest.raises(ValueError, match="f_number"):
         s.to_json(tmp_path / "cam.json")
     assert not (tmp_path / "cam.json").exists()
+
+
+@pytest.mark.parametrize(("near", "far"), [(-1.0, 1.0), (float("nan"), 1.0), (2.0, 1.0), (1.0, 1.0)])
+def test_largest_coc_refuses_a_range_that_is_not_increasing(near, far):
+    with pytest.raises(ValueError, match="0 < near < far"):
+        CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).largest_coc_px(near, far)

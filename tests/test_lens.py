@@ -192,3 +192,11 @@ def test_bad_depth(bad):
 def test_bad_coc_limit():
     with pytest.raises(ValueError, match="coc_limit"):
         ThinLens(0.05, 2.0, 2.0).hyperfocal_distance(0.0)
+
+
+def test_a_nan_blur_gives_a_nan_depth_not_infinity():
+    lens = ThinLens(0.05, 2.0, 2.0)
+    depth = lens.depth_from_signed_coc(torch.tensor([float("nan"), 1.0]))
+    assert torch.isnan(depth[0]) and torch.isinf(depth[1])
+    with pytest.raises(ValueError, match="coc_diameter must be >= 0 .* the first nan"):
+        lens.depth_from_coc(torch.tensor([1e-5, float("nan")]))
