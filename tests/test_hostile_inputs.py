@@ -403,3 +403,12 @@ def test_estimate_depth_refuses_the_settings_of_several_scenes():
     photos = torch.rand(2, 3, 16, 16, generator=torch.Generator().manual_seed(0))
     one = estimate_depth(photos, batch[:1], (1.0, 10.0))["depth"]
     assert torch.equal(one, estimate_depth(photos, batch[0], (1.0, 10.0))["depth"])
+
+
+def test_estimate_depth_refuses_photos_that_are_not_linear_intensity():
+    with pytest.raises(ValueError, match=r"focused must hold linear intensity in \[0, 1\], got "
+                                         r"values from .* to 25\d.*divide by 255"):
+        estimate_depth(torch.rand(2, 3, 16, 16) * 255, SETTINGS, (1.0, 10.0))
+    with pytest.raises(ValueError, match=r"image must hold linear intensity .* from -0.9"):
+        estimate_depth(torch.rand(2, 3, 16, 16), SETTINGS, (1.0, 10.0),
+                       image=torch.rand(3, 16, 16) * 2 - 1)

@@ -75,9 +75,29 @@ def check_working_size(settings: CameraSettings, near: float, far: float,
             "check the f-number, the pixel pitch (metres) and the depth range")
 
 
+#: The largest value a linear photo in [0, 1] may hold (highlights a raw file's white balance
+#: lifts a little above 1 pass; 8-bit or 16-bit code values do not).
+MAX_INTENSITY = 2.0
+#: The most negative value (a raw file's black level subtracted leaves noise below 0).
+MIN_INTENSITY = -0.1
+
+
+def _check_intensity(name: str, photo: Tensor) -> None:
+    if photo.numel() == 0:
+        return
+    low, high = (float(v) for v in torch.aminmax(photo.detach()))
+    if high > MAX_INTENSITY or low < MIN_INTENSITY:
+        hint = (f"; 8-bit values? divide by 255 (16-bit: 65535) and decode sRGB "
+                f"(kornia.color.rgb_to_linear_rgb)" if high > MAX_INTENSITY else "")
+        raise ValueError(f"{name} must hold linear intensity in [0, 1], got values from "
+                         f"{low:.4g} to {high:.4g}{hint}")
+
+
 def check_photos(focused: Tensor, image: Tensor | None = None) -> None:
     """Refuse photos that are not `(F,3,H,W)` focused shots and an optional `(3,H,W)`
-    all-in-focus photo of the same size, all finite.
+    all-in-focus photo of the same size, all finite and in linear intensity (from
+    `MIN_INTENSITY` to `MAX_INTENSITY`: [0, 1] with a margin for a raw file's noise and
+    highlights).
 
     Example:
         >>> check_photos(torch.rand(2, 3, 8, 8), torch.rand(3, 8, 9))
@@ -87,9 +107,11 @@ def check_photos(focused: Tensor, image: Tensor | None = None) -> None:
     """
     check_shape("focused", focused, ["F", "3", "H", "W"])
     check_finite("focused", focused)
+    _check_intensity("focused", focused)
     if image is not None:
         check_shape("image", image, ["3", "H", "W"])
         check_finite("image", image)
+        _check_intensity("image", image)
         if focused.shape[-2:] != image.shape[-2:]:
             raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
                              f"all-in-focus photo is {tuple(image.shape[-2:])}")
