@@ -28,6 +28,7 @@ from .aperture_spec import DEFAULT_APERTURE, aperture_from_json, aperture_spec, 
 from .checks import (
     check_positive,
     check_setting_entry,
+    check_shape,
     implausible_length,
     is_real_number,
     is_tracing,
@@ -130,8 +131,10 @@ class Camera(nn.Module):
             ValueError: for a NaN or infinite pixel in `image` (named, with its position), an
                 invalid depth, or a camera value out of range (named).
         """
-        from .render import render_defocus
+        from .render.renderer import per_pixel_map, render_defocus
 
+        check_shape("image", image, ["B", "C", "H", "W"])
+        per_pixel_map("depth", depth, image)  # named as given, before it becomes a CoC map
         return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)
 
 

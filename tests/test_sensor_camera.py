@@ -112,3 +112,10 @@ def test_integer_lengths_convert_in_the_pitch_dtype():
     sensor = Sensor(5e-6)
     assert torch.allclose(sensor.to_pixels(torch.tensor([3])).float(), torch.tensor([6e5]))
     assert torch.allclose(sensor.to_metres(torch.tensor([3])).float(), torch.tensor([1.5e-5]))
+
+
+def test_camera_render_names_the_depth_it_was_given():
+    camera = Camera(ThinLens(0.05, 2.0, 2.0), Sensor(1e-5), Disk())
+    with pytest.raises(ValueError, match=r"^depth must have shape \(1, 1, 8, 8\) to match image "
+                                         r"\(1, 3, 8, 8\), got \(2, 1, 8, 8\)"):
+        camera.render(torch.rand(1, 3, 8, 8), torch.full((2, 1, 8, 8), 3.0))

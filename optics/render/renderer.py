@@ -191,7 +191,7 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
     check_shape("image", image, ["B", "C", "H", "W"])
     if not image.is_floating_point():
         raise TypeError(f"image must be a floating-point tensor, got dtype {image.dtype}")
-    coc_px = _per_pixel_map("coc_px", coc_px, image)
+    coc_px = per_pixel_map("coc_px", coc_px, image)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if psf is not None and not isinstance(psf, Aperture):
@@ -214,16 +214,24 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
     return image, coc_px
 
 
-def _per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
+def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
     """A `(B or 1, 1, H, W)` floating-point map of `image`'s pixels (shape and type checked;
-    its values by `_read_checked`), in the image's dtype and broadcast to its batch."""
+    its values by `_read_checked`), in the image's dtype and broadcast to its batch.
+
+    Example:
+        >>> per_pixel_map("depth", torch.ones(2, 1, 4, 4), torch.zeros(1, 3, 4, 4))
+        Traceback (most recent call last):
+        ...
+        ValueError: depth must have shape (1, 1, 4, 4) to match image (1, 3, 4, 4), got (2, 1, 4, 4)
+    """
     check_shape(name, values, ["B", "1", "H", "W"])
     if not values.is_floating_point():
         raise TypeError(f"{name} must be a floating-point tensor, got dtype {values.dtype}")
     b, _, h, w = image.shape
     if values.shape[2:] != image.shape[2:] or values.shape[0] not in (1, b):
-        raise ValueError(f"{name} must have shape ({b} or 1, 1, {h}, {w}) to match image, "
-                         f"got {tuple(values.shape)}")
+        batch = "1" if b == 1 else f"{b} or 1"
+        raise ValueError(f"{name} must have shape ({batch}, 1, {h}, {w}) to match image "
+                         f"{tuple(image.shape)}, got {tuple(values.shape)}")
     return values.to(image.dtype).expand(b, 1, h, w)
 
 
@@ -234,7 +242,7 @@ def _check_layered_inputs(image: Tensor, depth: Tensor | None, n_layers: int) ->
         raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
     if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
         raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
-    return _per_pixel_map("depth", depth, image)
+    return per_pixel_map("depth", depth, image)
 
 
 def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
