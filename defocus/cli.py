@@ -94,7 +94,41 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
                  if close]
         hint = f" (did you mean {', '.join(dict.fromkeys(hints))}?)" if hints else ""
         command.error(f"unrecognized arguments: {' '.join(unknown)}{hint}")
+    if argv is None:
+        argv = sys.argv[1:]
+    command = subcommand_parser(parser, args.command)
+    problem = _repeated_or_empty(command, list(argv)[list(argv).index(args.command) + 1:])
+    if problem:
+        command.error(problem)
     return args
+
+
+#: Actions an option may be given more than once with: flags and lists that add up.
+_REPEATABLE = (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._CountAction,
+               argparse._AppendAction, argparse._HelpAction, argparse._VersionAction)
+
+
+def _repeated_or_empty(command: argparse.ArgumentParser, words: list[str]) -> str | None:
+    """Why the words after the subcommand are refused, or None: an option that takes values
+    given twice (argparse keeps the last silently: `--focused a b --focused c` would drop a and
+    b) or given an empty value (`--out ""` is the current folder)."""
+    actions = {option: action for action in command._actions for option in action.option_strings}
+    seen: dict[argparse.Action, str] = {}
+    for index, word in enumerate(words):
+        if word == "--":
+            break
+        option, equals, value = word.partition("=")
+        action = actions.get(option)
+        if action is None or isinstance(action, _REPEATABLE):
+            continue
+        if action in seen:
+            both = "" if seen[action] == option else f" (as {seen[action]} and {option})"
+            return f"{option} is given twice{both}: give it once, with all its values"
+        seen[action] = option
+        following = value if equals else (words[index + 1] if index + 1 < len(words) else None)
+        if following is not None and following.strip() == "":
+            return f"{option} must not be empty"
+    return None
 
 
 def one_line_warnings(command: str):

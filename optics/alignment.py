@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import warnings
 from collections.abc import Sequence
 
 import kornia
@@ -375,6 +376,20 @@ def estimate_motion(reference: Tensor, moving: Tensor, iterations: int = 20,
     return _estimate(reference, moving, iterations, sigma_px, zoomed=True)
 
 
+#: The largest motion between the photos of one view that `align_shots` undoes: a zoom
+#: within this share of 1 (focus breathing is 0.1-2 %), a rotation within this many radians
+#: and a shift within this share of the image's smaller side. Beyond them the estimate has
+#: failed (photos of different views, or without texture in common).
+MAX_ALIGN_ZOOM, MAX_ALIGN_ANGLE, MAX_ALIGN_SHIFT = 0.1, 0.1, 0.25
+
+
+def _plausible(motion: Tensor, size: Sequence[int]) -> Tensor:
+    """`(B,)`: which `(dy, dx, zoom, angle)` motions lie within the `MAX_ALIGN_*` bounds."""
+    return (torch.isfinite(motion).all(1) & ((motion[:, 2] - 1).abs() <= MAX_ALIGN_ZOOM)
+            & (motion[:, 3].abs() <= MAX_ALIGN_ANGLE)
+            & (motion[:, :2].abs().amax(1) <= MAX_ALIGN_SHIFT * min(size)))
+
+
 #: Largest displacement (pixels, at the image corners) a zoom and a rotation together may
 #: cause and still be ignored: under it they are noise, and undoing them would resample (blur)
 #: the photo.
@@ -423,11 +438,18 @@ def align_shots(image: Tensor, focused: Tensor) -> tuple[Tensor, Tensor]:
         shots = focused[:, i].to(work)
         motion = estimate_motion(reference, shots)
         corner = ((motion[:, 2] - 1).abs() + motion[:, 3].abs()) * half_diagonal
-        small = corner < ZOOM_TOLERANCE_PX
+        small = (corner < ZOOM_TOLERANCE_PX) | ~_plausible(motion, focused.shape[-2:])
         if bool(small.any()):  # nothing to undo but the translation, estimated as such
             motion[small, :2] = estimate_shift(reference[small], shots[small])
             motion[small, 2:] = torch.tensor([1.0, 0.0], dtype=motion.dtype,
                                              device=motion.device)
+        lost = ~_plausible(motion, focused.shape[-2:])
+        if bool(lost.any()):
+            warnings.warn(f"focused photo {i} could not be aligned to the reference (estimated "
+                          f"shift {motion[lost][0, :2].tolist()} pixels): it is used as it is; "
+                          "do the photos show one view?", stacklevel=2)
+            motion[lost] = torch.tensor([0.0, 0.0, 1.0, 0.0], dtype=motion.dtype,
+                                        device=motion.device)
         aligned.append(torch.cat([_undo_motion(shots[j:j + 1], motion[j]) for j in range(b)]))
         motions.append(motion)
     return torch.stack(aligned, 1).to(focused.dtype), torch.stack(motions, 1).to(dtype)

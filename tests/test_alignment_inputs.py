@@ -2,6 +2,7 @@
 batches, and the inputs it must refuse (non-finite, integer, too small), each by name."""
 
 import math
+import warnings
 
 import pytest
 import torch
@@ -187,3 +188,19 @@ def test_align_shots_refuses_no_focused_photo():
     image = torch.rand(1, 1, 16, 16)
     with pytest.raises(ValueError, match=r"focused must hold at least one photo .*\(1, 0, 1"):
         align_shots(image, image[:, None][:, :0])
+
+
+def test_align_shots_never_undoes_an_implausible_motion():
+    """Photos of different views give Lucas-Kanade nothing to converge on (a zoom of -7 was
+    seen on two noise images): the motion undone stays within the MAX_ALIGN_* bounds, and a
+    photo that cannot be aligned is used as it is, with a warning."""
+    from optics.alignment import MAX_ALIGN_ANGLE, MAX_ALIGN_SHIFT, MAX_ALIGN_ZOOM
+
+    generator = torch.Generator().manual_seed(0)
+    image, other = torch.rand(2, 1, 3, 40, 48, generator=generator)
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        aligned, motions = align_shots(image, other[:, None])
+    zoom, angle, shift = motions[0, 0, 2], motions[0, 0, 3], motions[0, 0, :2]
+    assert abs(float(zoom) - 1) <= MAX_ALIGN_ZOOM and abs(float(angle)) <= MAX_ALIGN_ANGLE
+    assert float(shift.abs().max()) <= MAX_ALIGN_SHIFT * 40 and torch.isfinite(aligned).all()

@@ -123,3 +123,27 @@ def test_debug_shows_the_traceback(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     with pytest.raises((ValueError, FileNotFoundError, OSError)):
         main(["--debug", "evaluate", "missing.pt"])
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["predict", "--focused", "a.png", "b.png", "--focused", "c.png", "d.png", "--depth-range",
+      "1", "5"], "--focused is given twice: give it once, with all its values"),
+    (["predict", "--focused", "a.png", "b.png", "--depth-range", "1", "5", "--f-number", "2",
+      "--f-number", "4"], "--f-number is given twice"),
+    (["predict", "--focused", "a.png", "b.png", "--depth-range", "1", "5", "--out", ""],
+     "--out must not be empty"),
+    (["predict", "--focused", "a.png", "b.png", "--depth-range", "1", "5", "--out="],
+     "--out must not be empty"),
+    (["render", "--out", " "], "--out must not be empty"),
+])
+def test_an_option_given_twice_or_empty_is_refused_not_dropped(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    last = capsys.readouterr().err.strip().splitlines()[-1]  # after argparse's usage
+    assert exit_info.value.code == 2 and message in last, last
+
+
+def test_flags_may_be_repeated(tmp_path, capsys):
+    code = main(["--quiet", "predict", "--quiet", "--focused", str(tmp_path / "a.png"),
+                 str(tmp_path / "b.png"), "--depth-range", "1", "5", "--out", str(tmp_path / "o")])
+    assert code == 2 and "missing file" in capsys.readouterr().err  # not the repeated --quiet

@@ -317,7 +317,8 @@ def test_bad_camera_json_values_name_the_file_and_key(tmp_path, capsys, key, val
                                            ("--image-focus-distance", "-1")])
 def test_image_shot_options_are_named(tmp_path, capsys, option, value):
     photos = _photos(tmp_path, [_texture(0), _texture(1), _texture(2)])
-    argv = ["predict", "--image", photos[0], "--focused", *photos[1:], "--image-f-number", "8",
+    given = [] if option == "--image-f-number" else ["--image-f-number", "8"]
+    argv = ["predict", "--image", photos[0], "--focused", *photos[1:], *given,
             option, value, "--out", str(tmp_path / "o")]
     assert main(argv) == 2
     err = _one_line(capsys)
@@ -335,8 +336,9 @@ def test_tiny_photos_are_one_line(tmp_path, capsys, size):
 @pytest.mark.parametrize("option, value", [("--f-number", "1e-9"), ("--pixel-pitch", "1e-15")])
 def test_tiny_f_numbers_and_pixel_pitches_are_one_line(tmp_path, capsys, option, value):
     photos = _photos(tmp_path, [_texture(0), _texture(1)])
-    argv = _predict(photos, tmp_path / "o", "--f-number", "2", "--depth-range", "0.5", "5",
-                    option, value)
+    camera = {"--focal-length": "0.05", "--pixel-pitch": "2e-5", "--f-number": "2", option: value}
+    argv = ["predict", "--focused", *photos, "--focus-distance", "1", "3", "--out",
+            str(tmp_path / "o"), "--depth-range", "0.5", "5", *sum(camera.items(), ())]
     assert main(argv) == 2
     assert "check the f-number, the pixel pitch" in _one_line(capsys)
 
@@ -412,3 +414,12 @@ def test_estimate_depth_refuses_photos_that_are_not_linear_intensity():
     with pytest.raises(ValueError, match=r"image must hold linear intensity .* from -0.9"):
         estimate_depth(torch.rand(2, 3, 16, 16), SETTINGS, (1.0, 10.0),
                        image=torch.rand(3, 16, 16) * 2 - 1)
+
+
+def test_estimate_depth_with_an_all_in_focus_photo_refuses_blur_that_reads_no_depth():
+    """A pixel pitch given in micrometres as metres leaves every blur under a pixel: the sweep
+    would return one flat depth at the far end, rated confident."""
+    photos = torch.rand(2, 3, 16, 16)
+    wrong_pitch = CameraSettings(0.05, 1.8, [2.3, 4.6], 324.0)
+    with pytest.raises(ValueError, match="changes by at most 0.00 pixels .* pixel pitch"):
+        estimate_depth(photos, wrong_pitch, (1.5, 8.0), image=torch.rand(3, 16, 16))

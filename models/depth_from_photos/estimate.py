@@ -102,6 +102,21 @@ def check_shots_differ(settings: CameraSettings, near: float, far: float) -> Non
                 raise ValueError(f"shots {i} and {j} have the same focus distance ({focus[i]:g} "
                                  f"m) and f-number ({numbers[i]:g}): the same blur at every "
                                  "depth; focus them at different distances")
+    check_blur_readable(settings, near, far)
+
+
+def check_blur_readable(settings: CameraSettings, near: float, far: float) -> None:
+    """Refuse shots none of whose blur changes by `READABLE_DIFFERENCE_PX` over depths
+    `[near, far]` metres (at the settings' pixel pitch): every depth there looks the same.
+
+    Example:
+        >>> check_blur_readable(CameraSettings(0.05, 2.0, [1.5, 4.0], 5e-6), 1.0, 10.0)
+        >>> check_blur_readable(CameraSettings(0.05, 2.0, [3.0], 0.05), 1.0, 10.0)
+        Traceback (most recent call last):
+        ...
+        ValueError: over the depth range 1-10 m the blur of the shots (focused at 3 m) changes by at most 0.02 pixels (need 0.5): defocus cannot tell depths there apart; check the range and the pixel pitch (metres), or focus the shots within or near the range
+    """
+    focus = settings.focus_distance.reshape(-1).tolist()
     x = candidate_inverse_depths(near, far, 64, settings.focus_distance)
     blur = thin_lens_blur(settings.batched(1), x[None, None])[0]  # (F,K)
     change = float((blur.amax(1) - blur.amin(1)).max())
@@ -110,7 +125,8 @@ def check_shots_differ(settings: CameraSettings, near: float, far: float) -> Non
         raise ValueError(f"over the depth range {near:g}-{far:g} m the blur of the shots "
                          f"(focused at {planes} m) changes by at most {change:.2f} pixels (need "
                          f"{READABLE_DIFFERENCE_PX}): defocus cannot tell depths there apart; "
-                         "check the range, or focus the shots within or near it")
+                         "check the range and the pixel pitch (metres), or focus the shots "
+                         "within or near the range")
 
 
 #: `warn_mirrored` stays quiet where the mirrored depths blur the shots by less than this many
@@ -358,6 +374,8 @@ def _check_defocus_photos(model: nn.Module, image: Tensor | None, focused: Tenso
             raise ValueError(f"{type(model).__name__} compares focused photos: give 2 or more, "
                              f"each focused elsewhere, got {len(focused)}")
         check_shots_differ(settings, near, far)
+    else:
+        check_blur_readable(settings, near, far)
 
 
 def _fused(focused: Tensor, out: Mapping[str, Any], align: bool) -> Tensor:
