@@ -423,3 +423,25 @@ def test_estimate_depth_with_an_all_in_focus_photo_refuses_blur_that_reads_no_de
     wrong_pitch = CameraSettings(0.05, 1.8, [2.3, 4.6], 324.0)
     with pytest.raises(ValueError, match="changes by at most 0.00 pixels .* pixel pitch"):
         estimate_depth(photos, wrong_pitch, (1.5, 8.0), image=torch.rand(3, 16, 16))
+
+
+def test_photos_in_another_order_than_the_camera_json_lists_are_refused(tmp_path, capsys):
+    camera = tmp_path / "cam.json"
+    photos = _photos(tmp_path, [_texture(0), _texture(1)])
+    CameraSettings(0.05, 2.0, [1.0, 3.0], 2e-5).to_json(camera, photos=["shot0.png", "shot1.png"])
+    argv = ["predict", "--focused", *photos[::-1], "--camera", str(camera), "--depth-range",
+            "0.5", "5", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert "--focused gives shot1.png, shot0.png but" in _one_line(capsys)
+
+
+@pytest.mark.parametrize("reference", ["eight", -3, 0.5, True])
+def test_a_bad_reference_f_number_names_the_file_and_key(tmp_path, capsys, reference):
+    camera = tmp_path / "cam.json"
+    CameraSettings(0.05, 2.0, [1.0, 3.0], 2e-5).to_json(camera, reference_f_number=reference)
+    photos = _photos(tmp_path, [_texture(0), _texture(1), _texture(2)])
+    argv = ["predict", "--image", photos[0], "--focused", *photos[1:], "--camera", str(camera),
+            "--depth-range", "0.5", "5", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    assert f'{camera}: "reference_f_number" must be an f-number >= 1, got {reference!r}' \
+        in _one_line(capsys)

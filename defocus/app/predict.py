@@ -11,6 +11,7 @@ that network.
 from __future__ import annotations
 
 import dataclasses
+import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -19,6 +20,7 @@ from typing import Any
 import torch
 
 from defocus.options import check_positive
+from optics.checks import is_real_number
 
 from .outputs import OutputPlan, plan_files
 
@@ -138,9 +140,14 @@ def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_mode
     """Where the camera JSON was fitted with references that were not sharp
     (`reference_f_number`, e.g. f/8 beside f/2.8), `--image` counts as such a shot; then the
     options about `--image` are checked."""
+    check_photo_order(request, extra.get("photos"))
+    reference = extra.get("reference_f_number")
+    if reference is not None and not (is_real_number(reference) and math.isfinite(reference)
+                                      and reference >= 1):
+        raise ValueError(f'{request.camera}: "reference_f_number" must be an f-number >= 1, '
+                         f"got {reference!r}")
     if request.image is not None and request.image_f_number is None and not has_model \
             and request.method in ("auto", "relative-blur"):
-        reference = extra.get("reference_f_number")
         if reference is not None:
             request.image_f_number = float(reference)
             report(f"--image counts as an f/{request.image_f_number:g} shot (reference_f_number "
@@ -155,6 +162,19 @@ def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_mode
     if request.image is None and request.method == "sweep":
         raise ValueError("--method sweep compares the focused photos with an all-in-focus "
                          "photo: give --image")
+
+
+def check_photo_order(request: PredictRequest, listed: Any) -> None:
+    """Refuse `--focused` photos that are the ones the camera JSON's `"photos"` list names
+    (by file name) in another order: its per-shot settings would go to the wrong photos."""
+    if not (isinstance(listed, list) and all(isinstance(name, str) for name in listed)):
+        return
+    given = [path.name for path in request.focused]
+    listed = [Path(name).name for name in listed]
+    if given != listed and sorted(given) == sorted(listed):
+        raise ValueError(f"--focused gives {', '.join(given)} but {request.camera} holds the "
+                         f"settings of {', '.join(listed)} in that order (its \"photos\"): "
+                         "give the photos in that order")
 
 
 def read_photos(request: PredictRequest) -> Photos:
