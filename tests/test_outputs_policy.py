@@ -310,3 +310,18 @@ def test_train_overwrite_never_deletes_the_config_it_reads(tmp_path, capsys):
                  "--overwrite"]) == 2
     assert "which --overwrite deletes" in _error(capsys)
     assert (run / "config.yaml").read_text() == "steps: 1  # mine\n"
+
+
+def test_depth_beyond_what_depth_mm_holds_is_said(tmp_path):
+    from defocus.app.predict import Photos, write_outputs
+
+    depth = torch.full((1, 6, 8), 30.0)
+    depth[0, :3] = 100.0  # half the pixels beyond 65.535 m
+    out = {"depth": depth, "confidence": None, "all_in_focus": torch.rand(3, 6, 8),
+           "depth_range": (10.0, 200.0)}
+    photos = Photos(None, torch.rand(1, 3, 6, 8), None, [], tmp_path / "a.png")
+    with pytest.warns(UserWarning, match=r"50.0% of the depth lies beyond 65.535 m"):
+        write_outputs(tmp_path / "out", out, photos)
+    saved = np.asarray(Image.open(tmp_path / "out" / "depth_mm.png"))
+    assert saved.max() == 65535 and saved.min() == 30000
+    assert np.load(tmp_path / "out" / "depth.npy").max() == 100.0

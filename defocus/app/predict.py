@@ -66,6 +66,8 @@ class Photos:
     first_path: Path
 
 
+#: The largest depth depth_mm.png holds, millimetres (16 bits).
+MAX_DEPTH_MM = 65535
 #: The files `predict` writes under `out`, and what each holds.
 OUTPUT_FILES = {"depth.npy": "depth map", "depth_mm.png": "depth map in millimetres",
                 "depth.png": "depth preview",
@@ -385,7 +387,13 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
         raise ValueError("the prediction is not finite; nothing written")
     plan = plan or plan_files(Path(folder), OUTPUT_FILES, overwrite=False)[0]
     folder = Path(folder)
-    millimetres = np.clip(np.round(depth[0].numpy() * 1000), 0, 65535).astype(np.uint16)
+    millimetres = np.round(depth[0].numpy() * 1000)
+    beyond = float((millimetres > MAX_DEPTH_MM).mean())
+    if beyond:
+        warnings.warn(f"{beyond:.1%} of the depth lies beyond {MAX_DEPTH_MM / 1000:g} m, the "
+                      f"farthest depth_mm.png holds: it reads {MAX_DEPTH_MM} there (depth.npy "
+                      "holds every depth)", stacklevel=2)
+    millimetres = np.clip(millimetres, 0, MAX_DEPTH_MM).astype(np.uint16)
     fused = out["all_in_focus"].cpu()
     files = {"depth.npy": lambda path: np.save(path, depth[0].numpy().astype(np.float32)),
              "depth_mm.png": lambda path: Image.fromarray(millimetres).save(path),
