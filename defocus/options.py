@@ -48,9 +48,15 @@ def aperture_argument(text: str) -> str:
     return text
 
 
+#: The largest value a camera option takes (metres, f-numbers): far beyond any lens, and small
+#: enough that float32 arithmetic on it stays finite.
+MAX_OPTION_VALUE = 1e9
+
+
 def check_positive(args: argparse.Namespace, *names: str) -> None:
-    """Refuse option values that are not finite numbers > 0, naming the option as typed
-    (`--f-number -8.3: must be a finite number > 0`); `names` are `args` attributes, unset
+    """Refuse option values that are not finite numbers > 0 (at most `MAX_OPTION_VALUE`),
+    naming the option as typed (`--f-number -8.3: must be a finite number > 0`); `names` are
+    `args` attributes, unset
     (None, empty) ones are skipped. `args` is any object with those attributes (a parsed
     command line, `defocus.app.predict.PredictRequest`).
 
@@ -64,9 +70,10 @@ def check_positive(args: argparse.Namespace, *names: str) -> None:
         value = getattr(args, name)
         values = value if isinstance(value, (list, tuple)) else [value]
         for item in values:
-            if item is not None and not 0 < item < float("inf"):
+            if item is not None and not 0 < item <= MAX_OPTION_VALUE:
                 option = "--" + name.replace("_", "-")
-                raise ValueError(f"{option} {item:g}: must be a finite number > 0")
+                largest = "" if item <= MAX_OPTION_VALUE else f" and at most {MAX_OPTION_VALUE:g}"
+                raise ValueError(f"{option} {item:g}: must be a finite number > 0{largest}")
 
 
 def say(args: argparse.Namespace):

@@ -22,11 +22,13 @@ ParamLike = float | int | Tensor | Sequence[float]
 
 def _describe(value: object) -> str:
     if isinstance(value, Tensor):
-        if value.numel() <= 6:
-            return f"tensor({value.detach().cpu().tolist()})"
+        if value.numel() <= 6:  # as the user gave them, not a tensor's repr
+            values = value.detach().cpu().reshape(-1).tolist()
+            return f"{values[0]:.6g}" if value.ndim == 0 else \
+                "[" + ", ".join(f"{v:.6g}" for v in values) + "]"
         bad = value.detach()
         return (
-            f"tensor of shape {tuple(value.shape)} (min {bad.min().item():.4g}, "
+            f"a tensor of shape {tuple(value.shape)} (min {bad.min().item():.4g}, "
             f"max {bad.max().item():.4g}, NaN count {int(torch.isnan(bad).sum())})"
         )
     return repr(value)

@@ -147,3 +147,12 @@ def test_flags_may_be_repeated(tmp_path, capsys):
     code = main(["--quiet", "predict", "--quiet", "--focused", str(tmp_path / "a.png"),
                  str(tmp_path / "b.png"), "--depth-range", "1", "5", "--out", str(tmp_path / "o")])
     assert code == 2 and "missing file" in capsys.readouterr().err  # not the repeated --quiet
+
+
+@pytest.mark.parametrize("argv", [["render", "--focus", "1e300"],
+                                  ["predict", "--focused", "a.png", "b.png", "--focus-distance",
+                                   "2.3", "1e39", "--depth-range", "1", "5"]])
+def test_values_too_large_for_any_camera_are_named(argv, capsys):
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "must be a finite number > 0 and at most 1e+09" in err and "tensor(" not in err, err

@@ -445,3 +445,8 @@ def test_a_bad_reference_f_number_names_the_file_and_key(tmp_path, capsys, refer
     assert main(argv) == 2
     assert f'{camera}: "reference_f_number" must be an f-number >= 1, got {reference!r}' \
         in _one_line(capsys)
+
+
+def test_estimate_depth_refuses_a_far_end_beyond_any_blur():
+    with pytest.raises(ValueError, match="far end must be at most 1e\\+06 metres"):
+        estimate_depth(torch.rand(2, 3, 16, 16), SETTINGS, (1.5, 1e39))

@@ -323,12 +323,19 @@ def _image_as_shot(image: Tensor | None, focused: Tensor, settings: CameraSettin
     return torch.cat([image[None], focused]), join_shots(image_settings, settings)
 
 
+#: The farthest end of a depth range (metres): every lens blurs as at infinity long before.
+MAX_FAR_M = 1e6
+
+
 def _check_depth_range(depth_range: tuple[float, float]) -> tuple[float, float]:
-    """`(near, far)` as floats, checked: finite metres with 0 < near < far."""
+    """`(near, far)` as floats, checked: finite metres with 0 < near < far <= `MAX_FAR_M`."""
     near, far = (float(d) for d in depth_range)
     if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
         raise ValueError(f"depth_range must be finite metres (near, far) with 0 < near < far, "
                          f"got {tuple(depth_range)!r}")
+    if far > MAX_FAR_M:
+        raise ValueError(f"depth_range's far end must be at most {MAX_FAR_M:g} metres (beyond it "
+                         f"every lens blurs as at infinity), got {far:g}")
     return near, far
 
 
