@@ -150,6 +150,22 @@ def resolve_known(
     return values, sources
 
 
+def _why_no_focus(focus: list, source: str | None, metadata: Sequence[PhotoMetadata],
+                  calibration: CameraSettings | None) -> str:
+    """Where each source of the focus distances fell short, for `resolve_settings`' error."""
+    n = len(metadata)
+    if source == "given":
+        return f"--focus-distance holds {len(focus)}"
+    why = []
+    if calibration is not None:
+        why.append(f"the calibration holds {calibration.n_shots} "
+                   f"({', '.join(f'{d:g}' for d in calibration.focus_distance.reshape(-1).tolist())} m)")
+    stated = sum(meta.focus_distance is not None for meta in metadata)
+    why.append(f"{stated} of the {n} photos' EXIF state it" if stated
+               else "no photo's EXIF states it")
+    return "; ".join(why)
+
+
 def resolve_settings(
     metadata: Sequence[PhotoMetadata],
     options: Mapping[str, Any] | None = None,
@@ -191,9 +207,9 @@ def resolve_settings(
     focus = values.get("focus_distance", [])
     focus = list(focus) if isinstance(focus, (list, tuple)) else [focus]
     if len(focus) != n:
-        hint = "" if focus else " (none of the photos' EXIF states it)"
-        raise ValueError(f"give --focus-distance with one value per focused photo ({n}), "
-                         f"got {len(focus)}{hint}")
+        raise ValueError(f"give --focus-distance with one value per focused photo ({n}): "
+                         + _why_no_focus(focus, sources.get("focus_distance"), metadata,
+                                         calibration))
     if isinstance(f_numbers, (list, tuple)) and len(f_numbers) not in (0, 1, n):
         raise ValueError(f"give --f-number once or once per focused photo ({n}), got "
                          f"{len(f_numbers)}")

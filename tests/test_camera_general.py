@@ -381,8 +381,8 @@ def test_predict_takes_focus_distances_from_exif_where_every_photo_states_them(p
                  "--out", str(tmp_path / "given")]) == 0
     # photos that do not state it: one line saying what to give
     assert main(["predict", *given, *common, "--out", str(tmp_path / "none")]) == 2
-    assert "give --focus-distance with one value per focused photo (2), got 0 (none of the " \
-           "photos' EXIF states it)" in capsys.readouterr().err
+    assert "give --focus-distance with one value per focused photo (2): no photo's EXIF " \
+           "states it" in capsys.readouterr().err
     # the same photos (rewritten) stating SubjectDistance 2 m and 6 m
     stated = photos(distances=[2.0, 6.0])[1:]
     assert main(["predict", *stated, *common, "--out", str(tmp_path / "exif")]) == 0

@@ -183,3 +183,17 @@ def test_to_json_checks_values_changed_in_place(tmp_path):
 def test_largest_coc_refuses_a_range_that_is_not_increasing(near, far):
     with pytest.raises(ValueError, match="0 < near < far"):
         CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).largest_coc_px(near, far)
+
+
+def test_a_miscounted_focus_distance_names_its_source():
+    from optics.photo_metadata import PhotoMetadata
+    from optics.photo_settings import resolve_settings
+
+    stated = {"focal_length": 0.05, "f_number": 2.0}
+    photos = [PhotoMetadata("a.jpg", stated), PhotoMetadata("b.jpg", stated)]
+    calibration = CameraSettings(0.05, 2.0, [1.0, 2.0, 3.0], 1e-5)
+    with pytest.raises(ValueError, match=r"photo \(2\): the calibration holds 3 \(1, 2, 3 m\); "
+                                         "no photo's EXIF states it"):
+        resolve_settings(photos, {}, calibration)
+    with pytest.raises(ValueError, match=r"photo \(2\): --focus-distance holds 3$"):
+        resolve_settings(photos, {"pixel_pitch": 1e-5, "focus_distance": [1.0, 2.0, 3.0]})
