@@ -99,10 +99,10 @@ def run(args: argparse.Namespace) -> int:
         camera_options={name: getattr(args, name) for name in camera})
     out = predict(request, report=say(args))
     from defocus.app.predict import LOW_CONFIDENCE
-    from models.plotting import robust_range
+    from models.plotting import percentile_range
 
     depth = out["depth"]
-    low, high = robust_range(depth)
+    low, high = percentile_range(depth)
     doubt = "" if not out["low_confidence"] else \
         f"; {out['low_confidence']:.0%} of the pixels have low confidence (< {LOW_CONFIDENCE:g})"
     mirrored = out.get("mirrored_depths")
