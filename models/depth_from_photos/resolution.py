@@ -87,8 +87,8 @@ def _check_intensity(name: str, photo: Tensor) -> None:
         return
     low, high = (float(v) for v in torch.aminmax(photo.detach()))
     if high > MAX_INTENSITY or low < MIN_INTENSITY:
-        hint = (f"; 8-bit values? divide by 255 (16-bit: 65535) and decode sRGB "
-                f"(kornia.color.rgb_to_linear_rgb)" if high > MAX_INTENSITY else "")
+        hint = ("; 8-bit values? divide by 255 (16-bit: 65535) and decode sRGB "
+                "(kornia.color.rgb_to_linear_rgb)" if high > MAX_INTENSITY else "")
         raise ValueError(f"{name} must hold linear intensity in [0, 1], got values from "
                          f"{low:.4g} to {high:.4g}{hint}")
 
