@@ -39,7 +39,17 @@ def require_root(root: str | Path | None, dataset: str, layout: str) -> Path:
 
 
 def require_file(path: Path, what: str) -> Path:
-    """Raise `FileNotFoundError` naming `path` and `what` it should hold unless it exists."""
+    """Raise `FileNotFoundError` naming `path` and `what` it should hold unless it exists
+    (`IsADirectoryError` where it is a folder).
+
+    Example:
+        >>> require_file(Path("."), "a photo")
+        Traceback (most recent call last):
+        ...
+        IsADirectoryError: '.' is a folder: expected a photo, a file
+    """
+    if path.is_dir():
+        raise IsADirectoryError(f"{str(path)!r} is a folder: expected {what}, a file")
     if not path.is_file():
         raise FileNotFoundError(f"missing file {str(path)!r}: expected {what}")
     return path

@@ -456,6 +456,8 @@ class CameraSettings:
             >>> extra
             {'reference_f_number': 8.5}
         """
+        if Path(path).is_dir():
+            raise ValueError(f"{path} is a folder: expected a camera JSON file")
         try:
             data = json.loads(Path(path).read_text())
         except (OSError, json.JSONDecodeError) as error:

@@ -450,3 +450,15 @@ def test_a_bad_reference_f_number_names_the_file_and_key(tmp_path, capsys, refer
 def test_estimate_depth_refuses_a_far_end_beyond_any_blur():
     with pytest.raises(ValueError, match="far end must be at most 1e\\+06 metres"):
         estimate_depth(torch.rand(2, 3, 16, 16), SETTINGS, (1.5, 1e39))
+
+
+def test_a_folder_where_a_file_is_expected_is_named_as_such(tmp_path, capsys):
+    photos = _photos(tmp_path, [_texture(0), _texture(1)])
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    assert main(["predict", "--image", str(folder), "--focused", *photos, "--out",
+                 str(tmp_path / "o")]) == 2
+    assert f"'{folder}' is a folder: expected" in _one_line(capsys)
+    assert main(["predict", "--focused", *photos, "--camera", str(folder), "--depth-range", "1",
+                 "5", "--out", str(tmp_path / "o")]) == 2
+    assert f"{folder} is a folder: expected a camera JSON file" in _one_line(capsys)
