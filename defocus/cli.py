@@ -19,6 +19,7 @@ import importlib
 import os
 import signal
 import sys
+import threading
 import warnings
 
 from defocus import __version__
@@ -147,12 +148,26 @@ def one_line_warnings(command: str):
     return format_warning
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where the command is, so that it ends as Ctrl-C does: its files
+    written whole or not at all, and one line."""
+
+    signal = signal.SIGTERM
+
+
+def _raise_terminated(signum, frame) -> None:  # noqa: ANN001 (a signal handler's signature)
+    raise Terminated("terminated")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
     debug = args.debug or os.environ.get("DEFOCUS_DEBUG", "") not in ("", "0")
     original = warnings.formatwarning
     if not debug:
         warnings.formatwarning = one_line_warnings(args.command)
+    handler = None
+    if threading.current_thread() is threading.main_thread():
+        handler = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         return int(importlib.import_module(args._module).run(args) or 0)
     except KeyboardInterrupt as error:  # also models.training.TrainingInterrupted
@@ -176,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     finally:
         warnings.formatwarning = original
+        if handler is not None:
+            signal.signal(signal.SIGTERM, handler)
 
 
 if __name__ == "__main__":

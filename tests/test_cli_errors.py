@@ -156,3 +156,22 @@ def test_values_too_large_for_any_camera_are_named(argv, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert "must be a finite number > 0 and at most 1e+09" in err and "tensor(" not in err, err
+
+
+def test_sigterm_ends_a_command_in_one_line(monkeypatch, tmp_path, capsys):
+    import os
+    import signal
+    import time
+
+    import defocus.commands.sample as sample
+
+    def terminated(args):
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises before this ends
+        raise AssertionError("SIGTERM did not stop the command")
+
+    monkeypatch.setattr(sample, "run", terminated)
+    before = signal.getsignal(signal.SIGTERM)
+    assert main(["sample", str(tmp_path / "s")]) == 128 + signal.SIGTERM
+    assert capsys.readouterr().err.strip() == "defocus sample: interrupted: terminated"
+    assert signal.getsignal(signal.SIGTERM) is before
