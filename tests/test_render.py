@@ -353,3 +353,17 @@ def test_cuda_matches_cpu(name, mode):
     torch.testing.assert_close(gpu.cpu(), cpu)
     grads = torch.autograd.grad(gpu.sum(), (image, coc))
     torch.testing.assert_close(grads[0], torch.autograd.grad(cpu.sum(), image)[0])
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    ({"max_kernel_size": 4}, "max_kernel_size must be a positive odd integer"),
+    ({"preset": "foo"}, "preset must be None or one of"),
+    ({"mode": "fast"}, "mode must be one of"),
+    ({"n_layers": 0}, "n_layers must be a positive integer"),
+    ({"psf": "disk"}, "psf must be an Aperture"),
+])
+def test_defocus_renderer_checks_its_options_when_built(options, message):
+    from optics import DefocusRenderer
+
+    with pytest.raises((ValueError, TypeError), match=message):
+        DefocusRenderer(**options)

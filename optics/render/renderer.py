@@ -192,26 +192,26 @@ def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Te
     if not image.is_floating_point():
         raise TypeError(f"image must be a floating-point tensor, got dtype {image.dtype}")
     coc_px = per_pixel_map("coc_px", coc_px, image)
+    _check_options(psf, mode, max_kernel_size, preset)
+    return image, coc_px
+
+
+def _check_options(psf, mode, max_kernel_size, preset) -> None:
+    """`render_defocus`'s options, checked (also by `DefocusRenderer` when it is built)."""
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
     if psf is not None and not isinstance(psf, Aperture):
         raise TypeError(f"psf must be an Aperture (Gaussian, Disk, ...), got {type(psf).__name__}")
-    if isinstance(max_kernel_size, bool) or not isinstance(max_kernel_size, int) or (
-        max_kernel_size < 1 or max_kernel_size % 2 == 0
-    ):
+    if isinstance(max_kernel_size, bool) or not isinstance(max_kernel_size, int) or \
+            max_kernel_size < 1 or max_kernel_size % 2 == 0:
         raise ValueError(f"max_kernel_size must be a positive odd integer, got {max_kernel_size!r}")
     if preset is not None:
         if preset not in PRESETS:
             raise ValueError(f"preset must be None or one of {PRESETS}, got {preset!r}")
-        paper_psf = psf is None or (
-            type(psf) is Gaussian and math.isclose(float(psf.scale), 0.5)
-        )
+        paper_psf = psf is None or (type(psf) is Gaussian and math.isclose(float(psf.scale), 0.5))
         if not paper_psf or mode != "scatter":
-            raise ValueError(
-                f"preset={preset!r} fixes a Gaussian PSF (scale 0.5) in scatter mode, got "
-                f"psf={psf!r} and mode={mode!r}"
-            )
-    return image, coc_px
+            raise ValueError(f"preset={preset!r} fixes a Gaussian PSF (scale 0.5) in scatter "
+                             f"mode, got psf={psf!r} and mode={mode!r}")
 
 
 def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
@@ -240,9 +240,13 @@ def _check_layered_inputs(image: Tensor, depth: Tensor | None, n_layers: int) ->
     `_read_checked`)."""
     if depth is None:
         raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
+    _check_n_layers(n_layers)
+    return per_pixel_map("depth", depth, image)
+
+
+def _check_n_layers(n_layers: int) -> None:
     if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
         raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
-    return per_pixel_map("depth", depth, image)
 
 
 def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
@@ -474,8 +478,8 @@ class DefocusRenderer(nn.Module):
         n_layers: int = 8,
     ):
         super().__init__()
-        if mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+        _check_options(psf, mode, max_kernel_size, preset)
+        _check_n_layers(n_layers)
         self.psf = Gaussian() if psf is None and preset is None else psf
         self.mode, self.max_kernel_size, self.preset, self.n_layers = (
             mode, max_kernel_size, preset, n_layers
