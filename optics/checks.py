@@ -14,6 +14,7 @@ import warnings
 from collections.abc import Iterator, Sequence
 from typing import Any
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -35,22 +36,29 @@ def _describe(value: object) -> str:
 
 
 def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
-    """Turn a camera parameter (float, 0-d or `(B,)` tensor, list) into a tensor.
+    """Turn a camera parameter (a number, Python's or numpy's; a 0-d or `(B,)` tensor or numpy
+    array; a list) into a tensor.
 
     Tensors keep their device, dtype and `requires_grad`; Python numbers become float64 tensors so
     that no precision is lost before they are cast to the input's dtype (in `broadcast_to_batch`).
     """
     if isinstance(value, Tensor):
+        if value.dtype == torch.bool or value.is_complex():
+            raise TypeError(f"{name} must hold real numbers, got a tensor of dtype {value.dtype}")
         tensor = value
-    elif isinstance(value, bool):
+    elif isinstance(value, bool | np.bool_):
         raise TypeError(f"{name} must be a number or a tensor, got bool {value!r}")
     elif isinstance(value, str | bytes):
         raise TypeError(
             f"{name} must be a number (metres where it is a length), a 0-d or (B,) tensor or a "
             f"list of numbers, got the string {value!r}; convert it first, e.g. float({value!r})"
         )
-    elif isinstance(value, int | float):
+    elif is_real_number(value):  # Python's or numpy's
         tensor = torch.tensor(float(value), dtype=torch.float64)
+    elif isinstance(value, np.ndarray):
+        if value.dtype.kind not in "iuf":
+            raise TypeError(f"{name} must hold real numbers, got an array of dtype {value.dtype}")
+        tensor = torch.from_numpy(np.asarray(value, dtype=np.float64))
     elif isinstance(value, Sequence):
         if any(isinstance(v, str | bytes | bool) for v in value):
             raise TypeError(f"{name} must hold numbers, got {value!r}; convert strings first")

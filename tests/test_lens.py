@@ -200,3 +200,14 @@ def test_a_nan_blur_gives_a_nan_depth_not_infinity():
     assert torch.isnan(depth[0]) and torch.isinf(depth[1])
     with pytest.raises(ValueError, match="coc_diameter must be >= 0 .* the first nan"):
         lens.depth_from_coc(torch.tensor([1e-5, float("nan")]))
+
+
+def test_numpy_numbers_and_arrays_are_taken_bools_are_not():
+    import numpy as np
+
+    lens = ThinLens(np.float32(0.05), np.int64(2), np.array([2.0, 3.0]))
+    assert torch.allclose(lens.focus_distance, torch.tensor([2.0, 3.0], dtype=lens.focus_distance.dtype))
+    assert float(lens.f_number) == 2.0 and abs(float(lens.focal_length) - 0.05) < 1e-8
+    for value in (torch.tensor(True), np.bool_(True), np.array(["a"])):
+        with pytest.raises(TypeError, match="focal_length must"):
+            ThinLens(value, 2.0, 2.0)
