@@ -75,6 +75,11 @@ class ThinLens(nn.Module):
         register_physical(self, "focal_length", focal_length, "metres")
         register_physical(self, "f_number", f_number)
         register_physical(self, "focus_distance", focus_distance, "metres")
+        sizes = {name: getattr(self, name).numel() for name in _UNITS
+                 if getattr(self, name).ndim == 1}
+        if len(set(sizes.values()) - {1}) > 1:
+            raise ValueError(f"focal_length, f_number and focus_distance must be one value or "
+                             f"one per batch item (the same B), got sizes {sizes}")
         self._check_focus()
 
     def _check_focus(self) -> None:

@@ -211,3 +211,11 @@ def test_numpy_numbers_and_arrays_are_taken_bools_are_not():
     for value in (torch.tensor(True), np.bool_(True), np.array(["a"])):
         with pytest.raises(TypeError, match="focal_length must"):
             ThinLens(value, 2.0, 2.0)
+
+
+def test_parameters_of_different_batch_sizes_are_refused_when_built():
+    with pytest.raises(ValueError, match=r"the same B\), got sizes \{'focal_length': 2, "
+                                         r"'focus_distance': 3\}"):
+        ThinLens([0.05, 0.035], 2.8, [2.0, 3.0, 4.0])
+    assert ThinLens([0.05, 0.035], [2.8], [2.0, 3.0]).coc_diameter(
+        torch.full((2, 1, 2, 2), 4.0)).shape == (2, 1, 2, 2)
