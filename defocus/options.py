@@ -72,7 +72,8 @@ def check_positive(args: argparse.Namespace, *names: str) -> None:
         for item in values:
             if item is not None and not 0 < item <= MAX_OPTION_VALUE:
                 option = "--" + name.replace("_", "-")
-                largest = "" if item <= MAX_OPTION_VALUE else f" and at most {MAX_OPTION_VALUE:g}"
+                largest = f" and at most {MAX_OPTION_VALUE:g}" \
+                    if MAX_OPTION_VALUE < item < float("inf") else ""
                 raise ValueError(f"{option} {item:g}: must be a finite number > 0{largest}")
 
 
