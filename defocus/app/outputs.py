@@ -1,7 +1,7 @@
 """The output policy of every command: nothing lost, nothing half written.
 
 Every command that writes files (`predict`, `calibrate`, `evaluate --json`,
-`convert-checkpoint`, `render`, `demo`) plans its outputs with an `OutputPlan` before it starts
+`convert-checkpoint`, `render`, `demo`, `sample`) plans its outputs with an `OutputPlan` before it starts
 the work, and writes them through it:
 
 1. An input is never written: an output that is one of the run's input files (or lies in an
@@ -215,6 +215,55 @@ def plan_files(folder: Path, names: Mapping[str, str], overwrite: bool,
     if folder.exists() and not folder.is_dir():
         raise NotADirectoryError(f"{option} {folder} is a file, not a folder")
     return plan, {name: plan.add(folder / name, what) for name, what in names.items()}
+
+
+@contextlib.contextmanager
+def creating_folder(folder: Path | str, option: str = "--out") -> Iterator[Path]:
+    """Create the output `folder` and its missing parents before the work (a folder that
+    cannot be created is refused at once, in one line naming `option`, the folder and why);
+    on an error inside the context, the folders this created are removed again where still
+    empty, so that a failed run leaves nothing behind.
+
+    Example:
+        >>> import tempfile
+        >>> base = Path(tempfile.mkdtemp())
+        >>> with creating_folder(base / "a" / "b") as folder:
+        ...     folder.is_dir()
+        True
+        >>> (base / "file").write_text("x") and None
+        >>> with creating_folder(base / "file" / "b", "FOLDER"):  # doctest: +ELLIPSIS
+        ...     pass
+        Traceback (most recent call last):
+        ...
+        NotADirectoryError: FOLDER .../file/b cannot be created: .../file is a file, not a folder; choose another FOLDER
+    """
+    folder = Path(folder)
+    missing: list[Path] = []  # deepest first
+    base = folder
+    while not (base.exists() or base.is_symlink()) and base.parent != base:
+        missing.append(base)
+        base = base.parent
+    if base.exists() and not base.is_dir():
+        what = "is a file, not a folder" if base == folder else \
+            f"cannot be created: {base} is a file, not a folder"
+        raise NotADirectoryError(f"{option} {folder} {what}; choose another {option}")
+
+    def remove_created() -> None:
+        for path in missing:
+            with contextlib.suppress(OSError):
+                path.rmdir()
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        remove_created()
+        raise OutputError(f"{option} {folder} cannot be created in {base}: "
+                          f"{error.strerror or error}; choose another {option}") from None
+    try:
+        yield folder
+    except BaseException:
+        remove_created()
+        raise
 
 
 def check_output_folder(folder: Path | str, option: str = "--out",

@@ -10,7 +10,8 @@ from optics import LENS_APERTURE
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--out", type=Path, default=Path("runs/render"), help="output folder")
+    # a string, not a Path: Path("") is the current folder, and an empty --out is refused
+    parser.add_argument("--out", type=str, default=Path("runs/render"), help="output folder")
     parser.add_argument("--focus", type=float, nargs="+", default=[2.2, 3.0, 4.0, 5.0],
                         help="focus distances in metres (the scene spans about 2.1-5.0 m)")
     parser.add_argument("--focal-length", type=float, default=0.085, help="focal length in metres")
@@ -20,7 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=["gather", "scatter", "layered"], default="scatter",
                         help="renderer semantics (see the rendering tutorial)")
     parser.add_argument("--scale", type=float, default=0.5,
-                        help="downscale the scene by this factor first (1 = full 741x500 pixels)")
+                        help="downscale the scene by this factor first, in (0, 1] (1 = full 741x500 "
+                             "pixels; at least 0.002, one pixel a side)")
     add_overwrite_argument(parser)
 
 
