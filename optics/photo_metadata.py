@@ -264,11 +264,14 @@ def _integer(tag: Any, default: int) -> int:
 def _focal_plane_pitch(tags: dict[str, Any], resolution: float | None,
                        groups: Sequence[str]) -> float | None:
     """Metres per pixel of the focal-plane resolution `resolution` (pixels per unit), in the
-    unit that the `groups`' FocalPlaneResolutionUnit names (inches by default)."""
+    unit that the `groups`' FocalPlaneResolutionUnit names (inches by default); None where
+    that unit is none EXIF defines (1, "no absolute unit", or an invalid value)."""
     if resolution is None:
         return None
     unit = _integer(_tag(tags, "FocalPlaneResolutionUnit", groups=groups), 2)
-    return METRES_PER_RESOLUTION_UNIT.get(unit, 0.0254) / resolution
+    if unit not in METRES_PER_RESOLUTION_UNIT:
+        return None
+    return METRES_PER_RESOLUTION_UNIT[unit] / resolution
 
 
 def _wb_rgb(multipliers: Sequence[float]) -> tuple[float, float, float] | None:

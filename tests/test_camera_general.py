@@ -248,6 +248,10 @@ def test_read_photo_pixel_pitch_from_the_35mm_equivalent_focal_length(tmp_path):
     _, info = read_photo(tmp_path / "p.jpg")
     assert info.pixel_pitch == pytest.approx(1e-5) and info.pixel_pitch_source == \
         "focal-plane resolution"
+    # a resolution unit EXIF does not define (9) is not taken for inches: the equivalent holds
+    _write_jpeg(tmp_path / "p.jpg", stored, focal_mm=4.2, _41989=26, _41486=1000.0, _41488=9)
+    _, info = read_photo(tmp_path / "p.jpg")
+    assert info.pixel_pitch_source == "35 mm equivalent"
     # without the real focal length the equivalent alone gives no pitch
     _write_jpeg(tmp_path / "p.jpg", stored, _41989=26)
     assert read_photo(tmp_path / "p.jpg")[1].pixel_pitch is None
