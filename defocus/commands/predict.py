@@ -35,8 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --image-f-number: where --image was focused, metres "
                              "(default: as the first focused photo)")
     parser.add_argument("--focused", type=Path, nargs="*", default=[], metavar="PHOTO",
-                        help="focused photos of the same view, each focused elsewhere (1-5 "
-                             "with --image, 2 or more without)")
+                        help="focused photos of the same view, each focused elsewhere (1 or "
+                             "more with --image, 2 or more without)")
     parser.add_argument("--method", default="auto",
                         help="without a model file: 'sweep' (needs --image), 'relative-blur' "
                              "(the focused photos alone), 'focus' (depth from focus of a stack "
