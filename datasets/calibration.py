@@ -65,7 +65,8 @@ def depth_pairs(dataset: Sequence[dict[str, Any]], indices: Sequence[int] | None
 def calibrate_dataset(dataset: Sequence[dict[str, Any]], indices: Sequence[int] | None = None,
                       aperture: str = DEFAULT_APERTURE, reference_f_number: float | None = None,
                       focus_distance: float | None = None, align: bool = True,
-                      progress: bool = False, **measure: Any) -> DepthCalibration:
+                      progress: bool = False, pairs: Sequence[CalibrationPair] | None = None,
+                      **measure: Any) -> DepthCalibration:
     """The camera of a dataset's focused photos, fitted from its samples with depth.
 
     The focal length and f-number come from the first sample's `camera` (the dataset's stated
@@ -80,10 +81,19 @@ def calibrate_dataset(dataset: Sequence[dict[str, Any]], indices: Sequence[int] 
         focus_distance: metres if known, else fitted.
         align: align each pair first.
         progress: show progress bars.
+        pairs: the samples' pairs as `depth_pairs(dataset, indices, align)` gives them, made
+            once to fit several apertures (aligning is the slow part); made here by default.
         **measure: keyword arguments of `optics.measure_blur_curve`.
+
+    Raises:
+        ValueError: `pairs` that are not one per sample of `indices`.
     """
     indices = list(range(len(dataset))) if indices is None else list(indices)
-    pairs = depth_pairs(dataset, indices, align, progress)
+    if pairs is None:
+        pairs = depth_pairs(dataset, indices, align, progress)
+    elif len(pairs) != len(indices):
+        raise ValueError(f"pairs must hold one pair per sample of indices ({len(indices)}), "
+                         f"got {len(pairs)}")
     camera = dataset[indices[0]]["camera"]
     if reference_f_number is None:
         reference_f_number = getattr(dataset, "reference_f_number", None)

@@ -126,11 +126,12 @@ def photo_differences(train: DSLR, indices: list[int]) -> dict[str, str]:
     }
 
 
-def print_side_cues(train: DSLR, focus_m: float) -> None:
+def print_side_cues(pairs: list, focus_m: float) -> None:
     """Print whether the photos tell near from far of the focus plane (`optics.side_cues` on
-    every training scene): per depth bin, then in front against behind at the same blur."""
-    cues = side_cues(depth_pairs(train, progress=True), focus_m, progress=True)
-    print(f"\ncues to the side of the focus plane ({focus_m:.2f} m), {len(train)} training scenes "
+    the aligned `pairs` of every training scene): per depth bin, then in front against behind
+    at the same blur."""
+    cues = side_cues(pairs, focus_m, progress=True)
+    print(f"\ncues to the side of the focus plane ({focus_m:.2f} m), {len(pairs)} training scenes "
           "(mean over the scenes that measure the bin, standard error in brackets):")
     print(f"  {'depth m':>8} {'side':>6} {'scenes':>6} {'R px':>6} {'G px':>6} {'B px':>6} "
           f"{'R - B px':>16} {'log disk/Gaussian':>18}")
@@ -195,7 +196,9 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"--val must leave training scenes: 0 < --val < {count}, got {args.val}")
     train = DSLR(args.root, scenes=range(0, count - args.val))
     every = list(range(0, len(train), args.calibrate_every))
-    fits = {psf: calibrate_dataset(train, every, aperture=psf, progress=True)
+    pairs = depth_pairs(train, progress=True)  # aligned once, for both fits and the side cues
+    fits = {psf: calibrate_dataset(train, every, aperture=psf, progress=True,
+                                   pairs=[pairs[i] for i in every])
             for psf in ("gaussian:0.5", "disk")}
     fit = fits["gaussian:0.5"]
     args.out.mkdir(parents=True, exist_ok=True)
@@ -214,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     near = [float((s["depth"][s["mask"]] < fit.fit.focus_distance).float().mean())
             for s in (train[i] for i in every)]
     print(f"pixels nearer than the focus plane: {100 * sum(near) / len(near):.0f} % (training)")
-    print_side_cues(train, fit.fit.focus_distance)
+    print_side_cues(pairs, fit.fit.focus_distance)
     from models.experiment import constant_from_training
 
     matched = loss_matched_camera(args.root, every, args.out / "camera.json",

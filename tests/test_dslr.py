@@ -11,6 +11,7 @@ import torch
 from test_datasets_fixtures import DSLR_TIMES, write_dslr_release
 
 from datasets import DSLR
+from datasets.calibration import depth_pairs
 from datasets.dslr import pair_files
 from optics import CameraSettings
 
@@ -273,7 +274,7 @@ def test_dslr_causes_prints_the_side_cues_of_a_release(tmp_path, capsys):
     spec = importlib.util.spec_from_file_location("dslr_causes_example", path)
     example = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(example)
-    example.print_side_cues(DSLR(tmp_path), 1.7)
+    example.print_side_cues(depth_pairs(DSLR(tmp_path)), 1.7)
     printed = capsys.readouterr().out
     assert "cues to the side of the focus plane (1.70 m), 7 training scenes" in printed
     assert " front " in printed and " behind " in printed
@@ -283,3 +284,21 @@ def test_dslr_causes_prints_the_side_cues_of_a_release(tmp_path, capsys):
     assert all(abs(float(r[6])) < 0.25 for r in rows)  # red minus blue blur, pixels
     # each scene has one band per side, at different blurs: no scene to compare
     assert "colour spread px: no scene measures both sides" in printed
+
+
+def test_calibrate_dataset_takes_pairs_aligned_once(tmp_path, monkeypatch):
+    from datasets import calibration
+
+    write_rendered_release(tmp_path, scenes=4)
+    data = DSLR(tmp_path)
+    pairs = depth_pairs(data, [0, 2])
+
+    def aligned_again(*args, **kwargs):
+        raise AssertionError("the pairs were aligned again")
+
+    monkeypatch.setattr(calibration, "depth_pairs", aligned_again)
+    given = calibration.calibrate_dataset(data, [0, 2], aperture="disk", pairs=pairs).settings
+    monkeypatch.setattr(calibration, "depth_pairs", lambda *args, **kwargs: pairs)
+    assert given == calibration.calibrate_dataset(data, [0, 2], aperture="disk").settings
+    with pytest.raises(ValueError, match=r"one pair per sample of indices \(2\), got 1"):
+        calibration.calibrate_dataset(data, [0, 2], pairs=pairs[:1])
