@@ -3,9 +3,12 @@
 `read_photo` applies the EXIF orientation (a portrait shot stored sideways comes out upright) and
 returns the file's `optics.PhotoMetadata` (`optics.read_metadata`, the one reader of what photo
 files state: focal length, f-number and pixel pitch where the file states them, the pixel pitch
-scaled to the stored image size). 16-bit colour TIFFs and PNGs (what raw developers export) keep
-all 16 bits: Pillow would cut them to 8, so `tifffile` and `pypng` read those. The camera
-settings of photos are resolved by `optics.photo_settings`.
+scaled to the stored image size). TIFFs of more than 8 bits per sample (what raw developers and
+scientific cameras write, either byte order) and 16-bit colour or grey+alpha PNGs keep all their
+bits: Pillow would cut them to 8, so `tifffile` and `pypng` read those. Unsigned integer samples
+(8, 16 or 32 bits) are divided by their type's maximum; signed or floating-point ones are
+refused, as they state no scale of light. The camera settings of photos are resolved by
+`optics.photo_settings`.
 """
 
 from __future__ import annotations
@@ -32,62 +35,120 @@ def _is_tiff(path: Path) -> bool:
         return file.read(4) in (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 
 
-def _deep_colour(path: Path, opened) -> np.ndarray | None:
-    """The samples of a colour TIFF or PNG with more than 8 bits per sample, as stored
-    (`(H,W,C)` uint16), which Pillow would cut to 8 bits; None for any other photo."""
-    if _is_tiff(path) and (opened is None or (
-            opened.mode not in ("L", "P", "1", "I;16")
-            and max(opened.tag_v2.get(258, (8,)), default=8) > 8)):
-        import tifffile
+#: Pillow modes that `np.asarray` gives with all their bits (16-bit grey, either byte order).
+_PILLOW_16 = ("I;16", "I;16L", "I;16B")
+#: What `read_photo` reads (said by its refusals).
+_READ = ("read_photo reads unsigned integer samples of 8, 16 or 32 bits (grey, grey+alpha, RGB "
+         "or RGBA)")
 
-        _check_tiff_header(path)
-        try:
-            array = tifffile.imread(path, key=0)
-        except Exception as error:  # noqa: BLE001 (tifffile raises many kinds)
-            if opened is None:
-                raise DataFormatError(
-                    f"{str(path)!r}: cannot be read as a photo ({error})") from None
-            warnings.warn(f"{path}: read with 8 bits per channel only, tifffile cannot decode it "
-                          f"({error}); with the imagecodecs package installed all 16 are kept",
-                          UserWarning, stacklevel=3)
-            return None
-        if not np.issubdtype(array.dtype, np.integer):
-            raise DataFormatError(
-                f"{str(path)!r}: holds {array.dtype} samples; save it as an 8- or 16-bit photo "
-                "(floating-point TIFFs say nothing of their encoding)")
-        if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[-1] not in (3, 4):
-            array = np.moveaxis(array, 0, -1)  # stored plane by plane
-        return array if array.dtype.itemsize > 1 and array.ndim == 3 else None
+
+def _check_dtype(path: Path, dtype: np.dtype) -> None:
+    """Refuse samples other than unsigned integers of at most 32 bits, naming `path`."""
+    dtype = np.dtype(dtype)
+    if dtype.kind == "u" and dtype.itemsize <= 4:
+        return
+    why = (" (floating-point TIFFs say nothing of their encoding)" if dtype.kind == "f" else
+           ": signed, their negative values are no light" if dtype.kind == "i" else "")
+    raise DataFormatError(f"{str(path)!r}: holds {dtype.name} samples{why}; {_READ}: save it "
+                          "as an 8- or 16-bit photo")
+
+
+def _samples(path: Path, array: np.ndarray) -> np.ndarray:
+    """Decoded samples as `_to_linear` takes them: `(H,W)` grey (grey+alpha: the alpha dropped)
+    or `(H,W,3|4)` RGB(A), unsigned integers in native byte order; anything else refused."""
+    _check_dtype(path, array.dtype)
+    if array.ndim == 3 and array.shape[2] in (1, 2):
+        array = array[..., 0]
+    if array.ndim != 2 and not (array.ndim == 3 and array.shape[2] in (3, 4)):
+        raise DataFormatError(f"{str(path)!r}: holds samples of shape {array.shape}; {_READ}, "
+                              "of shape (H, W) or (H, W, channels)")
+    return array.astype(array.dtype.newbyteorder("="), copy=False)
+
+
+def _pillow_samples(path: Path, image) -> np.ndarray:
+    """The samples of a photo Pillow decoded: 8-bit ones as RGB (grey kept grey), 16-bit grey as
+    stored; refused for any other mode (Pillow's conversion to RGB would clip it to 8 bits)."""
+    from PIL import ImageMode
+
+    if image.mode in ("L", "RGB", *_PILLOW_16):
+        return np.asarray(image)
+    typestr = ImageMode.getmode(image.mode).typestr
+    if typestr in ("|u1", "|b1"):  # palette, grey+alpha, RGBA, CMYK, ...: 8 bits or fewer
+        return np.asarray(image.convert("RGB"))
+    raise DataFormatError(f"{str(path)!r}: holds samples Pillow decodes as mode {image.mode!r} "
+                          f"(numpy {typestr}); {_READ}: save it as an 8- or 16-bit photo")
+
+
+def _deep_samples(path: Path, opened) -> np.ndarray | None:
+    """The samples, as stored, of a photo Pillow would cut to 8 bits or cannot open: a TIFF of
+    more than 8 bits per sample (tifffile) or a 16-bit colour or grey+alpha PNG (pypng; Pillow
+    opens the latter as RGBA); None for any other photo."""
+    if _is_tiff(path) and (opened is None or
+                           max(opened.tag_v2.get(258, (8,)), default=8) > 8):
+        return _tiff_samples(path, opened)
     if opened is not None and opened.format == "PNG" and opened.mode in ("RGB", "RGBA"):
         import png
 
-        reader = png.Reader(filename=str(path))
-        width, height, rows, meta = reader.asDirect()
-        if meta["bitdepth"] <= 8:
-            return None
-        planes = meta["planes"]
-        array = np.empty((height, width * planes), np.uint16)  # row by row: no second copy
-        for index, row in enumerate(rows):
-            array[index] = row
+        with open(path, "rb") as handle:
+            width, height, rows, meta = png.Reader(file=handle).asDirect()
+            if meta["bitdepth"] <= 8:
+                return None
+            planes = meta["planes"]
+            array = np.empty((height, width * planes), np.uint16)  # row by row: no 2nd copy
+            for index, row in enumerate(rows):
+                array[index] = row
         return array.reshape(height, width, planes)
     return None
 
 
+def _tiff_samples(path: Path, opened) -> np.ndarray | None:
+    """A TIFF's first image as tifffile decodes it, `(H,W)` or `(H,W,C)`; None where tifffile
+    cannot decode it and Pillow (`opened`) reads it instead."""
+    import tifffile
+    from PIL import ImageMode
+
+    _check_tiff_header(path)
+    try:
+        array = tifffile.imread(path, key=0)
+    except Exception as error:  # noqa: BLE001 (tifffile raises many kinds)
+        if opened is None:
+            raise DataFormatError(
+                f"{str(path)!r}: cannot be read as a photo ({error})") from None
+        if opened.mode in _PILLOW_16:  # Pillow keeps all 16 bits
+            return None
+        if ImageMode.getmode(opened.mode).typestr != "|u1":
+            raise DataFormatError(
+                f"{str(path)!r}: tifffile cannot decode it ({error}; with the imagecodecs "
+                f"package it may) and Pillow decodes it as mode {opened.mode!r}; {_READ}"
+            ) from None
+        warnings.warn(f"{path}: read with 8 bits per channel only, tifffile cannot decode "
+                      f"it ({error}); with the imagecodecs package installed all are kept",
+                      UserWarning, stacklevel=5)
+        return None
+    if array.ndim == 3 and array.shape[0] in (3, 4) and array.shape[-1] not in (3, 4):
+        array = np.moveaxis(array, 0, -1)  # stored plane by plane
+    return array
+
+
 def _check_tiff_header(path: Path) -> None:
-    """Refuse, from its header, a TIFF of floating-point samples or more than
-    `MAX_IMAGE_PIXELS` pixels: Pillow reads no floating-point TIFF's header (`check_image_size`
-    cannot), and tifffile would decode it all first."""
+    """Refuse, from its header, a TIFF of other than unsigned integer samples, other than grey
+    or RGB, or of more than `MAX_IMAGE_PIXELS` pixels: Pillow reads no floating-point TIFF's
+    header (`check_image_size` cannot), and tifffile would decode it all first."""
     import tifffile
 
     try:
         with tifffile.TiffFile(path) as tiff:
-            shape, dtype = tuple(tiff.pages[0].shape), tiff.pages[0].dtype
+            page = tiff.pages[0]
+            shape, dtype, photometric = tuple(page.shape), page.dtype, page.photometric
     except Exception:  # noqa: BLE001 (no readable header: reading the file says what is wrong)
         return
-    if dtype is not None and not np.issubdtype(dtype, np.integer):
+    if dtype is not None:
+        _check_dtype(path, dtype)
+    grey_or_rgb = (tifffile.PHOTOMETRIC.MINISBLACK, tifffile.PHOTOMETRIC.RGB)
+    if photometric not in grey_or_rgb:
         raise DataFormatError(
-            f"{str(path)!r}: holds {dtype} samples; save it as an 8- or 16-bit photo "
-            "(floating-point TIFFs say nothing of their encoding)")
+            f"{str(path)!r}: holds {getattr(photometric, 'name', photometric)} samples "
+            f"(TIFF photometric interpretation); {_READ}: save it as grey (min-is-black) or RGB")
     if len(shape) >= 2:
         planes = len(shape) == 3 and shape[0] in (3, 4) and shape[-1] not in (3, 4)
         check_stated_size(path, *(shape[1:3] if planes else shape[:2]))
@@ -99,9 +160,9 @@ _UPRIGHT = {
     2: lambda a: a[:, ::-1],
     3: lambda a: a[::-1, ::-1],
     4: lambda a: a[::-1],
-    5: lambda a: a.transpose(1, 0, 2),
+    5: lambda a: a.swapaxes(0, 1),
     6: lambda a: np.rot90(a, -1),
-    7: lambda a: a.transpose(1, 0, 2)[::-1, ::-1],
+    7: lambda a: a.swapaxes(0, 1)[::-1, ::-1],
     8: lambda a: np.rot90(a, 1),
 }
 
@@ -141,7 +202,7 @@ def _row_blocks(height: int, width: int) -> Iterator[slice]:
 
 def _to_linear(array: np.ndarray, dtype: torch.dtype, encoding: str,
                into: Allocator | None) -> Tensor:
-    """`(H,W)` or `(H,W,C)` integer samples (the first three channels RGB) as a linear `(3,H,W)`
+    """`(H,W)` or `(H,W,C)` unsigned samples (`_samples`: the first three channels RGB) as a linear `(3,H,W)`
     tensor in [0, 1], converted a block of rows at a time: no full-size float temporary."""
     scale = float(np.iinfo(array.dtype).max) if np.issubdtype(array.dtype, np.integer) else 1.0
     if array.ndim == 2:  # grey: the same samples in each channel, copied block by block
@@ -168,7 +229,8 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32, encoding: s
     its float32 result (1.2 GB) and its decoded samples (0.6 GB at 16 bits), no more.
 
     Args:
-        path: JPEG, PNG or TIFF file (16-bit colour TIFFs and PNGs keep all 16 bits), or a raw
+        path: JPEG, PNG or TIFF file of unsigned 8-, 16- or 32-bit samples, all bits kept
+            (grey is copied to R, G and B; an alpha channel is dropped), or a raw
             photo (`RAW_SUFFIXES`: DNG, CR2, NEF, ARW, ...), decoded by LibRaw to linear sRGB
             with daylight white balance: no compression, no tone curve, the camera's own bits.
         dtype: floating dtype of the result.
@@ -185,7 +247,8 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32, encoding: s
 
     Raises:
         FileNotFoundError: `path` does not exist.
-        DataFormatError: the file cannot be read as an RGB photo, or its header (a raw
+        DataFormatError: the file cannot be read as a grey or RGB photo (e.g. it holds
+            signed or floating-point samples, or CMYK), or its header (a raw
             file's metadata) states more than `datasets.io.MAX_IMAGE_PIXELS` (read before any
             pixel is decoded).
 
@@ -217,27 +280,30 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32, encoding: s
 
 
 def _decoded(path: Path) -> tuple[np.ndarray, PhotoMetadata]:
-    """The samples of a JPEG, PNG or TIFF, upright, as stored (uint8 or uint16), and what the
-    file states."""
+    """The samples of a JPEG, PNG or TIFF, upright, as stored (`_samples`), and what the file
+    states."""
     from PIL import Image, ImageOps, UnidentifiedImageError
 
     try:
         with warnings.catch_warnings():  # the size was checked: `check_image_size`
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(path) as opened:
+            # from a file object, not `path`: Pillow memory-maps an uncompressed grey TIFF
+            # opened by name with its turned size (orientations 5-8), which scrambles it
+            with open(path, "rb") as handle, Image.open(handle) as opened:
                 info = read_metadata(path, image_size=(opened.height, opened.width))
-                deep = _deep_colour(path, opened)
+                deep = _deep_samples(path, opened)
                 if deep is None:
                     upright = ImageOps.exif_transpose(opened)
-                    return np.asarray(upright.convert("RGB") if upright.mode not in
-                                      ("RGB", "I;16") else upright), info
+                    return _samples(path, _pillow_samples(path, upright)), info
+    except DataFormatError:
+        raise
     except (UnidentifiedImageError, OSError, ValueError) as error:
         # Pillow reads no floating-point colour TIFF: tifffile says what it holds
-        deep = _deep_colour(path, None)
+        deep = _deep_samples(path, None)
         if deep is None:
             raise DataFormatError(f"{str(path)!r}: cannot be read as a photo ({error})") from None
         info = PhotoMetadata(path)
-    return _orient(deep, info.orientation), info
+    return _orient(_samples(path, deep), info.orientation), info
 
 
 #: The largest share of a photo's pixels that may be black or saturated (clipped) for defocus to
