@@ -63,7 +63,7 @@ def write_fod500(root: Path, scenes=(0, 400, 401), size: int = 16, depth_scale: 
 
 
 def write_zedd(root: Path, split: str = "val", scenes: int = 2, h: int = 12, w: int = 18,
-               depth_scale: float = 1.0, runs: int = 9) -> None:
+               depth_scale: float = 1.0, runs: int = 9, focal_px: float = 20.0) -> None:
     rng = np.random.default_rng(2)
     root.mkdir(parents=True, exist_ok=True)
     lines = ["# run\thex\tfocus distance (m)"] + [
@@ -78,7 +78,7 @@ def write_zedd(root: Path, split: str = "val", scenes: int = 2, h: int = 12, w: 
                 Image.fromarray(_texture(rng, h, w)).save(
                     scene / "focus_stack" / f"img_run_{k + 1}_motor_{ZEDD_CODES[k]}_aperture_F"
                     f"{f_number:.1f}.jpg", quality=95)
-        np.savetxt(scene / "gt" / "K.txt", [[20.0, 0, w / 2], [0, 20.0, h / 2], [0, 0, 1]])
+        np.savetxt(scene / "gt" / "K.txt", [[focal_px, 0, w / 2], [0, focal_px, h / 2], [0, 0, 1]])
         if split == "val":
             depth = rng.uniform(0.8, 9.0, (h, w)).astype(np.float32)
             depth[0, 0] = np.nan
