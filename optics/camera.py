@@ -374,8 +374,9 @@ class CameraSettings:
         lists.
 
         Example:
-            >>> CameraSettings(0.05, 2.0, [[2.0]], 1e-5).to_dict()["focus_distance"]
-            [[2.0]]
+            >>> data = CameraSettings(0.05, 2.0, [2.0], 1e-5).batched(1).to_dict()
+            >>> torch.tensor(data["focus_distance"]).shape  # (B, F) = (1, 1) kept
+            torch.Size([1, 1])
         """
         self.check()
         data: dict[str, Any] = {}
