@@ -18,11 +18,12 @@ one, the PSF is `DEFAULT_APERTURE`; where a real lens's photos are read and noth
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Mapping
 from typing import Any
 
-from .aperture import MAX_BLADES, MAX_GAUSSIAN_SCALE, Aperture, Disk, Gaussian, Polygon
+from .aperture import MAX_BLADES, Aperture, Disk, Gaussian, Polygon
 
 #: Families a spec may name, with the arguments each takes after its name.
 APERTURE_FAMILIES: dict[str, str] = {
@@ -76,26 +77,28 @@ def parse_aperture(spec: str | Aperture) -> Aperture:
     family, *args = spec.strip().lower().split(":")
     if family not in APERTURE_FAMILIES:
         raise _spec_error(spec, f"unknown family {family!r}")
-    if family == "gaussian":
-        if len(args) > 1:
-            raise _spec_error(spec, "gaussian takes at most one argument, its scale")
-        scale = _number(spec, args[0], "scale") if args else 0.5
-        if not 0 < scale <= MAX_GAUSSIAN_SCALE:
-            raise _spec_error(spec, f"scale must be > 0 and <= {MAX_GAUSSIAN_SCALE:g}, got "
-                                    f"{args[0]}")
-        return Gaussian(scale)
     if family == "disk":
         if args:
             raise _spec_error(spec, "disk takes no argument")
         return Disk()
-    if not 1 <= len(args) <= 2:
+    if family == "gaussian" and len(args) > 1:
+        raise _spec_error(spec, "gaussian takes at most one argument, its scale")
+    if family == "polygon" and not 1 <= len(args) <= 2:
         raise _spec_error(spec, "polygon needs its number of blades")
-    blades = _number(spec, args[0], "n_blades")
-    if blades != int(blades) or not 3 <= blades <= MAX_BLADES:
-        raise _spec_error(spec, f"n_blades must be an integer from 3 to {MAX_BLADES}, got "
-                                f"{args[0]}")
-    rotation = _number(spec, args[1], "rotation") if len(args) == 2 else 0.0
-    return Polygon(int(blades), rotation)
+    if family == "gaussian":
+        scale = _number(spec, args[0], "scale") if args else 0.5
+        build = functools.partial(Gaussian, scale)
+    else:
+        blades = _number(spec, args[0], "n_blades")
+        if blades != int(blades):
+            raise _spec_error(spec, f"n_blades must be an integer from 3 to {MAX_BLADES}, got "
+                                    f"{args[0]}")
+        rotation = _number(spec, args[1], "rotation") if len(args) == 2 else 0.0
+        build = functools.partial(Polygon, int(blades), rotation)
+    try:  # the ranges are the constructors' own (MAX_GAUSSIAN_SCALE, MAX_BLADES)
+        return build()
+    except ValueError as error:
+        raise _spec_error(spec, str(error)) from None
 
 
 def aperture_spec(aperture: Aperture | str) -> str:
