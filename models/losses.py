@@ -315,6 +315,6 @@ def supervised_depth_loss(depth: Tensor, target: Tensor, mask: Tensor | None = N
     keep = mask if mask.dtype == torch.bool else mask != 0
     safe_target = torch.where(keep, target, torch.ones_like(target))
     safe_depth = torch.where(keep, depth, safe_target)  # outside: error 0, gradient 0
-    error = torch.where(keep, (safe_depth - safe_target).abs() / safe_target, 0.0)
+    error = (safe_depth - safe_target).abs() / safe_target
     weight = mask.to(error.dtype)
     return (error * weight).sum() / weight.sum().clamp_min(1.0)
