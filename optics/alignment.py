@@ -22,10 +22,12 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .checks import check_finite, check_positive, check_shape
+from .checks import check_finite, check_positive, check_shape, is_real_number
 
 #: Gaussian smoothing (pixels) of the images whose motion is estimated, by default.
 _SIGMA_PX = 1.5
+#: Lucas-Kanade iterations per pyramid level of `estimate_shift` and `estimate_motion`.
+_SHIFT_ITERATIONS, _MOTION_ITERATIONS = 10, 20
 
 
 def _check_image(name: str, image: Tensor, dims: Sequence[str] = ("B", "C", "H", "W")) -> None:
@@ -285,11 +287,12 @@ def _check_pair(names: tuple[str, str], reference: Tensor, moving: Tensor, sigma
                          f"sigma_px={sigma_px:g})")
 
 
-def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: float,
-              zoomed: bool) -> Tensor:
+def _checked_estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: float,
+                      zoomed: bool) -> Tensor:
+    """`_estimate` after checking its arguments (`estimate_shift`, `estimate_motion`)."""
     if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral):
         raise TypeError(f"iterations must be an int >= 1, got {iterations!r}")
-    if isinstance(sigma_px, bool) or not isinstance(sigma_px, numbers.Real):
+    if not is_real_number(sigma_px):
         raise TypeError(f"sigma_px must be a number > 0 (pixels), got {sigma_px!r}")
     if iterations < 1 or not (math.isfinite(sigma_px) and sigma_px > 0):
         raise ValueError(f"need iterations >= 1 and a finite sigma_px > 0, got {iterations!r}, "
@@ -301,6 +304,12 @@ def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: floa
                 f"{name} has dtype {image.dtype}; estimate_motion needs float32 or float64 "
                 f"images: the zoom it returns (within about 2 % of 1) would be rounded to "
                 f"{torch.finfo(image.dtype).eps:g} in {image.dtype}; pass {name}.float()")
+    return _estimate(reference, moving, iterations, sigma_px, zoomed)
+
+
+def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: float,
+              zoomed: bool) -> Tensor:
+    """Lucas-Kanade over a pyramid, `(B,2)` shifts or `(B,4)` motions; the images unchecked."""
     dtype = torch.promote_types(reference.dtype, moving.dtype)
     work = torch.promote_types(dtype, torch.float32)
     smallest = _smallest_size(sigma_px)
@@ -327,7 +336,7 @@ def _estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: floa
     return torch.cat(motions)
 
 
-def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = 10,
+def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = _SHIFT_ITERATIONS,
                    sigma_px: float = _SIGMA_PX) -> Tensor:
     """The translation `(B,2)` pixels `(dy, dx)` of `moving` relative to `reference`, both
     `(B,C,H,W)`: `moving(p) ~ reference(p - shift)` up to a symmetric blur, exposure and noise.
@@ -349,10 +358,10 @@ def estimate_shift(reference: Tensor, moving: Tensor, iterations: int = 10,
         >>> estimate_shift(image, moved).round(decimals=2)
         tensor([[ 0.4000, -0.7000]])
     """
-    return _estimate(reference, moving, iterations, sigma_px, zoomed=False)
+    return _checked_estimate(reference, moving, iterations, sigma_px, zoomed=False)
 
 
-def estimate_motion(reference: Tensor, moving: Tensor, iterations: int = 20,
+def estimate_motion(reference: Tensor, moving: Tensor, iterations: int = _MOTION_ITERATIONS,
                     sigma_px: float = _SIGMA_PX) -> Tensor:
     """The translation, magnification and rotation `(B,4)` `(dy, dx, zoom, angle)` (pixels,
     ratio, radians) of `moving` relative to `reference`:
@@ -373,7 +382,7 @@ def estimate_motion(reference: Tensor, moving: Tensor, iterations: int = 20,
         >>> estimate_motion(image, moved).round(decimals=2)
         tensor([[ 0.5000, -0.3000,  1.0100,  0.0100]])
     """
-    return _estimate(reference, moving, iterations, sigma_px, zoomed=True)
+    return _checked_estimate(reference, moving, iterations, sigma_px, zoomed=True)
 
 
 #: The largest motion between the photos of one view that `align_shots` undoes: a zoom
@@ -436,11 +445,13 @@ def align_shots(image: Tensor, focused: Tensor) -> tuple[Tensor, Tensor]:
     aligned, motions = [], []
     for i in range(n):
         shots = focused[:, i].to(work)
-        motion = estimate_motion(reference, shots)
+        # the images were checked once above: not again for every shot
+        motion = _estimate(reference, shots, _MOTION_ITERATIONS, _SIGMA_PX, zoomed=True)
         corner = ((motion[:, 2] - 1).abs() + motion[:, 3].abs()) * half_diagonal
         small = (corner < ZOOM_TOLERANCE_PX) | ~_plausible(motion, focused.shape[-2:])
         if bool(small.any()):  # nothing to undo but the translation, estimated as such
-            motion[small, :2] = estimate_shift(reference[small], shots[small])
+            motion[small, :2] = _estimate(reference[small], shots[small], _SHIFT_ITERATIONS,
+                                          _SIGMA_PX, zoomed=False)
             motion[small, 2:] = torch.tensor([1.0, 0.0], dtype=motion.dtype,
                                              device=motion.device)
         lost = ~_plausible(motion, focused.shape[-2:])
