@@ -368,10 +368,9 @@ class CameraSettings:
 
     # ---- JSON ----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """Plain numbers and lists (metres), and the aperture spec under `aperture`; the
-        values are checked again (`check`), so that no file is written that `from_dict`
-        refuses. One shot's `(1,)` settings are written as numbers, batched ones as nested
-        lists.
+        """Plain numbers and lists (metres), and the aperture spec under `aperture`; the values
+        are checked again (`check`), so that no file is written that `from_dict` refuses. One
+        shot's `(1,)` settings are written as numbers, batched ones as nested lists.
 
         Example:
             >>> data = CameraSettings(0.05, 2.0, [2.0], 1e-5).batched(1).to_dict()
