@@ -85,8 +85,13 @@ def _scharr(image: Tensor, axis: int) -> Tensor:
     return F.conv2d(F.pad(image, (1, 1, 1, 1), mode="replicate"), kernel[None, None])
 
 
+#: DDFF-12's clip of the Hessian's norm in `bumpiness` (disparity pixels).
+BUMPINESS_CLIP = 0.05
+
+
 @maps_by_keyword
-def bumpiness(*, pred: Tensor, target: Tensor, mask: Tensor, clip: float = 0.05) -> Tensor:
+def bumpiness(*, pred: Tensor, target: Tensor, mask: Tensor,
+              clip: float = BUMPINESS_CLIP) -> Tensor:
     """DDFF-12's bumpiness per image `(B,)`: the Frobenius norm of the Hessian of
     `pred - target` (Scharr derivatives, each clipped at `clip`), summed over `mask` and divided
     by its pixel count, x100. Outside `mask` the target counts as 0, as in the official code
@@ -115,6 +120,11 @@ def bumpiness(*, pred: Tensor, target: Tensor, mask: Tensor, clip: float = 0.05)
     check_prediction(pred, mask, positive=False)
     refuse_bad_pixels("target", target, mask & ~torch.isfinite(target),
                        "finite at every pixel of mask")
+    return _bumpiness(pred, target, mask, clip)
+
+
+def _bumpiness(pred: Tensor, target: Tensor, mask: Tensor, clip: float) -> Tensor:
+    """`bumpiness` of `(B,1,H,W)` float64 maps already checked."""
     zero = torch.zeros_like(target)
     diff = torch.where(mask, pred - target, torch.where(torch.isfinite(pred), pred, zero))
     dx, dy = _scharr(diff, 1), _scharr(diff, 0)
@@ -177,7 +187,7 @@ def protocol_metrics(*, pred: Tensor, target: Tensor, mask: Tensor | None = None
     if protocol.cap is not None:
         pred = pred.clamp(max=protocol.cap)
     scale = 100.0 if protocol.percent else 1.0
-    bumps = bumpiness(pred=pred, target=target, mask=valid)
+    bumps = _bumpiness(pred, target, valid, BUMPINESS_CLIP)  # the maps are checked above
     totals: dict[str, float] = {}
     for i, (d_all, g_all, v) in enumerate(zip(pred, target, valid, strict=True)):
         d, g = d_all[v], g_all[v]
