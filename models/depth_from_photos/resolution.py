@@ -82,11 +82,14 @@ MAX_INTENSITY = 2.0
 MIN_INTENSITY = -0.1
 
 
-def _check_intensity(name: str, photo: Tensor) -> None:
+def _check_values(name: str, photo: Tensor) -> None:
+    """Refuse a photo with a NaN or an infinity (`check_finite`, which names the first) or
+    values outside linear intensity, from one pass over it where all is well."""
     if photo.numel() == 0:
         return
     low, high = (float(v) for v in torch.aminmax(photo.detach()))
-    if high > MAX_INTENSITY or low < MIN_INTENSITY:
+    if not MIN_INTENSITY <= low <= high <= MAX_INTENSITY:  # NaN fails every comparison
+        check_finite(name, photo)
         hint = ("; 8-bit values? divide by 255 (16-bit: 65535) and decode sRGB "
                 "(kornia.color.rgb_to_linear_rgb)" if high > MAX_INTENSITY else "")
         raise ValueError(f"{name} must hold linear intensity in [0, 1], got values from "
@@ -106,12 +109,10 @@ def check_photos(focused: Tensor, image: Tensor | None = None) -> None:
         ValueError: focused photos are (8, 8) pixels but the all-in-focus photo is (8, 9)
     """
     check_shape("focused", focused, ["F", "3", "H", "W"])
-    check_finite("focused", focused)
-    _check_intensity("focused", focused)
+    _check_values("focused", focused)
     if image is not None:
         check_shape("image", image, ["3", "H", "W"])
-        check_finite("image", image)
-        _check_intensity("image", image)
+        _check_values("image", image)
         if focused.shape[-2:] != image.shape[-2:]:
             raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
                              f"all-in-focus photo is {tuple(image.shape[-2:])}")
