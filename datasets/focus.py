@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import hashlib
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -13,7 +12,7 @@ import torch
 from torch import Tensor
 
 from optics import DEFAULT_APERTURE, Aperture, CameraSettings, render_focal_stack
-from optics.checks import is_real_number
+from optics.checks import check_depth_bounds
 
 
 class CameraPreset:
@@ -48,11 +47,7 @@ class CameraPreset:
         #: the settings of the focused images, float64
         self.camera = CameraSettings(focal_length, numbers, list(focus_distances), pixel_pitch,
                                      aperture=aperture)
-        if not (is_real_number(min_depth) and math.isfinite(min_depth) and min_depth >= 0):
-            raise ValueError(f"min_depth must be a finite depth >= 0 metres, got {min_depth!r}")
-        if not (is_real_number(depth_cap) and depth_cap > min_depth):
-            raise ValueError(f"depth_cap must be a depth > min_depth ({min_depth!r}) metres "
-                             f"(infinity allowed), got {depth_cap!r}")
+        check_depth_bounds(min_depth, depth_cap, names=("min_depth", "depth_cap"))
         self.depth_cap = float(depth_cap)
         self.min_depth = float(min_depth)
 

@@ -23,12 +23,13 @@ The focal-stack benchmarks score with protocols of their own: `models.protocols`
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Callable, Mapping, Sequence
 from typing import TypeVar
 
 import torch
 from torch import Tensor
+
+from optics.checks import check_depth_bounds
 
 METRIC_NAMES = ("abs_rel", "sq_rel", "rmse", "rmse_log", "log10", "delta1", "delta2", "delta3")
 HIGHER_IS_BETTER = frozenset({"delta1", "delta2", "delta3", "delta1.05", "delta1.15",
@@ -154,17 +155,6 @@ def check_prediction(pred: Tensor, valid: Tensor, positive: bool = True) -> None
     refuse_bad_pixels("pred", pred, valid & ~good, f"{allowed} at every valid pixel")
 
 
-def _check_depth_range(min_depth: float, max_depth: float | None) -> None:
-    """Refuse a `min_depth` below 0 (ground truth must stay > 0: the metrics divide by it and
-    take its logarithm) or not finite, and a `max_depth` not above `min_depth`."""
-    if not (math.isfinite(min_depth) and min_depth >= 0):
-        raise ValueError(f"min_depth must be a finite depth >= 0 metres (ground truth at or below "
-                         f"it is ignored, so that every scored depth is > 0), got {min_depth!r}")
-    if max_depth is not None and not max_depth > min_depth:
-        raise ValueError(f"max_depth must be None or a depth > min_depth ({min_depth!r}) metres, "
-                         f"got {max_depth!r}")
-
-
 @maps_by_keyword
 def valid_mask(*, target: Tensor, mask: Tensor | None = None, min_depth: float = 1e-3,
                max_depth: float | None = None, crop: str | Sequence[float] | None = None) -> Tensor:
@@ -177,7 +167,8 @@ def valid_mask(*, target: Tensor, mask: Tensor | None = None, min_depth: float =
         >>> valid_mask(target=torch.tensor([[0.0, 2.0, float("nan")]])).int()
         tensor([[[[0, 1, 0]]]], dtype=torch.int32)
     """
-    _check_depth_range(min_depth, max_depth)
+    check_depth_bounds(min_depth, max_depth, why=" (ground truth at or below it is ignored, so "
+                       "that every scored depth is > 0)", high_optional=True)
     target = as_map_batch("target", target)
     valid = torch.isfinite(target) & (target > min_depth)
     if max_depth is not None:

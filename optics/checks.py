@@ -256,6 +256,30 @@ def check_depth(name: str, depth: Tensor) -> None:
         )
 
 
+def check_depth_bounds(low: object, high: object, names: tuple[str, str] = ("min_depth", "max_depth"),
+                       why: str = "", high_optional: bool = False) -> None:
+    """Refuse a lower depth bound that is not a finite number >= 0 metres, and an upper bound
+    not above it (infinity allowed; `None` too where `high_optional`). `why` is added to the
+    lower bound's message.
+
+    Example:
+        >>> check_depth_bounds(0.0, float("inf"))
+        >>> check_depth_bounds(2.0, 1.0, names=("min_depth", "depth_cap"))
+        Traceback (most recent call last):
+        ...
+        ValueError: depth_cap must be a depth > min_depth (2.0) metres (infinity allowed), got 1.0
+    """
+    low_name, high_name = names
+    if not (is_real_number(low) and np.isfinite(low) and low >= 0):
+        raise ValueError(f"{low_name} must be a finite depth >= 0 metres{why}, got {low!r}")
+    if high is None and high_optional:
+        return
+    if not (is_real_number(high) and high > low):
+        none = "None or " if high_optional else ""
+        raise ValueError(f"{high_name} must be {none}a depth > {low_name} ({low!r}) metres "
+                         f"(infinity allowed), got {high!r}")
+
+
 def check_shape(name: str, tensor: Tensor, dims: Sequence[str]) -> None:
     """Check `tensor` against named dimensions, e.g. `["B", "C", "H", "W"]`.
 

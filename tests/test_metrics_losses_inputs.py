@@ -158,7 +158,7 @@ def test_depth_metrics_depth_range():
     with pytest.raises(ValueError, match="min_depth must be a finite depth >= 0 metres"):
         depth_metrics(pred=pred, target=target, min_depth=NAN)
     with pytest.raises(ValueError, match=r"max_depth must be None or a depth > min_depth "
-                                         r"\(1.0\) metres, got 0.5"):
+                                         r"\(1.0\) metres \(infinity allowed\), got 0.5"):
         depth_metrics(pred=pred, target=target, min_depth=1.0, max_depth=0.5)
     m = depth_metrics(pred=pred, target=target, min_depth=0)  # the negative label is ignored
     assert m["abs_rel"] == pytest.approx(0.5) and m["rmse_log"] == pytest.approx(math.log(1.5))
