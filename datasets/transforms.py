@@ -90,8 +90,10 @@ def resize_sample(sample: dict[str, Any], size: Sequence[int]) -> dict:
         value = sample[key]
         flat = value.reshape(-1, *value.shape[-3:]) if value.ndim == 4 else value[None]
         if key in ("image", "focused"):
+            # non-negative weights that sum to 1: no overshoot to clip, and linear highlights
+            # above 1 keep their value
             flat = F.interpolate(flat, size=(height, width), mode="bilinear", align_corners=False,
-                                 antialias=True).clamp(0, 1)
+                                 antialias=True)
         else:
             flat = F.interpolate(flat.to(torch.float32) if key == "mask" else flat,
                                  size=(height, width), mode="nearest-exact")

@@ -136,3 +136,15 @@ def test_time_budget_stops_training_when_the_machine_gets_slower(monkeypatch, ca
     assert "time budget of 0.2 min reached after" in out
     steps = int(out.split("reached after ")[1].split(" ")[0])
     assert 1 <= steps < 10**6 and f"ours (small, aif, {steps} steps)" in rows
+
+
+def test_resize_keeps_linear_highlights_and_the_range():
+    from datasets.transforms import resize_sample
+
+    image = torch.rand(3, 40, 50) * 0.5
+    image[:, 10:20, 10:20] = 3.0  # a linear highlight, above 1
+    out = resize_sample({"image": image, "focused": image[None].expand(2, 3, 40, 50)}, (20, 25))
+    for key in ("image", "focused"):
+        assert float(out[key].max()) == pytest.approx(3.0)  # the old clip to [0, 1] read 1.0
+        assert out[key].min() >= image.min()
+        assert float(out[key].mean()) == pytest.approx(float(image.mean()), rel=1e-2)
