@@ -445,6 +445,8 @@ def read_metadata(
     Raises:
         FileNotFoundError: if `path` does not exist.
         RawReadError: if LibRaw cannot parse a raw file.
+        ValueError: if the header of a JPEG, TIFF, PNG or WebP photo cannot be read (and no
+            `image_size` is given).
 
     Example:
         >>> import tempfile, pathlib
@@ -460,7 +462,10 @@ def read_metadata(
     if not path.is_file():
         raise FileNotFoundError(f"{'raw file' if raw else 'photo'} not found: {path}")
     if not raw:
-        return _photo_metadata(path, image_size if image_size is not None
-                               else _stored_size(path))
+        size = image_size if image_size is not None else _stored_size(path)
+        if size is None:
+            raise ValueError(f"{path} is not a photo that can be read (JPEG, TIFF, PNG or WebP): "
+                             "its header is damaged, cut short or of another format")
+        return _photo_metadata(path, size)
     with open_raw(path) as opened:
         return metadata_from_libraw(path, opened)

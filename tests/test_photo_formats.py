@@ -154,3 +154,18 @@ def test_a_32_bit_tiff_tifffile_cannot_decode_is_refused_not_clipped(tmp_path, m
         with pytest.raises(DataFormatError,
                            match=r"u32\.tif.*imagecodecs.*mode 'I'.*unsigned integer"):
             read_photo(tmp_path / "u32.tif")
+
+
+def test_read_metadata_refuses_a_photo_whose_header_is_damaged(tmp_path):
+    from PIL import Image
+
+    from optics.photo_metadata import read_metadata
+
+    good = tmp_path / "good.jpg"
+    Image.new("RGB", (8, 6)).save(good)
+    damaged = tmp_path / "damaged.jpg"
+    damaged.write_bytes(good.read_bytes()[:3] + b"\x00" * 40)  # a JPEG marker, then nothing
+    with pytest.raises(ValueError, match=r"damaged\.jpg is not a photo that can be read"):
+        read_metadata(damaged)  # used to return empty metadata without a word
+    assert read_metadata(damaged, image_size=(6, 8)).orientation == 1  # a size given: the tags
+    assert read_metadata(good).compressed
