@@ -74,6 +74,8 @@ def _refusal(path: Path, error: Exception) -> CheckpointError:
         reason = f"neither a zip archive nor a pickle: {detail.group(0)}"
     elif isinstance(error, EOFError):
         reason = "empty or truncated"
+    elif isinstance(error, KeyError | IndexError) or "Memo value not found" in text:
+        reason = "neither a zip archive nor a pickle (text or another format?)"
     else:
         reason = re.split(r"(?<=\.)\s", " ".join(text.split()))[0].rstrip(".")[:120]
     reason = reason or type(error).__name__
@@ -137,7 +139,7 @@ def serialize(state: Mapping[str, Any]) -> bytes:
 def save_checkpoint(state: Mapping[str, Any], path: str | Path) -> Path:
     """Write a checkpoint atomically (temporary file + `os.replace`); returns `path`."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _make_parent(path)
     _atomic_write(serialize(state), path)
     return path
 
@@ -227,25 +229,44 @@ def convert_checkpoint(source: str | Path, target: str | Path) -> Path:
         raise FileNotFoundError(f"checkpoint {source} does not exist or is not a file")
     try:
         state = torch.load(source, map_location="cpu", weights_only=False)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, zipfile.BadZipFile) as error:
-        raise CheckpointError(f"{source} is not a readable PyTorch checkpoint "
-                              f"({' '.join(str(error).split())[:120]})") from None
-    if not isinstance(state, Mapping):
-        raise CheckpointError(f"{source} is not a defocus checkpoint (not a dict)")
+    except (ImportError, AttributeError) as error:  # a class or module the file names is gone
+        raise CheckpointError(f"{source} could not be unpickled: {type(error).__name__}: "
+                              f"{' '.join(str(error).split())[:120]} (the code that wrote it "
+                              f"must be importable); nothing written: {target} is left as it "
+                              "was") from None
+    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, IndexError,
+            KeyError, zipfile.BadZipFile, UnicodeDecodeError) as error:
+        raise _refusal(source, error) from None
+    if not isinstance(state, Mapping) or not {"model", "config"} <= set(state):
+        found = (f"its keys are {sorted(map(str, state))[:6]}" if isinstance(state, Mapping)
+                 else f"it holds a {type(state).__name__}")
+        raise CheckpointError(f"{source} is not a defocus checkpoint (a dict with 'model' and "
+                              f"'config' entries; {found}); nothing written: {target} is "
+                              "left as it was")
     data = serialize(to_plain(dict(state), str(source)))
     # checked at a temporary name beside target: a failed conversion leaves target as it was
-    target.parent.mkdir(parents=True, exist_ok=True)
+    _make_parent(target)
     checked = target.with_name(f".{target.name}.{os.getpid()}.converted")
     try:
         _atomic_write(data, checked)
         load_checkpoint(checked)
         os.replace(checked, target)
     except CheckpointError as error:
+        reason = str(error).replace(str(checked), str(target))
         raise CheckpointError(f"converting {source} did not give a safe checkpoint: "
-                              f"{error}; {target} is left as it was") from None
+                              f"{reason}; {target} is left as it was") from None
     finally:
         checked.unlink(missing_ok=True)
     return target
+
+
+def _make_parent(target: Path) -> None:
+    """Create the folder of `target`, or raise `NotADirectoryError` naming the file in the way."""
+    for path in (target.parent, *target.parent.parents):
+        if path.exists() and not path.is_dir():
+            raise NotADirectoryError(f"cannot write {target}: {path} is a file, not a folder; "
+                                     "choose another path")
+    target.parent.mkdir(parents=True, exist_ok=True)
 
 
 class CheckpointStore:

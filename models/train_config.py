@@ -34,6 +34,8 @@ RUN_CONTROL_KEYS = ("out_dir", "resume", "device", "progress", "checkpoint_every
 PRECISIONS = ("float32", "bfloat16")
 #: values of `TrainConfig.compile_mode` (`torch.compile`'s modes)
 COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-cudagraphs")
+#: the largest `TrainConfig.seed` (the batch order seeds a 64-bit generator with a multiple of it)
+MAX_SEED = 2**32 - 1
 
 
 @dataclass
@@ -63,7 +65,7 @@ class TrainConfig:
     supervision: str = "self"
     #: output folder (logs, checkpoints, figures)
     out_dir: Path = Path("runs/train")
-    #: random seed (weights, batch order)
+    #: random seed (weights, batch order), 0 to 2**32 - 1
     seed: int = 0
     #: nearest depth the network can output, metres
     depth_min: float = 1.0
@@ -171,6 +173,9 @@ class TrainConfig:
                           ("workers", -1)):
             if getattr(self, name) < low:
                 raise ValueError(f"{name} must be an integer >= {low}, got {getattr(self, name)!r}")
+        if self.seed > MAX_SEED:
+            raise ValueError(f"seed must be an integer in [0, {MAX_SEED}] (2**32 - 1), got "
+                             f"{self.seed!r}")
         for name in ("ssim_window", "max_kernel_size"):
             value = getattr(self, name)
             if value < 1 or value % 2 == 0:
@@ -189,6 +194,9 @@ class TrainConfig:
         if not 0 <= self.ssim_weight <= 1:
             raise ValueError(f"ssim_weight must be in [0, 1], got {self.ssim_weight!r}")
         self.focus_distance = float(self.focus_distance)
+        if not (math.isfinite(self.focus_distance) and self.focus_distance >= 0):
+            raise ValueError(f"focus_distance must be a finite number of metres >= 0 (0: none), "
+                             f"got {self.focus_distance!r}")
         if self.side != "both" and not self.depth_min < self.focus_distance < self.depth_max:
             raise ValueError(f"side {self.side!r} needs a focus_distance between depth_min and "
                              f"depth_max, got {self.focus_distance!r}")
@@ -215,21 +223,82 @@ class TrainConfig:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> TrainConfig:
-        """Load a config from a YAML mapping of field names to values."""
-        data = yaml.safe_load(Path(path).read_text()) or {}
+        """Load a config from a YAML mapping of field names to values.
+
+        Raises:
+            ValueError: the file is not UTF-8 YAML text, is not a mapping, names a key twice
+                (YAML would keep the last silently) or holds an invalid config.
+        """
+        try:
+            data = parse_yaml(Path(path).read_text(encoding="utf-8"), str(path)) or {}
+        except UnicodeDecodeError as error:
+            raise ValueError(f"config {path} is not UTF-8 YAML text (byte {error.start} cannot "
+                             "be read); give a YAML file of config keys") from None
         if not isinstance(data, Mapping):
-            raise ValueError(f"{path} must hold a YAML mapping of config keys, got {type(data)}")
+            raise ValueError(f"{path} must hold a YAML mapping of config keys, got "
+                             f"{type(data).__name__}")
         return cls.from_dict(data)
 
     def override(self, assignments: Sequence[str]) -> TrainConfig:
-        """A copy with `key=value` assignments applied (values parsed as YAML)."""
+        """A copy with `key=value` assignments applied (values parsed as YAML).
+
+        Raises:
+            ValueError: an assignment is not `key=value`, its value is not YAML, a key is given
+                twice (which value was meant is unknown), or the result is invalid.
+        """
         data = self.to_dict()
+        seen: dict[str, str] = {}
         for item in assignments:
             key, sep, value = item.partition("=")
+            key = key.strip()
             if not sep:
                 raise ValueError(f"overrides must look like key=value, got {item!r}")
-            data[key.strip()] = yaml.safe_load(value)
+            if key in seen:
+                raise ValueError(f"config key {key} is set twice in the overrides ({seen[key]!r} "
+                                 f"and {item!r}): give each key once")
+            seen[key] = item
+            data[key] = parse_yaml(value, f"override {item!r}")
         return TrainConfig.from_dict(data)
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """`yaml.SafeLoader` that refuses a mapping naming a key twice."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        keys = [self.construct_object(key, deep=deep) for key, _ in node.value]
+        for i, key in enumerate(keys):
+            if isinstance(key, str) and key in keys[:i]:
+                line = node.value[i][0].start_mark.line + 1
+                raise ValueError(f"config key {key} is given twice (again on line {line}): give "
+                                 "each key once")
+        return super().construct_mapping(node, deep=deep)
+
+
+def parse_yaml(text: str, where: str) -> Any:
+    """The value of YAML `text`, read safely (`yaml.SafeLoader`); a mapping must name each key
+    once.
+
+    Raises:
+        ValueError: `text` is not YAML (naming `where`, the line and the problem) or a mapping
+            names a key twice.
+
+    Example:
+        >>> parse_yaml("steps: 3", "config.yaml")
+        {'steps': 3}
+        >>> parse_yaml("steps: 3\\nsteps: 4", "config.yaml")
+        Traceback (most recent call last):
+        ...
+        ValueError: config.yaml: config key steps is given twice (again on line 2): give each key once
+    """
+    try:
+        return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as error:
+        mark = getattr(error, "problem_mark", None)
+        line = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(error, "problem", None) or type(error).__name__
+        raise ValueError(f"{where} is not valid YAML{line}: {problem}") from None
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None
 
 
 def _check_type(name: str, value: Any, kind: Any) -> None:

@@ -12,24 +12,34 @@ def evaluate_checkpoint(checkpoint: Path, test_set: Sequence[Any], depth_cap: fl
                         crop: str | None = None, median_scaling: bool = False,
                         min_depth: float = 1e-3) -> tuple[dict[str, float], str | None]:
     """The depth metrics of a `defocus train` checkpoint on `test_set`, and a warning when the
-    network collapsed to its depth limits (the metrics then mean little).
+    network collapsed to its depth limits, or when much of the ground truth lies outside the
+    depth range the network can output (the metrics then mean little; both joined by "; ").
+
+    Raises:
+        ValueError: a sample the network cannot read: a key it needs is missing, or it holds
+            another number of focused photos than the network was trained on.
 
     Example:
         >>> metrics, warning = evaluate_checkpoint(Path("run/checkpoints/last.pt"),
         ...                                        samples)  # doctest: +SKIP
     """
     from models.training import COLLAPSE_FRACTION, Trainer
+    from models.training.sample_checks import TestSampleChecker
 
     trainer = Trainer.from_checkpoint(checkpoint)
-    metrics = trainer.evaluate(test_set, depth_cap=depth_cap, crop=crop,
+    checker = TestSampleChecker(trainer.config, str(checkpoint))
+    checked = (checker.check(sample, i) for i, sample in enumerate(test_set))
+    metrics = trainer.evaluate(checked, depth_cap=depth_cap, crop=crop,
                                median_scaling=median_scaling, min_depth=min_depth)
-    warning = None
+    warnings = []
     if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
         config = trainer.config
-        warning = (f"{metrics['at_depth_limits']:.0%} of the predicted pixels sit at "
-                   f"depth_min ({config.depth_min} m) or depth_max ({config.depth_max} m): the "
-                   "network collapsed to its depth limits; these metrics mean little")
-    return metrics, warning
+        warnings.append(f"{metrics['at_depth_limits']:.0%} of the predicted pixels sit at "
+                        f"depth_min ({config.depth_min} m) or depth_max ({config.depth_max} m): "
+                        "the network collapsed to its depth limits; these metrics mean little")
+    if checker.range_message() is not None:
+        warnings.append(checker.range_message())
+    return metrics, "; ".join(warnings) or None
 
 
 def evaluate_on_benchmark(dataset: Sequence[Any], protocol: str, method: str = "auto",

@@ -46,11 +46,32 @@ def config_fields_help() -> str:
 def training_config(config: Path | None = None, overrides: Sequence[str] = (),
                     out: Path | None = None, resume: bool = False, overwrite: bool = False):
     """The `TrainConfig` of a YAML file (or the defaults) with `KEY=VALUE` overrides; `out`
-    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated."""
+    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated.
+
+    Raises:
+        FileNotFoundError: `config` is not a file.
+        ValueError: an invalid config or override, a key set twice, or `--set out_dir=...`
+            with `--out` (`--set resume=...` with `--resume`/`--overwrite`): which one was
+            meant is unknown.
+
+    Example:
+        >>> training_config(overrides=["out_dir=a"], out=Path("b"))
+        Traceback (most recent call last):
+        ...
+        ValueError: --set out_dir=a and --out b both name the output folder: give only --out
+    """
     from models.training import TrainConfig
 
     if config is not None and not config.is_file():
         raise FileNotFoundError(f"--config {config} does not exist or is not a file")
+    keys = {item.partition("=")[0].strip(): item for item in overrides}
+    if out and "out_dir" in keys:
+        raise ValueError(f"--set {keys['out_dir']} and --out {out} both name the output "
+                         "folder: give only --out")
+    if (resume or overwrite) and "resume" in keys:
+        flag = "--resume" if resume else "--overwrite"
+        raise ValueError(f"--set {keys['resume']} and {flag} both say what to do with an "
+                         f"earlier run: give only {flag}")
     cfg = TrainConfig.from_yaml(config) if config else TrainConfig()
     overrides = list(overrides) + ([f"out_dir={out}"] if out else [])
     if resume or overwrite:
@@ -62,8 +83,9 @@ def check_out_dir(out_dir: Path, root: Path | None = None, config: Path | None =
                   overwrite: bool = False) -> None:
     """Refuse a run folder `out_dir` (`--out`) that cannot hold a run or would write an input,
     before any data is read: a file, a symbolic link, the dataset folder `--root` or a folder
-    inside it (`defocus.app.outputs.check_output_folder`), or, with `--overwrite` (which
-    deletes the earlier run's files), a folder whose `config.yaml` is the `--config` given.
+    inside it (`defocus.app.outputs.check_output_folder`), a path below a file, or, with
+    `--overwrite` (which deletes the earlier run's files), a folder whose `config.yaml` is the
+    `--config` given.
 
     Example:
         >>> check_out_dir(Path("data"), root=Path("data"))
@@ -71,9 +93,12 @@ def check_out_dir(out_dir: Path, root: Path | None = None, config: Path | None =
         ...
         ValueError: --out data is the input --root data: a run never writes into its input; choose an --out outside it
     """
+    from models.training.run_folder import check_run_folder
+
     from .outputs import check_output_folder
 
     check_output_folder(out_dir, "--out", {"--root": root})
+    check_run_folder(out_dir, "--out")
     if overwrite and config is not None and (Path(out_dir) / "config.yaml").is_file() and \
             (Path(out_dir) / "config.yaml").samefile(config):
         raise ValueError(f"--config {config} is the config.yaml of the run in --out {out_dir}, "

@@ -12,7 +12,7 @@ from typing import Any
 
 import torch
 
-from ..checkpoints import CheckpointStore, load_checkpoint, to_plain
+from ..checkpoints import CheckpointError, CheckpointStore, load_checkpoint, to_plain
 from ..loading import config_from_state
 from ..run_log import RunLog
 from ..train_config import RUN_CONTROL_KEYS, TrainConfig
@@ -34,6 +34,38 @@ def run_files(out_dir: str | Path) -> list[Path]:
             for pattern in patterns:
                 files += sorted((out_dir / folder).glob(pattern))
     return files
+
+
+def check_run_folder(out_dir: str | Path, option: str = "out_dir") -> Path:
+    """Refuse an `out_dir` that cannot become a folder: it, or a folder above it, is a file.
+
+    Args:
+        out_dir: the run's folder.
+        option: its name in the message (`"--out"` for the command line).
+
+    Returns:
+        `out_dir` as a `Path`.
+
+    Raises:
+        NotADirectoryError: naming `out_dir` and the file in the way.
+
+    Example:
+        >>> import tempfile
+        >>> file = Path(tempfile.mkdtemp()) / "notes.txt"
+        >>> _ = file.write_text("x")
+        >>> check_run_folder(file / "run")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        NotADirectoryError: out_dir .../notes.txt/run cannot be a folder: .../notes.txt is a file; choose another out_dir
+    """
+    out_dir = Path(out_dir)
+    for path in (out_dir, *out_dir.parents):
+        if path.exists() or path.is_symlink():
+            if not path.is_dir():
+                raise NotADirectoryError(f"{option} {out_dir} cannot be a folder: {path} is a "
+                                         f"file; choose another {option}")
+            break
+    return out_dir
 
 
 def config_diff(old: TrainConfig, new: TrainConfig) -> dict[str, tuple[Any, Any]]:
@@ -86,14 +118,17 @@ class RunFolder:
 
         Raises:
             ValueError: `out_dir` holds another run (naming the keys that differ), no run to
-                continue with `resume="resume"`, or a run without its config.
-            CheckpointError: `checkpoints/last.pt` is not a checkpoint.
+                continue with `resume="resume"`, a run without its config, or a
+                `checkpoints/last.pt` that is not a file.
+            CheckpointError: `checkpoints/last.pt` (without it: the newest step checkpoint,
+                which holds the same) is not a checkpoint.
         """
         cfg = self.config
         files = run_files(cfg.out_dir)
         if cfg.resume == "overwrite":
             self.removals = files
             return None
+        self._check_last()
         if not files:
             if cfg.resume == "resume":
                 raise ValueError(f"resume='resume' (--resume) but out_dir {cfg.out_dir} holds no "
@@ -104,13 +139,34 @@ class RunFolder:
         self._check_same_run(saved, int(state["step"]) if state is not None else 0)
         return RunToContinue(source, state)
 
+    def _check_last(self) -> None:
+        """Refuse a `checkpoints/last.pt` that is there but is no file (a folder, a broken
+        link): neither continued from nor replaced."""
+        last = self.checkpoints.last
+        if (last.exists() or last.is_symlink()) and not last.is_file():
+            raise ValueError(f"out_dir {self.config.out_dir} holds {last}, which is not a "
+                             "checkpoint file (a folder or a broken link); move it away, then "
+                             "run again")
+
     def _saved_run(self, files: list[Path], device: torch.device,
                    ) -> tuple[Path, dict[str, Any] | None, TrainConfig]:
         """The source, checkpoint state (if any) and config of the run that `out_dir` holds."""
         cfg = self.config
-        if self.checkpoints.exists():
-            source: Path = self.checkpoints.last
-            state = load_checkpoint(source, map_location=device)
+        steps = self.checkpoints.list()
+        if self.checkpoints.exists() or steps:
+            # without last.pt the newest step file holds the same (both are written together)
+            source: Path = self.checkpoints.last if self.checkpoints.exists() else steps[-1]
+            try:
+                state = load_checkpoint(source, map_location=device)
+            except CheckpointError as error:
+                newest = (f"the newest step checkpoint is {steps[-1].name}: copy it over "
+                          f"{source.name} to continue from it, "
+                          if steps and source != steps[-1] else "")
+                raise CheckpointError(f"cannot continue the run in {cfg.out_dir}: {error}; "
+                                      f"{newest}start over with --overwrite "
+                                      "(resume='overwrite') or choose another out_dir") from None
+            if source != self.checkpoints.last:
+                _log.warning("%s is missing: continuing from %s", self.checkpoints.last, source)
             return source, state, config_from_state(state, source, device="auto", resume="auto")
         if (cfg.out_dir / "config.yaml").is_file():
             source = cfg.out_dir / "config.yaml"
@@ -154,6 +210,8 @@ class RunFolder:
         """At the start of `fit` (rank 0): delete an overwritten run's files or cut a resumed
         run's logs, checkpoints and figures back to its step; write `config.yaml`."""
         cfg = self.config
+        check_run_folder(cfg.out_dir)
+        self._check_last()
         if self.removals:
             for path in self.removals:
                 path.unlink(missing_ok=True)

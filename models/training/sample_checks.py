@@ -1,4 +1,5 @@
-"""Checks of training samples against the run's config, before any step is taken."""
+"""Checks of samples against a run's config: the training samples before any step is taken,
+and the samples a trained network is evaluated on as they pass."""
 
 from __future__ import annotations
 
@@ -76,3 +77,74 @@ class SampleChecker:
             f"at {int(bad[i].sum())} of its valid pixels (e.g. {float(depth[i][bad[i]][0])!r}); "
             "depth must be positive metres wherever its mask is valid: fix the data or "
             "mark those pixels invalid in its mask")
+
+
+class TestSampleChecker:
+    """Checks the samples a trained network is evaluated on against its config, as they pass
+    (`checked`), and counts the valid ground-truth pixels outside the network's depth range,
+    which it cannot output (`outside`, `valid`).
+
+    Args:
+        config: the checkpoint's `TrainConfig` (input mode, `n_focus`, depth range).
+        name: the checkpoint, as named in messages.
+    """
+
+    __test__ = False  # not a pytest class
+
+    def __init__(self, config: TrainConfig, name: str) -> None:
+        self.config, self.name = config, name
+        self.outside, self.valid = 0, 0
+
+    def check(self, sample: Any, index: int) -> Mapping[str, Any]:
+        """`sample` (the `index`-th), after checking that the network can read it.
+
+        Raises:
+            TypeError: it is not a sample mapping.
+            ValueError: it lacks a key the network reads, or holds another number of
+                focused photos than the network was trained on (naming both).
+        """
+        cfg = self.config
+        if not isinstance(sample, Mapping):
+            raise TypeError(f"test sample #{index} must be a sample mapping, got a "
+                            f"{type(sample).__name__}")
+        name = repr(sample.get("id", f"#{index}"))
+        needs = ["image", "depth"] + (["focused", "camera"] if cfg.input_mode == "aif+focused"
+                                      else [])
+        missing = [key for key in needs if sample.get(key) is None]
+        if missing:
+            raise ValueError(f"test sample {name} has no {missing}, which checkpoint {self.name} "
+                             f"(input_mode={cfg.input_mode!r}) needs; it has {sorted(sample)}")
+        focused = sample.get("focused")
+        if cfg.input_mode == "aif+focused" and isinstance(focused, Tensor):
+            n = focused.shape[0] if focused.ndim == 4 else -1
+            if n != cfg.n_focus:
+                raise ValueError(f"checkpoint {self.name} was trained on n_focus={cfg.n_focus} "
+                                 f"focused photos, but test sample {name} holds focused images "
+                                 f"of shape {tuple(focused.shape)} (F, 3, H, W); evaluate it on "
+                                 f"data with {cfg.n_focus} focused photos per scene")
+        self._count_range(sample)
+        return sample
+
+    def _count_range(self, sample: Mapping[str, Any]) -> None:
+        depth = sample["depth"]
+        if not isinstance(depth, Tensor):
+            return
+        mask = sample.get("mask")
+        valid = torch.isfinite(depth) & (depth > 0)
+        if isinstance(mask, Tensor) and mask.shape == depth.shape:
+            valid &= mask.bool()
+        cfg = self.config
+        outside = valid & ((depth < cfg.depth_min) | (depth > cfg.depth_max))
+        self.valid += int(valid.sum())
+        self.outside += int(outside.sum())
+
+    def range_message(self, share: float = 0.05) -> str | None:
+        """A warning when more than `share` of the valid ground-truth pixels lie outside the
+        network's depth range, else None."""
+        if not self.valid or self.outside <= share * self.valid:
+            return None
+        cfg = self.config
+        return (f"{self.outside / self.valid:.0%} of the valid ground-truth pixels lie outside "
+                f"the depth range of checkpoint {self.name} ({cfg.depth_min} to {cfg.depth_max} "
+                "m), which the network cannot output: these metrics measure the range more than "
+                "the network; evaluate a checkpoint trained for these depths")
