@@ -219,3 +219,28 @@ def test_evaluate_warns_when_the_ground_truth_lies_outside_the_networks_range(ru
     _, warning = evaluate_checkpoint(checkpoint, [far])
     assert warning is not None and "100% of the valid ground-truth pixels lie outside the " \
         "depth range of checkpoint" in warning and "(1.5 to 6.0 m)" in warning
+
+
+def test_overwrite_deletes_only_a_runs_files(run, tmp_path, scenes):
+    """`--out . --overwrite` in a project folder used to delete its own config.yaml and logs."""
+    project = tmp_path / "project"
+    project.mkdir()
+    (project / "config.yaml").write_text("model: my-own\n")
+    (project / "train_log.csv").write_text("epoch,loss\n1,0.5\n")
+    with pytest.raises(ValueError, match=r"holds \['config.yaml', 'train_log.csv'\], named like "
+                                         r"a run's files, but no training run"):
+        Trainer(_tiny(project, resume="overwrite"), scenes)
+    assert (project / "config.yaml").read_text() == "model: my-own\n"
+    assert (project / "train_log.csv").is_file()
+    again = _copy(run, tmp_path)  # a run's files are still replaced
+    Trainer(_tiny(again, resume="overwrite", steps=1), scenes).fit()
+    assert len(load_checkpoint(again / "checkpoints" / "last.pt")["history"]) == 1
+
+
+def test_trainer_evaluate_refuses_a_sample_without_focused_photos(run, scenes):
+    """The library's `Trainer.evaluate` used to fail with an AttributeError."""
+    trainer = Trainer.from_checkpoint(run / "checkpoints" / "last.pt")
+    without = {k: v for k, v in scenes[0].items() if k != "focused"}
+    with pytest.raises(ValueError, match=r"test sample '3-0' has no \['focused'\], which the "
+                                         r"network \(input_mode='aif\+focused'\) needs"):
+        trainer.evaluate([without])

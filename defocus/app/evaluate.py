@@ -27,10 +27,9 @@ def evaluate_checkpoint(checkpoint: Path, test_set: Sequence[Any], depth_cap: fl
     from models.training.sample_checks import TestSampleChecker
 
     trainer = Trainer.from_checkpoint(checkpoint)
-    checker = TestSampleChecker(trainer.config, str(checkpoint))
-    checked = (checker.check(sample, i) for i, sample in enumerate(test_set))
-    metrics = trainer.evaluate(checked, depth_cap=depth_cap, crop=crop,
-                               median_scaling=median_scaling, min_depth=min_depth)
+    checker = TestSampleChecker(trainer.config, f"checkpoint {checkpoint}")
+    metrics = trainer.evaluate(test_set, depth_cap=depth_cap, crop=crop,
+                               median_scaling=median_scaling, min_depth=min_depth, checker=checker)
     warnings = []
     if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
         config = trainer.config

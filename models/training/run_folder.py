@@ -118,14 +118,16 @@ class RunFolder:
 
         Raises:
             ValueError: `out_dir` holds another run (naming the keys that differ), no run to
-                continue with `resume="resume"`, a run without its config, or a
-                `checkpoints/last.pt` that is not a file.
+                continue with `resume="resume"`, a run without its config, a
+                `checkpoints/last.pt` that is not a file, or (to overwrite) files named like a
+                run's but no run.
             CheckpointError: `checkpoints/last.pt` (without it: the newest step checkpoint,
                 which holds the same) is not a checkpoint.
         """
         cfg = self.config
         files = run_files(cfg.out_dir)
         if cfg.resume == "overwrite":
+            self._check_is_a_run(files)
             self.removals = files
             return None
         self._check_last()
@@ -138,6 +140,24 @@ class RunFolder:
         source, state, saved = self._saved_run(files, device)
         self._check_same_run(saved, int(state["step"]) if state is not None else 0)
         return RunToContinue(source, state)
+
+    def _check_is_a_run(self, files: list[Path]) -> None:
+        """Refuse to delete `files` (named like a run's) from a folder that holds no run: no
+        checkpoint and no `config.yaml` that reads as a `TrainConfig` (`--out . --overwrite`
+        in a project folder would delete its own config.yaml)."""
+        out_dir = self.config.out_dir
+        if not files or self.checkpoints.exists() or self.checkpoints.list():
+            return
+        try:
+            TrainConfig.from_yaml(out_dir / "config.yaml")
+            return
+        except (OSError, ValueError, TypeError):
+            pass
+        names = sorted(str(path.relative_to(out_dir)) for path in files)
+        raise ValueError(f"out_dir {out_dir} holds {names}, named like a run's files, but no "
+                         "training run (no checkpoint, no config.yaml of a run): "
+                         "resume='overwrite' (--overwrite) deletes only a run's files; move "
+                         "them away or choose another out_dir")
 
     def _check_last(self) -> None:
         """Refuse a `checkpoints/last.pt` that is there but is no file (a folder, a broken

@@ -86,7 +86,7 @@ class TestSampleChecker:
 
     Args:
         config: the checkpoint's `TrainConfig` (input mode, `n_focus`, depth range).
-        name: the checkpoint, as named in messages.
+        name: the network as named in messages, e.g. `"checkpoint run/checkpoints/last.pt"`.
     """
 
     __test__ = False  # not a pytest class
@@ -112,13 +112,13 @@ class TestSampleChecker:
                                       else [])
         missing = [key for key in needs if sample.get(key) is None]
         if missing:
-            raise ValueError(f"test sample {name} has no {missing}, which checkpoint {self.name} "
+            raise ValueError(f"test sample {name} has no {missing}, which {self.name} "
                              f"(input_mode={cfg.input_mode!r}) needs; it has {sorted(sample)}")
         focused = sample.get("focused")
         if cfg.input_mode == "aif+focused" and isinstance(focused, Tensor):
             n = focused.shape[0] if focused.ndim == 4 else -1
             if n != cfg.n_focus:
-                raise ValueError(f"checkpoint {self.name} was trained on n_focus={cfg.n_focus} "
+                raise ValueError(f"{self.name} was trained on n_focus={cfg.n_focus} "
                                  f"focused photos, but test sample {name} holds focused images "
                                  f"of shape {tuple(focused.shape)} (F, 3, H, W); evaluate it on "
                                  f"data with {cfg.n_focus} focused photos per scene")
@@ -145,6 +145,6 @@ class TestSampleChecker:
             return None
         cfg = self.config
         return (f"{self.outside / self.valid:.0%} of the valid ground-truth pixels lie outside "
-                f"the depth range of checkpoint {self.name} ({cfg.depth_min} to {cfg.depth_max} "
+                f"the depth range of {self.name} ({cfg.depth_min} to {cfg.depth_max} "
                 "m), which the network cannot output: these metrics measure the range more than "
                 "the network; evaluate a checkpoint trained for these depths")

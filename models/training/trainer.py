@@ -40,7 +40,7 @@ from .run_warnings import (
     RunWarnings,
     collapse_message,
 )
-from .sample_checks import SampleChecker
+from .sample_checks import SampleChecker, TestSampleChecker
 from .state import build_scheduler, process_rank, rng_state, set_rng_state, to_device
 from .step_timing import DataWaitWarning, StepTimer
 
@@ -363,8 +363,10 @@ class Trainer:
     # -- evaluation --------------------------------------------------------------------------
     def evaluate(self, test_set: Iterable[Mapping[str, Any]], depth_cap: float | None = None,
                  crop: str | Sequence[float] | None = None, median_scaling: bool = False,
-                 min_depth: float = 1e-3) -> dict[str, float]:
-        """Mean per-image metrics (`models.metrics.METRIC_NAMES`) over `test_set`.
+                 min_depth: float = 1e-3, checker: TestSampleChecker | None = None,
+                 ) -> dict[str, float]:
+        """Mean per-image metrics (`models.metrics.METRIC_NAMES`) over `test_set`, each sample
+        checked against the config first (`checker`, by default a new `TestSampleChecker`).
 
         Args:
             test_set: samples with `image`, `depth` (and `mask`; `focused` and `camera`
@@ -373,14 +375,19 @@ class Trainer:
             crop: `None`, `"garg"`, `"eigen"` or `(top, bottom, left, right)` fractions.
             median_scaling: scale predictions by the median ratio (adds `median_scale`).
             min_depth: ignore ground truth at or below this (metres).
+            checker: checks each sample and counts its ground truth outside the depth range.
+
+        Raises:
+            ValueError: a sample the network cannot read (`TestSampleChecker.check`), or none.
 
         Returns:
             the mean metrics, and `at_depth_limits`: the share of predicted pixels at
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
         means = MeanMetrics()
-        for sample in test_set:
-            batch = collate([sample])
+        checker = checker if checker is not None else TestSampleChecker(self.config, "the network")
+        for index, sample in enumerate(test_set):
+            batch = collate([checker.check(sample, index)])
             depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
             metrics = depth_metrics(pred=depth.cpu(), target=batch["depth"],
                                     mask=batch.get("mask"), min_depth=min_depth,
