@@ -348,6 +348,8 @@ def _coerce(cls: type, name: str, value: Any) -> Any:
         if kind in ("int", "float") and isinstance(value, bool):
             raise ValueError
         if kind == "int":
+            if isinstance(value, str) and not value.strip().lstrip("+-").isdigit():
+                value = float(value)  # "1e3": YAML reads an exponent without a dot as text
             if isinstance(value, float) and not value.is_integer():
                 raise ValueError
             return int(value)

@@ -244,3 +244,12 @@ def test_trainer_evaluate_refuses_a_sample_without_focused_photos(run, scenes):
     with pytest.raises(ValueError, match=r"test sample '3-0' has no \['focused'\], which the "
                                          r"network \(input_mode='aif\+focused'\) needs"):
         trainer.evaluate([without])
+
+
+def test_a_whole_number_written_with_an_exponent_is_an_integer():
+    """YAML reads `1e3` (no dot) as text: `steps=1e3` used to be refused with "got '1e3'"."""
+    config = TrainConfig().override(["steps=1e3", "batch_size=+4"])
+    assert (config.steps, config.batch_size) == (1000, 4)
+    for value, shown in (("1.5e0", "1.5"), ("abc", "'abc'"), ("nan", "nan")):
+        with pytest.raises(ValueError, match=f"config key steps must be of type int, got {shown}"):
+            TrainConfig().override([f"steps={value}"])
