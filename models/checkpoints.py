@@ -113,6 +113,36 @@ def load_checkpoint(path: str | Path, map_location: Any = "cpu") -> dict[str, An
     return dict(state)
 
 
+def restore_weights(module: torch.nn.Module, weights: Mapping[str, Tensor],
+                    source: str | Path) -> None:
+    """`module.load_state_dict(weights)`, refused in one line when the weights of checkpoint
+    `source` do not fit the network its config builds (a hand-edited file, or one of another
+    version).
+
+    Raises:
+        CheckpointError: naming the missing and unexpected weights and those of another shape.
+
+    Example:
+        >>> restore_weights(torch.nn.Linear(2, 3), {"weight": torch.zeros(3, 3)}, "a.pt")
+        Traceback (most recent call last):
+        ...
+        models.checkpoints.CheckpointError: a.pt: its weights do not fit the network its config builds: missing ['bias']; other shapes: weight (3, 3) in the file, (3, 2) in the network
+    """
+    own = module.state_dict()
+    missing = sorted(set(own) - set(weights))
+    unexpected = sorted(set(weights) - set(own))
+    shapes = [f"{name} {tuple(weights[name].shape)} in the file, {tuple(own[name].shape)} in "
+              "the network" for name in own if name in weights
+              and isinstance(weights[name], Tensor) and weights[name].shape != own[name].shape]
+    if missing or unexpected or shapes:
+        parts = [f"missing {missing[:4]}" * bool(missing),
+                 f"unexpected {unexpected[:4]}" * bool(unexpected),
+                 f"other shapes: {', '.join(shapes[:3])}" * bool(shapes)]
+        raise CheckpointError(f"{source}: its weights do not fit the network its config "
+                              f"builds: {'; '.join(p for p in parts if p)}")
+    module.load_state_dict(weights)
+
+
 def _atomic_write(data: bytes, target: Path) -> None:
     """Write `data` to a temporary file next to `target`, then rename it over `target`
     (`os.replace`), so that a reader never sees a partly written file."""

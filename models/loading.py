@@ -23,7 +23,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from .checkpoints import CheckpointError, load_checkpoint
+from .checkpoints import CheckpointError, load_checkpoint, restore_weights
 from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
 from .depth_from_photos.trained_network import TrainedNetwork
 from .networks import build_network
@@ -159,7 +159,7 @@ def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tu
     model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
                           cfg.width, cfg.depth_spacing, cfg.side,
                           cfg.focus_distance or None)
-    model.load_state_dict(state["model"])
+    restore_weights(model, state["model"], checkpoint)
     return model.to(device).eval(), cfg
 
 

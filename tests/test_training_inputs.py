@@ -253,3 +253,20 @@ def test_a_whole_number_written_with_an_exponent_is_an_integer():
     for value, shown in (("1.5e0", "1.5"), ("abc", "'abc'"), ("nan", "nan")):
         with pytest.raises(ValueError, match=f"config key steps must be of type int, got {shown}"):
             TrainConfig().override([f"steps={value}"])
+
+
+def test_weights_that_do_not_fit_their_config_are_named_in_one_line(run, tmp_path):
+    """A hand-edited checkpoint used to fail with load_state_dict's many-line RuntimeError."""
+    from models.loading import load_model
+
+    state = load_checkpoint(run / "checkpoints" / "last.pt")
+    name = next(iter(state["model"]))
+    state["model"].pop(name)
+    edited = tmp_path / "edited.pt"
+    torch.save(state, edited)
+    for load in (Trainer.from_checkpoint, load_model):
+        with pytest.raises(CheckpointError) as caught:
+            load(edited)
+        message = str(caught.value)
+        assert "\n" not in message and message.startswith(f"{edited}: its weights do not fit")
+        assert f"missing ['{name}']" in message

@@ -19,7 +19,13 @@ from torch.profiler import record_function
 from optics import CameraSettings, collate, parse_aperture
 from optics.checks import values_checked
 
-from ..checkpoints import CHECKPOINT_FORMAT, CheckpointStore, load_checkpoint, to_plain
+from ..checkpoints import (
+    CHECKPOINT_FORMAT,
+    CheckpointStore,
+    load_checkpoint,
+    restore_weights,
+    to_plain,
+)
 from ..evaluation import MeanMetrics
 from ..loading import read_checkpoint
 from ..losses import DefocusLoss
@@ -160,7 +166,7 @@ class Trainer:
         if run is None:
             return
         if run.state is not None:
-            self.load_state_dict(run.state)
+            self.load_state_dict(run.state, run.source)
             self.checkpointer.saved_step = self.step
         self.resumed_from = run.source
         self.run_folder.continue_at(self.step)
@@ -435,9 +441,10 @@ class Trainer:
                 "config": to_plain(self.config.to_dict(), "config"),
                 "history": [dict(row) for row in self.history], "rng": rng_state()}
 
-    def load_state_dict(self, state: Mapping[str, Any]) -> None:
-        """Restore what `state_dict` returned (also older checkpoints without `rng`)."""
-        self.model.load_state_dict(state["model"])
+    def load_state_dict(self, state: Mapping[str, Any], source: str | Path = "checkpoint") -> None:
+        """Restore what `state_dict` returned (also older checkpoints without `rng`) from
+        `source` (as named in errors)."""
+        restore_weights(self.model, state["model"], source)
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
@@ -469,7 +476,7 @@ class Trainer:
         """
         state, cfg = read_checkpoint(path, resume="overwrite", progress=False, device=device)
         trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
-        trainer.load_state_dict(state)
+        trainer.load_state_dict(state, path)
         trainer.run_folder.continue_at(trainer.step)  # fit() would continue it
         return trainer
 
@@ -481,6 +488,6 @@ class Trainer:
             CheckpointError: the file is not a checkpoint or holds more than tensors and plain
                 data (refused without running anything).
         """
-        self.load_state_dict(load_checkpoint(path, map_location=self.device))
+        self.load_state_dict(load_checkpoint(path, map_location=self.device), path)
         if self.is_main and restore_logs:
             self.log.truncate(self.step)
