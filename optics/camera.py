@@ -60,9 +60,7 @@ class Camera(nn.Module):
             aperture = Gaussian()
         elif not isinstance(aperture, Aperture):
             raise TypeError(f"aperture must be an Aperture, got {type(aperture).__name__}")
-        self.lens = lens
-        self.sensor = sensor
-        self.aperture = aperture
+        self.lens, self.sensor, self.aperture = lens, sensor, aperture
 
     def settings(self) -> CameraSettings:
         """This camera's settings as `CameraSettings` of one shot per batch item.
@@ -129,12 +127,14 @@ class Camera(nn.Module):
 
         Raises:
             ValueError: for a NaN or infinite pixel in `image` (named, with its position), an
-                invalid depth, or a camera value out of range (named).
+                invalid depth, a camera value out of range or of a batch other than 1 or B (named).
         """
         from .render.renderer import per_pixel_map, render_defocus
 
         check_shape("image", image, ["B", "C", "H", "W"])
         per_pixel_map("depth", depth, image)  # named as given, before it becomes a CoC map
+        for part in (self.lens, self.sensor):
+            part.check_batch(image.shape[0], f"image {tuple(image.shape)}")
         return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)
 
 

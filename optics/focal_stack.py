@@ -8,7 +8,7 @@ from torch import Tensor
 
 from .aperture import Aperture
 from .camera import CameraSettings
-from .checks import check_finite, check_shape
+from .checks import check_depth, check_finite, check_shape
 from .lens import compute_dtype
 
 
@@ -26,8 +26,10 @@ def render_focal_stack(
 
     Args:
         image: all-in-focus image `(B, C, H, W)`, linear intensity.
-        depth: depth `(B, 1, H, W)` in metres, > 0.
-        settings: `(F,)` settings (the same shots for every batch item) or `(B, F)`.
+        depth: depth `(B, 1, H, W)` or `(1, 1, H, W)` (one depth map for every image) in
+            metres, > 0.
+        settings: `(F,)` settings (the same shots for every batch item), `(1, F)` (the same) or
+            `(B, F)`.
         aperture: override the settings' aperture (e.g. a measured `Mask`).
         **render_kwargs: passed to `optics.render_defocus` (`mode`, `max_kernel_size`, ...).
 
@@ -36,8 +38,11 @@ def render_focal_stack(
         float32).
 
     Raises:
-        ValueError: on wrong shapes, or a NaN or infinite value in `image` (named, with its
-            position) or an invalid depth.
+        TypeError: if `image` or `depth` is not a floating-point tensor, or `settings` is not a
+            `CameraSettings`.
+        ValueError: on wrong shapes (a `depth` or `settings` batch other than 1 or `B`, named
+            with both shapes), `depth` on another device than `image`, a NaN or infinite value
+            in `image` (named, with its position) or an invalid depth.
 
     Example:
         >>> import torch
@@ -46,19 +51,27 @@ def render_focal_stack(
         ...                            settings)
         >>> stack.shape
         torch.Size([1, 2, 3, 8, 8])
+        >>> render_focal_stack(torch.rand(4, 3, 8, 8), torch.full((1, 1, 8, 8), 3.0),
+        ...                    settings).shape  # one depth map for the four images
+        torch.Size([4, 2, 3, 8, 8])
     """
+    from .render.renderer import per_pixel_map
+
     check_shape("image", image, ["B", "C", "H", "W"])
-    check_shape("depth", depth, ["B", "1", "H", "W"])
-    check_finite("image", image)
+    per_pixel_map("depth", depth, image)  # shape (batch 1 or B), type and device, as given
     if not isinstance(settings, CameraSettings):
         raise TypeError(f"settings must be a CameraSettings, got {type(settings).__name__}")
+    check_finite("image", image)
+    check_depth("depth", depth)  # before it is repeated per shot: named as given
     b, c, h, w = image.shape
-    if depth.shape[0] != b or depth.shape[-2:] != image.shape[-2:]:
-        raise ValueError(f"depth {tuple(depth.shape)} does not match image {tuple(image.shape)}")
-    settings = settings.batched(b)
-    if settings.shape[0] != b:
-        raise ValueError(f"settings hold {settings.shape[0]} batch items, image {b}")
     n = settings.n_shots
+    if settings.is_batched and settings.shape[0] not in (1, b):
+        raise ValueError(f"settings must have shape ({n},), (1, {n}) or ({b}, {n}) to match "
+                         f"image {tuple(image.shape)}, got {tuple(settings.shape)}")
+    if b == 0:  # nothing to render (CameraSettings hold at least one batch item)
+        return image[:, None].expand(b, n, c, h, w).clone()
+    if not settings.is_batched or settings.shape[0] != b:  # (F,) or (1, F): the same shots
+        settings = (settings[0] if settings.is_batched else settings).batched(b)
     # Settings in at least float32: a pitch of micrometres underflows in float16.
     camera = settings.to(device=image.device, dtype=compute_dtype(image.dtype)).camera(aperture)
     images = image[:, None].expand(b, n, c, h, w).reshape(b * n, c, h, w)

@@ -10,6 +10,7 @@ from .checks import (
     as_parameter_tensor,
     broadcast_to_batch,
     check_depth,
+    check_param_batch,
     check_parameters,
     check_positive,
     is_tracing,
@@ -104,8 +105,19 @@ class ThinLens(nn.Module):
             f"focus_distance={_fmt(self.focus_distance)} m"
         )
 
-    def _params(self, like: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def check_batch(self, batch: int, against: str) -> None:
+        """Raise `ValueError` unless every parameter holds one value or `batch` (one per batch
+        item), naming the parameter and the input `against` (shapes only).
+
+        Example:
+            >>> ThinLens(0.05, 2.0, [2.0, 3.0]).check_batch(2, "image (2, 3, 8, 8)")
+        """
+        check_param_batch(self, _UNITS, batch, against)
+
+    def _params(self, like: Tensor, name: str = "depth") -> tuple[Tensor, Tensor, Tensor]:
         self.check()
+        if like.ndim and like.shape[0] != 1:  # a batch-1 input broadcasts against (B,) values
+            self.check_batch(like.shape[0], f"{name} {tuple(like.shape)}")
         return (
             broadcast_to_batch(self.focal_length, like),
             broadcast_to_batch(self.f_number, like),
@@ -204,7 +216,7 @@ class ThinLens(nn.Module):
             tensor([1., 4.])
         """
         signed_coc = signed_coc.to(compute_dtype(signed_coc.dtype))
-        f, n, df = self._params(signed_coc)
+        f, n, df = self._params(signed_coc, "signed_coc")
         denominator = f * f - signed_coc * n * (df - f)
         safe = denominator.clamp_min(torch.finfo(denominator.dtype).tiny)
         return torch.where(denominator <= 0, torch.full_like(safe, float("inf")), f * f * df / safe)

@@ -7,6 +7,7 @@ from torch import Tensor, nn
 from .checks import (
     ParamLike,
     broadcast_to_batch,
+    check_param_batch,
     check_parameters,
     no_unit_warnings,
     register_physical,
@@ -51,6 +52,11 @@ class Sensor(nn.Module):
         super().__init__()
         register_physical(self, "pixel_pitch", pixel_pitch, "metres")
         register_physical(self, "downsample", downsample)
+        sizes = {name: getattr(self, name).numel() for name in _UNITS
+                 if getattr(self, name).ndim == 1}
+        if len(set(sizes.values()) - {1}) > 1:
+            raise ValueError(f"pixel_pitch and downsample must be one value or one per batch "
+                             f"item (the same B), got sizes {sizes}")
         if resolution is not None:
             if len(resolution) != 2 or any(int(r) <= 0 for r in resolution):
                 raise ValueError(
@@ -79,6 +85,15 @@ class Sensor(nn.Module):
             f"resolution={self.resolution}, cfa={self.cfa}"
         )
 
+    def check_batch(self, batch: int, against: str) -> None:
+        """Raise `ValueError` unless `pixel_pitch` and `downsample` each hold one value or `batch`
+        (one per batch item), naming the parameter and the input `against` (shapes only).
+
+        Example:
+            >>> Sensor([5e-6, 6e-6]).check_batch(2, "image (2, 3, 8, 8)")
+        """
+        check_param_batch(self, _UNITS, batch, against)
+
     @property
     def effective_pixel_pitch(self) -> Tensor:
         """Pixel pitch of the images actually used, `pixel_pitch * downsample`, in metres."""
@@ -94,8 +109,12 @@ class Sensor(nn.Module):
             ValueError: if `pixel_pitch` or `downsample` is no longer finite and > 0 (e.g. after
                 an optimiser step), naming it.
         """
+        if length_m.ndim and length_m.shape[0] != 1:  # batch 1 broadcasts against (B,) values
+            self.check_batch(length_m.shape[0], f"length_m {tuple(length_m.shape)}")
         return length_m / broadcast_to_batch(self.effective_pixel_pitch, length_m)
 
     def to_metres(self, length_px: Tensor) -> Tensor:
         """Convert lengths on the sensor from (effective) pixels to metres."""
+        if length_px.ndim and length_px.shape[0] != 1:
+            self.check_batch(length_px.shape[0], f"length_px {tuple(length_px.shape)}")
         return length_px * broadcast_to_batch(self.effective_pixel_pitch, length_px)

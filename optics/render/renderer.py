@@ -216,7 +216,7 @@ def _check_options(psf, mode, max_kernel_size, preset) -> None:
 
 def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
     """A `(B or 1, 1, H, W)` floating-point map of `image`'s pixels (shape and type checked;
-    its values by `_read_checked`), in the image's dtype and broadcast to its batch.
+    its values by `_read_checked`), on its device, in its dtype and broadcast to its batch.
 
     Example:
         >>> per_pixel_map("depth", torch.ones(2, 1, 4, 4), torch.zeros(1, 3, 4, 4))
@@ -232,6 +232,8 @@ def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
         batch = "1" if b == 1 else f"{b} or 1"
         raise ValueError(f"{name} must have shape ({batch}, 1, {h}, {w}) to match image "
                          f"{tuple(image.shape)}, got {tuple(values.shape)}")
+    if values.device != image.device:
+        raise ValueError(f"{name} is on {values.device} but image on {image.device}; use one device")
     return values.to(image.dtype).expand(b, 1, h, w)
 
 
@@ -370,6 +372,8 @@ def _layer_position(depth: Tensor, n_layers: int) -> Tensor:
 
 def _render_layered(image, coc_px, psf, half, depth, n_layers, cap) -> Tensor:
     """The layered mode on inputs checked by `render_defocus`."""
+    if image.numel() == 0:  # H or W = 0: no depth range to split into layers, nothing to blur
+        return image.clone()
     kind = _fast_kind(psf)
     if kind is not None and n_layers <= 32 and backends.compiled_cpu(image):
         # One fused pass each way: layers present nowhere near a pixel cost nothing there.
@@ -481,15 +485,12 @@ class DefocusRenderer(nn.Module):
         _check_options(psf, mode, max_kernel_size, preset)
         _check_n_layers(n_layers)
         self.psf = Gaussian() if psf is None and preset is None else psf
-        self.mode, self.max_kernel_size, self.preset, self.n_layers = (
-            mode, max_kernel_size, preset, n_layers
-        )
+        self.mode, self.max_kernel_size = mode, max_kernel_size
+        self.preset, self.n_layers = preset, n_layers
 
     def extra_repr(self) -> str:
-        return (
-            f"mode={self.mode!r}, max_kernel_size={self.max_kernel_size}, preset={self.preset!r}, "
-            f"n_layers={self.n_layers}"
-        )
+        return (f"mode={self.mode!r}, max_kernel_size={self.max_kernel_size}, "
+                f"preset={self.preset!r}, n_layers={self.n_layers}")
 
     def forward(self, image: Tensor, coc_px: Tensor, depth: Tensor | None = None) -> Tensor:
         return render_defocus(
