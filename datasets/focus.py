@@ -187,9 +187,12 @@ def cached_focal_stack(
         path = Path(cache_dir) / f"{key}.pt"
         if path.is_file():
             try:
-                return torch.load(path, weights_only=True).to(image)
+                cached = torch.load(path, weights_only=True)
+                if isinstance(cached, Tensor) and cached.shape == (settings.n_shots, *image.shape):
+                    return cached.to(image)
             except Exception:  # a half-written or corrupt entry: render again and overwrite
                 pass
+            # an entry of another shape or type (damaged or stale) is rendered again too
     with torch.no_grad():
         stack = render_focal_stack(image[None], depth[None], settings, aperture,
                                    **render_kwargs)[0]

@@ -128,6 +128,19 @@ def test_cache_key_changes_with_the_pixels_of_a_mask_aperture(tmp_path):
     assert torch.equal(vertical, uncached) and not torch.equal(horizontal, vertical)
 
 
+def test_a_cached_stack_of_another_shape_is_rendered_again(tmp_path):
+    """A damaged or stale entry of another shape used to be returned as it was."""
+    settings = PRESETS["nyu"].settings()
+    image, depth = torch.rand(3, 6, 6), torch.full((1, 6, 6), 3.0)
+    first = cached_focal_stack(image, depth, settings, cache_dir=tmp_path)
+    (entry,) = tmp_path.glob("*.pt")
+    for stale in (torch.zeros(1, 3, 6, 6), {"stack": first}):
+        torch.save(stale, entry)
+        again = cached_focal_stack(image, depth, settings, cache_dir=tmp_path)
+        assert torch.equal(again, first)
+        assert torch.equal(torch.load(entry, weights_only=True), first)  # and written again
+
+
 def test_cache_takes_every_float_dtype(tmp_path):
     settings = PRESETS["nyu"].settings()
     image, depth = torch.rand(3, 6, 6), torch.full((1, 6, 6), 3.0)
