@@ -8,6 +8,7 @@ inside a DataLoader worker.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -58,6 +59,9 @@ def require_file(path: Path, what: str) -> Path:
 def read_text(path: Path, what: str = "a text file") -> str:
     """The text of a dataset's text file (UTF-8); a file that is not is refused naming it.
 
+    A leading byte-order mark (as Windows editors write) is dropped, so it does not become part
+    of the first name in a list.
+
     Example:
         >>> import tempfile
         >>> path = Path(tempfile.mkdtemp()) / "list.txt"
@@ -68,7 +72,7 @@ def read_text(path: Path, what: str = "a text file") -> str:
         datasets.io.DataFormatError: ...list.txt': expected a scene list in UTF-8 text, but byte 6 is 0xff (a binary or otherwise encoded file)
     """
     try:
-        return path.read_text(encoding="utf-8")
+        return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as error:
         raise DataFormatError(
             f"{str(path)!r}: expected {what} in UTF-8 text, but byte {error.start + 1} is "
@@ -86,6 +90,33 @@ def check_array_shape(path: Path, name: str, array: np.ndarray, dims: Sequence[i
     ):
         wanted = "(" + ", ".join("any" if d is None else str(d) for d in dims) + ")"
         raise DataFormatError(f"{str(path)!r}: {name} must have shape {wanted}, got {shape}")
+
+
+def read_list(path: Path, what: str = "a list of names") -> list[str]:
+    """The names of a list file (one per line; blank lines skipped, spaces around a name
+    dropped), refused where it names none or one twice (a duplicate would be counted twice).
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "test.txt"
+        >>> _ = path.write_text("a\\nb\\n\\na\\n")
+        >>> read_list(path, "a scene list")  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: ...test.txt': 'a' is listed twice (lines 1 and 4); a scene list must name each entry once
+    """
+    first: dict[str, int] = {}
+    for number, line in enumerate(read_text(path, what).splitlines(), start=1):
+        name = line.strip()
+        if not name:
+            continue
+        if name in first:
+            raise DataFormatError(f"{str(path)!r}: {name!r} is listed twice (lines {first[name]} "
+                                  f"and {number}); {what} must name each entry once")
+        first[name] = number
+    if not first:
+        raise DataFormatError(f"{str(path)!r}: {what} names nothing (the file is empty or blank)")
+    return list(first)
 
 
 #: The most pixels of an image file that is decoded (100 megapixels, the limit of every photo
@@ -284,9 +315,16 @@ def read_pfm(path: Path) -> np.ndarray:
     """Read a PFM file (Middlebury disparities) as an upright float32 `(H,W)` or `(H,W,3)`.
 
     PFM stores rows bottom to top; the result is flipped so row 0 is the top of the picture.
+    The scale line's sign gives the byte order (negative: little endian).
+
+    Raises:
+        FileNotFoundError: `path` does not exist.
+        DataFormatError: not a PFM header, a width or height that is not > 0, a scale that is
+            0 or not finite, or a raster shorter or longer than the header states.
     """
     require_file(path, "a PFM disparity map")
     data = path.read_bytes()
+    expected = "expected 'Pf'/'PF', 'width height', scale lines"
     try:
         header, rest = data.split(b"\n", 1)
         dims, rest = rest.split(b"\n", 1)
@@ -295,14 +333,18 @@ def read_pfm(path: Path) -> np.ndarray:
         width, height = (int(v) for v in dims.split())
         scale = float(scale_line)
     except (ValueError, KeyError) as error:
+        raise DataFormatError(f"{str(path)!r}: not a PFM file ({expected})") from error
+    if width <= 0 or height <= 0 or not math.isfinite(scale) or scale == 0:
         raise DataFormatError(
-            f"{str(path)!r}: not a PFM file (expected 'Pf'/'PF', 'width height', scale lines)"
-        ) from error
+            f"{str(path)!r}: PFM header states width {width}, height {height} and scale "
+            f"{scale:g}; width and height must be > 0 and the scale a finite non-zero number "
+            "(its sign gives the byte order)")
     count = width * height * channels
-    if len(raster) < 4 * count:
+    if not 4 * count <= len(raster) < 4 * count + 4:  # a trailing newline is tolerated
+        why = "truncated PFM" if len(raster) < 4 * count else "PFM with more data than stated"
         raise DataFormatError(
-            f"{str(path)!r}: truncated PFM, header says {width}x{height}x{channels} floats "
-            f"({4 * count} bytes) but only {len(raster)} bytes follow"
+            f"{str(path)!r}: {why}, header says {width}x{height}x{channels} floats "
+            f"({4 * count} bytes) but {len(raster)} bytes follow ('Pf' is 1 channel, 'PF' 3)"
         )
     endian = "<" if scale < 0 else ">"
     array = np.frombuffer(raster[: 4 * count], dtype=f"{endian}f4").reshape(height, width, channels)

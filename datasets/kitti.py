@@ -24,6 +24,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from torch import Tensor
+
 from .base import DepthDataset
 from .depth import densify_nearest, fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
@@ -64,6 +66,31 @@ def parse_split_line(line: str, path: Path, number: int) -> tuple[str, str, str]
         f"{str(path)!r} line {number}: expected '<date>/<drive> <frame> l|r' or "
         f"'<date>/<drive>/image_0X/data/<frame>.png', got {line.strip()!r}"
     )
+
+
+#: The range of plausible median LiDAR depths of a frame in metres: a median outside it means the
+#: PNG does not hold `metres * 256` (metres stored as is give medians under 1/4 m, 8-bit or
+#: disparity maps others), so every depth would be wrong by a constant factor.
+MEDIAN_DEPTH_RANGE_M = (1.0, 120.0)
+
+
+def check_lidar_depth(path: Path, valid: Tensor) -> None:
+    """Refuse a depth PNG whose valid depths (metres, after `/ 256`) have an implausible median.
+
+    Example:
+        >>> import torch
+        >>> check_lidar_depth(Path("d.png"), torch.tensor([20 / 256, 30 / 256]))  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: 'd.png': its LiDAR depths have median 0.0781 m ...
+    """
+    median = float(valid.median())
+    low, high = MEDIAN_DEPTH_RANGE_M
+    if not low <= median <= high:
+        raise DataFormatError(
+            f"{str(path)!r}: its LiDAR depths have median {median:.3g} m (stored values "
+            f"{median * 256:.4g}); KITTI depth PNGs hold metres * 256 with a median in "
+            f"{low:g}-{high:g} m. Is the file in another unit (metres unscaled, millimetres)?")
 
 
 class KITTI(DepthDataset):
@@ -109,10 +136,17 @@ class KITTI(DepthDataset):
         )
         require_file(split_path, "a KITTI split file, one frame per line")
         self.frames: list[tuple[Path, Path]] = []
+        first: dict[tuple[str, str, str], int] = {}
         for number, line in enumerate(read_text(split_path, "a split file").splitlines(), start=1):
             if not line.strip():
                 continue
             drive, camera, frame = parse_split_line(line, split_path, number)
+            key = (str(Path(drive)), camera, frame)
+            if key in first:
+                raise DataFormatError(f"{str(split_path)!r} lines {first[key]} and {number} both "
+                                      f"name frame {drive}/{camera}/{frame}; a split must list "
+                                      "each frame once")
+            first[key] = number
             self.frames.append((self._image_path(drive, camera, frame),
                                 self._depth_path(drive, camera, frame)))
             self.ids.append(f"{drive}/{camera}/{frame}")
@@ -151,6 +185,7 @@ class KITTI(DepthDataset):
             )
         mask = valid_depth_mask(depth)
         require_valid_depth(mask, repr(str(depth_path)))
+        check_lidar_depth(depth_path, depth[mask])
         if self.densify == "nearest":
             depth = densify_nearest(depth, mask)
         else:

@@ -38,7 +38,7 @@ from optics.checks import check_shape
 
 from .base import DepthDataset
 from .focus import CameraPreset
-from .io import DataFormatError, read_rgb, read_text, require_file, require_root
+from .io import DataFormatError, read_list, read_rgb, require_file, require_root
 
 LAYOUT = (
     "  <root>/<name>.png   light-field mosaics of n x n views (interleaved ESLF or tiled)\n"
@@ -301,7 +301,7 @@ class LightField(DepthDataset):
                 raise FileNotFoundError(f"LightField: no *.png mosaics in {str(self.root)!r}")
         else:
             listing = require_file(self.root / f"{split}.txt", "a list of mosaic file names")
-            names = [line.strip() for line in read_text(listing, "a scene list").splitlines() if line.strip()]
+            names = read_list(listing, "a scene list")
             self.files = [require_file(self.root / n, f"a light-field mosaic listed in {listing.name}")
                           for n in names]
         self.ids = [p.stem for p in self.files]

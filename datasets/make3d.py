@@ -37,6 +37,41 @@ LAYOUT = (
 FOLDERS = {"train": ("Train400Img", "Train400Depth"), "test": ("Test134Img", "Test134Depth")}
 
 
+#: Suffixes of the photos (any case: a copy may have been renamed to `.JPG` or `.jpeg`).
+PHOTO_SUFFIXES = (".jpg", ".jpeg")
+
+
+def match_files(image_dir: Path, depth_dir: Path) -> list[tuple[Path, Path]]:
+    """`(photo, depth file)` pairs matched by `<name>`, sorted by photo; a photo without its
+    depth file or a depth file without its photo is refused (neither is dropped silently)."""
+    photos = sorted(p for p in image_dir.iterdir()
+                    if p.suffix.lower() in PHOTO_SUFFIXES and p.is_file())
+    if not photos:
+        raise FileNotFoundError(f"Make3D: no img-*.jpg photos in {str(image_dir)!r}")
+    names = {photo.stem.removeprefix("img-"): photo for photo in photos}
+    if len(names) != len(photos):
+        stems = [photo.stem for photo in photos]
+        twice = sorted({s for s in stems if stems.count(s) > 1})
+        raise DataFormatError(f"Make3D: {str(image_dir)!r} holds photos {twice} under two "
+                              "suffixes; keep one of each")
+    files = []
+    for name, photo in names.items():
+        depth_path = depth_dir / f"depth_sph_corr-{name}.mat"
+        if not depth_path.is_file():
+            raise FileNotFoundError(
+                f"missing file {str(depth_path)!r}: expected the depth grid of {photo.name}"
+            )
+        files.append((photo, depth_path))
+    orphans = sorted(p.name for p in depth_dir.glob("depth_sph_corr-*.mat")
+                     if p.stem.removeprefix("depth_sph_corr-") not in names)
+    if orphans:
+        raise FileNotFoundError(
+            f"Make3D: {len(orphans)} depth file(s) in {str(depth_dir)!r} have no photo "
+            f"img-<name>.jpg in {str(image_dir)!r}, e.g. {orphans[:3]}; is the photo archive "
+            "incompletely extracted?")
+    return files
+
+
 class Make3D(DepthDataset):
     """Make3D photos with laser depth and synthesised focused images.
 
@@ -67,18 +102,8 @@ class Make3D(DepthDataset):
         for folder in (image_dir, depth_dir):
             if not folder.is_dir():
                 raise FileNotFoundError(f"Make3D: missing folder {str(folder)!r}. Expected:\n{LAYOUT}")
-        self.files: list[tuple[Path, Path]] = []
-        for image_path in sorted(image_dir.glob("*.jpg")):
-            name = image_path.stem.removeprefix("img-")
-            depth_path = depth_dir / f"depth_sph_corr-{name}.mat"
-            if not depth_path.is_file():
-                raise FileNotFoundError(
-                    f"missing file {str(depth_path)!r}: expected the depth grid of {image_path.name}"
-                )
-            self.files.append((image_path, depth_path))
-            self.ids.append(name)
-        if not self.files:
-            raise FileNotFoundError(f"Make3D: no img-*.jpg photos in {str(image_dir)!r}")
+        self.files = match_files(image_dir, depth_dir)
+        self.ids = [image.stem.removeprefix("img-") for image, _ in self.files]
 
     def load(self, index: int) -> dict[str, Any]:
         image_path, depth_path = self.files[index]

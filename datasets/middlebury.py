@@ -34,7 +34,14 @@ from optics import LENS_APERTURE
 from .base import DepthDataset
 from .depth import require_valid_depth
 from .focus import CameraPreset
-from .io import DataFormatError, read_pfm, read_rgb, read_text, require_file, require_root
+from .io import (
+    DataFormatError,
+    read_list,
+    read_pfm,
+    read_rgb,
+    require_file,
+    require_root,
+)
 from .presets import MIDDLEBURY
 
 #: Calibration of scikit-image's motorcycle scene: focal length in pixels, baseline in metres,
@@ -203,24 +210,66 @@ LAYOUT = (
 BUILTIN_SCENE = "motorcycle"
 
 
-def read_calib(path: Path) -> dict[str, float]:
+#: The smallest plausible stereo baseline in millimetres; `calib.txt` states millimetres, so a
+#: smaller value is most likely metres (0.193 for 193 mm) and would make every depth 1000x small.
+MIN_BASELINE_MM = 1.0
+
+
+def calib_entries(path: Path, expected: str) -> dict[str, str]:
+    """The `key=value` lines of a `calib.txt`; a key given twice with different values is
+    refused (which one holds would be a guess)."""
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as error:
+        raise DataFormatError(f"{str(path)!r}: not a text file ({error}); {expected}") from None
+    entries: dict[str, str] = {}
+    for line in text.splitlines():
+        if "=" not in line:
+            continue
+        key, value = (part.strip() for part in line.split("=", 1))
+        if key in entries and entries[key] != value:
+            raise DataFormatError(f"{str(path)!r}: {key} is given twice, as {entries[key]!r} and "
+                                  f"{value!r}; {expected}")
+        entries[key] = value
+    return entries
+
+
+def check_calib_size(path: Path, entries: dict[str, str], size: tuple[int, int]) -> None:
+    """Refuse a `calib.txt` whose `width`/`height` differ from the image's `size` `(H, W)`:
+    its focal length and `doffs` are pixels of another resolution, so depth would be scaled."""
+    for key, actual in (("height", size[0]), ("width", size[1])):
+        if key not in entries:
+            continue
+        try:
+            stated = float(entries[key])
+        except ValueError:
+            raise DataFormatError(f"{str(path)!r}: {key} must be a number of pixels, got "
+                                  f"{entries[key]!r}") from None
+        if stated != actual:
+            raise DataFormatError(
+                f"{str(path)!r}: states {key}={entries[key]} but the image is {size[0]}x{size[1]} "
+                f"pixels; its focal length and doffs are pixels at another resolution (resize "
+                "the image and disparity back, or scale cam0, doffs, width and height with them)")
+
+
+def read_calib(path: Path, size: tuple[int, int] | None = None) -> dict[str, float]:
     """Read a Middlebury 2014 `calib.txt`: focal length and disparity offset in pixels, baseline
     in metres (the file gives millimetres).
 
+    Args:
+        path: the `calib.txt`.
+        size: `(H, W)` of the scene's image, checked against the file's `height`/`width` where
+            it states them.
+
     Raises:
         FileNotFoundError: the file is missing.
-        DataFormatError: `cam0`, `doffs` or `baseline` is missing or malformed.
+        DataFormatError: `cam0`, `doffs` or `baseline` is missing, malformed or given twice,
+            the baseline is under `MIN_BASELINE_MM` (metres?), or `width`/`height` differ
+            from `size`.
     """
     require_file(path, "a Middlebury calib.txt (cam0=[f 0 cx; ...], doffs=, baseline=)")
     expected = "expected lines cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=<px> and baseline=<mm>"
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError as error:
-        raise DataFormatError(f"{str(path)!r}: not a text file ({error}); {expected}") from None
-    entries = {
-        key.strip(): value for key, value in
-        (line.split("=", 1) for line in text.splitlines() if "=" in line)
-    }
+    entries = calib_entries(path, expected)
     try:
         cam0 = [float(v) for v in re.split(r"[\s;\[\]]+", entries["cam0"].strip()) if v]
         calib = {
@@ -238,14 +287,18 @@ def read_calib(path: Path) -> dict[str, float]:
             f"({entries['cam0'].strip()!r}); {expected}"
         )
     for key, entry, low in (("cam0 focal length", "focal_length_px", 0.0),
-                            ("baseline", "baseline_m", 0.0)):
+                            ("baseline", "baseline_m", MIN_BASELINE_MM * 1e-3)):
         if not (math.isfinite(calib[entry]) and calib[entry] > low):
             raw = entries["baseline"].strip() if key == "baseline" else cam0[0]
-            raise DataFormatError(f"{str(path)!r}: {key} must be finite and > 0, got {raw}; "
-                                  f"{expected}")
+            hint = " (millimetres: is it metres?)" if key == "baseline" and calib[entry] > 0 else ""
+            bound = f"{low * 1e3:g} mm" if key == "baseline" else f"{low:g}"
+            raise DataFormatError(f"{str(path)!r}: {key} must be finite and > {bound}, got "
+                                  f"{raw}{hint}; {expected}")
     if not math.isfinite(calib["doffs_px"]):
         raise DataFormatError(f"{str(path)!r}: doffs must be a finite number of pixels, got "
                               f"{entries['doffs'].strip()}; {expected}")
+    if size is not None:
+        check_calib_size(path, entries, size)
     return calib
 
 
@@ -297,9 +350,12 @@ class Middlebury(DepthDataset):
                 )
         else:
             listing = require_file(self.root / f"{split}.txt", "a list of scene folder names")
-            names = [line.strip() for line in read_text(listing, "a scene list").splitlines() if line.strip()]
-            self.scenes = [self.root / n for n in names]
+            self.scenes = [self.root / n for n in read_list(listing, "a scene list")]
         for scene in self.scenes:
+            if not scene.is_dir():
+                raise FileNotFoundError(f"Middlebury: no scene folder {str(scene)!r}"
+                                        f"{'' if split == 'all' else f' (listed in {split}.txt)'}. "
+                                        f"Expected:\n{LAYOUT}")
             for name in ("im0.png", "disp0.pfm", "calib.txt"):
                 require_file(scene / name, f"the Middlebury scene file {name}")
         self.ids = [p.name for p in self.scenes]
@@ -311,8 +367,8 @@ class Middlebury(DepthDataset):
             image, depth, mask = data["image"][0], data["depth"][0], data["mask"][0]
             calib = data["calib"]
         else:
-            calib = read_calib(scene / "calib.txt")
             image = read_rgb(scene / "im0.png", dtype=self.dtype)
+            calib = read_calib(scene / "calib.txt", tuple(image.shape[-2:]))
             disparity = torch.from_numpy(read_pfm(scene / "disp0.pfm").copy()).to(self.dtype)
             if disparity.shape != image.shape[-2:]:
                 raise DataFormatError(

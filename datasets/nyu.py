@@ -49,6 +49,42 @@ SPLITS = ("train", "test", "all")
 MAX_DEPTH_M = 100.0
 
 
+def split_indices(path: Path, split: str, count: int) -> np.ndarray:
+    """The 0-based frame indices of `split` (`"train"` or `"test"`) in `splits.mat`.
+
+    Raises:
+        DataFormatError: the array is missing or empty, or holds values that are not whole
+            numbers in 1..`count`, or one frame twice.
+    """
+    splits = load_mat(path, "'trainNdxs' and 'testNdxs'")
+    key = "trainNdxs" if split == "train" else "testNdxs"
+    if key not in splits:
+        raise DataFormatError(f"{str(path)!r}: no {key!r} array")
+    values = np.asarray(splits[key]).reshape(-1)
+    if values.size == 0:
+        raise DataFormatError(f"{str(path)!r}: {key} is empty; expected the 1-based indices of "
+                              f"the {split} frames")
+    if not np.issubdtype(values.dtype, np.number) or np.iscomplexobj(values):
+        raise DataFormatError(f"{str(path)!r}: {key} has dtype {values.dtype}; expected 1-based "
+                              "frame indices")
+    whole = np.isfinite(values) & (values == np.round(values))
+    if not whole.all():
+        raise DataFormatError(f"{str(path)!r}: {key} must hold whole 1-based indices, got "
+                              f"{values[~whole][:5].tolist()}")
+    indices = values.astype(np.int64) - 1
+    if indices.min() < 0 or indices.max() >= count:
+        raise DataFormatError(
+            f"{str(path)!r}: {key} must be 1-based indices in 1..{count}, got "
+            f"{indices.min() + 1}..{indices.max() + 1}"
+        )
+    unique, counts = np.unique(indices, return_counts=True)
+    if (counts > 1).any():
+        raise DataFormatError(f"{str(path)!r}: {key} lists frame(s) "
+                              f"{(unique[counts > 1] + 1)[:5].tolist()} more than once; each "
+                              "frame must be listed once")
+    return indices
+
+
 class NYUv2(DepthDataset):
     """NYU Depth v2 labeled frames with synthesised focused images.
 
@@ -125,17 +161,7 @@ class NYUv2(DepthDataset):
         if split == "all":
             indices = np.arange(count)
         else:
-            splits_path = self.root / "splits.mat"
-            splits = load_mat(splits_path, "'trainNdxs' and 'testNdxs'")
-            key = "trainNdxs" if split == "train" else "testNdxs"
-            if key not in splits:
-                raise DataFormatError(f"{str(splits_path)!r}: no {key!r} array")
-            indices = np.asarray(splits[key]).reshape(-1).astype(np.int64) - 1
-            if indices.size and (indices.min() < 0 or indices.max() >= count):
-                raise DataFormatError(
-                    f"{str(splits_path)!r}: {key} must be 1-based indices in 1..{count}, got "
-                    f"{indices.min() + 1}..{indices.max() + 1}"
-                )
+            indices = split_indices(self.root / "splits.mat", split, count)
         self.indices = [int(i) for i in indices]
         self.ids = [f"{i + 1:04d}" for i in self.indices]
         self._file = None

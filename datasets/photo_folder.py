@@ -29,7 +29,7 @@ from optics import CameraSettings
 from .base import DepthDataset
 from .camera_json import camera_from_json, load_camera_json
 from .focus import CameraPreset
-from .io import DataFormatError, require_root
+from .io import DataFormatError, read_list, require_root
 
 LAYOUT = ("ROOT/<scene>/aif.<ext> and the focused photos named in ROOT/camera.json's or "
           "ROOT/<scene>/camera.json's \"photos\" list")
@@ -60,7 +60,8 @@ class PhotoFolder(DepthDataset):
     Args:
         root: the folder of scenes.
         split: `"train"` or `"all"`: every scene (a folder may also list its scenes of a split
-            in `ROOT/<split>.txt`, one per line).
+            in `ROOT/<split>.txt`, one per line; any other split needs its list, and a list
+            naming a folder that is not there or one twice is refused).
         **kwargs: `size`, `crop`, `augment`, `dtype` of `DepthDataset`.
 
     Example:
@@ -77,10 +78,7 @@ class PhotoFolder(DepthDataset):
 
     def __init__(self, root: str | Path, split: str = "train", **kwargs: Any):
         self.root = require_root(root, "PhotoFolder", LAYOUT)
-        listed = self.root / f"{split}.txt"
-        names = listed.read_text().split() if listed.is_file() else \
-            sorted(p.name for p in self.root.iterdir() if p.is_dir())
-        self.scenes = [self._scene(self.root / name) for name in names]
+        self.scenes = [self._scene(self.root / name) for name in self._names(split)]
         if not self.scenes:
             raise FileNotFoundError(f"{self.root}: no scene folders; expected {LAYOUT}")
         first = self.scenes[0]["camera"]
@@ -93,6 +91,20 @@ class PhotoFolder(DepthDataset):
                               aperture=first.aperture)
         super().__init__(preset, **kwargs)
         self.ids = [scene["folder"].name for scene in self.scenes]
+
+    def _names(self, split: str) -> list[str]:
+        listed = self.root / f"{split}.txt"
+        if listed.is_file():
+            names = read_list(listed, f"the list of {split} scenes")
+            missing = [name for name in names if not (self.root / name).is_dir()]
+            if missing:
+                raise FileNotFoundError(f"{listed} names scene folders {missing}, which are not "
+                                        f"in {self.root}")
+            return names
+        if split not in ("train", "all"):
+            raise FileNotFoundError(f"{self.root}: no {listed.name} listing the scenes of split "
+                                    f"{split!r}; only 'train' and 'all' take every scene folder")
+        return sorted(p.name for p in self.root.iterdir() if p.is_dir())
 
     def _scene(self, folder: Path) -> dict[str, Any]:
         own = folder / "camera.json"
