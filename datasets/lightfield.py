@@ -296,7 +296,8 @@ class LightField(DepthDataset):
         self.n_views, self.layout, self.views, self.radius = n_views, layout, views, float(radius)
         self.focus_disparities = tuple(float(d) for d in focus_disparities)
         if split == "all":
-            self.files = sorted(self.root.glob("*.png"))
+            self.files = sorted(p for p in self.root.iterdir()
+                                if p.suffix.lower() == ".png" and p.is_file())  # .PNG too
             if not self.files:
                 raise FileNotFoundError(f"LightField: no *.png mosaics in {str(self.root)!r}")
         else:

@@ -104,7 +104,9 @@ class PhotoFolder(DepthDataset):
         if split not in ("train", "all"):
             raise FileNotFoundError(f"{self.root}: no {listed.name} listing the scenes of split "
                                     f"{split!r}; only 'train' and 'all' take every scene folder")
-        return sorted(p.name for p in self.root.iterdir() if p.is_dir())
+        # hidden and tool folders (.ipynb_checkpoints, __MACOSX) hold no scene
+        return sorted(p.name for p in self.root.iterdir()
+                      if p.is_dir() and not p.name.startswith((".", "__")))
 
     def _scene(self, folder: Path) -> dict[str, Any]:
         own = folder / "camera.json"

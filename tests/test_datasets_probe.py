@@ -191,3 +191,11 @@ def test_make3d_photo_with_upper_case_suffix_is_kept(tmp_path):
         dataset = Make3D(tmp_path, size=(24, 18))
     assert dataset.ids == sorted(name for name in written if "train" in name)
     assert dataset[0]["image"].shape == (3, 24, 18)
+
+
+def test_lightfield_all_reads_mosaics_of_any_suffix_case(tmp_path):
+    """`split="all"` looked for `*.png` only and dropped `.PNG` mosaics without a word."""
+    write_lightfield(tmp_path, n=2, n_views=2, h=2, w=2)
+    first = sorted(tmp_path.glob("*.png"))[0]
+    first.rename(first.with_suffix(".PNG"))
+    assert len(LightField(tmp_path, split="all", n_views=2, views=2)) == 2

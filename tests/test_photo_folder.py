@@ -66,3 +66,14 @@ def test_a_scene_without_its_photo_list_is_refused_by_name(sample_scene, tmp_pat
     (root / "scene" / "camera.json").write_text(json.dumps(data))
     with pytest.raises(FileNotFoundError, match=r"names \['far.png'\]"):
         PhotoFolder(root)
+
+
+def test_hidden_and_tool_folders_are_not_scenes(sample_scene, tmp_path):
+    """`.ipynb_checkpoints` or `__MACOSX` beside the scenes blocked loading ("no camera.json")."""
+    import shutil
+
+    root = tmp_path / "mine"
+    shutil.copytree(sample_scene, root / "scene")
+    for name in (".ipynb_checkpoints", "__MACOSX"):
+        (root / name).mkdir()
+    assert PhotoFolder(root).ids == ["scene"]
