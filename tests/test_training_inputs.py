@@ -270,3 +270,14 @@ def test_weights_that_do_not_fit_their_config_are_named_in_one_line(run, tmp_pat
         message = str(caught.value)
         assert "\n" not in message and message.startswith(f"{edited}: its weights do not fit")
         assert f"missing ['{name}']" in message
+
+
+@pytest.mark.parametrize(("options", "message"), [
+    (["--depth-cap", "0"], r"--depth-cap must be a depth > --min-depth \(0.001\) metres"),
+    (["--min-depth", "-1"], "--min-depth must be a finite depth >= 0 metres, got -1.0"),
+])
+def test_evaluate_names_its_own_depth_options(run, capsys, options, message):
+    """The refusal used to name the library's `max_depth` / `min_depth`, after the checkpoint
+    and the data were read."""
+    assert main(["evaluate", str(run / "checkpoints" / "last.pt"), *options]) == 2
+    assert re.search(message, _error_line(capsys, "evaluate"))

@@ -4,6 +4,7 @@ of a method on a focal-stack benchmark with the benchmark's own protocol (`--dat
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from datasets.registry import STACK_DATASET_NAMES
@@ -61,6 +62,10 @@ def plan_json(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
+    from optics.checks import check_depth_bounds
+
+    cap = math.inf if args.depth_cap is None else args.depth_cap
+    check_depth_bounds(args.min_depth, cap, names=("--min-depth", "--depth-cap"))
     plan = plan_json(args)
     if args.dataset is not None:
         return run_benchmark(args)
