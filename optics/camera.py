@@ -134,7 +134,7 @@ class Camera(nn.Module):
         check_shape("image", image, ["B", "C", "H", "W"])
         per_pixel_map("depth", depth, image)  # named as given, before it becomes a CoC map
         for part in (self.lens, self.sensor):
-            part.check_batch(image.shape[0], f"image {tuple(image.shape)}")
+            part.check_batch("image", image.shape)
         return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)
 
 

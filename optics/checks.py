@@ -280,15 +280,17 @@ def check_depth_bounds(low: object, high: object, names: tuple[str, str] = ("min
                          f"(infinity allowed), got {high!r}")
 
 
-def check_param_batch(module: nn.Module, names: Iterable[str], batch: int, against: str) -> None:
-    """Refuse a `(B,)` parameter of `module` whose `B` is neither 1 nor `batch` (shapes only:
-    nothing is read from the device).
+def check_param_batch(module: nn.Module, names: Iterable[str], name: str,
+                      shape: Sequence[int]) -> None:
+    """Refuse a `(B,)` parameter of `module` whose `B` is neither 1 nor the batch size
+    `shape[0]` of the input it must broadcast against (shapes only: nothing is read from the
+    device; the message is formatted only on failure).
 
     Args:
         module: the module holding the parameters (named in the message).
         names: the parameters' attribute names.
-        batch: the batch size of the input they must broadcast against.
-        against: the input, as the message names it (e.g. `"depth (2, 1, 8, 8)"`).
+        name: the input, as the message names it (e.g. `"depth"`).
+        shape: the input's shape, batch first.
 
     Raises:
         ValueError: naming the parameter, its number of values, the input and what is allowed.
@@ -296,17 +298,18 @@ def check_param_batch(module: nn.Module, names: Iterable[str], batch: int, again
     Example:
         >>> from optics import ThinLens
         >>> lens = ThinLens([0.05, 0.05, 0.05], 2.0, 2.0)
-        >>> check_param_batch(lens, ["focal_length"], 2, "depth (2, 1, 8, 8)")
+        >>> check_param_batch(lens, ["focal_length"], "depth", (2, 1, 8, 8))
         Traceback (most recent call last):
         ...
         ValueError: ThinLens.focal_length has 3 values (one per batch item), which does not broadcast against depth (2, 1, 8, 8): give one value, or 2 (one per batch item)
     """
-    for name in names:
-        value = getattr(module, name)
+    batch = shape[0]
+    for param in names:
+        value = getattr(module, param)
         if value.ndim == 1 and value.shape[0] not in (1, batch):
             raise ValueError(
-                f"{type(module).__name__}.{name} has {value.shape[0]} values (one per batch "
-                f"item), which does not broadcast against {against}: give one value"
+                f"{type(module).__name__}.{param} has {value.shape[0]} values (one per batch "
+                f"item), which does not broadcast against {name} {tuple(shape)}: give one value"
                 + ("" if batch == 1 else f", or {batch} (one per batch item)")
             )
 

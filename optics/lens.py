@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor, nn
 
@@ -105,19 +107,19 @@ class ThinLens(nn.Module):
             f"focus_distance={_fmt(self.focus_distance)} m"
         )
 
-    def check_batch(self, batch: int, against: str) -> None:
-        """Raise `ValueError` unless every parameter holds one value or `batch` (one per batch
-        item), naming the parameter and the input `against` (shapes only).
+    def check_batch(self, name: str, shape: Sequence[int]) -> None:
+        """Raise `ValueError` unless every parameter holds one value or one per batch item of
+        the input `name` of `shape`, naming the parameter and the input (shapes only).
 
         Example:
-            >>> ThinLens(0.05, 2.0, [2.0, 3.0]).check_batch(2, "image (2, 3, 8, 8)")
+            >>> ThinLens(0.05, 2.0, [2.0, 3.0]).check_batch("image", (2, 3, 8, 8))
         """
-        check_param_batch(self, _UNITS, batch, against)
+        check_param_batch(self, _UNITS, name, shape)
 
     def _params(self, like: Tensor, name: str = "depth") -> tuple[Tensor, Tensor, Tensor]:
         self.check()
         if like.ndim and like.shape[0] != 1:  # a batch-1 input broadcasts against (B,) values
-            self.check_batch(like.shape[0], f"{name} {tuple(like.shape)}")
+            self.check_batch(name, like.shape)
         return (
             broadcast_to_batch(self.focal_length, like),
             broadcast_to_batch(self.f_number, like),

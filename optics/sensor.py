@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 from torch import Tensor, nn
 
 from .checks import (
@@ -85,14 +87,14 @@ class Sensor(nn.Module):
             f"resolution={self.resolution}, cfa={self.cfa}"
         )
 
-    def check_batch(self, batch: int, against: str) -> None:
-        """Raise `ValueError` unless `pixel_pitch` and `downsample` each hold one value or `batch`
-        (one per batch item), naming the parameter and the input `against` (shapes only).
+    def check_batch(self, name: str, shape: Sequence[int]) -> None:
+        """Raise `ValueError` unless `pixel_pitch` and `downsample` each hold one value or one per batch item of
+        the input `name` of `shape`, naming the parameter and the input (shapes only).
 
         Example:
-            >>> Sensor([5e-6, 6e-6]).check_batch(2, "image (2, 3, 8, 8)")
+            >>> Sensor([5e-6, 6e-6]).check_batch("image", (2, 3, 8, 8))
         """
-        check_param_batch(self, _UNITS, batch, against)
+        check_param_batch(self, _UNITS, name, shape)
 
     @property
     def effective_pixel_pitch(self) -> Tensor:
@@ -110,11 +112,11 @@ class Sensor(nn.Module):
                 an optimiser step), naming it.
         """
         if length_m.ndim and length_m.shape[0] != 1:  # batch 1 broadcasts against (B,) values
-            self.check_batch(length_m.shape[0], f"length_m {tuple(length_m.shape)}")
+            self.check_batch("length_m", length_m.shape)
         return length_m / broadcast_to_batch(self.effective_pixel_pitch, length_m)
 
     def to_metres(self, length_px: Tensor) -> Tensor:
         """Convert lengths on the sensor from (effective) pixels to metres."""
         if length_px.ndim and length_px.shape[0] != 1:
-            self.check_batch(length_px.shape[0], f"length_px {tuple(length_px.shape)}")
+            self.check_batch("length_px", length_px.shape)
         return length_px * broadcast_to_batch(self.effective_pixel_pitch, length_px)
