@@ -290,12 +290,30 @@ def convert_checkpoint(source: str | Path, target: str | Path) -> Path:
     return target
 
 
+def file_in_the_way(folder: str | Path) -> Path | None:
+    """The file (or broken link) at `folder` or at a folder above it, which stops `folder` from
+    being a folder; None where there is none.
+
+    Example:
+        >>> import tempfile
+        >>> file = Path(tempfile.mkdtemp()) / "notes.txt"
+        >>> _ = file.write_text("x")
+        >>> file_in_the_way(file / "run" / "checkpoints") == file, file_in_the_way(file.parent)
+        (True, None)
+    """
+    folder = Path(folder)
+    for path in (folder, *folder.parents):
+        if path.exists() or path.is_symlink():
+            return None if path.is_dir() else path
+    return None
+
+
 def _make_parent(target: Path) -> None:
     """Create the folder of `target`, or raise `NotADirectoryError` naming the file in the way."""
-    for path in (target.parent, *target.parent.parents):
-        if path.exists() and not path.is_dir():
-            raise NotADirectoryError(f"cannot write {target}: {path} is a file, not a folder; "
-                                     "choose another path")
+    blocker = file_in_the_way(target.parent)
+    if blocker is not None:
+        raise NotADirectoryError(f"cannot write {target}: {blocker} is a file, not a folder; "
+                                 "choose another path")
     target.parent.mkdir(parents=True, exist_ok=True)
 
 

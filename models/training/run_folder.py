@@ -12,7 +12,13 @@ from typing import Any
 
 import torch
 
-from ..checkpoints import CheckpointError, CheckpointStore, load_checkpoint, to_plain
+from ..checkpoints import (
+    CheckpointError,
+    CheckpointStore,
+    file_in_the_way,
+    load_checkpoint,
+    to_plain,
+)
 from ..loading import config_from_state
 from ..run_log import RunLog
 from ..train_config import RUN_CONTROL_KEYS, TrainConfig
@@ -59,12 +65,10 @@ def check_run_folder(out_dir: str | Path, option: str = "out_dir") -> Path:
         NotADirectoryError: out_dir .../notes.txt/run cannot be a folder: .../notes.txt is a file; choose another out_dir
     """
     out_dir = Path(out_dir)
-    for path in (out_dir, *out_dir.parents):
-        if path.exists() or path.is_symlink():
-            if not path.is_dir():
-                raise NotADirectoryError(f"{option} {out_dir} cannot be a folder: {path} is a "
-                                         f"file; choose another {option}")
-            break
+    blocker = file_in_the_way(out_dir)
+    if blocker is not None:
+        raise NotADirectoryError(f"{option} {out_dir} cannot be a folder: {blocker} is a file; "
+                                 f"choose another {option}")
     return out_dir
 
 
