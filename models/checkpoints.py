@@ -128,19 +128,29 @@ def restore_weights(module: torch.nn.Module, weights: Mapping[str, Tensor],
         ...
         models.checkpoints.CheckpointError: a.pt: its weights do not fit the network its config builds: missing ['bias']; other shapes: weight (3, 3) in the file, (3, 2) in the network
     """
+    try:
+        module.load_state_dict(weights)
+    except RuntimeError:
+        mismatch = _weights_mismatch(module, weights)
+        if mismatch is None:
+            raise
+        raise CheckpointError(f"{source}: its weights do not fit the network its config "
+                              f"builds: {mismatch}") from None
+
+
+def _weights_mismatch(module: torch.nn.Module, weights: Mapping[str, Tensor]) -> str | None:
+    """The weights missing from `weights`, unexpected in it, or of another shape than
+    `module`'s, in words; None where names and shapes all agree."""
     own = module.state_dict()
     missing = sorted(set(own) - set(weights))
     unexpected = sorted(set(weights) - set(own))
     shapes = [f"{name} {tuple(weights[name].shape)} in the file, {tuple(own[name].shape)} in "
               "the network" for name in own if name in weights
               and isinstance(weights[name], Tensor) and weights[name].shape != own[name].shape]
-    if missing or unexpected or shapes:
-        parts = [f"missing {missing[:4]}" * bool(missing),
-                 f"unexpected {unexpected[:4]}" * bool(unexpected),
-                 f"other shapes: {', '.join(shapes[:3])}" * bool(shapes)]
-        raise CheckpointError(f"{source}: its weights do not fit the network its config "
-                              f"builds: {'; '.join(p for p in parts if p)}")
-    module.load_state_dict(weights)
+    parts = [f"missing {missing[:4]}" * bool(missing),
+             f"unexpected {unexpected[:4]}" * bool(unexpected),
+             f"other shapes: {', '.join(shapes[:3])}" * bool(shapes)]
+    return "; ".join(p for p in parts if p) or None
 
 
 def _atomic_write(data: bytes, target: Path) -> None:
