@@ -30,15 +30,14 @@ def evaluate_checkpoint(checkpoint: Path, test_set: Sequence[Any], depth_cap: fl
     checker = TestSampleChecker(trainer.config, f"checkpoint {checkpoint}")
     metrics = trainer.evaluate(test_set, depth_cap=depth_cap, crop=crop,
                                median_scaling=median_scaling, min_depth=min_depth, checker=checker)
-    warnings = []
+    warnings: list[str | None] = []
     if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
         config = trainer.config
         warnings.append(f"{metrics['at_depth_limits']:.0%} of the predicted pixels sit at "
                         f"depth_min ({config.depth_min} m) or depth_max ({config.depth_max} m): "
                         "the network collapsed to its depth limits; these metrics mean little")
-    if checker.range_message() is not None:
-        warnings.append(checker.range_message())
-    return metrics, "; ".join(warnings) or None
+    warnings.append(checker.range_message())  # None where the ground truth fits the range
+    return metrics, "; ".join(w for w in warnings if w) or None
 
 
 def evaluate_on_benchmark(dataset: Sequence[Any], protocol: str, method: str = "auto",
