@@ -22,7 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .checks import check_finite, check_positive, check_shape, is_real_number
+from .checks import check_finite, check_shape, check_tensor, is_real_number
 
 #: Gaussian smoothing (pixels) of the images whose motion is estimated, by default.
 _SIGMA_PX = 1.5
@@ -43,12 +43,12 @@ def _check_image(name: str, image: Tensor, dims: Sequence[str] = ("B", "C", "H",
 
 def _check_values(name: str, value: Tensor, described: str, *shapes: tuple[int, ...]) -> None:
     """Refuse `value` unless it is a real tensor of one of `shapes` holding finite values."""
-    if not isinstance(value, Tensor):
-        raise TypeError(f"{name} must be a tensor {described}, got {type(value).__name__}")
-    if value.is_complex() or value.dtype == torch.bool:
-        raise TypeError(f"{name} must hold real numbers ({described}), got dtype {value.dtype}")
-    if tuple(value.shape) not in shapes:
-        raise ValueError(f"{name} must be {described}, got shape {tuple(value.shape)}")
+    real = isinstance(value, Tensor) and not (value.is_complex() or value.dtype == torch.bool)
+    if not real or tuple(value.shape) not in shapes:
+        got = (f"shape {tuple(value.shape)}" if real else f"dtype {value.dtype}"
+               if isinstance(value, Tensor) else type(value).__name__)
+        raise (ValueError if real else TypeError)(
+            f"{name} must be a tensor of real numbers {described}, got {got}")
     check_finite(name, value)
 
 
@@ -160,7 +160,7 @@ def warp(image: Tensor, shift: Tensor, zoom: Tensor | None = None,
     _check_values("shift", shift, f"(B, 2) = ({b}, 2) pixels (dy, dx)", (b, 2))
     if zoom is not None:
         _check_values("zoom", zoom, f"(B,) = ({b},) magnifications", (b,))
-        check_positive("zoom", zoom)
+        check_tensor("zoom", zoom, values="positive")
     if angle is not None:
         _check_values("angle", angle, f"(B,) = ({b},) radians", (b,))
     return _warp(image, shift, zoom, angle)
@@ -247,7 +247,7 @@ def undo_motion(moving: Tensor, motion: Tensor) -> Tensor:
     _check_values("motion", motion, "(2,) pixels (dy, dx) or (4,) (dy, dx, zoom, angle)",
                   (2,), (4,))
     if len(motion) == 4:
-        check_positive("motion[2] (the zoom)", motion[2:3])
+        check_tensor("motion[2] (the zoom)", motion[2:3], values="positive")
     return _undo_motion(moving, motion)
 
 
@@ -290,10 +290,10 @@ def _check_pair(names: tuple[str, str], reference: Tensor, moving: Tensor, sigma
 def _checked_estimate(reference: Tensor, moving: Tensor, iterations: int, sigma_px: float,
                       zoomed: bool) -> Tensor:
     """`_estimate` after checking its arguments (`estimate_shift`, `estimate_motion`)."""
-    if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral):
-        raise TypeError(f"iterations must be an int >= 1, got {iterations!r}")
-    if not is_real_number(sigma_px):
-        raise TypeError(f"sigma_px must be a number > 0 (pixels), got {sigma_px!r}")
+    if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral) \
+            or not is_real_number(sigma_px):
+        raise TypeError(f"iterations must be an int >= 1 and sigma_px a number > 0 (pixels), "
+                        f"got {iterations!r} and {sigma_px!r}")
     if iterations < 1 or not (math.isfinite(sigma_px) and sigma_px > 0):
         raise ValueError(f"need iterations >= 1 and a finite sigma_px > 0, got {iterations!r}, "
                          f"{sigma_px!r}")

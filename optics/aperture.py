@@ -25,7 +25,7 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .checks import check_positive, is_real_number
+from .checks import is_real_number
 
 #: The most blades of a `Polygon` (real irises have 5-20; a polygon of many more is a disk, and
 #: its kernel would cost memory in proportion).
@@ -125,18 +125,18 @@ class Gaussian(Aperture):
 
     def __init__(self, scale: float | Tensor = 0.5):
         super().__init__()
-        if not (isinstance(scale, Tensor) or is_real_number(scale)):
+        value = scale if isinstance(scale, Tensor) else \
+            torch.tensor(float(scale)) if is_real_number(scale) else None
+        if value is None:
             raise TypeError(f"scale must be a number (sigma per CoC diameter), got "
                             f"{type(scale).__name__} {scale!r}")
-        value = scale if isinstance(scale, Tensor) else torch.tensor(float(scale))
-        if value.numel() != 1 or not value.is_floating_point():
-            raise ValueError(f"scale must be one floating-point number (sigma per CoC diameter), "
-                             f"got a {value.dtype} tensor of shape {tuple(value.shape)}; one "
-                             "Gaussian serves every image of a batch")
-        check_positive("scale", value.detach())
-        if float(value.detach()) > MAX_GAUSSIAN_SCALE:
-            raise ValueError(f"scale must be at most {MAX_GAUSSIAN_SCALE:g} (sigma per CoC "
-                             f"diameter; the paper's is 0.5), got {float(value.detach()):g}")
+        one = value.numel() == 1 and value.is_floating_point()
+        if not one or not 0 < float(value.detach()) <= MAX_GAUSSIAN_SCALE:  # NaN too
+            got = f"{float(value.detach()):g}" if one else \
+                f"a {value.dtype} tensor of shape {tuple(value.shape)}"
+            raise ValueError(f"scale must be one floating-point number > 0 and at most "
+                             f"{MAX_GAUSSIAN_SCALE:g} (sigma per CoC diameter; the paper's is "
+                             f"0.5), got {got}; one Gaussian serves every image of a batch")
         if isinstance(scale, nn.Parameter):
             self.register_parameter("scale", scale)
         else:
@@ -202,11 +202,10 @@ class Polygon(Disk):
     def __init__(self, n_blades: int = 6, rotation: float = 0.0):
         super().__init__()
         if isinstance(n_blades, bool) or not isinstance(n_blades, int) \
-                or not 3 <= n_blades <= MAX_BLADES:
-            raise ValueError(f"n_blades must be an integer from 3 to {MAX_BLADES}, got "
-                             f"{n_blades!r}")
-        if not is_real_number(rotation) or not math.isfinite(rotation):
-            raise ValueError(f"rotation must be a finite angle in radians, got {rotation!r}")
+                or not 3 <= n_blades <= MAX_BLADES \
+                or not (is_real_number(rotation) and math.isfinite(rotation)):
+            raise ValueError(f"n_blades must be an integer from 3 to {MAX_BLADES} and rotation a "
+                             f"finite angle in radians, got {n_blades!r} and {rotation!r}")
         self.n_blades = n_blades
         self.rotation = float(rotation)
         steps = torch.arange(n_blades, dtype=torch.float64)
@@ -250,12 +249,12 @@ class Mask(Aperture):
         super().__init__()
         if not isinstance(image, Tensor):
             raise TypeError(f"image must be a torch.Tensor of shape (h, w), got {type(image)}")
-        if image.ndim != 2 or min(image.shape) < 1:
-            raise ValueError(f"image must have shape (h, w), got {tuple(image.shape)}")
         if not image.is_floating_point():
             image = image.to(torch.get_default_dtype())
-        if bool(torch.any(~torch.isfinite(image) | (image < 0))) or not bool(image.sum() > 0):
-            raise ValueError("image must be finite, >= 0 everywhere and not all zero")
+        if image.ndim != 2 or min(image.shape) < 1 or not bool(image.sum() > 0) \
+                or bool(torch.any(~torch.isfinite(image) | (image < 0))):
+            raise ValueError(f"image must have shape (h, w) and be finite, >= 0 everywhere and "
+                             f"not all zero, got shape {tuple(image.shape)}")
         self.register_buffer("image", image)
         table = F.pad(image.double().cumsum(0).cumsum(1), (1, 0, 1, 0))
         self.register_buffer("_table", table.to(image.dtype), persistent=False)

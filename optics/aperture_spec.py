@@ -18,12 +18,11 @@ one, the PSF is `DEFAULT_APERTURE`; where a real lens's photos are read and noth
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping
 from typing import Any
 
-from .aperture import MAX_BLADES, Aperture, Disk, Gaussian, Polygon
+from .aperture import Aperture, Disk, Gaussian, Polygon
 
 #: Families a spec may name, with the arguments each takes after its name.
 APERTURE_FAMILIES: dict[str, str] = {
@@ -45,14 +44,23 @@ def _spec_error(spec: object, why: str) -> ValueError:
     return ValueError(f"aperture spec {spec!r} is not valid ({why}); expected one of: {allowed}")
 
 
-def _number(spec: str, text: str, what: str) -> float:
+#: Each family's aperture, and the names of the arguments it takes after its name (required first).
+_BUILDERS: dict[str, tuple[type[Aperture], tuple[str, ...], int]] = {
+    "gaussian": (Gaussian, ("scale",), 0),
+    "disk": (Disk, (), 0),
+    "polygon": (Polygon, ("n_blades", "rotation"), 1),
+}
+
+
+def _number(text: str, what: str) -> float | int:
+    """A spec's argument as a finite number (an int where it is a whole one, for `n_blades`)."""
     try:
         value = float(text)
     except ValueError:
-        raise _spec_error(spec, f"{what} {text!r} is not a number") from None
+        value = math.nan
     if not math.isfinite(value):
-        raise _spec_error(spec, f"{what} must be finite")
-    return value
+        raise ValueError(f"{what} {text!r} is not a finite number")
+    return int(value) if what == "n_blades" and value == int(value) else value
 
 
 def parse_aperture(spec: str | Aperture) -> Aperture:
@@ -69,34 +77,22 @@ def parse_aperture(spec: str | Aperture) -> Aperture:
         Polygon(n_blades=6, rotation=0.0)
         >>> parse_aperture("gaussian:0.25").scale
         tensor(0.2500)
+        >>> parse_aperture("disk:2")
+        Traceback (most recent call last):
+        ...
+        ValueError: aperture spec 'disk:2' is not valid (disk takes 0 to 0 arguments, got 1); expected one of: gaussian[:SCALE], disk, polygon:N_BLADES[:ROTATION_RADIANS]
     """
     if isinstance(spec, Aperture):
         return spec
     if not isinstance(spec, str):
         raise TypeError(f"aperture must be a spec string or an Aperture, got {type(spec).__name__}")
     family, *args = spec.strip().lower().split(":")
-    if family not in APERTURE_FAMILIES:
-        raise _spec_error(spec, f"unknown family {family!r}")
-    if family == "disk":
-        if args:
-            raise _spec_error(spec, "disk takes no argument")
-        return Disk()
-    if family == "gaussian" and len(args) > 1:
-        raise _spec_error(spec, "gaussian takes at most one argument, its scale")
-    if family == "polygon" and not 1 <= len(args) <= 2:
-        raise _spec_error(spec, "polygon needs its number of blades")
-    if family == "gaussian":
-        scale = _number(spec, args[0], "scale") if args else 0.5
-        build = functools.partial(Gaussian, scale)
-    else:
-        blades = _number(spec, args[0], "n_blades")
-        if blades != int(blades):
-            raise _spec_error(spec, f"n_blades must be an integer from 3 to {MAX_BLADES}, got "
-                                    f"{args[0]}")
-        rotation = _number(spec, args[1], "rotation") if len(args) == 2 else 0.0
-        build = functools.partial(Polygon, int(blades), rotation)
+    build, names, required = _BUILDERS.get(family, (None, (), 0))
+    if build is None or not required <= len(args) <= len(names):
+        raise _spec_error(spec, f"unknown family {family!r}" if build is None else
+                          f"{family} takes {required} to {len(names)} arguments, got {len(args)}")
     try:  # the ranges are the constructors' own (MAX_GAUSSIAN_SCALE, MAX_BLADES)
-        return build()
+        return build(*(_number(text, what) for text, what in zip(args, names)))
     except ValueError as error:
         raise _spec_error(spec, str(error)) from None
 

@@ -12,6 +12,7 @@ so they share this module. The thin-lens maths lives in `ThinLens`.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
@@ -26,12 +27,13 @@ from torch import Tensor, nn
 from .aperture import Aperture, Gaussian
 from .aperture_spec import DEFAULT_APERTURE, aperture_from_json, aperture_spec, parse_aperture
 from .checks import (
-    check_positive,
+    check_param_batch,
     check_setting_entry,
-    check_shape,
+    check_tensor,
     implausible_length,
     is_real_number,
     is_tracing,
+    require,
 )
 from .lens import ThinLens
 from .sensor import Sensor
@@ -53,13 +55,12 @@ class Camera(nn.Module):
 
     def __init__(self, lens: ThinLens, sensor: Sensor, aperture: Aperture | None = None):
         super().__init__()
-        for name, value, cls in (("lens", lens, ThinLens), ("sensor", sensor, Sensor)):
+        aperture = Gaussian() if aperture is None else aperture
+        for name, value, cls in (("lens", lens, ThinLens), ("sensor", sensor, Sensor),
+                                 ("aperture", aperture, Aperture)):
             if not isinstance(value, cls):
-                raise TypeError(f"{name} must be a {cls.__name__}, got {type(value).__name__}")
-        if aperture is None:
-            aperture = Gaussian()
-        elif not isinstance(aperture, Aperture):
-            raise TypeError(f"aperture must be an Aperture, got {type(aperture).__name__}")
+                raise TypeError(f"{name} must be a{'n' if name == 'aperture' else ''} "
+                                f"{cls.__name__}, got {type(value).__name__}")
         self.lens, self.sensor, self.aperture = lens, sensor, aperture
 
     def settings(self) -> CameraSettings:
@@ -129,13 +130,15 @@ class Camera(nn.Module):
             ValueError: for a NaN or infinite pixel in `image` (named, with its position), an
                 invalid depth, a camera value out of range or of a batch other than 1 or B (named).
         """
-        from .render.renderer import per_pixel_map, render_defocus
+        from .render.renderer import IMAGE_DIMS, per_pixel_map, render_trusted
 
-        check_shape("image", image, ["B", "C", "H", "W"])
-        per_pixel_map("depth", depth, image)  # named as given, before it becomes a CoC map
+        check_tensor("image", image, IMAGE_DIMS, floating=True)
+        depth_map = per_pixel_map("depth", depth, image)  # named as given, before it is a CoC map
         for part in (self.lens, self.sensor):
-            part.check_batch("image", image.shape)
-        return render_defocus(image, self.coc_px(depth), psf=self.aperture, depth=depth, **kwargs)
+            check_param_batch(part, "image", image.shape)
+        coc = self.coc_px(depth).to(image.dtype).expand_as(depth_map)  # checks depth's values
+        return render_trusted(image, coc, self.aperture, depth=depth_map, depth_checked=True,
+                              **kwargs)
 
 
 #: The tensor fields of `CameraSettings`, each in metres except the f-number.
@@ -161,17 +164,13 @@ def _shortest(value: float, dtype: torch.dtype) -> float:
 
 
 def _as_tensor(name: str, value: Any) -> Tensor:
-    if isinstance(value, Tensor):
-        tensor = value
-    elif isinstance(value, bool) or isinstance(value, str):
+    tensor = value if isinstance(value, Tensor) else None
+    if tensor is None and not isinstance(value, bool | str):
+        with contextlib.suppress(TypeError, ValueError, RuntimeError):
+            tensor = torch.as_tensor(value, dtype=torch.float64)
+    if tensor is None:
         raise TypeError(f"{name} must be a number, a sequence of numbers or a tensor, "
                         f"got {type(value).__name__} {value!r}")
-    else:
-        try:
-            tensor = torch.as_tensor(value, dtype=torch.float64)
-        except (TypeError, ValueError, RuntimeError):
-            raise TypeError(f"{name} must be a number, a sequence of numbers or a tensor, "
-                            f"got {value!r}") from None
     if not tensor.is_floating_point():
         tensor = tensor.to(torch.get_default_dtype())
     return tensor
@@ -214,29 +213,29 @@ class CameraSettings:
     aperture: str = DEFAULT_APERTURE
 
     def __post_init__(self) -> None:
+        numbers = not all(isinstance(getattr(self, name), Tensor) for name in SETTING_FIELDS)
         values = [_as_tensor(name, getattr(self, name)) for name in SETTING_FIELDS]
         dtype = values[0].dtype
         for v in values[1:]:
             dtype = torch.promote_types(dtype, v.dtype)
-        try:
-            values = torch.broadcast_tensors(*(v.to(dtype) for v in values))
-        except RuntimeError:
-            shapes = {n: tuple(v.shape) for n, v in zip(SETTING_FIELDS, values, strict=True)}
-            raise ValueError(f"camera settings must broadcast to one (F,) or (B, F) shape, "
-                             f"got shapes {shapes}") from None
-        if values[0].ndim == 0:
-            values = [v.reshape(1) for v in values]
-        if values[0].ndim > 2 or values[0].numel() == 0:
-            raise ValueError(f"camera settings must have shape (F,) or (B, F) with F >= 1, "
-                             f"got {tuple(values[0].shape)}")
+        shapes = {n: tuple(v.shape) for n, v in zip(SETTING_FIELDS, values, strict=True)}
+        with contextlib.suppress(RuntimeError):
+            values = [v.reshape(1) if v.ndim == 0 else v
+                      for v in torch.broadcast_tensors(*(v.to(dtype) for v in values))]
+        if len({tuple(v.shape) for v in values}) > 1 or values[0].ndim > 2 \
+                or values[0].numel() == 0:
+            raise ValueError(f"camera settings must broadcast to one shape (F,) or (B, F) with "
+                             f"F >= 1, got shapes {shapes}")
         for name, value in zip(SETTING_FIELDS, values, strict=True):
             object.__setattr__(self, name, value)
         if not isinstance(self.aperture, str):
             raise TypeError(f"aperture must be a spec string such as 'gaussian' or 'disk', got "
                             f"{type(self.aperture).__name__}; pass an Aperture object to the "
                             f"renderer instead")
-        if not is_tracing(*values):  # a traced graph cannot read tensor values
+        tracing = torch.compiler.is_compiling() or torch.compiler.is_exporting()
+        if not tracing:
             self.aperture = aperture_spec(self.aperture)
+        if (numbers and not tracing) or not is_tracing(*values):  # numbers: always checked
             self.check()
 
     def check(self) -> None:
@@ -244,7 +243,7 @@ class CameraSettings:
         distance lies beyond the focal length (called on construction; call it again after
         changing a tensor in place)."""
         for name in SETTING_FIELDS:
-            check_positive(name, getattr(self, name).detach(), _UNITS[name])
+            require(name, getattr(self, name), "positive", _UNITS[name])
         if bool(torch.any(self.focus_distance <= self.focal_length)):
             largest = implausible_length("focal_length", self.focal_length)
             hint = ("" if largest is None else

@@ -8,7 +8,7 @@ from torch import Tensor
 
 from .aperture import Aperture
 from .camera import CameraSettings
-from .checks import check_depth, check_finite, check_shape
+from .checks import check_tensor, values_checked
 from .lens import compute_dtype
 
 
@@ -55,14 +55,13 @@ def render_focal_stack(
         ...                    settings).shape  # one depth map for the four images
         torch.Size([4, 2, 3, 8, 8])
     """
-    from .render.renderer import per_pixel_map
+    from .render.renderer import IMAGE_DIMS, per_pixel_map
 
-    check_shape("image", image, ["B", "C", "H", "W"])
+    check_tensor("image", image, IMAGE_DIMS, values="finite")
     per_pixel_map("depth", depth, image)  # shape (batch 1 or B), type and device, as given
     if not isinstance(settings, CameraSettings):
         raise TypeError(f"settings must be a CameraSettings, got {type(settings).__name__}")
-    check_finite("image", image)
-    check_depth("depth", depth)  # before it is repeated per shot: named as given
+    check_tensor("depth", depth, values="depth")  # before it is repeated per shot: as given
     b, c, h, w = image.shape
     n = settings.n_shots
     if settings.is_batched and settings.shape[0] not in (1, b):
@@ -72,8 +71,10 @@ def render_focal_stack(
         return image[:, None].expand(b, n, c, h, w).clone()
     if not settings.is_batched or settings.shape[0] != b:  # (F,) or (1, F): the same shots
         settings = (settings[0] if settings.is_batched else settings).batched(b)
-    # Settings in at least float32: a pitch of micrometres underflows in float16.
-    camera = settings.to(device=image.device, dtype=compute_dtype(image.dtype)).camera(aperture)
     images = image[:, None].expand(b, n, c, h, w).reshape(b * n, c, h, w)
     depths = depth[:, None].expand(b, n, 1, h, w).reshape(b * n, 1, h, w)
-    return camera.render(images, depths, **render_kwargs).reshape(b, n, c, h, w)
+    with values_checked():  # the image, the depth and the settings were checked: trusted
+        # Settings in at least float32: a pitch of micrometres underflows in float16.
+        settings = settings.to(device=image.device, dtype=compute_dtype(image.dtype))
+        rendered = settings.camera(aperture).render(images, depths, **render_kwargs)
+    return rendered.reshape(b, n, c, h, w)

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 import torch
 from torch import Tensor, nn
 
@@ -11,10 +9,9 @@ from .checks import (
     ParamLike,
     as_parameter_tensor,
     broadcast_to_batch,
-    check_depth,
     check_param_batch,
     check_parameters,
-    check_positive,
+    check_tensor,
     is_tracing,
     register_physical,
 )
@@ -75,14 +72,8 @@ class ThinLens(nn.Module):
 
     def __init__(self, focal_length: ParamLike, f_number: ParamLike, focus_distance: ParamLike):
         super().__init__()
-        register_physical(self, "focal_length", focal_length, "metres")
-        register_physical(self, "f_number", f_number)
-        register_physical(self, "focus_distance", focus_distance, "metres")
-        sizes = {name: getattr(self, name).numel() for name in _UNITS
-                 if getattr(self, name).ndim == 1}
-        if len(set(sizes.values()) - {1}) > 1:
-            raise ValueError(f"focal_length, f_number and focus_distance must be one value or "
-                             f"one per batch item (the same B), got sizes {sizes}")
+        register_physical(self, _UNITS, {"focal_length": focal_length, "f_number": f_number,
+                                         "focus_distance": focus_distance})
         self._check_focus()
 
     def _check_focus(self) -> None:
@@ -107,19 +98,10 @@ class ThinLens(nn.Module):
             f"focus_distance={_fmt(self.focus_distance)} m"
         )
 
-    def check_batch(self, name: str, shape: Sequence[int]) -> None:
-        """Raise `ValueError` unless every parameter holds one value or one per batch item of
-        the input `name` of `shape`, naming the parameter and the input (shapes only).
-
-        Example:
-            >>> ThinLens(0.05, 2.0, [2.0, 3.0]).check_batch("image", (2, 3, 8, 8))
-        """
-        check_param_batch(self, _UNITS, name, shape)
-
     def _params(self, like: Tensor, name: str = "depth") -> tuple[Tensor, Tensor, Tensor]:
         self.check()
         if like.ndim and like.shape[0] != 1:  # a batch-1 input broadcasts against (B,) values
-            self.check_batch(name, like.shape)
+            check_param_batch(self, name, like.shape)
         return (
             broadcast_to_batch(self.focal_length, like),
             broadcast_to_batch(self.f_number, like),
@@ -149,7 +131,7 @@ class ThinLens(nn.Module):
             tensor of the shape of `depth` (sensor metres), in `depth`'s dtype promoted to at
             least float32.
         """
-        check_depth("depth", depth)
+        check_tensor("depth", depth, floating=True, values="depth")
         depth = depth.to(compute_dtype(depth.dtype))
         f, n, df = self._params(depth)
         return f * f / (n * (df - f)) * (1.0 - df / depth)
@@ -181,7 +163,7 @@ class ThinLens(nn.Module):
             coc_limit: largest acceptable CoC diameter on the sensor, in metres, > 0.
         """
         c = as_parameter_tensor("coc_limit", coc_limit)
-        check_positive("coc_limit", c.detach(), "metres")
+        check_tensor("coc_limit", c, values="positive", unit="metres")
         c = c.to(self.focal_length)
         self.check()
         return self.focal_length**2 / (self.f_number * c) + self.focal_length

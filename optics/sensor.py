@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 from torch import Tensor, nn
 
 from .checks import (
@@ -52,13 +50,7 @@ class Sensor(nn.Module):
         downsample: ParamLike = 1.0,
     ):
         super().__init__()
-        register_physical(self, "pixel_pitch", pixel_pitch, "metres")
-        register_physical(self, "downsample", downsample)
-        sizes = {name: getattr(self, name).numel() for name in _UNITS
-                 if getattr(self, name).ndim == 1}
-        if len(set(sizes.values()) - {1}) > 1:
-            raise ValueError(f"pixel_pitch and downsample must be one value or one per batch "
-                             f"item (the same B), got sizes {sizes}")
+        register_physical(self, _UNITS, {"pixel_pitch": pixel_pitch, "downsample": downsample})
         if resolution is not None:
             if len(resolution) != 2 or any(int(r) <= 0 for r in resolution):
                 raise ValueError(
@@ -87,15 +79,6 @@ class Sensor(nn.Module):
             f"resolution={self.resolution}, cfa={self.cfa}"
         )
 
-    def check_batch(self, name: str, shape: Sequence[int]) -> None:
-        """Raise `ValueError` unless `pixel_pitch` and `downsample` each hold one value or one per batch item of
-        the input `name` of `shape`, naming the parameter and the input (shapes only).
-
-        Example:
-            >>> Sensor([5e-6, 6e-6]).check_batch("image", (2, 3, 8, 8))
-        """
-        check_param_batch(self, _UNITS, name, shape)
-
     @property
     def effective_pixel_pitch(self) -> Tensor:
         """Pixel pitch of the images actually used, `pixel_pitch * downsample`, in metres."""
@@ -112,11 +95,11 @@ class Sensor(nn.Module):
                 an optimiser step), naming it.
         """
         if length_m.ndim and length_m.shape[0] != 1:  # batch 1 broadcasts against (B,) values
-            self.check_batch("length_m", length_m.shape)
+            check_param_batch(self, "length_m", length_m.shape)
         return length_m / broadcast_to_batch(self.effective_pixel_pitch, length_m)
 
     def to_metres(self, length_px: Tensor) -> Tensor:
         """Convert lengths on the sensor from (effective) pixels to metres."""
-        if length_px.ndim and length_px.shape[0] != 1:
-            self.check_batch("length_px", length_px.shape)
+        if length_px.ndim and length_px.shape[0] != 1:  # batch 1 broadcasts against (B,) values
+            check_param_batch(self, "length_px", length_px.shape)
         return length_px * broadcast_to_batch(self.effective_pixel_pitch, length_px)

@@ -38,7 +38,7 @@ import torch
 from torch import Tensor, nn
 
 from ..aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
-from ..checks import check_depth, check_finite, check_shape, is_tracing
+from ..checks import check_finite, check_tensor, is_tracing
 from . import backends, layer_ops, ops, triton_kernels
 from .profile import ProfileFilter
 
@@ -47,6 +47,8 @@ PRESETS = ("gur_wolf_2019",)
 #: Gur & Wolf (2019): CoC range in pixels and the fixed window half-width (7x7).
 PAPER_COC_RANGE = (1.0, 7.0)
 PAPER_HALF_WIDTH = 3
+#: The dimensions of an image.
+IMAGE_DIMS = ("B", "C", "H", "W")
 
 
 def render_defocus(
@@ -107,11 +109,29 @@ def render_defocus(
         >>> out[0, 0, 3, 2:5]
         tensor([0.0970, 0.1592, 0.0970])
     """
-    image, coc_px = _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset)
-    depth = _check_layered_inputs(image, depth, n_layers) if mode == "layered" else None
+    check_tensor("image", image, IMAGE_DIMS, floating=True)
+    coc_px = per_pixel_map("coc_px", coc_px, image)
+    if mode == "layered":
+        if depth is None:
+            raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
+        depth = per_pixel_map("depth", depth, image)
+    return render_trusted(image, coc_px, psf, mode, depth, max_kernel_size, preset, n_layers)
+
+
+def render_trusted(image: Tensor, coc_px: Tensor, psf: Aperture | None = None,
+                   mode: str = "scatter", depth: Tensor | None = None, max_kernel_size: int = 63,
+                   preset: str | None = None, n_layers: int = 8,
+                   depth_checked: bool = False) -> Tensor:
+    """`render_defocus` behind its door: `image` and `coc_px` `(B, 1, H, W)` checked and
+    broadcast (`per_pixel_map`), `depth` too in the layered mode, its values checked already
+    where `depth_checked` (`Camera.render`). The options are checked here; the image's and the
+    CoC's values in the one read that gives the window's size."""
+    _check_options(psf, mode, max_kernel_size, preset, n_layers)
+    depth = depth if mode == "layered" else None
     psf = Gaussian() if psf is None else psf
     on_device = preset is None and _window_on_device(psf, image)
-    largest_coc = _read_checked(image, coc_px, depth, need_largest=not on_device)
+    largest_coc = _read_checked(image, coc_px, None if depth_checked else depth,
+                                need_largest=not on_device)
     if preset is not None:
         return _render_paper(image, coc_px)
     half = _window_half(psf, coc_px, max_kernel_size, largest_coc, on_device)
@@ -187,31 +207,25 @@ def _window_half(psf: Aperture, coc_px: Tensor, max_kernel_size: int,
     return half
 
 
-def _check_inputs(image, coc_px, psf, mode, max_kernel_size, preset) -> tuple[Tensor, Tensor]:
-    check_shape("image", image, ["B", "C", "H", "W"])
-    if not image.is_floating_point():
-        raise TypeError(f"image must be a floating-point tensor, got dtype {image.dtype}")
-    coc_px = per_pixel_map("coc_px", coc_px, image)
-    _check_options(psf, mode, max_kernel_size, preset)
-    return image, coc_px
-
-
-def _check_options(psf, mode, max_kernel_size, preset) -> None:
+def _check_options(psf, mode, max_kernel_size, preset, n_layers) -> None:
     """`render_defocus`'s options, checked (also by `DefocusRenderer` when it is built)."""
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    for name, value, allowed in (("mode", mode, MODES), ("preset", preset, (None, *PRESETS))):
+        if value not in allowed:
+            none = "None or " if name == "preset" else ""
+            raise ValueError(f"{name} must be {none}one of {tuple(filter(None, allowed))}, "
+                             f"got {value!r}")
     if psf is not None and not isinstance(psf, Aperture):
         raise TypeError(f"psf must be an Aperture (Gaussian, Disk, ...), got {type(psf).__name__}")
-    if isinstance(max_kernel_size, bool) or not isinstance(max_kernel_size, int) or \
-            max_kernel_size < 1 or max_kernel_size % 2 == 0:
-        raise ValueError(f"max_kernel_size must be a positive odd integer, got {max_kernel_size!r}")
-    if preset is not None:
-        if preset not in PRESETS:
-            raise ValueError(f"preset must be None or one of {PRESETS}, got {preset!r}")
-        paper_psf = psf is None or (type(psf) is Gaussian and math.isclose(float(psf.scale), 0.5))
-        if not paper_psf or mode != "scatter":
-            raise ValueError(f"preset={preset!r} fixes a Gaussian PSF (scale 0.5) in scatter "
-                             f"mode, got psf={psf!r} and mode={mode!r}")
+    for name, value, odd in (("max_kernel_size", max_kernel_size, True),
+                             ("n_layers", n_layers, False)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1 or \
+                (odd and value % 2 == 0):
+            raise ValueError(f"{name} must be a positive {'odd ' if odd else ''}integer, "
+                             f"got {value!r}")
+    if preset is not None and (mode != "scatter" or not (psf is None or (
+            type(psf) is Gaussian and math.isclose(float(psf.scale), 0.5)))):
+        raise ValueError(f"preset={preset!r} fixes a Gaussian PSF (scale 0.5) in scatter "
+                         f"mode, got psf={psf!r} and mode={mode!r}")
 
 
 def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
@@ -224,9 +238,7 @@ def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
         ...
         ValueError: depth must have shape (1, 1, 4, 4) to match image (1, 3, 4, 4), got (2, 1, 4, 4)
     """
-    check_shape(name, values, ["B", "1", "H", "W"])
-    if not values.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got dtype {values.dtype}")
+    check_tensor(name, values, ["B", "1", "H", "W"], floating=True)
     b, _, h, w = image.shape
     if values.shape[2:] != image.shape[2:] or values.shape[0] not in (1, b):
         batch = "1" if b == 1 else f"{b} or 1"
@@ -235,20 +247,6 @@ def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
     if values.device != image.device:
         raise ValueError(f"{name} is on {values.device} but image on {image.device}; use one device")
     return values.to(image.dtype).expand(b, 1, h, w)
-
-
-def _check_layered_inputs(image: Tensor, depth: Tensor | None, n_layers: int) -> Tensor:
-    """The layered mode's depth, broadcast to the image's batch (its values are checked by
-    `_read_checked`)."""
-    if depth is None:
-        raise ValueError("mode='layered' needs depth, a (B, 1, H, W) tensor in metres")
-    _check_n_layers(n_layers)
-    return per_pixel_map("depth", depth, image)
-
-
-def _check_n_layers(n_layers: int) -> None:
-    if isinstance(n_layers, bool) or not isinstance(n_layers, int) or n_layers < 1:
-        raise ValueError(f"n_layers must be a positive integer, got {n_layers!r}")
 
 
 def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
@@ -284,7 +282,7 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     if not coc_valid:
         raise ValueError(coc_message)
     if depth_valid and not depth_valid[0]:
-        check_depth("depth", depth)  # raises, describing the values
+        check_tensor("depth", depth, values="depth")  # raises, describing the values
     return largest
 
 
@@ -482,8 +480,7 @@ class DefocusRenderer(nn.Module):
         n_layers: int = 8,
     ):
         super().__init__()
-        _check_options(psf, mode, max_kernel_size, preset)
-        _check_n_layers(n_layers)
+        _check_options(psf, mode, max_kernel_size, preset, n_layers)
         self.psf = Gaussian() if psf is None and preset is None else psf
         self.mode, self.max_kernel_size = mode, max_kernel_size
         self.preset, self.n_layers = preset, n_layers
