@@ -92,7 +92,7 @@ def parse_aperture(spec: str | Aperture) -> Aperture:
         raise _spec_error(spec, f"unknown family {family!r}" if build is None else
                           f"{family} takes {required} to {len(names)} arguments, got {len(args)}")
     try:  # the ranges are the constructors' own (MAX_GAUSSIAN_SCALE, MAX_BLADES)
-        return build(*(_number(text, what) for text, what in zip(args, names)))
+        return build(*(_number(text, what) for text, what in zip(args, names, strict=False)))
     except ValueError as error:
         raise _spec_error(spec, str(error)) from None
 

@@ -152,7 +152,7 @@ def test_refuses_degenerate_sets_and_bad_inputs():
         CalibrationPair(image, image, 0)
     with pytest.raises(ValueError, match="depth"):
         CalibrationPair(image, image, float("nan"))
-    with pytest.raises(ValueError, match="depth map must be"):
+    with pytest.raises(ValueError, match=r"depth map must have shape \(1, 1, 24, 24\), got \(1, 1, 10"):
         CalibrationPair(image, image, torch.ones(1, 1, 10, 10))
 
 

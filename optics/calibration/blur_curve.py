@@ -38,6 +38,7 @@ from ..camera import CameraSettings
 from ..progress import progress_bar
 from .measure import ConstantBlur, crop
 from .pair import CalibrationPair
+from .problem import pair_list
 
 #: Depth bin edges (metres) of `measure_blur_curve` by default: 40 bins even in inverse depth
 #: between 0.3 m and 30 m (the thin lens's blur is linear in inverse depth).
@@ -125,8 +126,7 @@ def measure_blur_curve(
         >>> round(float(measured[0]), 1), round(float(camera.coc_px(torch.tensor([5.0]))[0]), 1)
         (3.1, 3.1)
     """
-    if not pairs:
-        raise ValueError("pairs must hold at least one CalibrationPair, got none")
+    pairs = pair_list(pairs)
     if not (math.isfinite(max_coc_px) and max_coc_px > 0 and 0 < step_px < max_coc_px):
         raise ValueError(f"need 0 < step_px < max_coc_px (pixels), got step_px={step_px!r}, "
                          f"max_coc_px={max_coc_px!r}")

@@ -143,12 +143,12 @@ def measure_blur(
     """
     from .pair import CalibrationPair
 
-    if not isinstance(pair, CalibrationPair):
-        raise TypeError(f"pair must be an optics.CalibrationPair, got {type(pair).__name__}")
-    if not isinstance(aperture, Aperture):
-        raise TypeError(f"aperture must be an optics.Aperture (e.g. Disk(), or "
-                        f"optics.parse_aperture({aperture!r}) for a spec), got "
-                        f"{type(aperture).__name__}")
+    for name, value, cls in (("pair", pair, CalibrationPair), ("aperture", aperture, Aperture)):
+        if not isinstance(value, cls):
+            hint = f" (e.g. Disk(), or optics.parse_aperture({aperture!r}) for a spec)" \
+                if name == "aperture" else ""
+            raise TypeError(f"{name} must be an optics.{cls.__name__}{hint}, got "
+                            f"{type(value).__name__}")
     if not (is_real_number(max_coc_px) and math.isfinite(max_coc_px) and max_coc_px > 0):
         raise ValueError(f"max_coc_px must be a finite number > 0 (pixels), got {max_coc_px!r}")
     if margin_px is not None:
@@ -190,10 +190,11 @@ def fit_thin_lens_curve(
         raise ValueError(f"depths and coc_px must hold one value per measurement, at least "
                          f"{2 if focus_distance is None else 1} (2 to fit the focus distance), got "
                          f"{depth.numel()} and {coc.numel()}")
-    if not bool(torch.all((depth > 0) & ~torch.isnan(depth))):
-        raise ValueError(f"depths must be > 0 metres (infinity allowed), got {depth.tolist()}")
-    if not bool(torch.all(torch.isfinite(coc) & (coc >= 0))):
-        raise ValueError(f"coc_px must be finite and >= 0 (pixels), got {coc.tolist()}")
+    for name, values, valid, allowed in (
+            ("depths", depth, (depth > 0) & ~torch.isnan(depth), "> 0 metres (infinity allowed)"),
+            ("coc_px", coc, torch.isfinite(coc) & (coc >= 0), "finite and >= 0 (pixels)")):
+        if not bool(valid.all()):
+            raise ValueError(f"{name} must be {allowed}, got {values.tolist()}")
     if focus_distance is not None and not (is_real_number(focus_distance)
                                            and math.isfinite(focus_distance)
                                            and focus_distance > 0):

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor
 
-from ..checks import check_finite, check_shape
+from ..checks import check_tensor
 
 
 @dataclass
@@ -37,15 +37,9 @@ class CalibrationPair:
         label = f"pair {self.name!r}" if self.name else "pair"
         for attr in ("sharp", "blurred"):
             value = getattr(self, attr)
-            if not isinstance(value, Tensor):
-                raise TypeError(f"{label}: {attr} must be a torch.Tensor, got {type(value)}")
-            if value.ndim == 3:
-                value = value.unsqueeze(0)
-            check_shape(f"{label}: {attr}", value, ["1", "C", "H", "W"])
-            if not value.is_floating_point():
-                raise TypeError(f"{label}: {attr} must be a floating-point image in [0, 1], got "
-                                f"dtype {value.dtype}")
-            check_finite(f"{label}: {attr}", value)
+            check_tensor(f"{label}: {attr}", value, floating=True)  # an image in [0, 1]
+            value = value.unsqueeze(0) if value.ndim == 3 else value
+            check_tensor(f"{label}: {attr}", value, ["1", "C", "H", "W"], values="finite")
             _check_not_constant(f"{label}: {attr}", value)
             setattr(self, attr, value)
         if self.sharp.shape != self.blurred.shape:
@@ -80,14 +74,9 @@ def _check_not_constant(name: str, image: Tensor) -> None:
 
 def _depth_map(label: str, depth: Tensor, sharp: Tensor) -> Tensor:
     depth = depth if depth.ndim == 4 else depth.reshape(1, *depth.shape)
-    check_shape(f"{label}: depth", depth, ["1", "1", "H", "W"])
-    if depth.shape[-2:] != sharp.shape[-2:]:
-        raise ValueError(
-            f"{label}: depth map must be {tuple(sharp.shape[-2:])} pixels like the "
-            f"images, got {tuple(depth.shape[-2:])}"
-        )
-    if not bool(torch.all(torch.isfinite(depth) & (depth > 0))):
-        raise ValueError(f"{label}: depth must be finite and > 0 metres everywhere")
+    height, width = sharp.shape[-2:]  # the images' size
+    check_tensor(f"{label}: depth map", depth, ["1", "1", str(height), str(width)],
+                 values="positive", unit="metres")
     return depth
 
 

@@ -35,13 +35,15 @@ def parse_psf(psf: object, psf_scale: float | None) -> tuple[str, float | None]:
     is `psf_scale`, or the one a `"gaussian:S"` spec fixes, or `None` (fitted). Shapes without a
     scale give 1.
     """
-    if not isinstance(psf, str):
-        raise ValueError(f"psf must be one of {list(PSF_FAMILIES)}, got {psf!r}")
-    try:
-        aperture = parse_aperture(psf)
-        spec = aperture_spec(aperture)
-    except ValueError as error:
-        raise ValueError(f"psf must be one of {list(PSF_FAMILIES)}, got {psf!r} ({error})") from None
+    aperture, spec, why = None, "", "not a spec string"
+    if isinstance(psf, str):
+        try:
+            aperture = parse_aperture(psf)
+            spec = aperture_spec(aperture)
+        except ValueError as error:
+            aperture, why = None, str(error)
+    if aperture is None:
+        raise ValueError(f"psf must be one of {list(PSF_FAMILIES)}, got {psf!r} ({why})")
     if isinstance(aperture, Gaussian):
         if ":" not in psf:
             return "gaussian", psf_scale
@@ -99,7 +101,7 @@ class Problem:
             ValueError: as `calibrate` documents.
             TypeError: if a pair is not a `CalibrationPair`.
         """
-        pairs = _check_pairs(pairs)
+        pairs = pair_list(pairs)
         psf, scale = parse_psf(psf, values["psf_scale"])
         known = {name: values[name] for name in
                  ("focal_length", "f_number", "focus_distance", "pixel_pitch")}
@@ -110,7 +112,9 @@ class Problem:
         return cls(pairs, psf, known, fitted, depths, fit_gain)
 
 
-def _check_pairs(pairs: Sequence[CalibrationPair]) -> list[CalibrationPair]:
+def pair_list(pairs: Sequence[CalibrationPair]) -> list[CalibrationPair]:
+    """`pairs` as a list, refused where empty or holding anything but `CalibrationPair`s (the
+    door of `calibrate`, `measure_blur_curve` and `side_cues`)."""
     pairs = list(pairs)
     if not pairs:
         raise ValueError("pairs must hold at least one CalibrationPair, got none")
@@ -122,11 +126,11 @@ def _check_pairs(pairs: Sequence[CalibrationPair]) -> list[CalibrationPair]:
 
 def _fitted(known: dict[str, float | None]) -> tuple[str, ...]:
     """The parameters left `None`, refusing none, and more than one of `PRODUCT`."""
-    for name, value in known.items():
-        if value is not None and not (math.isfinite(float(value)) and float(value) > 0):
-            raise ValueError(f"{name} must be finite and > 0, got {value!r}")
-    if known["focal_length"] is None:
-        raise ValueError("focal_length must be given in metres (e.g. from the raw metadata)")
+    for name, value in known.items():  # the focal length must be given
+        if (value is None and name == "focal_length") or value is not None and not (
+                math.isfinite(float(value)) and float(value) > 0):
+            given = " (metres, e.g. from the raw metadata)" if name == "focal_length" else ""
+            raise ValueError(f"{name} must be finite and > 0{given}, got {value!r}")
     fitted = tuple(name for name in PARAMETERS if known[name] is None)
     if not fitted:
         raise ValueError("every parameter is fixed: leave at least one of them None to fit it")

@@ -33,6 +33,7 @@ from torch import Tensor
 from ..progress import progress_bar
 from .blur_curve import measure_blur_curve
 from .pair import CalibrationPair
+from .problem import pair_list
 
 
 def mirror_bin_edges(focus_distance: float, bins_per_side: int = 8, nearest: float = 0.5) -> Tensor:
@@ -180,8 +181,7 @@ def side_cues(pairs: Sequence[CalibrationPair], focus_distance: float, bins_per_
         >>> colour["pairs"], abs(colour["mean"]) < 0.05  # one focus for every colour: no cue
         (3.0, True)
     """
-    if not pairs:
-        raise ValueError("pairs must hold at least one CalibrationPair, got none")
+    pairs = pair_list(pairs)
     if not (isinstance(focus_distance, (int, float)) and math.isfinite(focus_distance)
             and focus_distance > 0):
         raise ValueError(f"focus_distance must be a positive number of metres, got "
