@@ -19,13 +19,14 @@ aperture       profile at distance `r` (pixels)          window half-width (pixe
 
 from __future__ import annotations
 
+import abc
 import math
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from .checks import is_real_number
+from .checks import is_real_number, require
 
 #: The most blades of a `Polygon` (real irises have 5-20; a polygon of many more is a disk, and
 #: its kernel would cost memory in proportion).
@@ -49,24 +50,24 @@ def _as_coc_tensor(coc_px: float | Tensor, like: Tensor | None = None) -> Tensor
             coc = coc.to(like)
     if not coc.is_floating_point():
         coc = coc.to(torch.get_default_dtype())
-    if bool(torch.any(torch.isnan(coc) | (coc < 0))):
-        raise ValueError(f"coc_px must be >= 0 pixels and not NaN, got {coc.detach().tolist()}")
+    require("coc_px", coc, "nonnegative", "pixels")  # a few values, given by the caller
     return coc
 
 
-class Aperture(nn.Module):
-    """Base class of PSF shapes. Subclasses implement `profile` and `half_width`."""
+class Aperture(nn.Module, abc.ABC):
+    """Base class of PSF shapes. Subclasses implement `profile` and `half_width` (a subclass
+    without them cannot be built)."""
 
+    @abc.abstractmethod
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
         """Unnormalised PSF value at offset `(dy, dx)` pixels for CoC diameter `coc_px` pixels.
 
         All three arguments broadcast against each other.
         """
-        raise NotImplementedError
 
+    @abc.abstractmethod
     def half_width(self, coc_px: float) -> int:
         """Largest offset (pixels, along an axis) where `profile` is non-negligible."""
-        raise NotImplementedError
 
     def kernel_size(self, max_coc_px: float | Tensor) -> int:
         """Odd window width (pixels) that holds the PSF of the largest CoC `max_coc_px`."""

@@ -395,11 +395,11 @@ class CameraSettings:
             >>> CameraSettings.from_dict(s.to_dict()) == s
             True
         """
-        if not isinstance(data, Mapping):
-            raise ValueError(f"{source}: expected a JSON object of camera settings")
-        missing = [k for k in SETTING_FIELDS if data.get(k) is None]
+        missing = [k for k in SETTING_FIELDS if data.get(k) is None] \
+            if isinstance(data, Mapping) else list(SETTING_FIELDS)
         if missing:
-            raise ValueError(f"{source}: missing {missing}; expected the keys "
+            what = "" if isinstance(data, Mapping) else "expected a JSON object of camera settings, "
+            raise ValueError(f"{source}: {what}missing {missing}; expected the keys "
                              f"{list(SETTING_FIELDS)} (metres) and optionally 'aperture'")
         key = "aperture" if "aperture" in data or "psf" not in data else "psf"
         try:
@@ -425,16 +425,13 @@ class CameraSettings:
         taken = sorted(set(extra) & {*SETTING_FIELDS, "psf"})
         if "aperture" in extra and _spec_of_entry(extra["aperture"]) != self.aperture:
             taken.append("aperture")
-        if taken:
-            raise ValueError(f"to_json extra values must not replace the settings, got {taken}; "
-                             "change the settings themselves with .replace()")
+        bad = {k: v for k, v in extra.items() if not _json_finite(v)}
+        if taken or bad:
+            raise ValueError(f"to_json extra values must not replace the settings (change them "
+                             f"with .replace()) and must be finite numbers (JSON has no NaN or "
+                             f"infinity), got {taken or bad}")
         data.update(extra)
-        try:
-            text = json.dumps(data, indent=2, allow_nan=False)
-        except ValueError:
-            bad = {k: v for k, v in extra.items() if not _json_finite(v)}
-            raise ValueError(f"to_json extra values must be finite numbers (JSON has no NaN or "
-                             f"infinity), got {bad}") from None
+        text = json.dumps(data, indent=2, allow_nan=False)
         Path(path).write_text(text + "\n")
 
     @classmethod
@@ -455,12 +452,12 @@ class CameraSettings:
             >>> extra
             {'reference_f_number': 8.5}
         """
-        if Path(path).is_dir():
-            raise ValueError(f"{path} is a folder: expected a camera JSON file")
         try:
-            data = json.loads(Path(path).read_text())
-        except (OSError, json.JSONDecodeError) as error:
-            raise ValueError(f"{path}: cannot read camera settings: {error}") from None
+            data = json.loads(Path(path).read_text(encoding="utf-8"))
+        except (OSError, ValueError) as error:  # a JSON or UTF-8 error is a ValueError
+            why = " is a folder: expected a camera JSON file" if Path(path).is_dir() else \
+                f": cannot read camera settings: {error}"
+            raise ValueError(f"{path}{why}") from None
         settings = cls.from_dict(data, source=str(path))
         known = settings.to_dict()
         return settings, {k: v for k, v in data.items() if k not in known}

@@ -186,6 +186,8 @@ VALUE_RULES: dict[str, tuple[Callable[[Tensor], Tensor], str, str]] = {
     "positive": (lambda t: torch.isfinite(t) & (t > 0), "finite and > 0", ""),
     "depth": (lambda t: ~torch.isnan(t) & (t > 0), "> 0 metres and not NaN everywhere",
               "; mask invalid pixels or fill them before rendering"),
+    "coc": (lambda t: torch.isfinite(t) & (t >= 0), "finite and >= 0", ""),
+    "nonnegative": (lambda t: t >= 0, ">= 0 and not NaN", ""),  # NaN fails; inf allowed
 }
 
 
@@ -195,7 +197,7 @@ def check_tensor(name: str, value: object, dims: Sequence[str] | None = None, *,
     digit string such as `"1"` must be exactly that size), floating-point where `floating`,
     and whose values follow `values`: `"finite"` (`check_finite`), or a rule of `VALUE_RULES`
     (`"positive"`: finite and > 0, named with its `unit`; `"depth"`: > 0 metres and not NaN,
-    `inf` allowed). Shapes and values are trusted while the checks are off (`set_checks`);
+    `inf` allowed; `"coc"`: finite and >= 0; `"nonnegative"`: >= 0, `inf` allowed). Shapes and values are trusted while the checks are off (`set_checks`);
     values while tracing or `values_checked`.
 
     Raises:
@@ -209,10 +211,10 @@ def check_tensor(name: str, value: object, dims: Sequence[str] | None = None, *,
         ...
         ValueError: f_number must be finite and > 0, got [2, -1]
     """
-    if not isinstance(value, Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
-    if floating and not value.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got dtype {value.dtype}")
+    if not isinstance(value, Tensor) or (floating and not value.is_floating_point()):
+        got = f"dtype {value.dtype}" if isinstance(value, Tensor) else type(value).__name__
+        raise TypeError(f"{name} must be a {'floating-point ' if floating else ''}torch.Tensor, "
+                        f"got {got}")
     if not _ENABLED:
         return
     if dims is not None and (value.ndim != len(dims) or any(
@@ -368,14 +370,12 @@ def check_depth_bounds(low: object, high: object, names: tuple[str, str] = ("min
         ValueError: depth_cap must be a depth > min_depth (2.0) metres (infinity allowed), got 1.0
     """
     low_name, high_name = names
-    if not (is_real_number(low) and np.isfinite(low) and low >= 0):
-        raise ValueError(f"{low_name} must be a finite depth >= 0 metres{why}, got {low!r}")
-    if high is None and high_optional:
-        return
-    if not (is_real_number(high) and high > low):
+    low_ok = is_real_number(low) and np.isfinite(low) and low >= 0
+    if not low_ok or not ((high is None and high_optional) or (is_real_number(high) and high > low)):
         none = "None or " if high_optional else ""
-        raise ValueError(f"{high_name} must be {none}a depth > {low_name} ({low!r}) metres "
-                         f"(infinity allowed), got {high!r}")
+        raise ValueError(f"{low_name} must be a finite depth >= 0 metres{why}, got {low!r}"
+                         if not low_ok else f"{high_name} must be {none}a depth > {low_name} "
+                         f"({low!r}) metres (infinity allowed), got {high!r}")
 
 
 def check_param_batch(module: nn.Module, name: str, shape: Sequence[int]) -> None:

@@ -26,13 +26,11 @@ def collate_settings(batch: Sequence[CameraSettings], **_: Any) -> CameraSetting
         >>> tuple(collate_settings([s, s, s]).shape)
         (3, 2)
     """
-    specs = {s.aperture for s in batch}
-    if len(specs) > 1:
-        raise ValueError(f"cannot batch samples with different apertures {sorted(specs)}")
-    shapes = {tuple(s.shape) for s in batch}
-    if len(shapes) > 1:
-        raise ValueError(f"cannot batch camera settings of different shapes {sorted(shapes)} "
-                         "(samples with different numbers of shots)")
+    specs, shapes = {s.aperture for s in batch}, {tuple(s.shape) for s in batch}
+    if len(specs) > 1 or len(shapes) > 1:  # one batch, one camera: an aperture, a shot count
+        raise ValueError(f"cannot batch camera settings of different apertures {sorted(specs)} "
+                         f"or different shapes {sorted(shapes)} (samples with different "
+                         "numbers of shots)")
     stacked = {k: torch.stack([s.tensors()[k] for s in batch]) for k in SETTING_FIELDS}
     return CameraSettings(**stacked, aperture=batch[0].aperture)
 

@@ -35,6 +35,7 @@ from torch import Tensor
 
 from ..aperture_spec import DEFAULT_APERTURE, aperture_spec, parse_aperture
 from ..camera import CameraSettings
+from ..checks import require
 from ..progress import progress_bar
 from .measure import ConstantBlur, crop
 from .pair import CalibrationPair
@@ -326,8 +327,7 @@ def calibrate_from_depth(
         (True, 1.7)
     """
     for name, value in (("focal_length", focal_length), ("f_number", f_number)):
-        if not (math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        require(name, torch.tensor(float(value)), "positive")
     if reference_f_number is not None and not reference_f_number > f_number:
         raise ValueError(f"reference_f_number must exceed f_number ({f_number}) to be the sharper "
                          f"shot, got {reference_f_number!r}")

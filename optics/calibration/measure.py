@@ -12,7 +12,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from ..aperture import Aperture
-from ..checks import is_real_number
+from ..checks import is_real_number, require
 
 if TYPE_CHECKING:
     from .pair import CalibrationPair
@@ -190,11 +190,8 @@ def fit_thin_lens_curve(
         raise ValueError(f"depths and coc_px must hold one value per measurement, at least "
                          f"{2 if focus_distance is None else 1} (2 to fit the focus distance), got "
                          f"{depth.numel()} and {coc.numel()}")
-    for name, values, valid, allowed in (
-            ("depths", depth, (depth > 0) & ~torch.isnan(depth), "> 0 metres (infinity allowed)"),
-            ("coc_px", coc, torch.isfinite(coc) & (coc >= 0), "finite and >= 0 (pixels)")):
-        if not bool(valid.all()):
-            raise ValueError(f"{name} must be {allowed}, got {values.tolist()}")
+    require("depths", depth, "depth")  # numbers: always checked
+    require("coc_px", coc, "coc", "pixels")
     if focus_distance is not None and not (is_real_number(focus_distance)
                                            and math.isfinite(focus_distance)
                                            and focus_distance > 0):

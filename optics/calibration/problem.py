@@ -44,19 +44,14 @@ def parse_psf(psf: object, psf_scale: float | None) -> tuple[str, float | None]:
             aperture, why = None, str(error)
     if aperture is None:
         raise ValueError(f"psf must be one of {list(PSF_FAMILIES)}, got {psf!r} ({why})")
-    if isinstance(aperture, Gaussian):
-        if ":" not in psf:
-            return "gaussian", psf_scale
-        if psf_scale is not None:
-            raise ValueError(f"give the Gaussian scale once: psf={psf!r} fixes it, and psf_scale="
-                             f"{psf_scale!r} too; use psf='gaussian' with psf_scale")
-        return "gaussian", float(psf.split(":")[1])  # the digits given, not float32's
-    if psf_scale is not None:
-        raise ValueError(
-            f"psf_scale applies to the Gaussian PSF only, got {psf_scale!r} for a {spec} "
-            "(its size is the CoC itself)"
-        )
-    return spec, 1.0
+    gaussian = isinstance(aperture, Gaussian)
+    if gaussian and ":" not in psf:
+        return "gaussian", psf_scale
+    if psf_scale is not None:  # the spec fixes the size: a Gaussian's scale, or the CoC itself
+        raise ValueError(f"give the Gaussian scale once: psf_scale applies to the Gaussian PSF "
+                         f"only, as psf='gaussian' with psf_scale; got psf_scale={psf_scale!r} "
+                         f"for a {spec} (psf={psf!r} fixes its size)")
+    return ("gaussian", float(psf.split(":")[1])) if gaussian else (spec, 1.0)  # digits given
 
 
 @dataclass
@@ -132,15 +127,14 @@ def _fitted(known: dict[str, float | None]) -> tuple[str, ...]:
             given = " (metres, e.g. from the raw metadata)" if name == "focal_length" else ""
             raise ValueError(f"{name} must be finite and > 0{given}, got {value!r}")
     fitted = tuple(name for name in PARAMETERS if known[name] is None)
-    if not fitted:
-        raise ValueError("every parameter is fixed: leave at least one of them None to fit it")
     product = [name for name in fitted if name in PRODUCT]
-    if len(product) > 1:
+    if not fitted or len(product) > 1:  # one to fit at least, one of the product at most
         raise ValueError(
-            f"cannot fit {product} together: the blur depends on psf_scale * focal_length^2 / "
-            "(f_number * pixel_pitch) only, so only one of f_number, pixel_pitch and psf_scale "
-            "can be fitted; fix the others (e.g. the f-number from the metadata)"
-        )
+            "every parameter is fixed: leave at least one of them None to fit it" if not fitted
+            else f"cannot fit {product} together: the blur depends on psf_scale * "
+            "focal_length^2 / (f_number * pixel_pitch) only, so only one of f_number, "
+            "pixel_pitch and psf_scale can be fitted; fix the others (e.g. the f-number from "
+            "the metadata)")
     return fitted
 
 

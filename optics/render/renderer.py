@@ -38,7 +38,7 @@ import torch
 from torch import Tensor, nn
 
 from ..aperture import MIN_SIGMA_PX, Aperture, Disk, Gaussian
-from ..checks import check_finite, check_tensor, is_tracing
+from ..checks import check_finite, check_tensor, is_tracing, require
 from . import backends, layer_ops, ops, triton_kernels
 from .profile import ProfileFilter
 
@@ -280,7 +280,7 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     if not math.isfinite(image_sum):
         check_finite("image", image)  # names the bad values (a sum that overflowed passes)
     if not coc_valid:
-        raise ValueError(coc_message)
+        require("coc_px", coc, "coc", "pixels")  # raises, describing the values
     if depth_valid and not depth_valid[0]:
         check_tensor("depth", depth, values="depth")  # raises, describing the values
     return largest
