@@ -147,3 +147,24 @@ def test_check_finite_passes_finite_and_names_input():
     check_finite("focused", torch.rand(2, 3))
     with pytest.raises(ValueError, match="^focused has 2 NaN"):
         check_finite("focused", torch.tensor([float("nan"), 1.0, float("nan")]))
+
+
+def test_the_switch_turns_the_tensor_checks_off_and_on_and_keeps_results():
+    """`checks_disabled` trusts shapes and tensor values (a hot path); numbers stay checked."""
+    import pytest
+    import torch
+
+    from optics import Camera, Sensor, ThinLens
+    from optics.checks import checks_disabled, set_checks
+
+    camera = Camera(ThinLens(0.05, 2.0, 2.0), Sensor(150e-6))
+    image, depth = torch.rand(1, 3, 8, 8), torch.full((1, 1, 8, 8), 3.0)
+    checked = camera.render(image, depth)
+    with checks_disabled():
+        torch.testing.assert_close(camera.render(image, depth), checked, rtol=0, atol=0)
+        camera.lens.coc_diameter(torch.tensor([0.0]))  # a depth of 0 is trusted
+        with pytest.raises(ValueError, match="f_number must be finite and > 0"):
+            ThinLens(0.05, -2.0, 2.0)  # a number: always checked
+    with pytest.raises(ValueError, match="depth must be > 0"):
+        camera.lens.coc_diameter(torch.tensor([0.0]))
+    assert set_checks(True) is True
