@@ -176,17 +176,10 @@ class Trainer:
     def predict(self, image: Tensor, focused: Tensor | None = None,
                 settings: CameraSettings | None = None) -> Tensor:
         """Depth `(B,1,H,W)` metres for a batch (`focused` `(B,F,3,H,W)` and their
-        `(B,F)` or `(F,)` `CameraSettings` in `"aif+focused"` mode), without gradients."""
-        was_training = self.model.training
-        self.model.eval()
-        with torch.no_grad():
-            image = image.to(self.device)
-            if self.config.input_mode == "aif":
-                depth = self.model(image)
-            else:
-                depth = self.model(image, focused.to(self.device), to_device(settings, self.device))
-        self.model.train(was_training)
-        return depth
+        `(B,F)` or `(F,)` `CameraSettings` in `"aif+focused"` mode), without gradients
+        (`models.depth_from_photos.tiling.run_network`)."""
+        return run_network(self.model, image.to(self.device), to_device(focused, self.device),
+                           to_device(settings, self.device))
 
     def at_depth_limits(self, depth: Tensor) -> Tensor:
         """The share of the pixels of `depth` at `depth_min` or `depth_max` (within
