@@ -152,6 +152,39 @@ def network_method(network: nn.Module, device: str | torch.device | None = None,
     return run
 
 
+def evaluate_network(network: nn.Module, config: Any, samples: Iterable[Mapping[str, Any]],
+                     checker: Any = None, device: str | torch.device | None = None,
+                     **options: Any) -> dict[str, float]:
+    """`evaluate` of a network trained with `config` (a `TrainConfig`) on whole `samples`
+    (`"eigen"`), each checked against the config first (`checker`, by default a new
+    `models.training.sample_checks.TestSampleChecker`): `Trainer.evaluate` and
+    `defocus evaluate`.
+
+    Args:
+        network: the network (`Trainer.model`, `models.loading.load_model`'s).
+        config: its `TrainConfig` (input mode, focused photos, depth range).
+        samples: unbatched samples with `image`, `depth` (and `mask`; `focused` and `camera`
+            in `"aif+focused"` mode).
+        checker: checks each sample and counts its ground truth outside the depth range.
+        device: where the network runs (default: where its weights are).
+        **options: `min_depth`, `max_depth`, `crop`, `median_scaling` of `depth_metrics`.
+
+    Returns:
+        the mean metrics (`models.metrics.METRIC_NAMES`) and `at_depth_limits`: the share of
+        predicted pixels at `depth_min` or `depth_max` (near 1: the network collapsed).
+    """
+    from .metrics import at_depth_limits
+    from .training.sample_checks import TestSampleChecker
+
+    checker = checker if checker is not None else TestSampleChecker(config, "the network")
+    checked = (checker.check(sample, index) for index, sample in enumerate(samples))
+    metrics = evaluate(network_method(network, device, max_pixels=None), checked, "eigen",
+                       also=lambda depth, _: {"at_depth_limits": float(at_depth_limits(
+                           depth, config.depth_min, config.depth_max))}, **options)
+    del metrics["images"], metrics["skipped"]
+    return metrics
+
+
 def _scorer(protocol: str | Protocol | Score, options: Mapping[str, Any]) -> Score | None:
     """The score of each image under `protocol`; None for a callable (it scores itself)."""
     if callable(protocol):
@@ -235,5 +268,5 @@ def evaluate(predict: Method, samples: Iterable[Mapping[str, Any]],
     return result
 
 
-__all__ = ["TILE_PIXELS", "MeanMetrics", "Method", "Score", "evaluate", "label_free_method",
-           "network_method"]
+__all__ = ["TILE_PIXELS", "MeanMetrics", "Method", "Score", "evaluate", "evaluate_network",
+           "label_free_method", "network_method"]

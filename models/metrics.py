@@ -337,6 +337,20 @@ def _mean_ranks(x: Tensor) -> Tensor:
     return (first + (counts - 1) / 2).to(x.dtype)[inverse]
 
 
+def at_depth_limits(depth: Tensor, depth_min: float, depth_max: float,
+                    tolerance: float = 1e-3) -> Tensor:
+    """The share of the pixels of `depth` at `depth_min` or `depth_max` (within `tolerance` of
+    the range), a 0-d tensor: near 1, a network collapsed to the limits of its output.
+
+    Example:
+        >>> at_depth_limits(torch.tensor([1.0, 5.0, 10.0, 9.999]), 1.0, 10.0)
+        tensor(0.7500)
+    """
+    tol = tolerance * (depth_max - depth_min)
+    depth = depth.detach()
+    return ((depth <= depth_min + tol) | (depth >= depth_max - tol)).float().mean()
+
+
 def confident_half_error(error: Tensor, confidence: Tensor) -> float:
     """How well a confidence map ranks per-pixel errors: the mean `error` over the more
     confident half of the pixels divided by the mean over all of them (1: no better than

@@ -26,10 +26,10 @@ from ..checkpoints import (
     restore_weights,
     to_plain,
 )
-from ..evaluation import MeanMetrics
+from ..depth_from_photos.tiling import run_network
+from ..evaluation import evaluate_network
 from ..loading import read_checkpoint
 from ..losses import DefocusLoss
-from ..metrics import depth_metrics
 from ..networks import build_network
 from ..plotting import plot_prediction
 from ..run_log import RunLog
@@ -377,26 +377,17 @@ class Trainer:
             checker: checks each sample and counts its ground truth outside the depth range.
 
         Raises:
-            ValueError: a sample the network cannot read (`TestSampleChecker.check`), or none.
+            ValueError: a sample the network cannot read (`TestSampleChecker.check`), or none
+                with ground-truth depth (`models.evaluation.evaluate`, which skips samples
+                whose mask is empty).
 
         Returns:
             the mean metrics, and `at_depth_limits`: the share of predicted pixels at
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
-        means = MeanMetrics()
-        checker = checker if checker is not None else TestSampleChecker(self.config, "the network")
-        for index, sample in enumerate(test_set):
-            batch = collate([checker.check(sample, index)])
-            depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
-            metrics = depth_metrics(pred=depth.cpu(), target=batch["depth"],
-                                    mask=batch.get("mask"), min_depth=min_depth,
-                                    max_depth=depth_cap, crop=crop,
-                                    median_scaling=median_scaling)
-            metrics["at_depth_limits"] = float(self.at_depth_limits(depth))
-            means.add(metrics)
-        if means.count == 0:
-            raise ValueError("test_set holds no samples")
-        return means.mean()
+        return evaluate_network(self.model, self.config, test_set, checker, self.device,
+                                min_depth=min_depth, max_depth=depth_cap, crop=crop,
+                                median_scaling=median_scaling)
 
     def _validate(self) -> None:
         metrics = self.evaluate(self.val_set)
