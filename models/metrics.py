@@ -279,9 +279,9 @@ def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
     g = target.detach().reshape(-1).double()
     if mask is not None:
         g = g[mask.reshape(-1).to(torch.bool)]
-    g = g[torch.isfinite(g) & (g > 0)]
-    if g.numel() == 0:
-        raise ValueError("target has no valid (finite, > 0) depth")
+    valid = torch.isfinite(g) & (g > 0)
+    refuse_empty_images(valid[None, None], why=" (finite, > 0) in target")
+    g = g[valid]
     g, _ = g.sort()
     weights = torch.cumsum(1.0 / g, 0)
     index = int(torch.searchsorted(weights, weights[-1] / 2))
