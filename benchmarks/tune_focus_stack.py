@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from datasets.capture import capture, random_camera  # noqa: E402
 from datasets.synthetic import generate_scene  # noqa: E402
+from models import evaluate  # noqa: E402
 from models.depth_from_photos import estimate_depth  # noqa: E402
 from models.metrics import best_constant_depth, depth_metrics  # noqa: E402
 
@@ -68,23 +69,38 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
     options = json.loads(args.variant)
-    ratios = []
-    for aif, focused, settings, depth, depth_range in scenes(
-            args.scenes, args.shots, size=tuple(args.size), blur_px=tuple(args.blur)):
-        target, mask = depth[None], torch.ones_like(depth[None], dtype=torch.bool)
+    samples = [{"image": aif, "focused": focused, "camera": settings, "depth": depth,
+                "mask": torch.ones_like(depth, dtype=torch.bool), "depth_range": depth_range}
+               for aif, focused, settings, depth, depth_range in scenes(
+                   args.scenes, args.shots, size=tuple(args.size), blur_px=tuple(args.blur))]
+
+    def method(sample):
+        return estimate_depth(sample["focused"], sample["camera"], sample["depth_range"],
+                              method=args.method, options=options, all_in_focus=False,
+                              max_coc_px=args.max_coc_px,
+                              image=sample["image"] if args.method == "sweep" else None)["depth"]
+
+    def ratio(depth, sample):
+        """abs rel over the best constant depth's (of the scene's own ground truth)"""
+        target, mask = sample["depth"], sample["mask"]
         constant = best_constant_depth(target=target, mask=mask)
         floor = depth_metrics(pred=torch.full_like(target, constant), target=target,
                               mask=mask)["abs_rel"]
-        out = estimate_depth(focused, settings, depth_range, method=args.method,
-                             options=options, all_in_focus=False, max_coc_px=args.max_coc_px,
-                             image=aif if args.method == "sweep" else None)
-        ratios.append(depth_metrics(pred=out["depth"][None], target=target,
-                                    mask=mask)["abs_rel"] / floor)
+        return {"ratio": depth_metrics(pred=depth, target=target, mask=mask)["abs_rel"] / floor}
+
+    ratios = []
+
+    def report(index, _, values):
+        ratios.append(values["ratio"])
         if args.per_scene:
-            print(f"scene {len(ratios) - 1}: {focused.shape[0]} shots, focus "
+            settings = samples[index]["camera"]
+            near, far = samples[index]["depth_range"]
+            print(f"scene {index}: {samples[index]['focused'].shape[0]} shots, focus "
                   f"{', '.join(f'{d:.2f}' for d in settings.focus_distance.tolist())} m, "
-                  f"f/{float(settings.f_number.reshape(-1)[0]):.1f}, depth {depth_range[0]:.2f}-"
-                  f"{depth_range[1]:.2f} m: ratio {ratios[-1]:.3f}")
+                  f"f/{float(settings.f_number.reshape(-1)[0]):.1f}, depth {near:.2f}-"
+                  f"{far:.2f} m: ratio {ratios[-1]:.3f}")
+
+    evaluate(method, samples, ratio, report=report)
     print(f"{args.method} {options} max_coc_px={args.max_coc_px}: median "
           f"{statistics.median(ratios):.3f} mean {statistics.fmean(ratios):.3f} over "
           f"{len(ratios)} scenes")

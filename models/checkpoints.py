@@ -60,15 +60,26 @@ class CheckpointError(ValueError):
     plain data. The message is one line and names the file."""
 
 
-def _refusal(path: Path, error: Exception) -> CheckpointError:
-    """The one-line error for a file that `torch.load(weights_only=True)` did not open."""
+#: the `kind` of a weights file of the camera-general network (`models.loading.save_weights`)
+WEIGHTS_KIND = "DepthFromDefocus"
+_LOAD_ERRORS = (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError,
+                AttributeError, ImportError, IndexError, KeyError, zipfile.BadZipFile,
+                UnicodeDecodeError)
+
+
+def _refusal(path: Path, error: Exception, after: str = "") -> CheckpointError:
+    """The one-line error for a file that `torch.load` did not open (`after` ends it)."""
     text = str(error)
+    if isinstance(error, ImportError | AttributeError):  # a class or module the file names
+        return CheckpointError(f"{path} could not be unpickled: {type(error).__name__}: "
+                               f"{' '.join(text.split())[:120]} (the code that wrote it must "
+                               f"be importable){after}")
     found = re.search(r"GLOBAL ([\w.]+)", text)
     if found:
         return CheckpointError(
             f"refused to open checkpoint {path}: it holds a Python object ({found.group(1)}) "
             "besides tensors and plain data, and loading it could run code, so nothing in it "
-            f"was run; {CONVERT_HINT.format(path=path)}")
+            f"was run; {CONVERT_HINT.format(path=path)}{after}")
     detail = re.search(r"Unsupported operand \d+|invalid load key[^.\n]*", text)
     if detail:
         reason = f"neither a zip archive nor a pickle: {detail.group(0)}"
@@ -79,38 +90,49 @@ def _refusal(path: Path, error: Exception) -> CheckpointError:
     else:
         reason = re.split(r"(?<=\.)\s", " ".join(text.split()))[0].rstrip(".")[:120]
     reason = reason or type(error).__name__
-    return CheckpointError(f"{path} is not a readable PyTorch checkpoint ({reason})")
+    return CheckpointError(f"{path} is not a readable PyTorch checkpoint ({reason}){after}")
 
 
-def load_checkpoint(path: str | Path, map_location: Any = "cpu") -> dict[str, Any]:
-    """Read a checkpoint file without running any code (`weights_only=True`).
+def _read(path: Path, map_location: Any, weights_only: bool = True, mmap: bool = False,
+          after: str = "") -> dict[str, Any]:
+    """`torch.load` of a checkpoint or weights file, refused in one line naming it (`after`
+    ends each refusal)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist or is not a file")
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=weights_only, mmap=mmap)
+    except _LOAD_ERRORS as error:
+        raise _refusal(path, error, after) from None
+    if not isinstance(state, Mapping) or not (state.get("kind") == WEIGHTS_KIND or {
+            "model", "config"} <= set(state) and isinstance(state["config"], Mapping)):
+        found = (f"its keys are {sorted(map(str, state))[:6]}" if isinstance(state, Mapping)
+                 else f"it holds a {type(state).__name__}")
+        raise CheckpointError(f"{path} is not a defocus checkpoint (a dict with 'model' and "
+                              f"'config' entries; {found}){after}")
+    return dict(state)
+
+
+def load_checkpoint(path: str | Path, map_location: Any = "cpu",
+                    mmap: bool = False) -> dict[str, Any]:
+    """Read a model file without running any code (`weights_only=True`): the one loader of
+    training checkpoints and weights files (`models.loading` builds models from what it reads).
 
     Args:
-        path: a `.pt` file written by `CheckpointStore` or `save_checkpoint`.
+        path: a `.pt` file written by `CheckpointStore`, `save_checkpoint` or
+            `models.loading.save_weights`.
         map_location: where tensors go, as for `torch.load`.
+        mmap: memory-map the file instead of reading its tensors (a zip archive only).
 
     Returns:
-        the checkpoint `dict` (at least `model` and `config`).
+        the checkpoint `dict`: at least `model` and `config` (a mapping), or a weights file's
+        (`kind` `WEIGHTS_KIND`).
 
     Raises:
         FileNotFoundError: no such file.
         CheckpointError: the file is not a checkpoint, or holds objects other than tensors and
             plain data (refused; nothing in it runs).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint {path} does not exist or is not a file")
-    try:
-        state = torch.load(path, map_location=map_location, weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError,
-            AttributeError, IndexError, KeyError, zipfile.BadZipFile, UnicodeDecodeError) as error:
-        raise _refusal(path, error) from None
-    if not isinstance(state, Mapping) or not {"model", "config"} <= set(state):
-        raise CheckpointError(f"{path} is not a defocus checkpoint (no 'model' and 'config' "
-                              "entries)")
-    if not isinstance(state["config"], Mapping):
-        raise CheckpointError(f"{path} is not a defocus checkpoint ('config' is not a mapping)")
-    return dict(state)
+    return _read(Path(path), map_location, mmap=mmap)
 
 
 def restore_weights(module: torch.nn.Module, weights: Mapping[str, Tensor],
@@ -265,25 +287,9 @@ def convert_checkpoint(source: str | Path, target: str | Path) -> Path:
         `target`, written atomically and checked by reading it back safely.
     """
     source, target = Path(source), Path(target)
-    if not source.is_file():
-        raise FileNotFoundError(f"checkpoint {source} does not exist or is not a file")
-    try:
-        state = torch.load(source, map_location="cpu", weights_only=False)
-    except (ImportError, AttributeError) as error:  # a class or module the file names is gone
-        raise CheckpointError(f"{source} could not be unpickled: {type(error).__name__}: "
-                              f"{' '.join(str(error).split())[:120]} (the code that wrote it "
-                              f"must be importable); nothing written: {target} is left as it "
-                              "was") from None
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, TypeError, IndexError,
-            KeyError, zipfile.BadZipFile, UnicodeDecodeError) as error:
-        raise _refusal(source, error) from None
-    if not isinstance(state, Mapping) or not {"model", "config"} <= set(state):
-        found = (f"its keys are {sorted(map(str, state))[:6]}" if isinstance(state, Mapping)
-                 else f"it holds a {type(state).__name__}")
-        raise CheckpointError(f"{source} is not a defocus checkpoint (a dict with 'model' and "
-                              f"'config' entries; {found}); nothing written: {target} is "
-                              "left as it was")
-    data = serialize(to_plain(dict(state), str(source)))
+    state = _read(source, "cpu", weights_only=False,
+                  after=f"; nothing written: {target} is left as it was")
+    data = serialize(to_plain(state, str(source)))
     # checked at a temporary name beside target: a failed conversion leaves target as it was
     _make_parent(target)
     checked = target.with_name(f".{target.name}.{os.getpid()}.converted")
@@ -399,5 +405,5 @@ class CheckpointStore:
         return removed
 
 
-__all__ = ["CHECKPOINT_FORMAT", "CheckpointError", "CheckpointStore", "check_plain",
+__all__ = ["CHECKPOINT_FORMAT", "WEIGHTS_KIND", "CheckpointError", "CheckpointStore", "check_plain",
            "convert_checkpoint", "load_checkpoint", "save_checkpoint", "to_plain"]

@@ -1,15 +1,19 @@
-"""Scoring a depth method: one evaluation loop, the protocol's metrics averaged over images.
+"""Scoring a depth method: the one evaluation loop of the library (`evaluate`).
 
 A *method* is any callable `predict(sample) -> depth` that takes a sample of `datasets.base`
 (`image`, `focused`, `camera`, and `has_all_in_focus` for the focal-stack benchmarks) and
-returns depth `(1,H,W)` in metres; `label_free_method` makes one of the methods of
+returns depth `(1,H,W)` in metres. Two adapters make one: `label_free_method` runs a method of
 `models.depth_from_photos.estimate_depth` (the sweep where the sample has a real all-in-focus
-image, the relative blur between the shots where it has not), a trained model of
-`models.loading.load_depth_model` runs through it too, and any other callable can be swapped
-in. `evaluate` runs a method over samples and averages `models.protocols.protocol_metrics` over
-the images with ground truth, as the benchmarks' own code does. `MeanMetrics` is the running
-mean every evaluation loop of the package shares (`Trainer.evaluate`,
-`models.experiment.evaluate_whole_images`).
+image, the relative blur between the shots where it has not; a model of
+`models.loading.load_depth_model` runs through it too), and `network_method` runs a trained
+depth network (a `Trainer`'s `model`, `models.loading.load_model`'s network) whole or in
+tiles; any other callable can be swapped in.
+
+`evaluate(method, samples, protocol, **keywords)` runs a method over samples and averages each
+image's metrics: a benchmark's protocol (`models.protocols.PROTOCOLS`, as the benchmarks' own
+code scores), `"eigen"` (`models.metrics.depth_metrics`) or any `score(depth, sample)`.
+`Trainer.evaluate`, `models.experiment`, `defocus evaluate`, the examples and the benchmarks
+all score through it.
 
 Example:
     >>> import torch
@@ -30,10 +34,16 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from .protocols import PROTOCOLS, Protocol, protocol_metrics
+from .depth_from_photos.tiling import check_tiling, run_network
+from .metrics import depth_metrics
+from .protocols import Protocol, as_protocol, protocol_metrics
 
 #: A depth method: a sample in, depth `(1,H,W)` metres out.
 Method = Callable[[Mapping[str, Any]], Tensor]
+#: A scoring rule: one image's metrics from its depth `(1,H,W)` and its sample.
+Score = Callable[[Tensor, Mapping[str, Any]], Mapping[str, float]]
+#: Whole images above this many pixels are predicted tile by tile (`network_method`).
+TILE_PIXELS = 4_000_000
 
 
 class MeanMetrics:
@@ -101,55 +111,162 @@ def label_free_method(depth_range: tuple[float, float], method: str = "auto",
     return run
 
 
-def evaluate(predict: Method, samples: Iterable[Mapping[str, Any]], protocol: str | Protocol, *,
-             report: Callable[[int, str, dict[str, float]], None] | None = None,
-             ) -> dict[str, float]:
-    """The protocol's metrics of `predict` averaged over the samples that have ground truth.
+def network_method(network: nn.Module, device: str | torch.device | None = None,
+                   max_pixels: int | None = TILE_PIXELS, tile: int = 1024,
+                   overlap: int = 64) -> Method:
+    """A method that runs a trained depth network on a sample: its all-in-focus `image` and, in
+    `"aif+focused"` mode, its `focused` photos and `camera` settings, whole up to `max_pixels`
+    pixels and in tiles above (`models.depth_from_photos.tiling.run_network`, which also
+    handles the input mode).
 
     Args:
-        predict: `(sample) -> depth (1,H,W)` metres (e.g. `label_free_method`).
-        samples: samples of `datasets.base` (a dataset, a list, ...), each with `depth`
-            `(1,H,W)` metres and `mask`.
-        protocol: a name of `models.protocols.PROTOCOLS` or a `Protocol`.
-        report: called after each image as `report(index, sample id, its metrics)`.
-
-    Returns:
-        the averaged metrics (`models.protocols.PROTOCOL_METRIC_NAMES`), `images` (how many
-        were scored) and `skipped` (samples without ground truth).
+        network: a network of `models.networks.build_network` (`Trainer.model`,
+            `models.loading.load_model`'s), in any mode: it is run in eval mode.
+        device: where it runs (default: where its weights are); the depth comes back on the
+            CPU.
+        max_pixels: whole images up to this many pixels go through in one piece (None: all).
+        tile: side of a tile's kept centre, pixels (> 0).
+        overlap: context around each tile, pixels (>= 0).
 
     Raises:
-        ValueError: an unknown protocol, no sample with ground truth (e.g. ZEDD's test split,
-            Mobile Depth), or depth of another shape from `predict`.
+        ValueError: `tile <= 0` or `overlap < 0`.
 
     Example:
-        >>> import torch
+        >>> from models.networks import build_network
+        >>> method = network_method(build_network("small", "aif", 0, 1.0, 10.0, width=4))
+        >>> method({"image": torch.rand(3, 8, 8)}).shape
+        torch.Size([1, 8, 8])
+    """
+    check_tiling(tile, overlap)
+    if device is None:
+        device = next(network.parameters()).device
+
+    def run(sample: Mapping[str, Any]) -> Tensor:
+        focused, camera = sample.get("focused"), sample.get("camera")
+        depth = run_network(network, sample["image"][None].to(device),
+                            None if focused is None else focused[None].to(device),
+                            None if camera is None else camera.to(device), max_pixels, tile,
+                            overlap)
+        return depth[0].cpu()
+
+    return run
+
+
+def evaluate_network(network: nn.Module, config: Any, samples: Iterable[Mapping[str, Any]],
+                     checker: Any = None, device: str | torch.device | None = None,
+                     **options: Any) -> dict[str, float]:
+    """`evaluate` of a network trained with `config` (a `TrainConfig`) on whole `samples`
+    (`"eigen"`), each checked against the config first (`checker`, by default a new
+    `models.training.sample_checks.TestSampleChecker`): `Trainer.evaluate` and
+    `defocus evaluate`.
+
+    Args:
+        network: the network (`Trainer.model`, `models.loading.load_model`'s).
+        config: its `TrainConfig` (input mode, focused photos, depth range).
+        samples: unbatched samples with `image`, `depth` (and `mask`; `focused` and `camera`
+            in `"aif+focused"` mode).
+        checker: checks each sample and counts its ground truth outside the depth range.
+        device: where the network runs (default: where its weights are).
+        **options: `min_depth`, `max_depth`, `crop`, `median_scaling` of `depth_metrics`.
+
+    Returns:
+        the mean metrics (`models.metrics.METRIC_NAMES`) and `at_depth_limits`: the share of
+        predicted pixels at `depth_min` or `depth_max` (near 1: the network collapsed).
+    """
+    from .metrics import at_depth_limits
+    from .training.sample_checks import TestSampleChecker
+
+    checker = checker if checker is not None else TestSampleChecker(config, "the network")
+    checked = (checker.check(sample, index) for index, sample in enumerate(samples))
+    metrics = evaluate(network_method(network, device, max_pixels=None), checked, "eigen",
+                       also=lambda depth, _: {"at_depth_limits": float(at_depth_limits(
+                           depth, config.depth_min, config.depth_max))}, **options)
+    del metrics["images"], metrics["skipped"]
+    return metrics
+
+
+def _scorer(protocol: str | Protocol | Score, options: Mapping[str, Any]) -> Score | None:
+    """The score of each image under `protocol`; None for a callable (it scores itself)."""
+    if callable(protocol):
+        return None
+    if protocol == "eigen":
+        return lambda depth, s: depth_metrics(pred=depth, target=s["depth"], mask=s.get("mask"),
+                                              **options)
+    protocol = as_protocol(protocol)
+    return lambda depth, s: protocol_metrics(pred=depth, target=s["depth"], mask=s.get("mask"),
+                                             protocol=protocol, **options)
+
+
+def _has_truth(sample: Mapping[str, Any]) -> bool:
+    """Whether `sample` holds ground-truth depth with at least one valid pixel."""
+    mask = sample.get("mask")
+    return sample.get("depth") is not None and (mask is None or bool(mask.any()))
+
+
+def evaluate(predict: Method, samples: Iterable[Mapping[str, Any]],
+             protocol: str | Protocol | Score, *,
+             report: Callable[[int, str, dict[str, float]], None] | None = None,
+             also: Score | None = None, **options: Any) -> dict[str, float]:
+    """The metrics of `predict` averaged over `samples`: the only evaluation loop of the library.
+
+    Each image's metrics come first (in the order the samples come), then their mean: the
+    protocol's metrics of a sample are those of its one image, as the benchmarks' code does.
+
+    Args:
+        predict: `(sample) -> depth (1,H,W)` metres (e.g. `label_free_method`,
+            `network_method`).
+        samples: samples of `datasets.base` (a dataset, a list, a generator, ...).
+        protocol: how an image is scored: a name of `models.protocols.PROTOCOLS` or a
+            `Protocol` (`protocol_metrics`), or `"eigen"` (`models.metrics.depth_metrics`),
+            each against the sample's `depth` `(1,H,W)` metres and `mask`, samples without
+            ground truth skipped; or a callable `score(depth, sample) -> metrics`, which scores
+            every sample (e.g. the self-supervised losses of data without depth).
+        report: called after each image as `report(index, sample id, its metrics)`.
+        also: more metrics of each image, `also(depth, sample) -> metrics` (e.g.
+            `models.metrics.depth_order`), averaged with the protocol's.
+        **options: keywords of the protocol's metric function, e.g. `min_depth`,
+            `max_depth`, `crop` and `median_scaling` of `depth_metrics` for `"eigen"`.
+
+    Returns:
+        the averaged metrics, `images` (how many were scored) and `skipped` (samples without
+        ground truth).
+
+    Raises:
+        ValueError: an unknown protocol, no sample to score (for a protocol with ground truth:
+            none has it, e.g. ZEDD's test split, Mobile Depth), or depth of another shape than
+            the sample's ground truth from `predict`; and the metric functions' refusals.
+
+    Example:
         >>> sample = {"depth": torch.full((1, 4, 4), 2.0), "mask": torch.ones(1, 4, 4).bool()}
         >>> evaluate(lambda s: torch.full((1, 4, 4), 2.0), [sample], "zedd")["rmse"]
         0.0
+        >>> evaluate(lambda s: torch.full((1, 4, 4), 2.5), [sample], "eigen", max_depth=10.0)["abs_rel"]
+        0.25
     """
-    if isinstance(protocol, str) and protocol not in PROTOCOLS:
-        raise ValueError(f"protocol must be one of {sorted(PROTOCOLS)}, got {protocol!r}")
-    means = MeanMetrics()
-    skipped = 0
+    score = _scorer(protocol, options) or protocol
+    needs_truth = score is not protocol
+    means, skipped = MeanMetrics(), 0
     for index, sample in enumerate(samples):
-        if not bool(sample["mask"].any()):
+        if needs_truth and not _has_truth(sample):
             skipped += 1
             continue
         depth = predict(sample)
-        if tuple(depth.shape) != tuple(sample["depth"].shape):
+        truth = sample.get("depth")
+        if truth is not None and tuple(depth.shape) != tuple(truth.shape):
             raise ValueError(f"the method returned depth of shape {tuple(depth.shape)} for sample "
-                             f"{sample.get('id', index)!r}, expected {tuple(sample['depth'].shape)}")
-        values = protocol_metrics(pred=depth, target=sample["depth"], mask=sample["mask"],
-                                  protocol=protocol)
+                             f"{sample.get('id', index)!r}, expected {tuple(truth.shape)}")
+        values = {**score(depth, sample), **(also(depth, sample) if also is not None else {})}
         means.add(values)
         if report is not None:
             report(index, str(sample.get("id", index)), values)
     if means.count == 0:
         raise ValueError(f"no sample has ground-truth depth ({skipped} without): this split is "
-                         "scored elsewhere (a benchmark server) or judged by eye")
+                         "scored elsewhere (a benchmark server) or judged by eye" if needs_truth
+                         else "samples holds no samples to score")
     result = means.mean()
     result.update(images=means.count, skipped=skipped)
     return result
 
 
-__all__ = ["MeanMetrics", "Method", "evaluate", "label_free_method"]
+__all__ = ["TILE_PIXELS", "MeanMetrics", "Method", "Score", "evaluate", "evaluate_network",
+           "label_free_method", "network_method"]

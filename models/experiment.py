@@ -23,14 +23,10 @@ from torch.utils.data import Subset
 from optics import collate
 
 from .depth_from_photos import estimate_depth
-from .depth_from_photos.tiling import apply_in_tiles, check_tiling
 from .direct import fit_depth_direct
-from .evaluation import MeanMetrics
+from .evaluation import TILE_PIXELS, evaluate, network_method
 from .metrics import best_constant_depth, depth_metrics, depth_order
 from .training import TrainConfig, Trainer
-
-#: Whole images above this many pixels are predicted tile by tile (`predict_tiled`).
-TILE_PIXELS = 4_000_000
 
 
 def keep_freed_memory() -> bool:
@@ -77,62 +73,38 @@ def format_duration(seconds: float) -> str:
     return f"{minutes // 60} h {minutes % 60:02d} min"
 
 
-def predict_tiled(trainer: Trainer, image: Tensor, focused: Tensor | None = None,
-                  settings: Any = None, max_pixels: int = TILE_PIXELS,
-                  tile: int = 1024, overlap: int = 64) -> Tensor:
-    """`trainer.predict` on a whole batch `(B,3,H,W)`, in overlapping tiles when `H*W` is
-    above `max_pixels` (the networks are fully convolutional).
-
-    Each tile is `tile` pixels square plus `overlap` pixels of context on every side that is
-    not an image border; only its centre is kept, so seams see the same context as the inside.
-
-    Args:
-        trainer: a trained `Trainer`.
-        image: `(B,3,H,W)`; `focused` `(B,F,3,H,W)` and `settings` as for `Trainer.predict`.
-        max_pixels: whole images up to this many pixels go through in one piece.
-        tile: side of a tile's kept centre, pixels (> 0).
-        overlap: context around each tile, pixels (>= 0).
-
-    Returns:
-        depth `(B,1,H,W)` metres, on the trainer's device.
-    """
-    check_tiling(tile, overlap)
-    if image.shape[-2] * image.shape[-1] <= max_pixels:
-        return trainer.predict(image, focused, settings)
-    return apply_in_tiles(lambda x, f: trainer.predict(x, f, settings), [image, focused], tile,
-                          overlap)
-
-
 def evaluate_whole_images(
     trainer: Trainer, test_set: Sequence[Mapping[str, Any]], constant: float | None = None,
     depth_cap: float | None = None, crop: str | Sequence[float] | None = None,
     max_pixels: int = TILE_PIXELS,
 ) -> tuple[dict[str, float], dict[str, float] | None]:
-    """Mean metrics of the network and of a constant depth over whole test images, one pass.
+    """Mean metrics of the network and of a constant depth over whole test images, one pass
+    of `models.evaluate` (`"eigen"`).
 
     Each sample is read once (its focal stack synthesised or loaded once) and predicted whole,
-    tiled above `max_pixels` (`predict_tiled`). The network's metrics include `depth_order`
-    (`models.metrics.depth_order`: whether it orders each scene's depths, which abs rel alone
-    does not show).
+    tiled above `max_pixels` (`models.evaluation.network_method`). The network's metrics
+    include `depth_order` (`models.metrics.depth_order`: whether it orders each scene's depths,
+    which abs rel alone does not show).
 
     Returns:
         (the network's metrics, the constant's metrics or None without `constant`).
     """
-    ours, const = MeanMetrics(), MeanMetrics()
-    for sample in test_set:
-        batch = collate([sample])
-        depth = predict_tiled(trainer, batch["image"], batch.get("focused"),
-                              batch.get("camera"), max_pixels=max_pixels).cpu()
-        kwargs = {"target": batch["depth"], "mask": batch.get("mask"), "max_depth": depth_cap,
+    def also(depth: Tensor, sample: Mapping[str, Any]) -> dict[str, float]:
+        kwargs = {"target": sample["depth"], "mask": sample.get("mask"), "max_depth": depth_cap,
                   "crop": crop}
-        ours.add({**depth_metrics(pred=depth, **kwargs), "depth_order": depth_order(
-            pred=depth, target=batch["depth"], mask=batch.get("mask"), max_depth=depth_cap,
-            crop=crop)})
+        values = {"depth_order": depth_order(pred=depth, **kwargs)}
         if constant is not None:
-            const.add(depth_metrics(pred=torch.full_like(batch["depth"], constant), **kwargs))
-    if ours.count == 0:
-        raise ValueError("test_set holds no samples")
-    return ours.mean(), const.mean() if constant is not None else None
+            values.update({f"constant {key}": value for key, value in depth_metrics(
+                pred=torch.full_like(sample["depth"], constant), **kwargs).items()})
+        return values
+
+    method = network_method(trainer.model, trainer.device, max_pixels=max_pixels)
+    metrics = evaluate(method, test_set, "eigen", also=also, max_depth=depth_cap, crop=crop)
+    del metrics["images"], metrics["skipped"]
+    ours = {key: value for key, value in metrics.items() if not key.startswith("constant ")}
+    const = {key[len("constant "):]: value for key, value in metrics.items()
+             if key.startswith("constant ")}
+    return ours, const if constant is not None else None
 
 
 def evenly_spaced(samples: Sequence[Mapping[str, Any]], count: int) -> Sequence[Mapping[str, Any]]:
@@ -211,17 +183,20 @@ def _progress_reporter(total: int, every: int, report: Callable[[str], None],
 
 
 def reconstruction_metrics(trainer: Trainer, test_set: Sequence[Mapping[str, Any]]) -> dict[str, float]:
-    """Mean self-supervised loss terms on `test_set` (for data without ground-truth depth)."""
-    totals: dict[str, float] = {}
-    for sample in test_set:
-        batch = collate([sample])
-        depth = trainer.predict(batch["image"], batch["focused"], batch["camera"])
+    """Mean self-supervised loss terms on `test_set` (for data without ground-truth depth):
+    `models.evaluate` with the trainer's loss as the score."""
+    def losses(depth: Tensor, sample: Mapping[str, Any]) -> dict[str, float]:
+        depth = depth[None].to(trainer.device)
         with torch.no_grad():
-            terms = trainer.loss_fn(depth, batch["image"].to(depth), batch["focused"].to(depth),
-                                    batch["camera"].to(depth.device))
-        for key, value in terms.items():
-            totals[key] = totals.get(key, 0.0) + float(value) / len(test_set)
-    return totals
+            terms = trainer.loss_fn(depth, sample["image"][None].to(depth),
+                                    sample["focused"][None].to(depth),
+                                    sample["camera"].batched(1).to(trainer.device))
+        return {key: float(value) for key, value in terms.items()}
+
+    method = network_method(trainer.model, trainer.device, max_pixels=None)
+    metrics = evaluate(method, test_set, losses)
+    del metrics["images"], metrics["skipped"]
+    return metrics
 
 
 def _pixels(dataset: Sequence[Mapping[str, Any]]) -> int:

@@ -7,10 +7,11 @@ Two kinds of file hold a model:
 - a weights file of the experimental camera-general network (`save_weights`): a
   `DepthFromDefocus` (`models.depth_from_photos.blur_net`), written by `examples/blur_net.py`.
 
-`load_depth_model` reads either and returns the method object that
-`models.depth_from_photos.estimate_depth(model=...)` runs. Both formats hold tensors and plain
-data only and are read with `torch.load(..., weights_only=True)`, so opening a file runs no
-code; a weights file can also be checked against its recorded sha256 first.
+Both are read by one loader, `models.checkpoints.load_checkpoint`: tensors and plain data only,
+`torch.load(..., weights_only=True)`, so opening a file runs no code; a weights file can also
+be checked against its recorded sha256 first (`load_weights`). `load_depth_model` reads either
+and returns the method object that `models.depth_from_photos.estimate_depth(model=...)` runs;
+`load_model` gives a checkpoint's network and config, `read_checkpoint` its state and config.
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import Any
 import torch
 from torch import nn
 
-from .checkpoints import CheckpointError, load_checkpoint, restore_weights
+from .checkpoints import WEIGHTS_KIND, CheckpointError, load_checkpoint, restore_weights
 from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
 from .depth_from_photos.trained_network import TrainedNetwork
 from .networks import build_network
@@ -31,12 +32,15 @@ from .train_config import TrainConfig
 
 
 def config_from_state(state: Mapping[str, Any], path: str | Path, **changes: Any) -> TrainConfig:
-    """The `TrainConfig` of a loaded checkpoint, with `changes`; a bad one is a
-    `CheckpointError` naming the file."""
+    """The `TrainConfig` of a loaded checkpoint, with `changes`; a bad one (or a weights file,
+    which has none) is a `CheckpointError` naming the file."""
     try:
         return TrainConfig.from_dict({**state["config"], **changes})
-    except (TypeError, ValueError) as error:
-        raise CheckpointError(f"checkpoint {path} holds an invalid config: {error}") from None
+    except (KeyError, TypeError, ValueError) as error:
+        reason = (f"holds an invalid config: {error}" if "config" in state else "is a weights "
+                  "file of the camera-general network, not a `defocus train` checkpoint (open "
+                  "it with models.load_depth_model)")
+        raise CheckpointError(f"checkpoint {path} {reason}") from None
 
 
 def sha256(path: str | Path) -> str:
@@ -67,7 +71,7 @@ def save_weights(model: DepthFromDefocus, path: str | Path, **metadata: float | 
         (True, True)
     """
     net = model.blur_net
-    state = {"format": 1, "kind": "DepthFromDefocus", "width": net.width,
+    state = {"format": 1, "kind": WEIGHTS_KIND, "width": net.width,
              "blur_net": {k: v.detach().cpu().contiguous() for k, v in net.state_dict().items()},
              "metadata": dict(metadata)}
     torch.save(state, path)
@@ -85,10 +89,16 @@ def is_weights_file(path: str | Path) -> bool:
         False
     """
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-    except Exception:  # not a weights file: the caller tries other formats
+        return load_checkpoint(path, mmap=True).get("kind") == WEIGHTS_KIND
+    except (OSError, ValueError):  # not a weights file: the caller tries other formats
         return False
-    return isinstance(state, dict) and state.get("kind") == "DepthFromDefocus"
+
+
+def _weights_model(state: Mapping[str, Any]) -> DepthFromDefocus:
+    """The `DepthFromDefocus` (in eval mode) of a loaded weights file."""
+    model = DepthFromDefocus(BlurNet(int(state["width"])))
+    model.blur_net.load_state_dict(state["blur_net"])
+    return model.eval()
 
 
 def load_weights(path: str | Path, expected_sha256: str | None = None) -> DepthFromDefocus:
@@ -97,7 +107,7 @@ def load_weights(path: str | Path, expected_sha256: str | None = None) -> DepthF
 
     Raises:
         FileNotFoundError: no such file.
-        ValueError: the sha256 differs, or the file is not a weights file.
+        ValueError: the sha256 differs, or the file is not a weights file (`CheckpointError`).
 
     Example:
         >>> import tempfile
@@ -106,23 +116,15 @@ def load_weights(path: str | Path, expected_sha256: str | None = None) -> DepthF
         >>> load_weights(path, digest).blur_net.width
         4
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such weights file")
-    if expected_sha256 is not None:
-        actual = sha256(path)
-        if actual != expected_sha256:
-            raise ValueError(f"{path}: sha256 {actual} does not match the recorded "
-                             f"{expected_sha256}; the file is damaged or was replaced")
-    try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # pickle and zip errors of many kinds: one clear line
-        raise ValueError(f"{path}: not a Defocus weights file ({type(error).__name__})") from None
-    if not isinstance(state, dict) or state.get("kind") != "DepthFromDefocus":
-        raise ValueError(f"{path}: not a Defocus DepthFromDefocus weights file")
-    model = DepthFromDefocus(BlurNet(int(state["width"])))
-    model.blur_net.load_state_dict(state["blur_net"])
-    return model.eval()
+    digest = sha256(path) if expected_sha256 is not None else None  # before anything is read
+    state = load_checkpoint(path)
+    problem = (f"sha256 {digest} does not match the recorded {expected_sha256}; the file is "
+               "damaged or was replaced" if digest != expected_sha256 else None
+               if state.get("kind") == WEIGHTS_KIND else "not a Defocus DepthFromDefocus "
+               "weights file")
+    if problem is not None:
+        raise CheckpointError(f"{path}: {problem}")
+    return _weights_model(state)
 
 
 def read_checkpoint(path: str | Path, map_location: Any = "cpu",
@@ -144,23 +146,29 @@ def read_checkpoint(path: str | Path, map_location: Any = "cpu",
     return state, config_from_state(state, path, **changes)
 
 
+def _network(state: Mapping[str, Any], path: str | Path,
+             device: str | torch.device) -> tuple[nn.Module, TrainConfig]:
+    """The trained network (in eval mode, on `device`) and config of a loaded checkpoint."""
+    cfg = config_from_state(state, path, device="auto")
+    model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
+                          cfg.width, cfg.depth_spacing, cfg.side, cfg.focus_distance or None)
+    restore_weights(model, state["model"], path)
+    return model.to(device).eval(), cfg
+
+
 def load_model(checkpoint: str | Path, device: str | torch.device = "cpu") -> tuple[nn.Module,
                                                                                      TrainConfig]:
     """The trained network (in eval mode) and its config from a `defocus train` checkpoint.
 
     Raises:
+        FileNotFoundError: no such file.
         CheckpointError: the file is not a checkpoint or holds more than tensors and plain data
             (refused without running anything).
 
     Example:
         >>> network, config = load_model("runs/train/checkpoints/last.pt")  # doctest: +SKIP
     """
-    state, cfg = read_checkpoint(checkpoint, map_location=device, device="auto")
-    model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
-                          cfg.width, cfg.depth_spacing, cfg.side,
-                          cfg.focus_distance or None)
-    restore_weights(model, state["model"], checkpoint)
-    return model.to(device).eval(), cfg
+    return _network(load_checkpoint(checkpoint, map_location=device), checkpoint, device)
 
 
 def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn.Module:
@@ -186,9 +194,10 @@ def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn
         >>> type(load_depth_model(path)).__name__
         'DepthFromDefocus'
     """
-    if is_weights_file(path):  # the experimental camera-general network
-        return load_weights(path).to(device)
-    network, config = load_model(path, device)
+    state = load_checkpoint(path, map_location=device)
+    if state.get("kind") == WEIGHTS_KIND:  # the experimental camera-general network
+        return _weights_model(state).to(device)
+    network, config = _network(state, path, device)
     return TrainedNetwork(network, config.input_mode, config.n_focus,
                           (config.depth_min, config.depth_max))
 

@@ -88,14 +88,11 @@ def crop_mask(height: int, width: int, crop: str | Sequence[float] | None,
     mask = torch.zeros(height, width, dtype=torch.bool, device=device)
     if crop is None:
         return mask.fill_(True)
-    if isinstance(crop, str):
-        if crop not in CROPS:
-            raise ValueError(f"crop must be None, one of {sorted(CROPS)} or 4 fractions, "
-                             f"got {crop!r}")
-        crop = CROPS[crop]
+    given, crop = crop, CROPS.get(crop, ()) if isinstance(crop, str) else crop
     if len(crop) != 4 or not (0 <= crop[0] < crop[1] <= 1 and 0 <= crop[2] < crop[3] <= 1):
-        raise ValueError(f"crop fractions must be (top, bottom, left, right) with "
-                         f"0 <= top < bottom <= 1 and 0 <= left < right <= 1, got {crop!r}")
+        raise ValueError(f"crop must be None, one of {sorted(CROPS)} or 4 fractions (top, "
+                         "bottom, left, right) with 0 <= top < bottom <= 1 and 0 <= left < "
+                         f"right <= 1, got {given!r}")
     top, bottom = int(crop[0] * height), int(crop[1] * height)
     left, right = int(crop[2] * width), int(crop[3] * width)
     mask[top:bottom, left:right] = True
@@ -112,17 +109,47 @@ def as_map_batch(name: str, tensor: Tensor) -> Tensor:
     """
     if not isinstance(tensor, Tensor):
         raise TypeError(f"{name} must be a torch.Tensor, got {type(tensor).__name__}")
-    if tensor.ndim == 2:
-        return tensor[None, None]
-    if tensor.ndim == 3:
-        return tensor[None]
-    if tensor.ndim == 4 and tensor.shape[1] == 1:
-        if tensor.shape[0] == 0:
-            raise ValueError(f"{name} must hold at least one image (B >= 1), got an empty batch "
-                             f"of shape {tuple(tensor.shape)}")
-        return tensor
-    raise ValueError(f"{name} must have shape (H,W), (1,H,W) or (B,1,H,W), "
-                     f"got {tuple(tensor.shape)}")
+    batch = tensor[(None,) * (4 - tensor.ndim)] if tensor.ndim in (2, 3) else tensor
+    if batch.ndim != 4 or batch.shape[1] != 1 or batch.shape[0] == 0:
+        maps = batch.ndim == 4 and batch.shape[1] == 1
+        raise ValueError(f"{name} must " + ("hold at least one image (B >= 1), got an empty "
+                         "batch of shape" if maps else "have shape (H,W), (1,H,W) or (B,1,H,W), "
+                         "got") + f" {tuple(tensor.shape)}")
+    return batch
+
+
+def same_shape_batches(**maps: Tensor) -> list[Tensor]:
+    """The maps as `(B,1,H,W)` batches (`as_map_batch`), refused unless all of one shape.
+
+    Example:
+        >>> same_shape_batches(pred=torch.ones(2, 3), target=torch.ones(3, 2))
+        Traceback (most recent call last):
+        ...
+        ValueError: pred and target must have the same shape, got (1, 1, 2, 3) and (1, 1, 3, 2)
+    """
+    batches = [as_map_batch(name, tensor) for name, tensor in maps.items()]
+    if len({tuple(b.shape) for b in batches}) > 1:
+        names, shapes = list(maps), [str(tuple(b.shape)) for b in batches]
+        raise ValueError(f"{', '.join(names[:-1])} and {names[-1]} must have the same shape, got "
+                         f"{', '.join(shapes[:-1])} and {shapes[-1]}")
+    return batches
+
+
+def refuse_empty_images(valid: Tensor, least: int = 1, why: str = "") -> None:
+    """Raise `ValueError` naming the first image of the `(B,1,H,W)` map `valid` with fewer
+    than `least` (1 or 2) valid ground-truth pixels; `why` ends the message.
+
+    Example:
+        >>> refuse_empty_images(torch.zeros(1, 1, 2, 2, dtype=torch.bool))
+        Traceback (most recent call last):
+        ...
+        ValueError: image 0 has no valid ground-truth pixel
+    """
+    short = (valid.flatten(1).sum(1) < least).nonzero()
+    if len(short):
+        amount = "no valid ground-truth pixel" if least == 1 else \
+            "fewer than two valid ground-truth pixels"
+        raise ValueError(f"image {int(short[0])} has {amount}{why}")
 
 
 def refuse_bad_pixels(name: str, tensor: Tensor, bad: Tensor, allowed: str) -> None:
@@ -211,19 +238,14 @@ def depth_metrics(
         >>> round(m["abs_rel"], 4), round(m["rmse"], 4), m["delta1"]
         (0.1, 0.7071, 0.5)
     """
-    pred, target = as_map_batch("pred", pred), as_map_batch("target", target)
-    if pred.shape != target.shape:
-        raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
-                         f"and {tuple(target.shape)}")
+    pred, target = same_shape_batches(pred=pred, target=target)
     valid = valid_mask(target=target, mask=mask, min_depth=min_depth, max_depth=max_depth,
                        crop=crop)
     check_prediction(pred.detach(), valid)
+    refuse_empty_images(valid, why=" (check mask, min_depth, max_depth and crop)")
     totals: dict[str, float] = {}
     for d_all, g_all, v in zip(pred.detach(), target.detach(), valid, strict=True):
         d, g = d_all[v].double(), g_all[v].double()
-        if g.numel() == 0:
-            raise ValueError("an image has no valid ground-truth pixel (check mask, min_depth, "
-                             "max_depth and crop)")
         values = {}
         if median_scaling:
             values["median_scale"] = float(g.median() / d.median())
@@ -257,9 +279,9 @@ def best_constant_depth(*, target: Tensor, mask: Tensor | None = None) -> float:
     g = target.detach().reshape(-1).double()
     if mask is not None:
         g = g[mask.reshape(-1).to(torch.bool)]
-    g = g[torch.isfinite(g) & (g > 0)]
-    if g.numel() == 0:
-        raise ValueError("target has no valid (finite, > 0) depth")
+    valid = torch.isfinite(g) & (g > 0)
+    refuse_empty_images(valid[None, None], why=" (finite, > 0) in target")
+    g = g[valid]
     g, _ = g.sort()
     weights = torch.cumsum(1.0 / g, 0)
     index = int(torch.searchsorted(weights, weights[-1] / 2))
@@ -294,16 +316,12 @@ def depth_order(*, pred: Tensor, target: Tensor, mask: Tensor | None = None,
         >>> round(depth_order(pred=1 / target, target=target), 6)  # near and far swapped
         -1.0
     """
-    pred, target = as_map_batch("pred", pred), as_map_batch("target", target)
-    if pred.shape != target.shape:
-        raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
-                         f"and {tuple(target.shape)}")
+    pred, target = same_shape_batches(pred=pred, target=target)
     valid = valid_mask(target=target, mask=mask, max_depth=max_depth, crop=crop)
     check_prediction(pred.detach(), valid, positive=False)
+    refuse_empty_images(valid, least=2)
     total = 0.0
     for d, g, v in zip(pred.detach(), target.detach(), valid, strict=True):
-        if int(v.sum()) < 2:
-            raise ValueError("an image has fewer than two valid ground-truth pixels")
         ranks = torch.stack([_mean_ranks(d[v].double()), _mean_ranks(g[v].double())])
         ranks = ranks - ranks.mean(1, keepdim=True)
         norms = ranks.norm(dim=1)
@@ -317,6 +335,20 @@ def _mean_ranks(x: Tensor) -> Tensor:
     values, inverse, counts = torch.unique(x, return_inverse=True, return_counts=True)
     first = torch.cumsum(counts, 0) - counts
     return (first + (counts - 1) / 2).to(x.dtype)[inverse]
+
+
+def at_depth_limits(depth: Tensor, depth_min: float, depth_max: float,
+                    tolerance: float = 1e-3) -> Tensor:
+    """The share of the pixels of `depth` at `depth_min` or `depth_max` (within `tolerance` of
+    the range), a 0-d tensor: near 1, a network collapsed to the limits of its output.
+
+    Example:
+        >>> at_depth_limits(torch.tensor([1.0, 5.0, 10.0, 9.999]), 1.0, 10.0)
+        tensor(0.7500)
+    """
+    tol = tolerance * (depth_max - depth_min)
+    depth = depth.detach()
+    return ((depth <= depth_min + tol) | (depth >= depth_max - tol)).float().mean()
 
 
 def confident_half_error(error: Tensor, confidence: Tensor) -> float:

@@ -16,7 +16,14 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .metrics import as_map_batch, check_prediction, maps_by_keyword, refuse_bad_pixels
+from .metrics import (
+    as_map_batch,
+    check_prediction,
+    maps_by_keyword,
+    refuse_bad_pixels,
+    refuse_empty_images,
+    same_shape_batches,
+)
 
 #: Threshold of each delta accuracy: share of pixels with `max(d/g, g/d) < threshold`.
 DELTA_THRESHOLDS = {"delta1.05": 1.05, "delta1.15": 1.15, "delta1": 1.25, "delta2": 1.25**2,
@@ -75,6 +82,21 @@ PROTOCOLS: dict[str, Protocol] = {
 }
 
 
+def as_protocol(protocol: str | Protocol) -> Protocol:
+    """The `Protocol` named `protocol` (a `Protocol` as it is).
+
+    Example:
+        >>> as_protocol("zedd").valid
+        (0.01, 1000.0)
+    """
+    if isinstance(protocol, Protocol):
+        return protocol
+    if not isinstance(protocol, str) or protocol not in PROTOCOLS:
+        raise ValueError(f"protocol must be one of {sorted(PROTOCOLS)} or a Protocol, got "
+                         f"{protocol!r}")
+    return PROTOCOLS[protocol]
+
+
 def _scharr(image: Tensor, axis: int) -> Tensor:
     """scikit-image's `scharr_h` (axis 0) or `scharr_v` (axis 1) of `(B,1,H,W)`: the central
     difference `x[i+1] - x[i-1]` along `axis`, smoothed by `[3, 10, 3] / 16` across it, edge
@@ -112,11 +134,8 @@ def bumpiness(*, pred: Tensor, target: Tensor, mask: Tensor,
         >>> bumpiness(pred=target + 0.5, target=target, mask=mask)  # an offset has no curvature
         tensor([0.], dtype=torch.float64)
     """
-    pred, target = as_map_batch("pred", pred).double(), as_map_batch("target", target).double()
-    mask = as_map_batch("mask", mask).to(torch.bool)
-    if not pred.shape == target.shape == mask.shape:
-        raise ValueError(f"pred, target and mask must have the same shape, got "
-                         f"{tuple(pred.shape)}, {tuple(target.shape)} and {tuple(mask.shape)}")
+    pred, target, mask = same_shape_batches(pred=pred, target=target, mask=mask)
+    pred, target, mask = pred.double(), target.double(), mask.to(torch.bool)
     check_prediction(pred, mask, positive=False)
     refuse_bad_pixels("target", target, mask & ~torch.isfinite(target),
                        "finite at every pixel of mask")
@@ -164,15 +183,8 @@ def protocol_metrics(*, pred: Tensor, target: Tensor, mask: Tensor | None = None
         >>> round(m["abs_rel"], 4), m["delta1.05"], m["delta1"]
         (0.1, 0.5, 0.5)
     """
-    if not isinstance(protocol, Protocol):
-        if not isinstance(protocol, str) or protocol not in PROTOCOLS:
-            raise ValueError(f"protocol must be one of {sorted(PROTOCOLS)} or a Protocol, got "
-                             f"{protocol!r}")
-        protocol = PROTOCOLS[protocol]
-    pred, target = as_map_batch("pred", pred).detach().double(), as_map_batch("target", target).detach().double()
-    if pred.shape != target.shape:
-        raise ValueError(f"pred and target must have the same shape, got {tuple(pred.shape)} "
-                         f"and {tuple(target.shape)}")
+    protocol = as_protocol(protocol)
+    pred, target = (t.detach().double() for t in same_shape_batches(pred=pred, target=target))
     valid = torch.isfinite(target) & (target > 0)
     if mask is not None:
         valid &= as_map_batch("mask", mask).to(torch.bool)
@@ -182,6 +194,8 @@ def protocol_metrics(*, pred: Tensor, target: Tensor, mask: Tensor | None = None
         target = target.clamp(max=protocol.cap)
     valid &= (target >= protocol.valid[0]) & (target <= protocol.valid[1])
     check_prediction(pred, valid)
+    refuse_empty_images(valid, why=f" for the {protocol.name} protocol (valid range "
+                        f"{protocol.valid})")
     if protocol.disparity_scale is not None:
         pred = protocol.disparity_scale / pred.clamp_min(1e-12)
     if protocol.cap is not None:
@@ -191,9 +205,6 @@ def protocol_metrics(*, pred: Tensor, target: Tensor, mask: Tensor | None = None
     totals: dict[str, float] = {}
     for i, (d_all, g_all, v) in enumerate(zip(pred, target, valid, strict=True)):
         d, g = d_all[v], g_all[v]
-        if g.numel() == 0:
-            raise ValueError(f"image {i} has no valid ground-truth pixel for the {protocol.name} "
-                             f"protocol (valid range {protocol.valid})")
         log_diff = d.log() - g.log()
         ratio = torch.maximum(d / g, g / d)
         values = {

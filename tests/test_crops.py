@@ -100,25 +100,6 @@ def test_auto_cache_dir_unwritable_is_none_as_root(tmp_path, monkeypatch):
     assert default_cache_dir() is None
 
 
-def test_predict_tiled_covers_the_image():
-    from models.experiment import predict_tiled
-    from models.training import TrainConfig, Trainer
-
-    samples = [{"image": torch.rand(3, 40, 56), "depth": torch.full((1, 40, 56), 2.0),
-                "mask": torch.ones(1, 40, 56, dtype=torch.bool)}]
-    cfg = TrainConfig(steps=1, batch_size=1, input_mode="aif", supervision="depth", width=4,
-                      progress=False, out_dir=tempfile.mkdtemp(), device="cpu")
-    trainer = Trainer(cfg, samples)
-    image = samples[0]["image"][None]
-    whole = predict_tiled(trainer, image)
-    assert torch.equal(whole, trainer.predict(image))
-    tiled = predict_tiled(trainer, image, max_pixels=100, tile=16, overlap=8)
-    assert tiled.shape == (1, 1, 40, 56) and bool(torch.isfinite(tiled).all())
-    assert bool((tiled >= cfg.depth_min).all() and (tiled <= cfg.depth_max).all())
-    with pytest.raises(ValueError, match="tile must be > 0"):
-        predict_tiled(trainer, image, max_pixels=100, tile=0)
-
-
 def test_time_budget_stops_training_when_the_machine_gets_slower(monkeypatch, capsys):
     """A plan from a too-optimistic measurement is cut at the budget, and the table says so."""
     from models import experiment

@@ -185,3 +185,23 @@ def test_label_free_method_reads_the_stack_without_the_stand_in_image():
     assert method.name == "auto"
     with pytest.raises(ValueError, match="needs an all-in-focus photo"):
         label_free_method((0.5, 8.0), "sweep")(_sample())
+
+
+def test_network_method_covers_the_image_whole_or_in_tiles():
+    import tempfile
+
+    from models.evaluation import network_method
+    from models.training import TrainConfig, Trainer
+
+    samples = [{"image": torch.rand(3, 40, 56), "depth": torch.full((1, 40, 56), 2.0),
+                "mask": torch.ones(1, 40, 56, dtype=torch.bool)}]
+    cfg = TrainConfig(steps=1, batch_size=1, input_mode="aif", supervision="depth", width=4,
+                      progress=False, out_dir=tempfile.mkdtemp(), device="cpu")
+    trainer = Trainer(cfg, samples)
+    whole = network_method(trainer.model)(samples[0])
+    assert torch.equal(whole, trainer.predict(samples[0]["image"][None])[0])
+    tiled = network_method(trainer.model, max_pixels=100, tile=16, overlap=8)(samples[0])
+    assert tiled.shape == (1, 40, 56) and bool(torch.isfinite(tiled).all())
+    assert bool((tiled >= cfg.depth_min).all() and (tiled <= cfg.depth_max).all())
+    with pytest.raises(ValueError, match="tile must be > 0"):
+        network_method(trainer.model, max_pixels=100, tile=0)

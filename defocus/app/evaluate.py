@@ -1,66 +1,114 @@
 """Score depth (`defocus evaluate`): a trained checkpoint on a dataset, or a method on a
-focal-stack benchmark with the benchmark's own protocol."""
+focal-stack benchmark with the benchmark's own protocol, through `models.evaluate`.
+
+The command builds an `EvaluateRequest` from its options and prints the `EvaluateResult`;
+the checkpoint is read by the one loader of model files (`models.loading`).
+"""
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+Report = Callable[[str], None]
 
-def evaluate_checkpoint(checkpoint: Path, test_set: Sequence[Any], depth_cap: float | None = None,
-                        crop: str | None = None, median_scaling: bool = False,
-                        min_depth: float = 1e-3) -> tuple[dict[str, float], str | None]:
-    """The depth metrics of a `defocus train` checkpoint on `test_set`, and a warning when the
-    network collapsed to its depth limits, or when much of the ground truth lies outside the
-    depth range the network can output (the metrics then mean little; both joined by "; ").
+
+def _silent(text: str) -> None:
+    """A `report` that drops the message."""
+
+
+@dataclasses.dataclass
+class EvaluateRequest:
+    """What to score (the checked options of `defocus evaluate`, lengths in metres).
+
+    With `protocol` (a name of `models.protocols.PROTOCOLS`) `samples` is a focal-stack
+    benchmark scored with its paper's protocol: the label-free `method`, or the model of
+    `checkpoint`, on at most `max_samples` samples. Without it the network of `checkpoint` is
+    scored on `samples` with the depth metrics (`models.metrics.depth_metrics`).
+    """
+
+    samples: Sequence[Any]
+    checkpoint: Path | None = None
+    protocol: str | None = None
+    method: str = "auto"
+    max_samples: int | None = None
+    #: most pixels of the label-free method's working resolution
+    max_pixels: int = 1_500_000
+    depth_cap: float | None = None
+    min_depth: float = 1e-3
+    crop: str | None = None
+    median_scaling: bool = False
+    #: called with each progress line
+    report: Report = _silent
+
+
+@dataclasses.dataclass
+class EvaluateResult:
+    """The table row's name, its metrics, and a warning about them (or None)."""
+
+    name: str
+    metrics: dict[str, float]
+    warning: str | None = None
+
+
+def evaluate(request: EvaluateRequest) -> EvaluateResult:
+    """Score what `request` asks (`evaluate_checkpoint` or `evaluate_on_benchmark`).
+
+    Example:
+        >>> result = evaluate(EvaluateRequest(samples, Path("run/checkpoints/last.pt")))  # doctest: +SKIP
+    """
+    if request.protocol is not None:
+        return evaluate_on_benchmark(request)
+    return evaluate_checkpoint(request)
+
+
+def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
+    """The depth metrics of a `defocus train` checkpoint on `request.samples`, and a warning
+    when the network collapsed to its depth limits, or when much of the ground truth lies
+    outside the depth range the network can output (the metrics then mean little; both joined
+    by "; ").
 
     Raises:
         ValueError: a sample the network cannot read: a key it needs is missing, or it holds
             another number of focused photos than the network was trained on.
-
-    Example:
-        >>> metrics, warning = evaluate_checkpoint(Path("run/checkpoints/last.pt"),
-        ...                                        samples)  # doctest: +SKIP
     """
-    from models.training import COLLAPSE_FRACTION, Trainer
+    from models.evaluation import evaluate_network
+    from models.loading import load_model
+    from models.train_config import select_device
+    from models.training import COLLAPSE_FRACTION
     from models.training.sample_checks import TestSampleChecker
 
-    trainer = Trainer.from_checkpoint(checkpoint)
-    checker = TestSampleChecker(trainer.config, f"checkpoint {checkpoint}")
-    metrics = trainer.evaluate(test_set, depth_cap=depth_cap, crop=crop,
-                               median_scaling=median_scaling, min_depth=min_depth, checker=checker)
+    checkpoint = request.checkpoint
+    network, config = load_model(checkpoint, select_device("auto"))
+    checker = TestSampleChecker(config, f"checkpoint {checkpoint}")
+    metrics = evaluate_network(network, config, request.samples, checker,
+                               min_depth=request.min_depth, max_depth=request.depth_cap,
+                               crop=request.crop, median_scaling=request.median_scaling)
     warnings: list[str | None] = []
     if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
-        config = trainer.config
         warnings.append(f"{metrics['at_depth_limits']:.0%} of the predicted pixels sit at "
                         f"depth_min ({config.depth_min} m) or depth_max ({config.depth_max} m): "
                         "the network collapsed to its depth limits; these metrics mean little")
     warnings.append(checker.range_message())  # None where the ground truth fits the range
-    return metrics, "; ".join(w for w in warnings if w) or None
+    return EvaluateResult(checkpoint.parent.parent.name or "model", metrics,
+                          "; ".join(w for w in warnings if w) or None)
 
 
-def evaluate_on_benchmark(dataset: Sequence[Any], protocol: str, method: str = "auto",
-                          checkpoint: Path | None = None, max_samples: int | None = None,
-                          max_pixels: int = 1_500_000,
-                          report: Callable[[str], None] = lambda text: None
-                          ) -> tuple[str, dict[str, float]]:
-    """Score a label-free `method` (or the network of `checkpoint`) on `dataset` with
-    `protocol` (`models.protocols.PROTOCOLS`); returns the method's name and the metrics.
-
-    Example:
-        >>> name, metrics = evaluate_on_benchmark(dataset, "ddff12")  # doctest: +SKIP
-    """
+def evaluate_on_benchmark(request: EvaluateRequest) -> EvaluateResult:
+    """Score a label-free method (or the model of `request.checkpoint`) on a focal-stack
+    benchmark with its protocol (`models.protocols.PROTOCOLS`)."""
     from defocus.app.experiment import score_benchmark
     from models.evaluation import label_free_method
+    from models.loading import load_depth_model
 
-    model = None
-    if checkpoint is not None:
-        from models import load_depth_model
-
-        model = load_depth_model(checkpoint, "cpu")
-    scorer = label_free_method(dataset.depth_range, method, model=model, max_pixels=max_pixels)
-    count = len(dataset) if max_samples is None else min(max_samples, len(dataset))
-    samples = (dataset[i] for i in range(count))
-    metrics = score_benchmark(samples, scorer, protocol, count, report)
-    return (checkpoint.name if checkpoint is not None else scorer.name), metrics
+    dataset, checkpoint = request.samples, request.checkpoint
+    model = None if checkpoint is None else load_depth_model(checkpoint, "cpu")
+    scorer = label_free_method(dataset.depth_range, request.method, model=model,
+                               max_pixels=request.max_pixels)
+    count = len(dataset) if request.max_samples is None else min(request.max_samples,
+                                                                 len(dataset))
+    metrics = score_benchmark((dataset[i] for i in range(count)), scorer, request.protocol,
+                              count, request.report)
+    return EvaluateResult(checkpoint.name if checkpoint is not None else scorer.name, metrics)

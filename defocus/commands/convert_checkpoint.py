@@ -35,11 +35,13 @@ def run(args: argparse.Namespace) -> int:
     from defocus.errors import CommandError
     from models.checkpoints import convert_checkpoint
 
-    if not args.trust:
-        raise CommandError(f"not converting {args.source}: reading it may run code stored in it; "
-                           "add --trust if you wrote it yourself or trust its author")
-    if args.target.resolve() == args.source.resolve():
-        raise CommandError("give a new file as TARGET, not SOURCE itself")
+    for refused, message in (
+            (not args.trust, f"not converting {args.source}: reading it may run code stored in "
+             "it; add --trust if you wrote it yourself or trust its author"),
+            (args.target.resolve() == args.source.resolve(),
+             "give a new file as TARGET, not SOURCE itself")):
+        if refused:
+            raise CommandError(message)
     # the output policy: SOURCE never written, an existing TARGET kept unless --overwrite
     OutputPlan({"SOURCE": args.source}, overwrite=args.overwrite,
                how="or choose another TARGET").add(args.target, "checkpoint")

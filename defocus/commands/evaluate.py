@@ -61,61 +61,73 @@ def plan_json(args: argparse.Namespace):
                     {"--root": args.root})
 
 
-def run(args: argparse.Namespace) -> int:
+def request_of(args: argparse.Namespace):
+    """The `EvaluateRequest` of the options, refused in one line naming the option that does
+    not fit (`CommandError`); None for a benchmark without ground truth (nothing to score)."""
+    from defocus.app.evaluate import EvaluateRequest
     from optics.checks import check_depth_bounds
 
-    cap = math.inf if args.depth_cap is None else args.depth_cap
-    check_depth_bounds(args.min_depth, cap, names=("--min-depth", "--depth-cap"))
-    plan = plan_json(args)
-    if args.dataset is not None:
-        return run_benchmark(args)
-    if args.checkpoint is None:
-        raise CommandError("give a checkpoint file, or --dataset NAME --root FOLDER to score a "
-                           "label-free method on a focal-stack benchmark")
-    from defocus.app.evaluate import evaluate_checkpoint
-    from models.metrics import format_table
+    check_depth_bounds(args.min_depth, math.inf if args.depth_cap is None else args.depth_cap,
+                       names=("--min-depth", "--depth-cap"))
+    benchmark = args.dataset is not None
+    for refused, message in (
+            (not benchmark and args.checkpoint is None, "give a checkpoint file, or --dataset "
+             "NAME --root FOLDER to score a label-free method on a focal-stack benchmark"),
+            (benchmark and args.root is None, f"--dataset {args.dataset} needs --root, the "
+             "dataset folder"),
+            (benchmark and args.max_samples is not None and args.max_samples < 1,
+             f"--max-samples must be >= 1, got {args.max_samples}"),
+            (benchmark and args.max_pixels < 1024,
+             f"--max-pixels must be >= 1024, got {args.max_pixels}")):
+        if refused:
+            raise CommandError(message)
+    common = {"checkpoint": args.checkpoint, "report": say(args)}
+    if benchmark:
+        from datasets.registry import build_stack_dataset
+        from models.protocols import PROTOCOLS
 
+        dataset = build_stack_dataset(args.dataset, args.root, split=args.split)
+        if args.dataset not in PROTOCOLS:
+            print(f"{args.dataset}: {len(dataset)} scenes read from {args.root}; it has no "
+                  "ground-truth depth, so it is judged by eye: nothing is scored (see "
+                  f"examples/{args.dataset}.py for the depth maps)")
+            return None
+        return EvaluateRequest(dataset, protocol=args.dataset, method=args.method,
+                               max_samples=args.max_samples, max_pixels=args.max_pixels,
+                               **common)
     if args.data == "motorcycle":
         from datasets.middlebury import motorcycle_sample
 
-        test_set = [motorcycle_sample(args.scale)]
+        samples = [motorcycle_sample(args.scale)]
     else:
-        test_set = dataset_from_options(args, split=args.split or "test", seed_offset=1_000)
-    metrics, warning = evaluate_checkpoint(args.checkpoint, test_set, args.depth_cap, args.crop,
-                                           args.median_scaling, args.min_depth)
-    print(format_table({args.checkpoint.parent.parent.name or "model": metrics}))
-    if warning is not None:
-        print(f"warning: {warning}")
-    if plan is not None:
-        write_json(plan, args.json, metrics)
-    return 0
+        samples = dataset_from_options(args, split=args.split or "test", seed_offset=1_000)
+    return EvaluateRequest(samples, depth_cap=args.depth_cap, crop=args.crop,
+                           median_scaling=args.median_scaling, min_depth=args.min_depth,
+                           **common)
 
 
-def run_benchmark(args: argparse.Namespace) -> int:
-    """`--dataset NAME --root FOLDER`: the benchmark's protocol table of one method."""
-    from datasets.registry import build_stack_dataset
-    from defocus.app.evaluate import evaluate_on_benchmark
+def run(args: argparse.Namespace) -> int:
+    from defocus.app.evaluate import evaluate
     from models.metrics import format_table
     from models.protocols import PROTOCOLS
 
-    if args.root is None:
-        raise CommandError(f"--dataset {args.dataset} needs --root, the dataset folder")
-    if args.max_samples is not None and args.max_samples < 1:
-        raise CommandError(f"--max-samples must be >= 1, got {args.max_samples}")
-    if args.max_pixels < 1024:
-        raise CommandError(f"--max-pixels must be >= 1024, got {args.max_pixels}")
-    dataset = build_stack_dataset(args.dataset, args.root, split=args.split)
-    if args.dataset not in PROTOCOLS:
-        print(f"{args.dataset}: {len(dataset)} scenes read from {args.root}; it has no "
-              "ground-truth depth, so it is judged by eye: nothing is scored (see "
-              f"examples/{args.dataset}.py for the depth maps)")
+    plan = plan_json(args)
+    request = request_of(args)
+    if request is None:
         return 0
-    name, metrics = evaluate_on_benchmark(dataset, args.dataset, args.method, args.checkpoint,
-                                          args.max_samples, args.max_pixels,
-                                          report=say(args))
-    protocol = PROTOCOLS[args.dataset]
-    print(format_table({name: metrics}, metrics=protocol.metrics, number_format="{:.4g}"))
-    print(f"{args.dataset}: {metrics['images']:.0f} images; protocol: {protocol.source}")
-    if args.json is not None:
-        write_json(plan_json(args), args.json, {"protocol": args.dataset, **metrics})
+    result = evaluate(request)
+    if request.protocol is None:
+        print(format_table({result.name: result.metrics}))
+        if result.warning is not None:
+            print(f"warning: {result.warning}")
+        extra = {}
+    else:
+        protocol = PROTOCOLS[request.protocol]
+        print(format_table({result.name: result.metrics}, metrics=protocol.metrics,
+                           number_format="{:.4g}"))
+        print(f"{request.protocol}: {result.metrics['images']:.0f} images; protocol: "
+              f"{protocol.source}")
+        extra = {"protocol": request.protocol}
+    if plan is not None:
+        write_json(plan, args.json, {**extra, **result.metrics})
     return 0

@@ -1,10 +1,13 @@
-"""Run a fully convolutional network on a large image in overlapping tiles."""
+"""Run a fully convolutional network on a large image in overlapping tiles (`apply_in_tiles`),
+and a trained depth network on a batch of photos, whole or tiled (`run_network`)."""
 
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from typing import Any
 
-from torch import Tensor
+import torch
+from torch import Tensor, nn
 
 
 def check_tiling(tile: int, overlap: int) -> None:
@@ -24,7 +27,7 @@ def apply_in_tiles(fn: Callable[..., Tensor], inputs: Sequence[Tensor | None], t
     Args:
         fn: maps spatial crops of `inputs` (same order; None stays None) to `(B, C, h, w)`.
         inputs: tensors whose last two dimensions are the image's `(H, W)`, or None.
-        tile: side of a tile's kept centre, pixels (> 0).
+        tile: side of a tile's kept centre, pixels (> 0, see `check_tiling`).
         overlap: context around each tile, pixels (>= 0).
 
     Returns:
@@ -37,7 +40,6 @@ def apply_in_tiles(fn: Callable[..., Tensor], inputs: Sequence[Tensor | None], t
         >>> torch.allclose(apply_in_tiles(blur, [x], tile=8, overlap=2), blur(x))
         True
     """
-    check_tiling(tile, overlap)
     h, w = next(t for t in inputs if t is not None).shape[-2:]
     out = None
     for top in range(0, h, tile):
@@ -51,3 +53,42 @@ def apply_in_tiles(fn: Callable[..., Tensor], inputs: Sequence[Tensor | None], t
             out[..., top:bottom, left:right] = part[..., top - t0:bottom - t0,
                                                     left - l0:right - l0]
     return out
+
+
+def run_network(network: nn.Module, image: Tensor, focused: Tensor | None = None,
+                settings: Any = None, max_pixels: int | None = None, tile: int = 1024,
+                overlap: int = 64) -> Tensor:
+    """Depth `(B,1,H,W)` metres of a trained depth network on a batch, in eval mode and without
+    gradients: the one place where a network meets photos for evaluation and prediction.
+
+    The network is called as `network(image, focused, settings)`; a network of
+    `models.networks.build_network` reads what its input mode needs (`assemble_input`: the
+    all-in-focus image alone in `"aif"` mode). Above `max_pixels` pixels (None: never) the
+    batch goes through in overlapping tiles (`apply_in_tiles`; the networks are fully
+    convolutional, but their group normalisation sees each tile's statistics).
+
+    Args:
+        network: the depth network.
+        image: all-in-focus photos `(B,3,H,W)`, on the network's device.
+        focused: focused photos `(B,F,3,H,W)` or None.
+        settings: their `CameraSettings` or None.
+        max_pixels: whole images up to this many pixels go through in one piece.
+        tile: side of a tile's kept centre, pixels (checked where it is chosen).
+        overlap: context around each tile, pixels.
+
+    Example:
+        >>> from models.networks import build_network
+        >>> net = build_network("small", "aif", 0, 1.0, 10.0, width=4)
+        >>> run_network(net, torch.rand(1, 3, 20, 20), max_pixels=100, tile=8, overlap=4).shape
+        torch.Size([1, 1, 20, 20])
+    """
+    was_training = network.training
+    network.eval()
+    try:
+        with torch.no_grad():
+            if max_pixels is None or image.shape[-2] * image.shape[-1] <= max_pixels:
+                return network(image, focused, settings)
+            return apply_in_tiles(lambda x, f: network(x, f, settings), [image, focused], tile,
+                                  overlap)
+    finally:
+        network.train(was_training)

@@ -7,12 +7,11 @@ trained for.
 
 from __future__ import annotations
 
-import torch
 from torch import Tensor, nn
 
 from optics import CameraSettings
 
-from .tiling import apply_in_tiles, check_tiling
+from .tiling import check_tiling, run_network
 
 
 class TrainedNetwork(nn.Module):
@@ -20,9 +19,9 @@ class TrainedNetwork(nn.Module):
     method of `estimate_depth`.
 
     Args:
-        network: the trained network: `network(image)` or, for `input_mode="aif+focused"`,
+        network: the trained network (`models.networks.build_network`), called as
             `network(image, focused, settings)`, depth `(B,1,H,W)` metres.
-        input_mode: `"aif"` (the all-in-focus photo only) or `"aif+focused"`.
+        input_mode: its input mode, `"aif"` (the all-in-focus photo only) or `"aif+focused"`.
         n_focus: focused photos the network reads in `"aif+focused"` mode.
         depth_range: `(near, far)` metres the network was trained for.
         max_pixels: photos up to this many pixels go through whole; larger ones in tiles of
@@ -32,10 +31,12 @@ class TrainedNetwork(nn.Module):
         overlap: context around each tile, pixels.
 
     Example:
-        >>> net = lambda image: image.mean(1, keepdim=True) + 1
-        >>> model = TrainedNetwork(net, "aif", 0, (1.0, 10.0))
-        >>> model(torch.zeros(1, 3, 4, 4), None, None, 1.0, 10.0)["depth"].unique()
-        tensor([1.])
+        >>> import torch
+        >>> from models.networks import build_network
+        >>> model = TrainedNetwork(build_network("small", "aif", 0, 1.0, 10.0, width=4), "aif", 0,
+        ...                        (1.0, 10.0))
+        >>> model(torch.zeros(1, 3, 4, 4), None, None, 1.0, 10.0)["depth"].shape
+        torch.Size([1, 1, 4, 4])
     """
 
     #: It runs on the photos at their own resolution.
@@ -49,31 +50,14 @@ class TrainedNetwork(nn.Module):
         super().__init__()
         check_tiling(tile, overlap)
         self.max_pixels, self.tile, self.overlap = int(max_pixels), int(tile), int(overlap)
-        if input_mode not in ("aif", "aif+focused"):
-            raise ValueError(f"input_mode must be 'aif' or 'aif+focused', got {input_mode!r}")
         self.network, self.input_mode, self.n_focus = network, input_mode, int(n_focus)
         self.depth_range = (float(depth_range[0]), float(depth_range[1]))
 
-    def forward(self, image: Tensor | None, focused: Tensor | None,
-                settings: CameraSettings | None, near: float, far: float) -> dict[str, Tensor]:
+    def forward(self, image: Tensor, focused: Tensor | None, settings: CameraSettings | None,
+                near: float, far: float) -> dict[str, Tensor]:
         """Depth `(B,1,H,W)` metres of the all-in-focus `image` `(B,3,H,W)` and, in
-        `"aif+focused"` mode, the `focused` photos `(B,F,3,H,W)` with their settings; `near`
-        and `far` are not used (the network answers within its trained range)."""
-        if image is None:
-            raise ValueError("this network reads an all-in-focus photo: give image")
-        if self.input_mode == "aif":
-            focused = None
-        else:
-            n = 0 if focused is None else focused.shape[1]
-            if n != self.n_focus:
-                raise ValueError(f"this network needs {self.n_focus} focused photos, got {n}")
-
-        def run(image: Tensor, focused: Tensor | None) -> Tensor:
-            if focused is None:
-                return self.network(image)
-            return self.network(image, focused, settings)
-
-        with torch.no_grad():
-            if image.shape[-2] * image.shape[-1] <= self.max_pixels:
-                return {"depth": run(image, focused)}
-            return {"depth": apply_in_tiles(run, [image, focused], self.tile, self.overlap)}
+        `"aif+focused"` mode, the `n_focus` `focused` photos `(B,F,3,H,W)` with their settings
+        (the caller gives what the network reads); `near` and `far` are not used (the network
+        answers within its trained range)."""
+        return {"depth": run_network(self.network, image, focused, settings, self.max_pixels,
+                                     self.tile, self.overlap)}

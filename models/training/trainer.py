@@ -26,10 +26,10 @@ from ..checkpoints import (
     restore_weights,
     to_plain,
 )
-from ..evaluation import MeanMetrics
+from ..depth_from_photos.tiling import run_network
+from ..evaluation import evaluate_network
 from ..loading import read_checkpoint
 from ..losses import DefocusLoss
-from ..metrics import depth_metrics
 from ..networks import build_network
 from ..plotting import plot_prediction
 from ..run_log import RunLog
@@ -176,17 +176,10 @@ class Trainer:
     def predict(self, image: Tensor, focused: Tensor | None = None,
                 settings: CameraSettings | None = None) -> Tensor:
         """Depth `(B,1,H,W)` metres for a batch (`focused` `(B,F,3,H,W)` and their
-        `(B,F)` or `(F,)` `CameraSettings` in `"aif+focused"` mode), without gradients."""
-        was_training = self.model.training
-        self.model.eval()
-        with torch.no_grad():
-            image = image.to(self.device)
-            if self.config.input_mode == "aif":
-                depth = self.model(image)
-            else:
-                depth = self.model(image, focused.to(self.device), to_device(settings, self.device))
-        self.model.train(was_training)
-        return depth
+        `(B,F)` or `(F,)` `CameraSettings` in `"aif+focused"` mode), without gradients
+        (`models.depth_from_photos.tiling.run_network`)."""
+        return run_network(self.model, image.to(self.device), to_device(focused, self.device),
+                           to_device(settings, self.device))
 
     def at_depth_limits(self, depth: Tensor) -> Tensor:
         """The share of the pixels of `depth` at `depth_min` or `depth_max` (within
@@ -384,26 +377,17 @@ class Trainer:
             checker: checks each sample and counts its ground truth outside the depth range.
 
         Raises:
-            ValueError: a sample the network cannot read (`TestSampleChecker.check`), or none.
+            ValueError: a sample the network cannot read (`TestSampleChecker.check`), or none
+                with ground-truth depth (`models.evaluation.evaluate`, which skips samples
+                whose mask is empty).
 
         Returns:
             the mean metrics, and `at_depth_limits`: the share of predicted pixels at
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
-        means = MeanMetrics()
-        checker = checker if checker is not None else TestSampleChecker(self.config, "the network")
-        for index, sample in enumerate(test_set):
-            batch = collate([checker.check(sample, index)])
-            depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
-            metrics = depth_metrics(pred=depth.cpu(), target=batch["depth"],
-                                    mask=batch.get("mask"), min_depth=min_depth,
-                                    max_depth=depth_cap, crop=crop,
-                                    median_scaling=median_scaling)
-            metrics["at_depth_limits"] = float(self.at_depth_limits(depth))
-            means.add(metrics)
-        if means.count == 0:
-            raise ValueError("test_set holds no samples")
-        return means.mean()
+        return evaluate_network(self.model, self.config, test_set, checker, self.device,
+                                min_depth=min_depth, max_depth=depth_cap, crop=crop,
+                                median_scaling=median_scaling)
 
     def _validate(self) -> None:
         metrics = self.evaluate(self.val_set)
