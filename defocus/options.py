@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from datasets.registry import DATASET_NAMES
-
 #: Label-free methods (`models.depth_from_photos.METHODS`, listed here so that the help is
 #: built without importing the models) and "auto".
 METHOD_NAMES = ("auto", "sweep", "relative-blur", "focus")
@@ -107,6 +105,8 @@ def add_data_arguments(
 ) -> None:
     """`--data`, `--root`, `--split`, `--size`, `--scenes`, `--data-seed`: the dataset a
     command trains or evaluates on (`dataset_from_options` builds it)."""
+    from datasets.registry import DATASET_NAMES
+
     parser.add_argument(
         "--data",
         choices=sorted([*DATASET_NAMES, *extra_choices]),
