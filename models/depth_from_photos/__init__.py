@@ -31,12 +31,13 @@ from .estimate import (
     ambiguous_depths,
     check_shots_differ,
     choose_method,
+    depth_range_problem,
     estimate_depth,
     join_shots,
 )
 from .photometry import match_exposure, noise_model
 from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
-from .resolution import run_at_working_resolution, scene_range, widen_cut_range, working_scale
+from .resolution import scene_range, widen_cut_range, working_scale
 from .sweep import SweepDepth, blur_errors, sweep_cost
 from .thin_lens import (
     aggregate_cost,
@@ -63,6 +64,7 @@ __all__ = [
     "check_shots_differ",
     "choose_method",
     "depth_edge_confidence",
+    "depth_range_problem",
     "estimate_depth",
     "focus_measures",
     "focus_peak",
@@ -73,7 +75,6 @@ __all__ = [
     "noise_model",
     "relative_blur_cost",
     "relative_blur_px",
-    "run_at_working_resolution",
     "scene_range",
     "select_depth",
     "solve_depth",
