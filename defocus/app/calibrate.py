@@ -26,7 +26,9 @@ def parse_distance(text: str) -> float:
     except ValueError:
         value = math.nan
     if not value > 0:
-        raise ValueError(f"a --pair distance must be a number of metres > 0, got {text!r}")
+        raise ValueError(f"a --pair distance must be > 0 metres, got {text!r}"
+                         if value <= 0 else
+                         f"a --pair distance must be a number of metres, got {text!r}")
     return value
 
 
