@@ -17,6 +17,7 @@ it picks a method by what the photos are and runs it at a working resolution. Th
 | `all_in_focus` | the all-in-focus image fused from the shots by their blur |
 | `semi_global`, `smoothing` | semi-global cost aggregation; edge-aware smoothing of the depth |
 | `resolution`, `tiling` | the working resolution; large photos in tiles |
+| `rules` | one refusal for a table of argument rules (the methods' doors) |
 | `trained_network` | a `defocus train` network as a method |
 | `blur_net` | the experimental camera-general network that reads blur (`DepthFromDefocus`) |
 """

@@ -17,8 +17,8 @@ from torch import Tensor
 from optics import undo_motion
 from optics.checks import check_shape
 
-from ._rules import refuse_broken
 from .photometry import match_exposure
+from .rules import refuse_broken
 from .thin_lens import box_filter
 
 #: Blur difference (pixels at the working resolution) over which a shot's weight falls by e.

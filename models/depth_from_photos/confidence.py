@@ -17,7 +17,7 @@ from torch import Tensor
 
 from optics.checks import check_shape
 
-from ._rules import refuse_broken
+from .rules import refuse_broken
 from .thin_lens import ERROR_WINDOW_PX, box_filter
 
 #: The confidence of `depth_edge_confidence` halves every `BLUR_SPAN_PX * ln 2` pixels by which

@@ -19,9 +19,9 @@ from torch import Tensor, nn
 
 from optics.progress import progress_bar
 
-from ._rules import refuse_broken
 from .confidence import texture_confidence
 from .fourier_blur import FLOOR_SIGMA_PX
+from .rules import refuse_broken
 from .semi_global import (
     JUMP_PENALTY,
     SCALE_STRIDE,

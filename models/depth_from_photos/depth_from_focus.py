@@ -19,10 +19,10 @@ from torch import Tensor, nn
 from optics import CameraSettings
 from optics.checks import check_finite, check_shape
 
-from ._rules import refuse_broken
 from .confidence import band_energy, depth_edge_confidence, texture_confidence
 from .cost_volume import CONFIDENCE_FLOOR, MEDIAN_PX, SMOOTHING_SIGMA, SMOOTHING_STRENGTH
 from .photometry import match_exposure
+from .rules import refuse_broken
 from .smoothing import edge_aware_smooth
 from .thin_lens import thin_lens_blur
 

@@ -31,11 +31,11 @@ from torch import Tensor, nn
 from optics import CameraSettings
 from optics.checks import check_finite, check_shape, is_real_number, is_tracing
 
-from ._rules import refuse_broken
 from .all_in_focus import fuse_all_in_focus
 from .depth_from_focus import DepthFromFocus
 from .relative_blur import RelativeBlurDepth
 from .resolution import run_at_working_resolution
+from .rules import refuse_broken
 from .sweep import SweepDepth
 from .thin_lens import candidate_inverse_depths, mirrored_depths, thin_lens_blur
 
@@ -244,16 +244,7 @@ def estimate_depth(
     model = _method_object(method, model, options, progress, image is not None, len(focused))
     if getattr(model, "native_resolution", False):
         return _run_native(model, image, focused, settings, near, far, all_in_focus)
-    if image is None and getattr(model, "needs_image", True) or len(focused) < 1 + (image is None):
-        raise ValueError(f"{type(model).__name__} needs an all-in-focus photo: give image"
-                         if image is None and getattr(model, "needs_image", True) else
-                         f"{type(model).__name__} reads depth from defocus: give 1 or more "
-                         "focused photos with an all-in-focus image, or 2 or more, each "
-                         f"focused elsewhere, without one (got {len(focused)})")
-    if image is None:
-        check_shots_differ(settings, near, far)
-    else:
-        check_blur_readable(settings, near, far)
+    _refuse_unreadable(model, image, focused, settings, near, far)
     mirrored = warn_mirrored(settings, near, far)
     out = run_at_working_resolution(model, image, focused, settings, near, far,
                                     max_coc_px, max_pixels, align, refine_range, progress)
@@ -401,6 +392,22 @@ def _run_native(model: nn.Module, image: Tensor, focused: Tensor,
     if all_in_focus:
         result["all_in_focus"] = image
     return result
+
+
+def _refuse_unreadable(model: nn.Module, image: Tensor | None, focused: Tensor,
+                       settings: CameraSettings, near: float, far: float) -> None:
+    """Refuse photos a depth-from-defocus method cannot read: no all-in-focus photo where it
+    needs one, too few shots, or shots that do not tell depths in `[near, far]` apart."""
+    if image is None and getattr(model, "needs_image", True) or len(focused) < 1 + (image is None):
+        raise ValueError(f"{type(model).__name__} needs an all-in-focus photo: give image"
+                         if image is None and getattr(model, "needs_image", True) else
+                         f"{type(model).__name__} reads depth from defocus: give 1 or more "
+                         "focused photos with an all-in-focus image, or 2 or more, each "
+                         f"focused elsewhere, without one (got {len(focused)})")
+    if image is None:
+        check_shots_differ(settings, near, far)
+    else:
+        check_blur_readable(settings, near, far)
 
 
 def _fused(focused: Tensor, out: Mapping[str, Any], align: bool) -> Tensor:

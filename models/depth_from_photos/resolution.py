@@ -23,7 +23,7 @@ from optics import CameraSettings, align_shots
 from optics.checks import values_checked
 from optics.progress import progress_bar
 
-from ._rules import refuse_broken
+from .rules import refuse_broken
 
 
 def working_scale(settings: CameraSettings, near: float, far: float, shape: tuple[int, int],

@@ -25,7 +25,7 @@ from torch import Tensor
 
 from optics.checks import check_shape
 
-from ._rules import refuse_broken
+from .rules import refuse_broken
 
 #: Penalty (in units of the volume's typical cost spread, see `semi_global_cost`) for a change
 #: of one candidate between neighbours, and for a larger jump away from the photo's edges; the

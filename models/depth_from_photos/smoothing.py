@@ -21,7 +21,7 @@ from torch import Tensor
 
 from optics.checks import check_shape, is_tracing
 
-from ._rules import refuse_broken
+from .rules import refuse_broken
 
 #: Display gamma the guide image is encoded with before comparing neighbours.
 GUIDE_GAMMA = 2.2

@@ -20,7 +20,7 @@ from torch import Tensor
 
 from optics import CameraSettings
 
-from ._rules import refuse_broken
+from .rules import refuse_broken
 
 #: Side (pixels) of the window local errors between photos are first summed over.
 ERROR_WINDOW_PX = 5
