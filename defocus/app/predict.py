@@ -109,8 +109,8 @@ def check_request(request: PredictRequest) -> None:
 def request_problem(request: PredictRequest) -> str | None:
     """Why `request` cannot work, or None: an unknown `--device`, `--aggregation` or
     `--method`, a `--depth-range` that is not NEAR < FAR metres
-    (`models.depth_from_photos.depth_range_problem`) or is missing, too few photos, or options
-    that do not go together."""
+    (`models.depth_from_photos.depth_range_problem`), too few photos, or options that do not
+    go together."""
     from models.depth_from_photos import METHODS, depth_range_problem
     from models.depth_from_photos.cost_volume import AGGREGATIONS
     from models.train_config import check_device
@@ -131,10 +131,6 @@ def request_problem(request: PredictRequest) -> str | None:
         (image is None and (model is not None or n_focused < 2), lambda: "give --image (an "
          "all-in-focus photo), or 2 or more --focused photos focused at different distances "
          f"(got {n_focused})"),
-        (model is None and not n_focused, lambda: "depth from defocus needs --focused photos "
-         "(2 or more, each focused at its own --focus-distance)"),
-        (model is None and request.depth_range is None, lambda: "give --depth-range NEAR FAR "
-         "(metres): the thin lens has two depths for each blur, the range picks the right one"),
         (request.depth_range is not None and depth_range_problem(*request.depth_range)
          is not None, lambda: "--depth-range {:g} {:g}: ".format(*request.depth_range)
          + depth_range_problem(*request.depth_range)),
@@ -251,6 +247,11 @@ def depth_range_of(request: PredictRequest, model: Any, n_photos: int) -> tuple[
     from models.depth_from_photos import TrainedNetwork
 
     if model is None or not isinstance(model, TrainedNetwork):
+        if not n_photos or request.depth_range is None:
+            raise ValueError("depth from defocus needs --focused photos (2 or more, each "
+                             "focused at its own --focus-distance)" if not n_photos else
+                             "give --depth-range NEAR FAR (metres): the thin lens has two "
+                             "depths for each blur, the range picks the right one")
         return tuple(request.depth_range)
     if model.input_mode == "aif+focused" and n_photos != model.n_focus:
         raise ValueError(f"this network needs {model.n_focus} --focused photos, got {n_photos}")
