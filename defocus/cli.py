@@ -1,7 +1,10 @@
 """The `defocus` command line. Each subcommand lives in its own module, imported on use.
 
 A subcommand module (`defocus.commands.NAME`) defines `add_arguments(parser)` and
-`run(args) -> int`; it parses arguments and calls the library, nothing else.
+`run(args) -> int`; it parses arguments, builds the workflow's request (`defocus.app`), calls it
+and prints. Only the chosen subcommand's module is imported and its parser built: `defocus
+--help` lists every command from `COMMANDS` alone, and `defocus predict --help` imports no
+training code.
 
 Errors: a bad value, a missing file or a refused input ends the command with one line on stderr,
 `defocus COMMAND: error: MESSAGE`, and exit code 2, as argparse does for bad options. The
@@ -21,6 +24,7 @@ import signal
 import sys
 import threading
 import warnings
+from typing import Any
 
 from defocus import __version__
 from defocus.errors import USER_ERRORS, one_line
@@ -39,6 +43,33 @@ COMMANDS: dict[str, tuple[str, str]] = {
                            "rewrite a trusted old checkpoint so that it opens without running code"),
 }
 
+#: `add_argument` actions that may be given more than once: they add up (flags take no value).
+_REPEATABLE_ACTIONS = ("append", "append_const", "extend", "count", "help", "version")
+
+
+class CommandParser(argparse.ArgumentParser):
+    """An `ArgumentParser` that records the arguments added to it (`arguments`, in order;
+    `options`: option string -> its action; `repeatable`: the actions that may be given more
+    than once), so that the
+    command line answers an unknown option with the closest one and refuses an option given
+    twice or empty without reading argparse's private state; and that keeps its subcommands'
+    parsers by name (`commands`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.arguments: list[argparse.Action] = []
+        self.options: dict[str, argparse.Action] = {}
+        self.repeatable: set[argparse.Action] = set()
+        self.commands: dict[str, CommandParser] = {}
+        super().__init__(*args, **kwargs)  # adds --help through add_argument
+
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        self.arguments.append(action)
+        self.options.update(dict.fromkeys(action.option_strings, action))
+        if action.nargs == 0 or kwargs.get("action") in _REPEATABLE_ACTIONS:
+            self.repeatable.add(action)
+        return action
+
 
 def add_global_options(parser: argparse.ArgumentParser, after_command: bool = False) -> None:
     """`--debug` and `--quiet`, accepted before the subcommand and after it (there, with no
@@ -51,8 +82,17 @@ def add_global_options(parser: argparse.ArgumentParser, after_command: bool = Fa
                              "progress lines")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+def build_parser(only: str | None = None) -> CommandParser:
+    """The parser of `defocus`: every subcommand is listed with its one-line help, and the
+    options of subcommand `only` (of all of them where None, e.g. for the docs) are added by
+    its module's `add_arguments`; `parser.commands` holds the subcommands' parsers by name.
+
+    Example:
+        >>> parser = build_parser("sample")
+        >>> sorted(parser.commands) == sorted(COMMANDS), "--scale" in parser.commands["sample"].options
+        (True, True)
+    """
+    parser = CommandParser(
         prog="defocus",
         description="Differentiable optics and depth from defocus. Lengths are in metres.",
         allow_abbrev=False,
@@ -61,66 +101,57 @@ def build_parser() -> argparse.ArgumentParser:
     add_global_options(parser)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module, help_text) in COMMANDS.items():
-        command = sub.add_parser(
-            name,
-            help=help_text,
-            description=help_text,
-            formatter_class=DefaultsOnceFormatter,
-            allow_abbrev=False,
-        )
-        importlib.import_module(module).add_arguments(command)
-        add_global_options(command, after_command=True)
-        command.set_defaults(_module=module)
+        command = sub.add_parser(name, help=help_text, description=help_text,
+                                 formatter_class=DefaultsOnceFormatter, allow_abbrev=False)
+        parser.commands[name] = command
+        if only is None or name == only:
+            importlib.import_module(module).add_arguments(command)
+            add_global_options(command, after_command=True)
     return parser
 
 
-def subcommand_parser(parser: argparse.ArgumentParser, name: str) -> argparse.ArgumentParser:
-    """The parser of subcommand `name`."""
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            return action.choices[name]
-    raise KeyError(name)
+def chosen_command(argv: list[str]) -> str | None:
+    """The subcommand `argv` names: its first word that is not an option (the options before
+    a subcommand take no value), or None.
+
+    Example:
+        >>> chosen_command(["--quiet", "predict", "--image", "aif.png"])
+        'predict'
+    """
+    return next((word for word in argv if not word.startswith("-")), None)
 
 
 def parse(argv: list[str] | None = None) -> argparse.Namespace:
     """The parsed command line; an unknown option is answered by its subcommand's usage and the
-    closest option it has."""
-    parser = build_parser()
+    closest option it has; an option that takes values given twice or given an empty value is
+    refused."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(chosen_command(argv) or "")
     args, unknown = parser.parse_known_args(argv)
+    command = parser.commands[args.command]
     if unknown:
-        command = subcommand_parser(parser, args.command)
-        options = [o for action in command._actions for o in action.option_strings]
         hints = [close[0] for word in unknown if word.startswith("-")
-                 for close in [difflib.get_close_matches(word.split("=")[0], options, n=1, cutoff=0.75)]
-                 if close]
+                 for close in [difflib.get_close_matches(word.split("=")[0], list(command.options),
+                                                         n=1, cutoff=0.75)] if close]
         hint = f" (did you mean {', '.join(dict.fromkeys(hints))}?)" if hints else ""
         command.error(f"unrecognized arguments: {' '.join(unknown)}{hint}")
-    if argv is None:
-        argv = sys.argv[1:]
-    command = subcommand_parser(parser, args.command)
-    problem = _repeated_or_empty(command, list(argv)[list(argv).index(args.command) + 1:])
+    problem = _repeated_or_empty(command, argv[argv.index(args.command) + 1:])
     if problem:
         command.error(problem)
     return args
 
 
-#: Actions an option may be given more than once with: flags and lists that add up.
-_REPEATABLE = (argparse._StoreTrueAction, argparse._StoreFalseAction, argparse._CountAction,
-               argparse._AppendAction, argparse._HelpAction, argparse._VersionAction)
-
-
-def _repeated_or_empty(command: argparse.ArgumentParser, words: list[str]) -> str | None:
+def _repeated_or_empty(command: CommandParser, words: list[str]) -> str | None:
     """Why the words after the subcommand are refused, or None: an option that takes values
     given twice (argparse keeps the last silently: `--focused a b --focused c` would drop a and
     b) or given an empty value (`--out ""` is the current folder)."""
-    actions = {option: action for action in command._actions for option in action.option_strings}
     seen: dict[argparse.Action, str] = {}
     for index, word in enumerate(words):
         if word == "--":
             break
         option, equals, value = word.partition("=")
-        action = actions.get(option)
-        if action is None or isinstance(action, _REPEATABLE):
+        action = command.options.get(option)
+        if action is None or action in command.repeatable:
             continue
         if action in seen:
             both = "" if seen[action] == option else f" (as {seen[action]} and {option})"
@@ -169,7 +200,7 @@ def main(argv: list[str] | None = None) -> int:
     if threading.current_thread() is threading.main_thread():
         handler = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
-        return int(importlib.import_module(args._module).run(args) or 0)
+        return int(importlib.import_module(COMMANDS[args.command][0]).run(args) or 0)
     except KeyboardInterrupt as error:  # also models.training.TrainingInterrupted
         if debug:
             raise

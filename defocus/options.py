@@ -10,8 +10,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from datasets.registry import DATASET_NAMES
-
 #: Label-free methods (`models.depth_from_photos.METHODS`, listed here so that the help is
 #: built without importing the models) and "auto".
 METHOD_NAMES = ("auto", "sweep", "relative-blur", "focus")
@@ -107,6 +105,8 @@ def add_data_arguments(
 ) -> None:
     """`--data`, `--root`, `--split`, `--size`, `--scenes`, `--data-seed`: the dataset a
     command trains or evaluates on (`dataset_from_options` builds it)."""
+    from datasets.registry import DATASET_NAMES
+
     parser.add_argument(
         "--data",
         choices=sorted([*DATASET_NAMES, *extra_choices]),
@@ -298,7 +298,9 @@ def dataset_kwargs(args: argparse.Namespace) -> dict:
 
 def check_training_options(args: argparse.Namespace) -> None:
     """Refuse `--depth-range` and `--threads` values that cannot work (`SystemExit`)."""
-    if args.depth_range is not None and not 0 < args.depth_range[0] < args.depth_range[1]:
-        raise SystemExit(f"--depth-range must be 0 < MIN < MAX metres, got {args.depth_range}")
-    if args.threads < 0:
-        raise SystemExit(f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}")
+    problems = [f"--depth-range must be 0 < MIN < MAX metres, got {args.depth_range}"
+                for low, high in [args.depth_range or (1, 2)] if not 0 < low < high]
+    problems += [f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}"
+                 for threads in [args.threads] if threads < 0]
+    if problems:
+        raise SystemExit("; ".join(problems))

@@ -17,9 +17,8 @@ def test_every_config_field_is_explained_in_train_help():
 
 @pytest.mark.parametrize("command", list(COMMANDS))
 def test_every_option_has_help(command):
-    parser = build_parser()
-    sub = next(a for a in parser._actions if a.dest == "command").choices[command]
-    for action in sub._actions:
+    sub = build_parser(command).commands[command]
+    for action in sub.arguments:
         if action.dest != "help":
             assert action.help and len(action.help) > 5, (command, action.dest)
 
@@ -43,3 +42,21 @@ def test_help_states_each_default_once_and_no_dates(command, capsys):
 def test_the_help_checker_sees_a_doubled_default():
     options = re.split(r"\s(?=-{1,2}[a-z])", "--a X x (default: 1) (default: 1) --b Y y")
     assert [o for o in options if o.count("(default") > 1] == ["--a X x (default: 1) (default: 1)"]
+
+
+def test_help_builds_only_the_chosen_command():
+    """`defocus --help` lists every command without importing one; `defocus predict --help`
+    imports no training code (nor torch: only its own module and the option helpers)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\nfrom defocus.cli import main\ntry:\n    main(sys.argv[1:])\n"
+            "except SystemExit:\n    pass\nprint('MODULES', *sys.modules)")
+    for argv, commands in ((["--help"], []), (["predict", "--help"], ["predict"])):
+        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True,
+                             text=True, check=True).stdout
+        modules = out.split("MODULES", 1)[1].split()
+        assert [m for m in modules if m.startswith("defocus.commands.")] == \
+            [f"defocus.commands.{name}" for name in commands]
+        assert not [m for m in modules if m.startswith(("models", "torch", "matplotlib"))], argv
+        assert all(name in out for name, (_, text) in COMMANDS.items()) or commands

@@ -24,7 +24,7 @@ from defocus.app.sample import (
     smallest_scale,
     write_sample_set,
 )
-from defocus.cli import build_parser, main, subcommand_parser
+from defocus.cli import build_parser, main
 
 #: Small photos that `defocus predict` still reads (fast).
 SMALL = "0.05"
@@ -86,7 +86,7 @@ def test_a_second_sample_into_the_same_folder_is_refused(tmp_path, capsys):
 
 
 def test_sample_help_offers_overwrite():
-    options = subcommand_parser(build_parser(), "sample")._option_string_actions
+    options = build_parser("sample").commands["sample"].options
     assert "--overwrite" in options
 
 
@@ -174,8 +174,8 @@ def test_the_smallest_scale_is_the_one_the_suggested_predict_command_needs(tmp_p
 
 def test_the_help_states_the_smallest_scales():
     parser = build_parser()
-    sample_help = subcommand_parser(parser, "sample")._option_string_actions["--scale"].help
-    render_help = subcommand_parser(parser, "render")._option_string_actions["--scale"].help
+    sample_help = parser.commands["sample"].options["--scale"].help
+    render_help = parser.commands["render"].options["--scale"].help
     assert f"at least {smallest_scale(predict_problem):g} " in sample_help, sample_help
     assert f"at least {smallest_scale(render_problem):g}," in render_help, render_help
 

@@ -9,8 +9,14 @@ from skimage import data
 
 from datasets.capture import CaptureNoise, capture, random_camera
 from datasets.synthetic import generate_scene
-from models.depth_from_photos import cost_volume, scene_range, sweep, widen_cut_range
-from models.depth_from_photos import run_at_working_resolution as predict_depth
+from models.depth_from_photos import (
+    cost_volume,
+    estimate_depth,
+    scene_range,
+    sweep,
+    widen_cut_range,
+)
+from models.depth_from_photos.resolution import run_at_working_resolution as predict_depth
 from models.depth_from_photos.semi_global import cost_scale, semi_global_cost
 from models.depth_from_photos.sweep import SweepDepth, blur_errors, noise_model, sweep_cost
 from models.metrics import best_constant_depth, confident_half_error, depth_metrics
@@ -172,7 +178,7 @@ def test_predict_refuses_photos_with_nan():
     image, focused = torch.rand(3, 32, 32), torch.rand(2, 3, 32, 32)
     focused[1, 0, 5, 7] = float("nan")
     with pytest.raises(ValueError, match=r"focused has 1 NaN .* at index \(1, 0, 5, 7\)"):
-        predict_depth(SweepDepth(), image, focused, settings, 1.0, 10.0)
+        estimate_depth(focused, settings, (1.0, 10.0), image=image)
     image = image[None]
     image[0, 1, 2, 3] = float("inf")
     with pytest.raises(ValueError, match="image has 0 NaN and 1 infinite"):
@@ -185,17 +191,16 @@ def test_predict_refuses_photos_with_nan():
 def test_predict_refuses_a_bad_depth_range(near, far, match):
     settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
     with pytest.raises(ValueError, match=match):
-        predict_depth(SweepDepth(), torch.rand(3, 16, 16), torch.rand(2, 3, 16, 16), settings,
-                      near, far)
+        estimate_depth(torch.rand(2, 3, 16, 16), settings, (near, far), image=torch.rand(3, 16, 16))
 
 
 @pytest.mark.parametrize(("option", "value"), [
     ("max_coc_px", 0.0), ("max_coc_px", float("nan")), ("max_pixels", 0)])
 def test_predict_refuses_a_bad_working_resolution(option, value):
     settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
-    with pytest.raises(ValueError, match=option):
-        predict_depth(SweepDepth(), torch.rand(3, 16, 16), torch.rand(2, 3, 16, 16), settings,
-                      1.0, 10.0, **{option: value})
+    with pytest.raises(ValueError, match=f"{option}={value!r}"):
+        estimate_depth(torch.rand(2, 3, 16, 16), settings, (1.0, 10.0),
+                       image=torch.rand(3, 16, 16), **{option: value})
 
 
 def test_sweep_refuses_bad_arguments():

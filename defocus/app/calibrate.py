@@ -4,6 +4,7 @@ depth (`datasets.calibration.calibrate_dataset`)."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Collection, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -23,9 +24,11 @@ def parse_distance(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"a --pair distance must be a number of metres, got {text!r}") from None
+        value = math.nan
     if not value > 0:
-        raise ValueError(f"a --pair distance must be > 0 metres, got {text!r}")
+        raise ValueError(f"a --pair distance must be > 0 metres, got {text!r}"
+                         if value <= 0 else
+                         f"a --pair distance must be a number of metres, got {text!r}")
     return value
 
 
@@ -42,10 +45,11 @@ def parse_scenes(text: str | None, length: int) -> list[int]:
         parts = [int(p) if p else None for p in text.split(":")]
         indices = list(range(length))[slice(*parts)]
     except (ValueError, TypeError):
-        raise ValueError(f"--scenes must be a slice START:STOP[:STEP] of sample indices, got "
-                         f"{text!r}") from None
+        indices = None
     if not indices:
-        raise ValueError(f"--scenes {text!r} selects none of the {length} samples")
+        raise ValueError(f"--scenes must be a slice START:STOP[:STEP] of sample indices, got "
+                         f"{text!r}" if indices is None else
+                         f"--scenes {text!r} selects none of the {length} samples")
     return indices
 
 
@@ -56,14 +60,16 @@ def calibrate_from_dataset(name: str, root: Path | None, split: str = "train",
     `scenes` selects; returns the fit (`datasets.calibration.calibrate_dataset`) and the
     number of samples used."""
     from datasets.calibration import calibrate_dataset
-    from datasets.registry import dataset_classes
+    from datasets.registry import STACK_DATASET_NAMES, dataset_classes
 
-    if root is None:
-        raise ValueError("--dataset needs --root, the dataset's folder")
     classes = dataset_classes()
-    if name not in classes or name == "synthetic":
-        raise ValueError(f"--dataset must be a dataset of real photos with depth, one of "
-                         f"{sorted(set(classes) - {'synthetic'})}, got {name!r}")
+    allowed = sorted(set(classes) - {"synthetic", *STACK_DATASET_NAMES})
+    if name not in allowed or root is None:
+        stack = " (a focal-stack benchmark: shots focused at many distances, not aperture " \
+            "pairs; score it with `defocus evaluate --dataset`)" if name in STACK_DATASET_NAMES else ""
+        raise ValueError("--dataset needs --root, the dataset's folder" if name in allowed else
+                         f"--dataset must be a dataset of real photos with depth, one of "
+                         f"{allowed}, got {name!r}{stack}")
     dataset = classes[name](root, split=split)  # full resolution
     indices = parse_scenes(scenes, len(dataset))
     aperture = DEFAULT_APERTURE if psf == "gaussian" else psf

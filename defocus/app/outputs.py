@@ -104,40 +104,43 @@ class OutputPlan:
         """
         path = Path(path)
         resolved = _resolved(path)
-        self._check_not_input(path, resolved, what)
-        if resolved in self.outputs:
-            other, other_what = self.outputs[resolved]
-            raise ValueError(f"the {what} and the {other_what} would both be written to {path}; "
-                             "give them different paths")
-        if path.is_symlink():
-            raise ValueError(f"{path} is a symbolic link (to {os.readlink(path)}); outputs are "
-                             "never written through a link: remove it or choose another output")
-        if path.is_dir():
-            raise IsADirectoryError(f"the {what} would be written to {path}, which is a folder; "
-                                    "choose another output")
-        if path.exists() and not self.overwrite:
-            raise FileExistsError(f"{path} already exists (an earlier {what}); give --overwrite "
-                                  f"to replace it, {self.how}")
+        refusal = self._refusal(path, resolved, what)
+        if refusal is not None:
+            raise refusal
         self.outputs[resolved] = (path, what)
         if path.exists():
             self.earlier.add(resolved)
         return path
 
-    def _check_not_input(self, path: Path, resolved: Path, what: str) -> None:
+    def _refusal(self, path: Path, resolved: Path, what: str) -> OSError | ValueError | None:
+        """Why `path` may not receive output `what` (the error to raise), or None."""
         for name, given in self.inputs:
             same = resolved == _resolved(given)
             if not same and path.exists() and given.exists():
                 with contextlib.suppress(OSError):
                     same = os.path.samefile(path, given)
             if same:
-                raise ValueError(f"the {what} would be written to {path}, which is the input "
-                                 f"{name} {given}: an input is never written; choose another "
-                                 "output")
+                return ValueError(f"the {what} would be written to {path}, which is the input "
+                                  f"{name} {given}: an input is never written; choose another "
+                                  "output")
         for name, folder in self.input_folders:
             if path.exists() and _inside(resolved, folder):
-                raise ValueError(f"the {what} would be written to {path}, an existing file of "
-                                 f"the input {name} {folder}: an input is never written; "
-                                 "choose an output outside it")
+                return ValueError(f"the {what} would be written to {path}, an existing file of "
+                                  f"the input {name} {folder}: an input is never written; "
+                                  "choose an output outside it")
+        if resolved in self.outputs:
+            return ValueError(f"the {what} and the {self.outputs[resolved][1]} would both be "
+                              f"written to {path}; give them different paths")
+        if path.is_symlink():
+            return ValueError(f"{path} is a symbolic link (to {os.readlink(path)}); outputs are "
+                              "never written through a link: remove it or choose another output")
+        if path.is_dir():
+            return IsADirectoryError(f"the {what} would be written to {path}, which is a folder; "
+                                     "choose another output")
+        if path.exists() and not self.overwrite:
+            return FileExistsError(f"{path} already exists (an earlier {what}); give --overwrite "
+                                   f"to replace it, {self.how}")
+        return None
 
     @contextlib.contextmanager
     def writing(self, remove_unwritten: bool = False) -> Iterator[Callable[[Path, Writer], Path]]:
@@ -278,18 +281,21 @@ def check_output_folder(folder: Path | str, option: str = "--out",
         ValueError: --out data/run lies inside the input --root data: a run never writes into its input; choose an --out outside it
     """
     folder = Path(folder)
-    if folder.is_symlink():
-        raise ValueError(f"{option} {folder} is a symbolic link (to {os.readlink(folder)}); "
-                         f"outputs are never written through a link: choose another {option}")
-    if folder.exists() and not folder.is_dir():
-        raise NotADirectoryError(f"{option} {folder} is a file, not a folder; choose another "
-                                 f"{option}")
     resolved = _resolved(folder)
-    for name, given in _pairs(input_folders):
-        if _inside(resolved, _resolved(given)):
-            where = "is" if resolved == _resolved(given) else "lies inside"
-            raise ValueError(f"{option} {folder} {where} the input {name} {given}: a run never "
-                             f"writes into its input; choose an {option} outside it")
+    inside = next(((name, given) for name, given in _pairs(input_folders)
+                   if _inside(resolved, _resolved(given))), None)
+    refusal = (
+        ValueError(f"{option} {folder} is a symbolic link (to {os.readlink(folder)}); outputs "
+                   f"are never written through a link: choose another {option}")
+        if folder.is_symlink() else
+        NotADirectoryError(f"{option} {folder} is a file, not a folder; choose another {option}")
+        if folder.exists() and not folder.is_dir() else
+        ValueError(f"{option} {folder} {'is' if resolved == _resolved(inside[1]) else 'lies inside'}"
+                   f" the input {inside[0]} {inside[1]}: a run never writes into its input; "
+                   f"choose an {option} outside it")
+        if inside is not None else None)
+    if refusal is not None:
+        raise refusal
     return folder
 
 

@@ -15,12 +15,13 @@ import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import torch
 
 from defocus.options import check_positive
-from optics.checks import is_real_number
+from optics.checks import is_real_number, values_checked
 
 from .outputs import OutputPlan, plan_files
 
@@ -88,53 +89,66 @@ def plan_outputs(request: PredictRequest) -> OutputPlan:
     return plan_files(Path(request.out), OUTPUT_FILES, request.overwrite, inputs)[0]
 
 
+#: The options of `PredictRequest` that hold lengths or f-numbers: finite numbers > 0.
+POSITIVE_OPTIONS = ("image_f_number", "image_focus_distance", "depth_range")
+
+
 def check_request(request: PredictRequest) -> None:
-    """Refuse combinations of options that cannot work, before anything is read."""
-    from models.depth_from_photos import METHODS
+    """`predict`'s door: refuse option values and combinations that cannot work, before
+    anything is read, in one line naming the option (`request_problem`); the numbers must be
+    finite and > 0 (`defocus.options.check_positive`). What passes is not checked again:
+    `predict` runs `estimate_depth` with its value checks off
+    (`optics.checks.values_checked`)."""
+    check_positive(request, *POSITIVE_OPTIONS)
+    check_positive(SimpleNamespace(**request.camera_options), *request.camera_options)
+    problem = request_problem(request)
+    if problem is not None:
+        raise ValueError(problem)
+
+
+def request_problem(request: PredictRequest) -> str | None:
+    """Why `request` cannot work, or None: an unknown `--device`, `--aggregation` or
+    `--method`, a `--depth-range` that is not NEAR < FAR metres
+    (`models.depth_from_photos.depth_range_problem`), too few photos, or options that do not
+    go together."""
+    from models.depth_from_photos import METHODS, depth_range_problem
     from models.depth_from_photos.cost_volume import AGGREGATIONS
     from models.train_config import check_device
 
     try:
         check_device(request.device)
     except ValueError as error:
-        raise ValueError(f"--device: {error}") from None
-    if request.aggregation not in AGGREGATIONS:
-        raise ValueError(f"--aggregation must be one of {', '.join(AGGREGATIONS)}, got "
-                         f"{request.aggregation!r}")
-    if request.method not in ("auto", *METHODS):
-        raise ValueError(f"--method must be auto or one of {', '.join(METHODS)}, got "
-                         f"{request.method!r}")
-    check_numbers(request)
-    if request.checkpoint is not None and (request.aggregation != "semi-global"
-                                           or request.method != "auto"):
-        raise ValueError("--aggregation and --method choose how the label-free methods work: "
-                         f"give them without a model file (got {request.checkpoint})")
-
-
-def check_numbers(request: PredictRequest) -> None:
-    """Refuse option values that no camera has, naming the option: `--image-f-number`,
-    `--image-focus-distance` and `--depth-range` must be finite and > 0
-    (`defocus.options.check_positive`), NEAR < FAR."""
-    check_positive(request, "image_f_number", "image_focus_distance", "depth_range")
-    if request.depth_range is not None:
-        near, far = request.depth_range
-        if not near < far:
-            raise ValueError(f"--depth-range must be NEAR FAR metres with 0 < NEAR < FAR, got "
-                             f"{near:g} {far:g}")
+        return f"--device: {error}"
+    model, image, n_focused = request.checkpoint, request.image, len(request.focused)
+    rules = (
+        (request.aggregation not in AGGREGATIONS, lambda: "--aggregation must be one of "
+         f"{', '.join(AGGREGATIONS)}, got {request.aggregation!r}"),
+        (request.method not in ("auto", *METHODS), lambda: "--method must be auto or one of "
+         f"{', '.join(METHODS)}, got {request.method!r}"),
+        (model is not None and (request.aggregation != "semi-global" or request.method != "auto"),
+         lambda: "--aggregation and --method choose how the label-free methods work: give "
+         f"them without a model file (got {model})"),
+        (image is None and (model is not None or n_focused < 2), lambda: "give --image (an "
+         "all-in-focus photo), or 2 or more --focused photos focused at different distances "
+         f"(got {n_focused})"),
+        (request.depth_range is not None and depth_range_problem(*request.depth_range)
+         is not None, lambda: "--depth-range {:g} {:g}: ".format(*request.depth_range)
+         + depth_range_problem(*request.depth_range)),
+        (image is None and request.method == "sweep", lambda: "--method sweep compares the "
+         "focused photos with an all-in-focus photo: give --image"),
+    )
+    return next((message() for broken, message in rules if broken), None)
 
 
 def check_beyond_lens(request: PredictRequest, settings, depth_range) -> None:
     """Refuse a `--depth-range` or `--image-focus-distance` within the focal length (nothing
     there is imaged on the sensor)."""
-    if settings is None:
-        return
     focal = float(settings.focal_length.max())
-    if request.depth_range is not None and depth_range[0] <= focal:
-        raise ValueError(f"--depth-range must lie beyond the focal length ({focal:g} m): got "
-                         f"NEAR {depth_range[0]:g} m")
-    if request.image_focus_distance is not None and request.image_focus_distance <= focal:
-        raise ValueError(f"--image-focus-distance must be > the focal length ({focal:g} m), got "
-                         f"{request.image_focus_distance:g} m")
+    for option, value in (("--depth-range", depth_range[0]),
+                          ("--image-focus-distance", request.image_focus_distance)):
+        if value is not None and value <= focal:
+            raise ValueError(f"{option} must lie beyond the focal length ({focal:g} m): got "
+                             f"{'NEAR ' if option == '--depth-range' else ''}{value:g} m")
 
 
 def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_model: bool,
@@ -149,21 +163,16 @@ def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_mode
         raise ValueError(f'{request.camera}: "reference_f_number" must be an f-number >= 1, '
                          f"got {reference!r}")
     if request.image is not None and request.image_f_number is None and not has_model \
-            and request.method in ("auto", "relative-blur"):
-        if reference is not None:
-            request.image_f_number = float(reference)
-            report(f"--image counts as an f/{request.image_f_number:g} shot (reference_f_number "
-                   f"of {request.camera}); --method sweep takes it as all-in-focus instead")
-    if request.image_focus_distance is not None and request.image_f_number is None:
-        raise ValueError("--image-focus-distance goes with --image-f-number (the --image "
-                         "photo as one more shot)")
-    if request.image_f_number is not None and (request.image is None or has_model
-                                               or request.method in ("sweep", "focus")):
-        raise ValueError("--image-f-number makes --image one more shot of the relative blur: "
-                         "give --image, no model file, and --method auto or relative-blur")
-    if request.image is None and request.method == "sweep":
-        raise ValueError("--method sweep compares the focused photos with an all-in-focus "
-                         "photo: give --image")
+            and request.method in ("auto", "relative-blur") and reference is not None:
+        request.image_f_number = float(reference)
+        report(f"--image counts as an f/{request.image_f_number:g} shot (reference_f_number "
+               f"of {request.camera}); --method sweep takes it as all-in-focus instead")
+    shot = request.image_f_number is not None
+    if request.image_focus_distance is not None and not shot or shot and (
+            request.image is None or has_model or request.method in ("sweep", "focus")):
+        raise ValueError("--image-f-number makes --image one more shot of the relative blur "
+                         "(--image-focus-distance goes with it): give --image, no model "
+                         "file, and --method auto or relative-blur")
 
 
 def check_photo_order(request: PredictRequest, listed: Any) -> None:
@@ -238,11 +247,10 @@ def depth_range_of(request: PredictRequest, model: Any, n_photos: int) -> tuple[
     from models.depth_from_photos import TrainedNetwork
 
     if model is None or not isinstance(model, TrainedNetwork):
-        if not n_photos:
+        if not n_photos or request.depth_range is None:
             raise ValueError("depth from defocus needs --focused photos (2 or more, each "
-                             "focused at its own --focus-distance)")
-        if request.depth_range is None:
-            raise ValueError("give --depth-range NEAR FAR (metres): the thin lens has two "
+                             "focused at its own --focus-distance)" if not n_photos else
+                             "give --depth-range NEAR FAR (metres): the thin lens has two "
                              "depths for each blur, the range picks the right one")
         return tuple(request.depth_range)
     if model.input_mode == "aif+focused" and n_photos != model.n_focus:
@@ -279,22 +287,21 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     device = select_device(request.device)
     # the model first: a file that is no model is refused before any photo is read
     model = None if request.checkpoint is None else load_depth_model(request.checkpoint, device)
-    if request.image is None and (model is not None or len(request.focused) < 2):
-        raise ValueError("give --image (an all-in-focus photo), or 2 or more --focused photos "
-                         f"focused at different distances (got {len(request.focused)})")
     calibration, extra = CameraSettings.read_json(request.camera) if request.camera \
         else (None, {})
     apply_camera_policy(request, extra, model is not None, report)
     photos = read_photos(request)
     settings = _settings(request, photos, calibration, report)
     depth_range = depth_range_of(request, model, len(photos.infos))
-    check_beyond_lens(request, settings, depth_range)
+    if settings is not None:
+        check_beyond_lens(request, settings, depth_range)
     image_settings = image_shot_settings(request, settings)
     method, options = _method(request, model, photos, image_settings)
-    out = estimate_depth(photos.focused.to(device), settings, depth_range,
-                         image=None if photos.image is None else photos.image.to(device),
-                         image_settings=image_settings, method=method, model=model,
-                         options=options, progress=request.progress)
+    with values_checked():  # checked at this door: the options, and each photo once on reading
+        out = estimate_depth(photos.focused.to(device), settings, depth_range,
+                             image=None if photos.image is None else photos.image.to(device),
+                             image_settings=image_settings, method=method, model=model,
+                             options=options, progress=request.progress)
     if image_settings is not None:
         report(f"--image is one more shot: f/{request.image_f_number:g}, focused at "
                f"{float(image_settings.focus_distance[0]):g} m")

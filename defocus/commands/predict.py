@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from defocus.options import add_overwrite_argument, check_positive, say
+from defocus.options import add_overwrite_argument, say
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -89,9 +89,6 @@ def run(args: argparse.Namespace) -> int:
     from defocus.app.predict import PredictRequest, predict
 
     camera = ("focus_distance", "f_number", "focal_length", "pixel_pitch")
-    # the camera options (PredictRequest.camera_options); the request's own numbers are checked
-    # by the workflow
-    check_positive(args, "focus_distance", "f_number", "focal_length", "pixel_pitch")
     request = PredictRequest(
         **{field.name: getattr(args, field.name) for field in dataclasses.fields(PredictRequest)
            if field.name not in ("camera_options", "progress")},

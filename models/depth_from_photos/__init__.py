@@ -17,6 +17,7 @@ it picks a method by what the photos are and runs it at a working resolution. Th
 | `all_in_focus` | the all-in-focus image fused from the shots by their blur |
 | `semi_global`, `smoothing` | semi-global cost aggregation; edge-aware smoothing of the depth |
 | `resolution`, `tiling` | the working resolution; large photos in tiles |
+| `rules` | one refusal for a table of argument rules (the methods' doors) |
 | `trained_network` | a `defocus train` network as a method |
 | `blur_net` | the experimental camera-general network that reads blur (`DepthFromDefocus`) |
 """
@@ -31,12 +32,13 @@ from .estimate import (
     ambiguous_depths,
     check_shots_differ,
     choose_method,
+    depth_range_problem,
     estimate_depth,
     join_shots,
 )
 from .photometry import match_exposure, noise_model
 from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
-from .resolution import run_at_working_resolution, scene_range, widen_cut_range, working_scale
+from .resolution import scene_range, widen_cut_range, working_scale
 from .sweep import SweepDepth, blur_errors, sweep_cost
 from .thin_lens import (
     aggregate_cost,
@@ -63,6 +65,7 @@ __all__ = [
     "check_shots_differ",
     "choose_method",
     "depth_edge_confidence",
+    "depth_range_problem",
     "estimate_depth",
     "focus_measures",
     "focus_peak",
@@ -73,7 +76,6 @@ __all__ = [
     "noise_model",
     "relative_blur_cost",
     "relative_blur_px",
-    "run_at_working_resolution",
     "scene_range",
     "select_depth",
     "solve_depth",

@@ -18,6 +18,7 @@ from optics import undo_motion
 from optics.checks import check_shape
 
 from .photometry import match_exposure
+from .rules import refuse_broken
 from .thin_lens import box_filter
 
 #: Blur difference (pixels at the working resolution) over which a shot's weight falls by e.
@@ -37,8 +38,8 @@ def fusion_weights(blur: Tensor, size: tuple[int, int], softness_px: float = SOF
         (torch.Size([2, 8, 8]), True)
     """
     check_shape("blur", blur, ["F", "H", "W"])
-    if not softness_px > 0:
-        raise ValueError(f"softness_px must be > 0 pixels, got {softness_px!r}")
+    refuse_broken([(not softness_px > 0,
+                    lambda: f"softness_px must be > 0 pixels, got {softness_px!r}")])
     weights = torch.softmax(-blur / softness_px, 0)
     weights = box_filter(weights[None], 3)
     weights = F.interpolate(weights, size=size, mode="bilinear", align_corners=False)[0]
@@ -64,8 +65,8 @@ def fuse_all_in_focus(shots: Tensor, blur: Tensor, motions: Tensor | None = None
         True
     """
     check_shape("shots", shots, ["F", "3", "H", "W"])
-    if blur.shape[0] != shots.shape[0]:
-        raise ValueError(f"blur holds {blur.shape[0]} shots but shots {shots.shape[0]}")
+    refuse_broken([(blur.shape[0] != shots.shape[0],
+                    lambda: f"blur holds {blur.shape[0]} shots but shots {shots.shape[0]}")])
     weights = fusion_weights(blur.to(shots.dtype), tuple(shots.shape[-2:]))
     fused = torch.zeros_like(shots[0])
     for i in range(shots.shape[0]):  # one aligned copy at a time (memory)

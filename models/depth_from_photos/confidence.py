@@ -17,6 +17,7 @@ from torch import Tensor
 
 from optics.checks import check_shape
 
+from .rules import refuse_broken
 from .thin_lens import ERROR_WINDOW_PX, box_filter
 
 #: The confidence of `depth_edge_confidence` halves every `BLUR_SPAN_PX * ln 2` pixels by which
@@ -82,11 +83,11 @@ def depth_edge_confidence(blur: Tensor, window: int = ERROR_WINDOW_PX,
         (1.0, 1.0, 1.0, 0.14, 0.14, 0.14, 0.14, 1.0, 1.0, 1.0)
     """
     check_shape("blur", blur, ["B", "F", "H", "W"])
-    if isinstance(window, bool) or not (isinstance(window, int) and window >= 1
-                                         and window % 2 == 1):
-        raise ValueError(f"window must be an odd number of pixels >= 1, got {window!r}")
-    if not span_px > 0:
-        raise ValueError(f"span_px must be > 0 pixels, got {span_px!r}")
+    refuse_broken([
+        (isinstance(window, bool) or not (isinstance(window, int) and window >= 1
+                                          and window % 2 == 1),
+         lambda: f"window must be an odd number of pixels >= 1, got {window!r}"),
+        (not span_px > 0, lambda: f"span_px must be > 0 pixels, got {span_px!r}")])
     pad = window // 2
     padded = F.pad(blur, (pad, pad, pad, pad), mode="replicate")
     spread = F.max_pool2d(padded, window, 1) + F.max_pool2d(-padded, window, 1)

@@ -21,6 +21,7 @@ from optics.progress import progress_bar
 
 from .confidence import texture_confidence
 from .fourier_blur import FLOOR_SIGMA_PX
+from .rules import refuse_broken
 from .semi_global import (
     JUMP_PENALTY,
     SCALE_STRIDE,
@@ -81,17 +82,15 @@ class CostVolumeDepth(nn.Module):
                  smoothing: float = SMOOTHING_STRENGTH, aggregation: str = "semi-global",
                  smooth_penalty: float = SMOOTH_PENALTY, jump_penalty: float = JUMP_PENALTY):
         super().__init__()
-        if not (smooth_penalty >= 0 and jump_penalty >= smooth_penalty):
-            raise ValueError(f"need 0 <= smooth_penalty <= jump_penalty, got {smooth_penalty!r} "
-                             f"and {jump_penalty!r}")
+        refuse_broken([
+            (not (smooth_penalty >= 0 and jump_penalty >= smooth_penalty), lambda: "need 0 <= "
+             f"smooth_penalty <= jump_penalty, got {smooth_penalty!r} and {jump_penalty!r}"),
+            (not n_candidates >= 3, lambda: f"n_candidates must be >= 3, got {n_candidates!r}"),
+            (aggregation not in AGGREGATIONS,
+             lambda: f"aggregation must be one of {AGGREGATIONS}, got {aggregation!r}"),
+            (not smoothing >= 0, lambda: f"smoothing must be >= 0, got {smoothing!r}")])
         self.smooth_penalty, self.jump_penalty = float(smooth_penalty), float(jump_penalty)
-        if n_candidates < 3:
-            raise ValueError(f"n_candidates must be >= 3, got {n_candidates!r}")
-        if aggregation not in AGGREGATIONS:
-            raise ValueError(f"aggregation must be one of {AGGREGATIONS}, got {aggregation!r}")
         self.aggregation = aggregation
-        if not smoothing >= 0:
-            raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
         check_tiling(tile, 0)
         self.n_candidates, self.tile, self.progress = int(n_candidates), int(tile), progress
         self.smoothing = float(smoothing)

@@ -22,6 +22,7 @@ from optics.checks import check_finite, check_shape
 from .confidence import band_energy, depth_edge_confidence, texture_confidence
 from .cost_volume import CONFIDENCE_FLOOR, MEDIAN_PX, SMOOTHING_SIGMA, SMOOTHING_STRENGTH
 from .photometry import match_exposure
+from .rules import refuse_broken
 from .smoothing import edge_aware_smooth
 from .thin_lens import thin_lens_blur
 
@@ -110,10 +111,10 @@ class DepthFromFocus(nn.Module):
     def __init__(self, window: int = MEASURE_WINDOW_PX, smoothing: float = SMOOTHING_STRENGTH,
                  progress: bool = False):
         super().__init__()
-        if isinstance(window, bool) or not isinstance(window, int) or window < 1:
-            raise ValueError(f"window must be a positive number of pixels, got {window!r}")
-        if not smoothing >= 0:
-            raise ValueError(f"smoothing must be >= 0, got {smoothing!r}")
+        refuse_broken([
+            (isinstance(window, bool) or not isinstance(window, int) or window < 1,
+             lambda: f"window must be a positive number of pixels, got {window!r}"),
+            (not smoothing >= 0, lambda: f"smoothing must be >= 0, got {smoothing!r}")])
         self.window, self.smoothing, self.progress = window, float(smoothing), progress
 
     def forward(self, image: Tensor | None, focused: Tensor, settings: CameraSettings,

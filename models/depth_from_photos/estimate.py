@@ -29,12 +29,13 @@ import torch
 from torch import Tensor, nn
 
 from optics import CameraSettings
-from optics.checks import is_real_number
+from optics.checks import check_finite, check_shape, is_real_number, is_tracing
 
 from .all_in_focus import fuse_all_in_focus
 from .depth_from_focus import DepthFromFocus
 from .relative_blur import RelativeBlurDepth
-from .resolution import check_photos, run_at_working_resolution
+from .resolution import run_at_working_resolution
+from .rules import refuse_broken
 from .sweep import SweepDepth
 from .thin_lens import candidate_inverse_depths, mirrored_depths, thin_lens_blur
 
@@ -235,17 +236,15 @@ def estimate_depth(
         >>> out["depth"].shape, out["confidence"].shape
         (torch.Size([1, 24, 24]), torch.Size([1, 24, 24]))
     """
-    focused, image = check_arguments(focused, settings, depth_range, image, image_settings)
+    focused, image, (near, far) = check_arguments(focused, settings, depth_range, image,
+                                                  image_settings, max_coc_px, max_pixels)
     if image_settings is not None:
-        focused, settings = _image_as_shot(image, focused, settings, image_settings)
+        focused, settings = torch.cat([image[None], focused]), join_shots(image_settings, settings)
         image = None
-    near, far = _check_depth_range(depth_range)
     model = _method_object(method, model, options, progress, image is not None, len(focused))
-    if getattr(model, "needs_image", True) and image is None:
-        raise ValueError(f"{type(model).__name__} needs an all-in-focus photo: give image")
     if getattr(model, "native_resolution", False):
         return _run_native(model, image, focused, settings, near, far, all_in_focus)
-    _check_defocus_photos(model, image, focused, settings, near, far)
+    _refuse_unreadable(model, image, focused, settings, near, far)
     mirrored = warn_mirrored(settings, near, far)
     out = run_at_working_resolution(model, image, focused, settings, near, far,
                                     max_coc_px, max_pixels, align, refine_range, progress)
@@ -257,6 +256,13 @@ def estimate_depth(
 
 #: Photo dtypes computed in float32 (and returned as float32): too coarse for the sweep.
 _WIDENED = (torch.float16, torch.bfloat16)
+#: The farthest end of a depth range (metres): every lens blurs as at infinity long before.
+MAX_FAR_M = 1e6
+#: The largest value a linear photo in [0, 1] may hold (highlights a raw file's white balance
+#: lifts a little above 1 pass; 8-bit or 16-bit code values do not).
+MAX_INTENSITY = 2.0
+#: The most negative value (a raw file's black level subtracted leaves noise below 0).
+MIN_INTENSITY = -0.1
 
 
 def _is_number(value: Any) -> bool:
@@ -267,10 +273,13 @@ def _is_number(value: Any) -> bool:
 
 
 def check_arguments(focused: Any, settings: Any, depth_range: Any, image: Any = None,
-                    image_settings: Any = None) -> tuple[Tensor, Tensor | None]:
-    """`estimate_depth`'s door: the types, dtypes and shapes of its arguments, each refused in
-    one line that names the argument; returns the photos, float16 and bfloat16 ones widened
-    to float32.
+                    image_settings: Any = None, max_coc_px: float | None = None,
+                    max_pixels: int = 1_500_000) -> tuple[Tensor, Tensor | None, tuple[float, float]]:
+    """`estimate_depth`'s door: its arguments' types, dtypes and shapes, the depth range and
+    the pixels (one pass over each photo, skipped inside `optics.checks.values_checked`, where
+    the caller has read them), each refused in one line that names the argument; returns the
+    photos, float16 and bfloat16 ones widened to float32, and `(near, far)` as floats. Code
+    behind the door takes these values as they are.
 
     Example:
         >>> check_arguments(torch.zeros(2, 3, 8, 8, dtype=torch.uint8), None, (1.0, 5.0))
@@ -278,78 +287,94 @@ def check_arguments(focused: Any, settings: Any, depth_range: Any, image: Any = 
         ...
         TypeError: focused must hold floating-point linear intensity in [0, 1], got dtype torch.uint8; convert it with .float() / 255 (and decode sRGB: kornia.color.rgb_to_linear_rgb)
     """
-    photos = []
-    for name, photo in (("focused", focused), ("image", image)):
-        if photo is None and name == "image":
-            photos.append(None)
-            continue
-        if not isinstance(photo, Tensor):
-            raise TypeError(f"{name} must be a torch.Tensor, got {type(photo).__name__}")
-        if not photo.is_floating_point():
-            raise TypeError(f"{name} must hold floating-point linear intensity in [0, 1], got "
-                            f"dtype {photo.dtype}; convert it with .float() / 255 (and decode "
-                            "sRGB: kornia.color.rgb_to_linear_rgb)")
-        photos.append(photo.float() if photo.dtype in _WIDENED else photo)
+    photos = [_photo(name, photo) for name, photo in (("focused", focused), ("image", image))]
     for name, value in (("settings", settings), ("image_settings", image_settings)):
-        if value is not None and not isinstance(value, CameraSettings):
-            raise TypeError(f"{name} must be an optics.CameraSettings, got "
-                            f"{type(value).__name__}; build one with CameraSettings("
-                            "focal_length, f_number, focus_distance, pixel_pitch)")
+        given = value is not None or name == "settings" and len(photos[0]) > 0
+        if given and not (isinstance(value, CameraSettings) and
+                                      (not value.is_batched or value.shape[0] == 1)):
+            raise (ValueError(f"{name} must be one scene's (F,) settings, got shape "
+                              f"{tuple(value.shape)} (a batch of {value.shape[0]} scenes); "
+                              f"estimate_depth takes one scene: give {name}[i]")
+                   if isinstance(value, CameraSettings) else
+                   TypeError(f"{name} must be an optics.CameraSettings, got "
+                             f"{type(value).__name__}; build one with CameraSettings("
+                             "focal_length, f_number, focus_distance, pixel_pitch)"))
     if isinstance(depth_range, (str, bytes)) or not hasattr(depth_range, "__len__") or \
             len(depth_range) != 2 or not all(_is_number(d) for d in depth_range):
         raise TypeError(f"depth_range must be two numbers (near, far) in metres, got "
                         f"{depth_range!r}")
-    for name, value in (("settings", settings), ("image_settings", image_settings)):
-        if value is not None and value.is_batched and value.shape[0] != 1:
-            raise ValueError(f"{name} must be one scene's (F,) settings, got shape "
-                             f"{tuple(value.shape)} (a batch of {value.shape[0]} scenes); "
-                             f"estimate_depth takes one scene: give {name}[i]")
-    check_photos(photos[0], photos[1])
-    near, _ = _check_depth_range(depth_range)
-    if settings is not None and near <= float(settings.focal_length.max()):
-        raise ValueError(f"depth_range must lie beyond the focal length "
-                         f"({float(settings.focal_length.max()):g} m), got near {near:g} m")
-    return photos[0], photos[1]
-
-
-def _image_as_shot(image: Tensor | None, focused: Tensor, settings: CameraSettings | None,
-                   image_settings: CameraSettings) -> tuple[Tensor, CameraSettings]:
-    """The shots with the nearly sharp `image` first, and their joined settings."""
-    if image is None or settings is None:
-        raise ValueError("image_settings are the settings of image: give image and the "
-                         "focused photos' settings too")
-    if image_settings.n_shots != 1:
-        raise ValueError(f"image_settings must hold 1 shot, got {image_settings.n_shots}")
-    return torch.cat([image[None], focused]), join_shots(image_settings, settings)
-
-
-#: The farthest end of a depth range (metres): every lens blurs as at infinity long before.
-MAX_FAR_M = 1e6
-
-
-def _check_depth_range(depth_range: tuple[float, float]) -> tuple[float, float]:
-    """`(near, far)` as floats, checked: finite metres with 0 < near < far <= `MAX_FAR_M`."""
     near, far = (float(d) for d in depth_range)
+    focal = None if settings is None else float(settings.focal_length.max())
+    problem = None if is_tracing() else depth_range_problem(near, far, focal)
+    refuse_broken([
+        (photos[1] is not None and photos[0].shape[-2:] != photos[1].shape[-2:], lambda:
+         f"focused photos are {tuple(photos[0].shape[-2:])} pixels but the all-in-focus photo "
+         f"is {tuple(photos[1].shape[-2:])}"),
+        (image_settings is not None and (photos[1] is None or settings is None
+                                         or image_settings.n_shots != 1), lambda:
+         "image_settings are the settings of image, as one more shot: give image, the focused "
+         f"photos' settings and image_settings of 1 shot, got {image_settings.n_shots} shot(s)"),
+        ((max_coc_px is not None and not (math.isfinite(max_coc_px) and max_coc_px > 0))
+         or not max_pixels >= 64, lambda: "max_coc_px must be a positive number of pixels (or "
+         f"None) and max_pixels >= 64 (8x8 pixels), got max_coc_px={max_coc_px!r}, "
+         f"max_pixels={max_pixels!r}"),
+        (problem is not None, lambda: f"depth_range {problem}, got {tuple(depth_range)!r}")])
+    return photos[0], photos[1], (near, far)
+
+
+def depth_range_problem(near: float, far: float, focal_length: float | None = None
+                        ) -> str | None:
+    """Why `(near, far)` metres is no depth range (for a lens of `focal_length` metres), or
+    None: it must be finite with 0 < near < far <= `MAX_FAR_M`, beyond the focal length.
+
+    Example:
+        >>> depth_range_problem(1.0, 10.0) is None, depth_range_problem(0.01, 10.0, 0.05)
+        (True, 'must lie beyond the focal length (0.05 m)')
+    """
     if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
-        raise ValueError(f"depth_range must be finite metres (near, far) with 0 < near < far, "
-                         f"got {tuple(depth_range)!r}")
+        return "must be finite metres (near, far) with 0 < near < far"
     if far > MAX_FAR_M:
-        raise ValueError(f"depth_range's far end must be at most {MAX_FAR_M:g} metres (beyond it "
-                         f"every lens blurs as at infinity), got {far:g}")
-    return near, far
+        return (f"far end must be at most {MAX_FAR_M:g} metres (beyond it every lens blurs as "
+                "at infinity)")
+    if focal_length is not None and near <= focal_length:
+        return f"must lie beyond the focal length ({focal_length:g} m)"
+    return None
+
+
+def _photo(name: str, photo: Any) -> Tensor | None:
+    """The photo `name` checked (`check_arguments`): a floating-point tensor, `(F,3,H,W)` for
+    `focused`, `(3,H,W)` for `image` (the size of `focused`), finite linear intensity."""
+    if photo is None and name == "image":
+        return None
+    if not isinstance(photo, Tensor) or not photo.is_floating_point():
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(photo).__name__}"
+                        if not isinstance(photo, Tensor) else
+                        f"{name} must hold floating-point linear intensity in [0, 1], got "
+                        f"dtype {photo.dtype}; convert it with .float() / 255 (and decode "
+                        "sRGB: kornia.color.rgb_to_linear_rgb)")
+    check_shape(name, photo, ["F", "3", "H", "W"] if name == "focused" else ["3", "H", "W"])
+    if photo.numel() and not is_tracing(photo):  # one pass: NaN fails every comparison
+        low, high = (float(v) for v in torch.aminmax(photo.detach()))
+        if not MIN_INTENSITY <= low <= high <= MAX_INTENSITY:
+            check_finite(name, photo)
+            hint = ("; 8-bit values? divide by 255 (16-bit: 65535) and decode sRGB "
+                    "(kornia.color.rgb_to_linear_rgb)" if high > MAX_INTENSITY else "")
+            raise ValueError(f"{name} must hold linear intensity in [0, 1], got values from "
+                             f"{low:.4g} to {high:.4g}{hint}")
+    return photo.float() if photo.dtype in _WIDENED else photo
 
 
 def _method_object(method: str, model: nn.Module | None, options: Mapping[str, Any] | None,
                    progress: bool, has_image: bool, n_shots: int) -> nn.Module:
     """`model`, or the method named `method` (`"auto"`: `choose_method`) built with `options`."""
-    if model is None:
-        if method == "auto":
-            method = choose_method(has_image, n_shots)
-        if method not in METHODS:
-            raise ValueError(f"method must be 'auto' or one of {sorted(METHODS)}, got {method!r}")
+    if model is None and method == "auto":
+        method = choose_method(has_image, n_shots)
+    if model is None and method in METHODS:
         return METHODS[method](progress=progress, **dict(options or {}))
-    if options:
-        raise ValueError(f"options configure a method by name; give them to the model's class "
+    if model is None or options:
+        raise ValueError(f"method must be 'auto' or one of {sorted(METHODS)}, got {method!r}"
+                         if model is None else
+                         "options configure a method by name; give them to the model's class "
                          f"instead (got model={type(model).__name__} and options={dict(options)})")
     return model
 
@@ -369,17 +394,17 @@ def _run_native(model: nn.Module, image: Tensor, focused: Tensor,
     return result
 
 
-def _check_defocus_photos(model: nn.Module, image: Tensor | None, focused: Tensor,
-                          settings: CameraSettings | None, near: float, far: float) -> None:
-    """Refuse photos a depth-from-defocus method cannot read: no shots, or without an
-    all-in-focus photo fewer than two shots or shots that do not tell depths apart."""
-    if len(focused) == 0 or settings is None:
-        raise ValueError(f"{type(model).__name__} reads depth from defocus: give one or more "
-                         "focused photos with their settings")
+def _refuse_unreadable(model: nn.Module, image: Tensor | None, focused: Tensor,
+                       settings: CameraSettings, near: float, far: float) -> None:
+    """Refuse photos a depth-from-defocus method cannot read: no all-in-focus photo where it
+    needs one, too few shots, or shots that do not tell depths in `[near, far]` apart."""
+    if image is None and getattr(model, "needs_image", True) or len(focused) < 1 + (image is None):
+        raise ValueError(f"{type(model).__name__} needs an all-in-focus photo: give image"
+                         if image is None and getattr(model, "needs_image", True) else
+                         f"{type(model).__name__} reads depth from defocus: give 1 or more "
+                         "focused photos with an all-in-focus image, or 2 or more, each "
+                         f"focused elsewhere, without one (got {len(focused)})")
     if image is None:
-        if len(focused) < 2:
-            raise ValueError(f"{type(model).__name__} compares focused photos: give 2 or more, "
-                             f"each focused elsewhere, got {len(focused)}")
         check_shots_differ(settings, near, far)
     else:
         check_blur_readable(settings, near, far)

@@ -20,8 +20,10 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from optics import CameraSettings, align_shots
-from optics.checks import check_finite, check_shape
+from optics.checks import values_checked
 from optics.progress import progress_bar
+
+from .rules import refuse_broken
 
 
 def working_scale(settings: CameraSettings, near: float, far: float, shape: tuple[int, int],
@@ -61,61 +63,16 @@ def check_working_size(settings: CameraSettings, near: float, far: float,
         ValueError: the photos are 4x4 pixels; depth from defocus needs at least 6 pixels on each side
     """
     h, w = shape
-    if min(h, w) < MIN_PHOTO_SIDE:
-        raise ValueError(f"the photos are {h}x{w} pixels; depth from defocus needs at least "
-                         f"{MIN_PHOTO_SIDE} pixels on each side")
     small = (round(h * scale), round(w * scale))
-    if min(small) < MIN_WORKING_SIDE:
-        largest = settings.largest_coc_px(near, far)
-        raise ValueError(
-            f"over the depth range {near:g}-{far:g} m the largest blur is {largest:.3g} pixels "
-            f"(f-number {settings.f_number.reshape(-1).tolist()}, pixel pitch "
-            f"{settings.pixel_pitch.reshape(-1).tolist()} m), so the {h}x{w} photos would be "
-            f"read at {small[0]}x{small[1]} pixels (at least {MIN_WORKING_SIDE} a side needed): "
-            "check the f-number, the pixel pitch (metres) and the depth range")
-
-
-#: The largest value a linear photo in [0, 1] may hold (highlights a raw file's white balance
-#: lifts a little above 1 pass; 8-bit or 16-bit code values do not).
-MAX_INTENSITY = 2.0
-#: The most negative value (a raw file's black level subtracted leaves noise below 0).
-MIN_INTENSITY = -0.1
-
-
-def _check_values(name: str, photo: Tensor) -> None:
-    """Refuse a photo with a NaN or an infinity (`check_finite`, which names the first) or
-    values outside linear intensity, from one pass over it where all is well."""
-    if photo.numel() == 0:
-        return
-    low, high = (float(v) for v in torch.aminmax(photo.detach()))
-    if not MIN_INTENSITY <= low <= high <= MAX_INTENSITY:  # NaN fails every comparison
-        check_finite(name, photo)
-        hint = ("; 8-bit values? divide by 255 (16-bit: 65535) and decode sRGB "
-                "(kornia.color.rgb_to_linear_rgb)" if high > MAX_INTENSITY else "")
-        raise ValueError(f"{name} must hold linear intensity in [0, 1], got values from "
-                         f"{low:.4g} to {high:.4g}{hint}")
-
-
-def check_photos(focused: Tensor, image: Tensor | None = None) -> None:
-    """Refuse photos that are not `(F,3,H,W)` focused shots and an optional `(3,H,W)`
-    all-in-focus photo of the same size, all finite and in linear intensity (from
-    `MIN_INTENSITY` to `MAX_INTENSITY`: [0, 1] with a margin for a raw file's noise and
-    highlights).
-
-    Example:
-        >>> check_photos(torch.rand(2, 3, 8, 8), torch.rand(3, 8, 9))
-        Traceback (most recent call last):
-        ...
-        ValueError: focused photos are (8, 8) pixels but the all-in-focus photo is (8, 9)
-    """
-    check_shape("focused", focused, ["F", "3", "H", "W"])
-    _check_values("focused", focused)
-    if image is not None:
-        check_shape("image", image, ["3", "H", "W"])
-        _check_values("image", image)
-        if focused.shape[-2:] != image.shape[-2:]:
-            raise ValueError(f"focused photos are {tuple(focused.shape[-2:])} pixels but the "
-                             f"all-in-focus photo is {tuple(image.shape[-2:])}")
+    refuse_broken([
+        (min(h, w) < MIN_PHOTO_SIDE, lambda: f"the photos are {h}x{w} pixels; depth from "
+         f"defocus needs at least {MIN_PHOTO_SIDE} pixels on each side"),
+        (min(small) < MIN_WORKING_SIDE, lambda: f"over the depth range {near:g}-{far:g} m the "
+         f"largest blur is {settings.largest_coc_px(near, far):.3g} pixels (f-number "
+         f"{settings.f_number.reshape(-1).tolist()}, pixel pitch "
+         f"{settings.pixel_pitch.reshape(-1).tolist()} m), so the {h}x{w} photos would be read "
+         f"at {small[0]}x{small[1]} pixels (at least {MIN_WORKING_SIDE} a side needed): check "
+         "the f-number, the pixel pitch (metres) and the depth range")])
 
 
 def run_at_working_resolution(
@@ -124,6 +81,8 @@ def run_at_working_resolution(
     align: bool = True, refine_range: bool = True, progress: bool = False,
 ) -> dict[str, Tensor | float]:
     """Depth of one scene at the photos' resolution, computed at the working resolution.
+
+    Behind `estimate_depth`'s door: the arguments are taken as checked there.
 
     Args:
         model: a method of `estimate_depth` (e.g. `SweepDepth`), called as
@@ -159,14 +118,6 @@ def run_at_working_resolution(
         magnified and how far it was turned, in degrees, clockwise on screen (zero, one and zero
         without `align`).
     """
-    check_photos(focused, image)
-    if not (math.isfinite(near) and math.isfinite(far) and 0 < near < far):
-        raise ValueError(f"near and far must be finite metres with 0 < near < far, got "
-                         f"near={near!r}, far={far!r}")
-    if max_coc_px is not None and not (math.isfinite(max_coc_px) and max_coc_px > 0):
-        raise ValueError(f"max_coc_px must be a positive number of pixels, got {max_coc_px!r}")
-    if not max_pixels >= 64:
-        raise ValueError(f"max_pixels must be >= 64 (8x8 pixels), got {max_pixels!r}")
     h, w = focused.shape[-2:]
     max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
     scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
@@ -221,8 +172,7 @@ def widen_cut_range(depth: Tensor, kept: tuple[float, float], stated: tuple[floa
         >>> widen_cut_range(depth, (1.0, 5.5), (1.0, 15.0))  # 1 m was stated: not cut
         (1.0, 5.5)
     """
-    if not 0 < share < 1:
-        raise ValueError(f"share must be in (0, 1), got {share!r}")
+    refuse_broken([(not 0 < share < 1, lambda: f"share must be in (0, 1), got {share!r}")])
     (near, far), (stated_near, stated_far) = kept, stated
     inverse = 1 / depth.detach().flatten().double()
     span = 1 / near - 1 / far
@@ -290,7 +240,7 @@ def _run_at(model: nn.Module, image: Tensor | None, focused: Tensor, settings: C
     if first:
         shots = torch.cat([small[:1][None], shots], 1)
         motions = torch.cat([identity[:, :1], motions], 1)
-    with torch.no_grad():
+    with torch.no_grad(), values_checked():  # the photos were read at estimate_depth's door
         out = model(None if first else small[:1], shots, effective.to(small.dtype), near, far)
     depth = F.interpolate(out["depth"], size=(h, w), mode="bilinear", align_corners=False)
     confidence = F.interpolate(out["confidence"], size=(h, w), mode="bilinear",

@@ -25,6 +25,8 @@ from torch import Tensor
 
 from optics.checks import check_shape
 
+from .rules import refuse_broken
+
 #: Penalty (in units of the volume's typical cost spread, see `semi_global_cost`) for a change
 #: of one candidate between neighbours, and for a larger jump away from the photo's edges; the
 #: photo contrast (linear intensity) that halves the jump penalty. Chosen on procedural scenes
@@ -143,16 +145,16 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
     """
     check_shape("cost", cost, ["B", "K", "H", "W"])
     check_shape("image", image, [str(cost.shape[0]), "C", str(cost.shape[2]), str(cost.shape[3])])
-    for name, value in (("smooth_penalty", smooth_penalty), ("jump_penalty", jump_penalty),
-                        ("edge_contrast", edge_contrast)):
-        if not (isinstance(value, (int, float)) and value >= 0 and value < float("inf")):
-            raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-    if edge_contrast == 0:
-        raise ValueError("edge_contrast must be > 0, got 0")
+    refuse_broken([*((not (isinstance(value, (int, float)) and 0 <= value < float("inf")),
+                      lambda name=name, value=value: f"{name} must be a finite number >= 0, "
+                      f"got {value!r}")
+                     for name, value in (("smooth_penalty", smooth_penalty),
+                                         ("jump_penalty", jump_penalty),
+                                         ("edge_contrast", edge_contrast))),
+                   (edge_contrast == 0, lambda: "edge_contrast must be > 0, got 0"),
+                   (scale is not None and scale.numel() != cost.shape[0], lambda: "scale must "
+                    f"hold one value per image ({cost.shape[0]}), got {tuple(scale.shape)}")])
     typical = cost_scale(cost) if scale is None else scale.to(cost.dtype).flatten()
-    if typical.shape != (cost.shape[0],):
-        raise ValueError(f"scale must hold one value per image ({cost.shape[0]}), got "
-                         f"{tuple(scale.shape)}")
     typical = typical.clamp_min(torch.finfo(cost.dtype).tiny)
     scaled = (cost - cost.amin(1, keepdim=True)) / typical.view(-1, 1, 1, 1)
     grey = image.to(cost.dtype).mean(1, keepdim=True)

@@ -19,7 +19,9 @@ from __future__ import annotations
 import torch
 from torch import Tensor
 
-from optics.checks import check_shape
+from optics.checks import check_shape, is_tracing
+
+from .rules import refuse_broken
 
 #: Display gamma the guide image is encoded with before comparing neighbours.
 GUIDE_GAMMA = 2.2
@@ -37,8 +39,7 @@ def guide_affinities(guide: Tensor, sigma: float) -> tuple[Tensor, Tensor]:
         ([1.0, 1.0, 1.0], [True, False, True, False])
     """
     check_shape("guide", guide, ["B", "C", "H", "W"])
-    if not sigma > 0:
-        raise ValueError(f"sigma must be > 0, got {sigma!r}")
+    refuse_broken([(not sigma > 0, lambda: f"sigma must be > 0, got {sigma!r}")])
     g = guide.clamp_min(0) ** (1 / GUIDE_GAMMA)
     vertical = ((g[..., 1:, :] - g[..., :-1, :]) ** 2).sum(1, keepdim=True)
     horizontal = ((g[..., :, 1:] - g[..., :, :-1]) ** 2).sum(1, keepdim=True)
@@ -89,14 +90,16 @@ def edge_aware_smooth(values: Tensor, weight: Tensor, guide: Tensor, strength: f
     check_shape("values", values, ["B", "1", "H", "W"])
     check_shape("weight", weight, ["B", "1", "H", "W"])
     check_shape("guide", guide, ["B", "C", "H", "W"])
-    if weight.shape != values.shape or guide.shape[-2:] != values.shape[-2:] \
-            or guide.shape[0] != values.shape[0]:
-        raise ValueError(f"values {tuple(values.shape)}, weight {tuple(weight.shape)} and guide "
-                         f"{tuple(guide.shape)} must share batch and size")
-    if not strength >= 0:
-        raise ValueError(f"strength must be >= 0, got {strength!r}")
-    if bool((weight < 0).any()) or not bool((weight.flatten(1).amax(1) > 0).all()):
-        raise ValueError("weight must be >= 0 and positive somewhere in every image")
+    shapes = weight.shape != values.shape or guide.shape[-2:] != values.shape[-2:] \
+        or guide.shape[0] != values.shape[0]
+    refuse_broken([
+        (shapes, lambda: f"values {tuple(values.shape)}, weight {tuple(weight.shape)} and guide "
+         f"{tuple(guide.shape)} must share batch and size"),
+        (not strength >= 0, lambda: f"strength must be >= 0, got {strength!r}"),
+        # a value check (it reads the tensor): off where the caller checked (`values_checked`)
+        (not shapes and not is_tracing(weight) and (bool((weight < 0).any()) or not bool(
+            (weight.flatten(1).amax(1) > 0).all())),
+         lambda: "weight must be >= 0 and positive somewhere in every image")])
     if strength == 0:
         return values
     vertical, horizontal = guide_affinities(guide, sigma)

@@ -20,6 +20,8 @@ from torch import Tensor
 
 from optics import CameraSettings
 
+from .rules import refuse_broken
+
 #: Side (pixels) of the window local errors between photos are first summed over.
 ERROR_WINDOW_PX = 5
 #: Default windows (pixels) -> weights of `aggregate_cost`: fine windows dominate where there is
@@ -108,12 +110,13 @@ def candidate_blurs(settings: CameraSettings, near: float, far: float, n_candida
         >>> candidate_blurs(s, 1.0, 10.0, 8, torch.zeros(1, 1), 2).shape
         torch.Size([1, 2, 8])
     """
-    if isinstance(every, bool) or not isinstance(every, int) or every < 1:
-        raise ValueError(f"every must be a positive integer, got {every!r}")
+    refuse_broken([
+        (isinstance(every, bool) or not isinstance(every, int) or every < 1,
+         lambda: f"every must be a positive integer, got {every!r}"),
+        (settings.n_shots != n_shots,
+         lambda: f"the photos hold {n_shots} shots but settings {settings.n_shots}")])
     x = candidate_inverse_depths(near, far, n_candidates, like)[::every]
     settings = settings.batched(like.shape[0]).to(device=like.device, dtype=like.dtype)
-    if settings.n_shots != n_shots:
-        raise ValueError(f"the photos hold {n_shots} shots but settings {settings.n_shots}")
     return thin_lens_blur(settings, x[None, None])
 
 
