@@ -336,3 +336,108 @@ def test_public_modules_import_no_private_names():
             if any(p.startswith("_") and not p.startswith("__") for p in imported.split(".")):
                 bad.append(f"{path.relative_to(ROOT)}:{line}: imports {imported}")
     assert not bad, "private names in public modules:\n" + "\n".join(bad)
+
+
+# ---- check at the door: the command line's layers ---------------------------------------------
+
+def test_workflows_take_requests_not_command_lines():
+    """`defocus.app` holds the workflows: each takes a request dataclass and returns a result.
+    Parsing (argparse) and exiting (SystemExit, sys.exit) belong to the command line."""
+    bad = []
+    for path, name, tree in package_files():
+        if not name.startswith("defocus.app"):
+            continue
+        bad += [f"{path.relative_to(ROOT)}:{line}: imports {module}"
+                for line, module in imported_modules(path, "defocus")
+                if module.split(".")[0] == "argparse"]
+        bad += [f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}"
+                for node in ast.walk(tree)
+                if (isinstance(node, ast.Name) and node.id == "SystemExit")
+                or (isinstance(node, ast.Attribute) and ast.unparse(node) == "sys.exit")]
+    assert not bad, "command-line work under defocus/app:\n" + "\n".join(bad)
+
+
+def test_no_private_argparse_names():
+    """The command line uses argparse's public API only (its private classes change between
+    Python releases)."""
+    bad = [f"{path.relative_to(ROOT)}:{node.lineno}: {ast.unparse(node)}"
+           for path, _, tree in package_files() for node in ast.walk(tree)
+           if isinstance(node, ast.Attribute) and node.attr.startswith("_")
+           and not node.attr.startswith("__")
+           and isinstance(node.value, ast.Name) and node.value.id == "argparse"]
+    assert not bad, "\n".join(bad)
+
+
+def test_predict_help_imports_no_training_code():
+    """The command line builds only the chosen subcommand: `defocus predict --help` imports
+    nothing from `models.training`."""
+    import subprocess
+    import sys
+
+    result = subprocess.run([sys.executable, "-X", "importtime", "-m", "defocus", "predict",
+                             "--help"], capture_output=True, text=True, cwd=ROOT, check=True)
+    imported = [line.rpartition("|")[2].strip() for line in result.stderr.splitlines()
+                if line.startswith("import time:")]
+    assert "defocus.cli" in imported  # (modules loaded by importlib.import_module are not listed)
+    training = [name for name in imported if name.startswith("models.training")]
+    assert not training, f"defocus predict --help imports {training}"
+
+
+# ---- a public surface that is chosen ----------------------------------------------------------
+
+#: Modules that implement one protocol under the same names: the subcommands (`add_arguments`,
+#: `run`) and the renderer's interchangeable backends (C++, Triton, PyTorch ops).
+PROTOCOL_MODULES = ("defocus.commands.", "optics.render.cpp", "optics.render.ops",
+                    "optics.render.layer_ops", "optics.render.triton_kernels")
+INVENTORY = Path(__file__).with_name("public_names.txt")
+
+
+def public_definitions() -> dict[str, list[str]]:
+    """Public top-level name -> the modules that define it (functions and classes)."""
+    found: dict[str, list[str]] = {}
+    for _, name, tree in package_files():
+        for node in tree.body:
+            if isinstance(node, (ast.FunctionDef, ast.ClassDef)) \
+                    and not node.name.startswith("_"):
+                found.setdefault(node.name, []).append(name)
+    return found
+
+
+def test_one_definition_per_public_name():
+    """A public name means one thing across the packages: it is defined in one module only
+    (modules of one protocol, `PROTOCOL_MODULES`, aside)."""
+    bad = [f"{name}: {', '.join(modules)}" for name, modules in public_definitions().items()
+           if len([m for m in modules if not m.startswith(PROTOCOL_MODULES)]) > 1]
+    assert not bad, "public names defined more than once:\n" + "\n".join(bad)
+
+
+def faces() -> dict[str, list[str]]:
+    """Package -> its `__all__` (the face users import from), read without importing."""
+    out = {}
+    for path, name, tree in package_files():
+        if path.name != "__init__.py":
+            continue
+        for node in tree.body:
+            if isinstance(node, ast.Assign) and any(
+                    isinstance(t, ast.Name) and t.id == "__all__" for t in node.targets):
+                out[name] = sorted(ast.literal_eval(node.value))
+    return out
+
+
+def test_public_surface_is_the_inventory():
+    """The public names (every package's `__all__`) are chosen: adding or removing one is a
+    decision recorded in `tests/public_names.txt` (one `package.name` a line)."""
+    now = {f"{package}.{name}" for package, names in faces().items() for name in names}
+    listed = {line.strip() for line in INVENTORY.read_text().splitlines()
+              if line.strip() and not line.startswith("#")}
+    assert now == listed, (f"not in {INVENTORY.name}: {sorted(now - listed)}; "
+                           f"listed but not public: {sorted(listed - now)}")
+
+
+def test_every_public_name_is_defined():
+    """Each name of a face's `__all__` exists in that package."""
+    import importlib
+
+    missing = [f"{package}.{name}" for package, names in faces().items()
+               for name in names if not hasattr(importlib.import_module(package), name)]
+    assert not missing, missing

@@ -100,10 +100,8 @@ def cli_reference():
 def _walk(parser: argparse.ArgumentParser, prefix: str = ""):
     """`(name, parser)` for `parser` and every subcommand parser below it."""
     yield prefix or parser.prog, parser
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            for name, sub in action.choices.items():
-                yield from _walk(sub, f"{prefix or parser.prog} {name}")
+    for name, sub in parser.commands.items():
+        yield from _walk(sub, f"{prefix or parser.prog} {name}")
 
 
 def test_cli_reference_covers_every_subcommand_and_option(cli_reference):
@@ -121,12 +119,9 @@ def test_cli_reference_covers_every_subcommand_and_option(cli_reference):
             missing.append(f"description of {name!r}")
         if "usage: " + name not in section:
             missing.append(f"usage of {name!r}")
-        for action in parser._actions:
-            if isinstance(action, argparse._SubParsersAction):
-                for sub in action.choices:
-                    if f"`{sub}`" not in markdown:
-                        missing.append(f"subcommand {sub!r} in the table")
-                continue
+        missing += [f"subcommand {sub!r} in the table" for sub in parser.commands
+                    if f"`{sub}`" not in markdown]
+        for action in parser.arguments:
             names = action.option_strings or [action.metavar or action.dest]
             for option in names:
                 if f"`{option}" not in section:
@@ -134,7 +129,7 @@ def test_cli_reference_covers_every_subcommand_and_option(cli_reference):
             if (
                 action.option_strings
                 and action.default not in (None, argparse.SUPPRESS, [], ())
-                and not isinstance(action, argparse._HelpAction)
+                and action.dest != "help"
             ):
                 default = action.default
                 default = " ".join(map(str, default)) if isinstance(default, list) else str(default)

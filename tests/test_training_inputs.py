@@ -13,7 +13,7 @@ import pytest
 import torch
 from training_helpers import tiny_config
 
-from defocus.app.evaluate import EvaluateRequest, evaluate
+from defocus.app.evaluate import EvaluateRequest, run_evaluation
 from defocus.cli import main
 from models.checkpoints import CheckpointError, convert_checkpoint, load_checkpoint
 from models.training import TrainConfig, Trainer
@@ -203,20 +203,20 @@ def test_evaluate_refuses_samples_the_network_cannot_read(run, scenes):
     with pytest.raises(ValueError, match=r"was trained on n_focus=2 focused photos, but test "
                                          r"sample '3-0' holds focused images of shape "
                                          r"\(3, 3, 16, 16\)"):
-        evaluate(EvaluateRequest([scenes[1], three], checkpoint))
+        run_evaluation(EvaluateRequest([scenes[1], three], checkpoint))
     without = {k: v for k, v in scenes[0].items() if k != "focused"}
     with pytest.raises(ValueError, match=r"test sample '3-0' has no \['focused'\], which "
                                          r"checkpoint .*input_mode='aif\+focused'\) needs"):
-        evaluate(EvaluateRequest([without], checkpoint))
+        run_evaluation(EvaluateRequest([without], checkpoint))
 
 
 def test_evaluate_warns_when_the_ground_truth_lies_outside_the_networks_range(run, scenes):
     """Ground truth 10 times farther than the network's 1.5-6 m gave metrics without a word."""
     checkpoint = run / "checkpoints" / "last.pt"
-    warning = evaluate(EvaluateRequest([scenes[0]], checkpoint)).warning
+    warning = run_evaluation(EvaluateRequest([scenes[0]], checkpoint)).warning
     assert warning is None
     far = dict(scenes[0], depth=scenes[0]["depth"] * 10)
-    warning = evaluate(EvaluateRequest([far], checkpoint)).warning
+    warning = run_evaluation(EvaluateRequest([far], checkpoint)).warning
     assert warning is not None and "100% of the valid ground-truth pixels lie outside the " \
         "depth range of checkpoint" in warning and "(1.5 to 6.0 m)" in warning
 

@@ -53,11 +53,11 @@ class EvaluateResult:
     warning: str | None = None
 
 
-def evaluate(request: EvaluateRequest) -> EvaluateResult:
+def run_evaluation(request: EvaluateRequest) -> EvaluateResult:
     """Score what `request` asks (`evaluate_checkpoint` or `evaluate_on_benchmark`).
 
     Example:
-        >>> result = evaluate(EvaluateRequest(samples, Path("run/checkpoints/last.pt")))  # doctest: +SKIP
+        >>> result = run_evaluation(EvaluateRequest(samples, Path("run/checkpoints/last.pt")))  # doctest: +SKIP
     """
     if request.protocol is not None:
         return evaluate_on_benchmark(request)

@@ -107,7 +107,7 @@ def request_of(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from defocus.app.evaluate import evaluate
+    from defocus.app.evaluate import run_evaluation
     from models.metrics import format_table
     from models.protocols import PROTOCOLS
 
@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
     request = request_of(args)
     if request is None:
         return 0
-    result = evaluate(request)
+    result = run_evaluation(request)
     if request.protocol is None:
         print(format_table({result.name: result.metrics}))
         if result.warning is not None:

@@ -34,11 +34,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def subcommands(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     """Name -> parser of every subcommand of `parser` (registration order)."""
-    found: dict[str, argparse.ArgumentParser] = {}
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            found.update(action.choices)
-    return found
+    return dict(getattr(parser, "commands", {}))
 
 
 def _cell(text: str) -> str:
@@ -53,7 +49,7 @@ def _code(text: str) -> str:
 
 
 def _default(action: argparse.Action) -> str:
-    if action.default is argparse.SUPPRESS or isinstance(action, argparse._HelpAction):
+    if action.default is argparse.SUPPRESS or action.dest == "help":
         return ""
     if action.default is None:
         return "none" if action.option_strings else "required"
@@ -90,7 +86,7 @@ def _section(title: str, parser: argparse.ArgumentParser, level: int) -> list[st
     if parser.description:
         lines += [_cell(parser.description), ""]
     lines += ["```text", parser.format_usage().strip(), "```", ""]
-    actions = [a for a in parser._actions if not isinstance(a, argparse._SubParsersAction)]
+    actions = list(parser.arguments)
     if actions:
         lines += ["| option | description | default | choices |", "|---|---|---|---|"]
         for action in actions:
