@@ -12,8 +12,9 @@ import torch
 from training_helpers import tiny_config as _tiny
 
 from datasets.synthetic import SyntheticScenes
+from models.loading import load_model
 from models.metrics import METRIC_NAMES, best_constant_depth, depth_metrics
-from models.training import TrainConfig, Trainer, load_model
+from models.training import TrainConfig, Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -92,7 +92,7 @@ def check_request(request: PredictRequest) -> None:
     """Refuse combinations of options that cannot work, before anything is read."""
     from models.depth_from_photos import METHODS
     from models.depth_from_photos.cost_volume import AGGREGATIONS
-    from models.train_config import check_device
+    from models.devices import check_device
 
     try:
         check_device(request.device)
@@ -271,7 +271,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
         ...                              depth_range=(0.5, 5.0)))  # doctest: +SKIP
     """
     from models import estimate_depth, load_depth_model
-    from models.train_config import select_device
+    from models.devices import select_device
     from optics import CameraSettings
 
     check_request(request)

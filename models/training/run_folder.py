@@ -19,9 +19,8 @@ from ..checkpoints import (
     load_checkpoint,
     to_plain,
 )
-from ..loading import config_from_state
-from ..run_log import RunLog
-from ..train_config import RUN_CONTROL_KEYS, TrainConfig
+from .config import RUN_CONTROL_KEYS, TrainConfig
+from .run_log import RunLog
 
 _log = logging.getLogger("models.training")
 
@@ -191,6 +190,8 @@ class RunFolder:
                                       "(resume='overwrite') or choose another out_dir") from None
             if source != self.checkpoints.last:
                 _log.warning("%s is missing: continuing from %s", self.checkpoints.last, source)
+            from ..loading import config_from_state  # loading reads configs of this package
+
             return source, state, config_from_state(state, source, device="auto", resume="auto")
         if (cfg.out_dir / "config.yaml").is_file():
             source = cfg.out_dir / "config.yaml"

@@ -15,7 +15,7 @@ from torch import Tensor
 
 from optics import CameraSettings
 
-from ..train_config import TrainConfig
+from .config import TrainConfig
 
 
 def process_rank() -> tuple[int, int]:
