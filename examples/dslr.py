@@ -56,9 +56,9 @@ from typing import Any
 import torch
 
 from datasets import DSLR, JointAugment
-from defocus.app.experiment import plan_json_option, train_and_evaluate, training_crop
+from defocus.app.experiment import limit, loss_window, plan_json_option, training_crop
 from defocus.app.outputs import write_json
-from defocus.options import add_json_argument, device_kind, example_parser
+from defocus.options import DEVICE_DEFAULTS, add_json_argument, device_kind, example_parser
 from optics import DEFAULT_APERTURE
 
 #: The scenes' depth lies within this range, metres (the release's depth: about 0.4 to 10 m).
@@ -226,6 +226,36 @@ NETWORKS = (("self-supervised", "self", "aif+focused", True),
             ("self-supervised, f/8 photo alone (the paper's setting)", "self", "aif", True))
 
 
+def train_and_evaluate(name: str, args: argparse.Namespace, train_set, test_set,
+                       depth_range: tuple[float, float], constant_set) -> dict:
+    """Train the network of `args` (`TrainConfig.load`) within its budget and score it on
+    whole `test_set` images (`models.experiment.train_and_evaluate`)."""
+    from models.experiment import train_and_evaluate as run
+    from models.metrics import format_table
+    from models.training import TrainConfig
+
+    kind = device_kind(args.device)
+    train_set, test_set = limit(train_set, args.max_train), limit(test_set, args.max_test)
+    first = train_set[0]
+    focus = float(first["camera"].focus_distance.reshape(-1)[0]) if args.side != "both" else 0.0
+    config = TrainConfig.load(None, [], **{
+        "steps": args.steps or DEVICE_DEFAULTS[kind]["steps"] or 10 ** 9,
+        "minutes": args.minutes or 0.0, "batch_size": args.batch_size, "lr": args.lr,
+        "network": args.network, "input_mode": args.input_mode, "out_dir": args.out,
+        "seed": args.seed, "supervision": args.supervision, "depth_spacing": args.depth_spacing,
+        "side": args.side, "focus_distance": focus, "depth_min": depth_range[0],
+        "depth_max": depth_range[1], "device": kind if args.device == "auto" else args.device,
+        "width": args.width, "progress": not args.no_progress, "workers": args.workers,
+        "max_kernel_size": loss_window(first["image"].shape[-2:]), "precision": args.precision,
+        "compile": args.compile, "smoothness_weight": args.smoothness_weight})
+    print(f"{name}: {len(train_set)} training samples and {len(test_set)} whole test samples; "
+          f"device {kind}")
+    rows = run(config, train_set, test_set, constant_set=limit(constant_set, args.max_train),
+               report_every=None if config.progress else 0, report=print)
+    print(format_table(rows))
+    return rows
+
+
 def network_rows(args: argparse.Namespace, train: DSLR, val: DSLR,
                  depth_range: tuple[float, float]) -> dict[str, dict[str, float]]:
     """Train each network of `NETWORKS` on `train` and score it on `val`."""
@@ -235,7 +265,8 @@ def network_rows(args: argparse.Namespace, train: DSLR, val: DSLR,
         for index in progress_bar(range(len(train)), desc="registering the training pairs",
                                   disable=args.no_progress):
             train[index]
-    crop = training_crop(args, train, print)
+    crop = training_crop(args.crop or [DEVICE_DEFAULTS[device_kind(args.device)]["crop"]], train,
+                         print)
     augmented = train.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
     rows: dict[str, dict[str, float]] = {}
     out, side, mode = args.out, args.side, args.input_mode
@@ -245,8 +276,7 @@ def network_rows(args: argparse.Namespace, train: DSLR, val: DSLR,
         folder = supervision if input_mode == mode else f"{supervision}-{input_mode}"
         args.supervision, args.out, args.input_mode = supervision, out / folder, input_mode
         args.side = side if sided else "both"
-        found = train_and_evaluate(f"DSLR ({label})", args, augmented, val,
-                                   depth_range=depth_range, constant_set=train, report=print)
+        found = train_and_evaluate(f"DSLR ({label})", args, augmented, val, depth_range, train)
         prior = f", side {side}" if sided and side != "both" else ""
         for name, row in found.items():
             rows[name if name.startswith("best constant") else f"{name} [{label}{prior}]"] = row

@@ -54,7 +54,7 @@ def test_fit_writes_logs_checkpoints_figures(tmp_path, scenes):
     assert {p.name for p in (cfg.out_dir / "checkpoints").iterdir()} == {
         "step_000002.pt", "step_000004.pt", "last.pt"}
     assert (cfg.out_dir / "figures" / "step_000004.png").stat().st_size > 1000
-    assert TrainConfig.from_yaml(cfg.out_dir / "config.yaml") == cfg
+    assert TrainConfig.from_yaml(cfg.out_dir / "config.yaml") == trainer.config  # n_focus: 2
     model, loaded = load_model(cfg.out_dir / "checkpoints" / "last.pt")
     image = scenes[0]["image"][None]
     batch = scenes[0]["camera"].batched(1)

@@ -6,12 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from defocus.app.train import (
-    check_out_dir,
-    config_fields_help,
-    fit_config_to_data,
-    given_fields,
-)
+from defocus.app.train import check_out_dir, config_fields_help
 from defocus.options import DefaultsOnceFormatter, add_data_arguments, dataset_from_options, say
 
 
@@ -74,9 +69,8 @@ def run(args: argparse.Namespace) -> int:
             return val
     if args.quiet:
         cfg = dataclasses.replace(cfg, progress=False)
-    train_set = dataset_from_options(args)
-    cfg = fit_config_to_data(cfg, train_set[0], given_fields(args.config, args.overrides))
-    result = train(cfg, train_set, validation, report=say(args))
+    # n_focus 0 (the default) follows the data: the trainer reads the first sample once
+    result = train(cfg, dataset_from_options(args), validation, report=say(args))
     trainer = result.trainer
     if trainer.is_main:
         last = f"; last loss {trainer.history[-1]['loss']:.4f}" if trainer.history else ""

@@ -67,8 +67,8 @@ _RULES = (
 class TrainConfig:
     """Everything a training run depends on (lengths in metres).
 
-    Load from YAML with `from_yaml`, change fields with `override`
-    (`["steps=100", "lr=3e-4"]`), save with `to_yaml`.
+    Build from a YAML file and `key=value` overrides with `load` (also `from_yaml`,
+    `override`: `["steps=100", "lr=3e-4"]`), save with `to_yaml`.
 
     Example:
         >>> cfg = TrainConfig(steps=10).override(["lr=3e-4", "input_mode=aif"])
@@ -223,43 +223,71 @@ class TrainConfig:
         return cls(**{k: _coerce(cls, k, v) for k, v in data.items()})
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> TrainConfig:
-        """Load a config from a YAML mapping of field names to values.
+    def load(cls, path: str | Path | None = None, overrides: Sequence[str] = (),
+             **defaults: Any) -> TrainConfig:
+        """The one way a config is built from text: `defaults` (fields a program chooses), the
+        YAML file `path` on top, then the `key=value` `overrides` (values parsed as YAML).
 
         Raises:
             ValueError: the file is not UTF-8 YAML text, is not a mapping, names a key twice
-                (YAML would keep the last silently) or holds an invalid config.
+                (YAML would keep the last silently); an override is not `key=value`, its value
+                is not YAML or a key is given twice (which value was meant is unknown); or the
+                result is an invalid config.
+
+        Example:
+            >>> TrainConfig.load(None, ["lr=3e-4"], steps=10).lr
+            0.0003
         """
-        try:
-            data = parse_yaml(Path(path).read_text(encoding="utf-8"), str(path)) or {}
-        except UnicodeDecodeError as error:
-            raise ValueError(f"config {path} is not UTF-8 YAML text (byte {error.start} cannot "
-                             "be read); give a YAML file of config keys") from None
-        if not isinstance(data, Mapping):
-            raise ValueError(f"{path} must hold a YAML mapping of config keys, got "
-                             f"{type(data).__name__}")
-        return cls.from_dict(data)
+        return cls.from_dict({**defaults, **(read_yaml_mapping(path) if path else {}),
+                              **parse_overrides(overrides)})
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> TrainConfig:
+        """Load a config from a YAML mapping of field names to values (`load`)."""
+        return cls.load(path)
 
     def override(self, assignments: Sequence[str]) -> TrainConfig:
-        """A copy with `key=value` assignments applied (values parsed as YAML).
+        """A copy with `key=value` assignments applied (`load`)."""
+        return TrainConfig.load(None, assignments, **self.to_dict())
 
-        Raises:
-            ValueError: an assignment is not `key=value`, its value is not YAML, a key is given
-                twice (which value was meant is unknown), or the result is invalid.
-        """
-        data = self.to_dict()
-        seen: dict[str, str] = {}
-        for item in assignments:
-            key, sep, value = item.partition("=")
-            key = key.strip()
-            if not sep:
-                raise ValueError(f"overrides must look like key=value, got {item!r}")
-            if key in seen:
-                raise ValueError(f"config key {key} is set twice in the overrides ({seen[key]!r} "
-                                 f"and {item!r}): give each key once")
-            seen[key] = item
-            data[key] = parse_yaml(value, f"override {item!r}")
-        return TrainConfig.from_dict(data)
+
+def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
+    """The mapping of config keys that the YAML file `path` holds ({} for an empty file).
+
+    Raises:
+        ValueError: the file is not UTF-8 YAML text, not a mapping, or names a key twice.
+    """
+    try:
+        data = parse_yaml(Path(path).read_text(encoding="utf-8"), str(path)) or {}
+    except UnicodeDecodeError as error:
+        raise ValueError(f"config {path} is not UTF-8 YAML text (byte {error.start} cannot "
+                         "be read); give a YAML file of config keys") from None
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{path} must hold a YAML mapping of config keys, got "
+                         f"{type(data).__name__}")
+    return dict(data)
+
+
+def parse_overrides(assignments: Sequence[str]) -> dict[str, Any]:
+    """The values of `key=value` assignments, parsed as YAML.
+
+    Example:
+        >>> parse_overrides(["steps=5", "aperture=disk"])
+        {'steps': 5, 'aperture': 'disk'}
+    """
+    data: dict[str, Any] = {}
+    seen: dict[str, str] = {}
+    for item in assignments:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        refused = (f"overrides must look like key=value, got {item!r}" if not sep else
+                   f"config key {key} is set twice in the overrides ({seen[key]!r} and "
+                   f"{item!r}): give each key once" if key in seen else None)
+        if refused:
+            raise ValueError(refused)
+        seen[key] = item
+        data[key] = parse_yaml(value, f"override {item!r}")
+    return data
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
