@@ -277,28 +277,3 @@ def device_kind(name: str) -> str:
         return "cuda" if torch.device(name).type == "cuda" else "cpu"
     except RuntimeError:
         raise SystemExit(f"--device must be 'auto', 'cpu' or 'cuda[:N]', got {name!r}") from None
-
-
-def crop_size(args: argparse.Namespace) -> tuple[int, int] | None:
-    """The training crop `(H, W)` from `--crop` and the device defaults; None for whole images."""
-    crop = args.crop or [DEVICE_DEFAULTS[device_kind(args.device)]["crop"]]
-    if len(crop) > 2 or any(c < 0 for c in crop):
-        raise SystemExit(f"--crop takes one or two sizes in pixels (0: whole images), got {crop}")
-    if crop[0] == 0:
-        return None
-    return (crop[0], crop[-1])
-
-
-def dataset_kwargs(args: argparse.Namespace) -> dict:
-    """Keyword arguments shared by the dataset classes, from `add_sample_arguments`' options."""
-    cache = None if args.no_cache else (args.cache_dir or "auto")
-    return {"size": None if args.size is None else tuple(args.size), "cache_dir": cache,
-            "memory_cache_mb": args.memory_cache_mb}
-
-
-def check_training_options(args: argparse.Namespace) -> None:
-    """Refuse `--depth-range` and `--threads` values that cannot work (`SystemExit`)."""
-    if args.depth_range is not None and not 0 < args.depth_range[0] < args.depth_range[1]:
-        raise SystemExit(f"--depth-range must be 0 < MIN < MAX metres, got {args.depth_range}")
-    if args.threads < 0:
-        raise SystemExit(f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}")
