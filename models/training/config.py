@@ -351,8 +351,6 @@ def _convert(kind: str, value: Any) -> Any:
         return _REFUSED
     try:
         if kind == "int":
-            if isinstance(value, str) and not value.strip().lstrip("+-").isdigit():
-                value = float(value)  # "1e3": YAML reads an exponent without a dot as text
             return _REFUSED if isinstance(value, float) and not value.is_integer() else int(value)
         converters = {"float": float, "Path": Path, "str": str}
         return converters[kind](value) if kind in converters else value
@@ -369,6 +367,11 @@ def _coerce(cls: type, name: str, value: Any) -> Any:
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
     if name == "resume" and isinstance(value, bool):
         return value  # true / false: mapped to "auto" / "overwrite"
+    if kind == "int" and isinstance(value, str) and not value.strip().lstrip("+-").isdigit():
+        try:
+            value = float(value)  # "1e3": YAML reads an exponent without a dot as text
+        except ValueError:
+            pass
     converted = _convert(kind, value)
     if converted is _REFUSED:
         raise ValueError(f"config key {name} must be of type {kind}, got {value!r}")
