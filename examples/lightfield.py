@@ -35,10 +35,11 @@ import sys
 from pathlib import Path
 
 from defocus.app.experiment import run_recipe
+from defocus.commands.train import recipe_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    run_recipe(Path(__file__).with_suffix(".yaml"), argv)
+    run_recipe(recipe_parser(Path(__file__).with_suffix(".yaml")).parse_args(argv))
     return 0
 
 

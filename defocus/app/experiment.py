@@ -86,19 +86,6 @@ RECIPE_KEYS = {
 }
 
 
-def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
-    """The parser of an example script: `defocus train`'s options (`--config` is the recipe
-    `recipe`, `--set` changes its keys and the `TrainConfig` fields), no other vocabulary."""
-    from defocus.commands.train import add_arguments
-
-    parser = argparse.ArgumentParser(
-        prog=f"{recipe.stem}.py", allow_abbrev=False,
-        description=recipe.read_text(encoding="utf-8").splitlines()[0].lstrip("# "))
-    add_arguments(parser)
-    parser.set_defaults(config=recipe)
-    return parser
-
-
 def _recipe(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any], set[str]]:
     """(the experiment's keys, the `TrainConfig` fields, the keys the user gave) of the recipe
     `--config` with `--set` overrides; a bad value ends the script in one line."""
@@ -133,10 +120,10 @@ def _dataset(experiment: dict[str, Any], args: argparse.Namespace, split: str) -
                          size=None if size is None else tuple(size), **kwargs)
 
 
-def run_recipe(recipe: Path, argv: Sequence[str] | None = None,
-               report: Report = print) -> dict[str, dict[str, float]]:
-    """An example script: train on the recipe's dataset under `--root` with `defocus train`'s
-    options and evaluate on whole test images (`models.experiment.train_and_evaluate`); returns
+def run_recipe(args: argparse.Namespace, report: Report = print) -> dict[str, dict[str, float]]:
+    """An example script: train on the dataset of the recipe `args.config` under `--root` with
+    `defocus train`'s options (`defocus.commands.train.recipe_parser`) and evaluate on whole
+    test images (`models.experiment.train_and_evaluate`); returns
     the table's rows. Training takes random crops (flips and gains) of the whole training
     samples, which also choose the best constant depth."""
     from datasets import JointAugment
@@ -144,7 +131,7 @@ def run_recipe(recipe: Path, argv: Sequence[str] | None = None,
     from models.metrics import format_table
     from models.training import TrainConfig
 
-    args = recipe_parser(recipe).parse_args(argv)
+    recipe = Path(args.config)
     experiment, fields, given = _recipe(args)
     if experiment["threads"]:
         torch.set_num_threads(int(experiment["threads"]))

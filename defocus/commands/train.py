@@ -54,6 +54,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_data_arguments(parser)
 
 
+def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
+    """The parser of an example script: `defocus train`'s options (`--config` is the recipe
+    `recipe`, `--set` changes its keys and the `TrainConfig` fields), no other vocabulary."""
+    parser = argparse.ArgumentParser(
+        prog=f"{recipe.stem}.py", allow_abbrev=False,
+        description=recipe.read_text(encoding="utf-8").splitlines()[0].lstrip("# "))
+    add_arguments(parser)
+    parser.set_defaults(config=recipe)
+    return parser
+
+
 def run(args: argparse.Namespace) -> int:
     from defocus.app.train import train, training_config
     from models.metrics import format_table
