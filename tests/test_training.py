@@ -64,6 +64,22 @@ def test_fit_writes_logs_checkpoints_figures(tmp_path, scenes):
     assert set(METRIC_NAMES) <= set(metrics)
 
 
+def test_learning_rate_follows_the_steps_or_the_time_budget(tmp_path, scenes):
+    """Cosine decay over `steps`; with a time budget over max(step / steps, elapsed / budget),
+    so a budgeted run with a huge `steps` still ends at the schedule's end value."""
+    import math
+
+    history = Trainer(_tiny(tmp_path / "steps"), scenes).fit()
+    assert [row["lr"] for row in history] == pytest.approx(
+        [1e-3 * 0.5 * (1 + math.cos(math.pi * s / 4)) for s in (1, 2, 3, 4)])
+    trainer = Trainer(_tiny(tmp_path / "budget", steps=10**9, minutes=0.005), scenes)
+    history = trainer.fit()
+    assert trainer.out_of_time and 1 <= len(history) < 10**9
+    assert history[-1]["lr"] == 0.0  # the cosine's end: decayed over the budget
+    if len(history) > 1:
+        assert history[0]["lr"] > history[-1]["lr"]
+
+
 @pytest.mark.parametrize("supervision", ["self", "depth"])
 def test_resume_gives_the_same_losses(tmp_path, scenes, supervision):
     full = Trainer(_tiny(tmp_path / "full", supervision=supervision), scenes).fit()

@@ -47,7 +47,7 @@ from .run_warnings import (
 )
 from .sample_checks import EMPTY, SampleChecker, TestSampleChecker
 from .sampling import StepSampler, random_flip
-from .state import build_scheduler, process_rank, rng_state, set_rng_state, to_device
+from .state import Progress, build_scheduler, process_rank, rng_state, set_rng_state, to_device
 from .step_timing import DataWaitWarning, StepTimer
 
 _log = logging.getLogger("models.training")
@@ -131,7 +131,9 @@ class Trainer:
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
-        self.scheduler = build_scheduler(self.optimizer, cfg)
+        #: the run's progress, which the learning rate follows (steps or the time budget)
+        self.progress = Progress(cfg.steps, cfg.minutes)
+        self.scheduler = build_scheduler(self.optimizer, cfg, self.progress)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
                                    cfg.ssim_window, parse_aperture(cfg.aperture),
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size
@@ -266,6 +268,7 @@ class Trainer:
         bar = progress_bar(total=until, initial=self.step, desc="train", unit="step",
                            disable=not (cfg.progress and self.is_main))
         started = time.perf_counter()
+        self.progress.start()
         self.out_of_time = False
         self.checkpointer.restart_clock()
         self.step_timer = StepTimer()
@@ -284,7 +287,7 @@ class Trainer:
                         self.step_callback(self, self.step, losses)
                     self._periodic_tasks()
                     self._stop_if_asked()
-                    if cfg.minutes and time.perf_counter() - started >= cfg.minutes * 60:
+                    if self.progress.time_spent:  # read at this step's update
                         self.out_of_time = self.step < until
                         break
             # a signal caught after the last step's check (the loop had ended) still stops the
