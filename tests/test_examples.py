@@ -187,7 +187,7 @@ def test_dslr_example_help(monkeypatch, capsys):
     with pytest.raises(SystemExit) as exit_info:
         module.main(["--help"])
     assert exit_info.value.code == 0
-    assert "--val" in capsys.readouterr().out and "dfd_indoor" in module.__doc__
+    assert "val: 20" in capsys.readouterr().out and "dfd_indoor" in module.__doc__
 
 
 @pytest.mark.slow
@@ -199,9 +199,9 @@ def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
 
     write_rendered_release(tmp_path / "data")
     module = load_example("dslr", monkeypatch)
-    argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--no-progress",
-            "--device", "cpu", "--val", "2", "--steps", "2", "--batch-size", "2", "--width", "8",
-            "--calibrate-every", "1", "--crop", "48"]
+    argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--set",
+            *QUIET_CPU[1:], "val=2", "steps=2", "batch_size=2", "width=8", "calibrate_every=1",
+            "crop=48"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
     _check_dslr_table(out, 2)
@@ -213,8 +213,8 @@ def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
     assert "the networks train with" in out
     assert (tmp_path / "run" / "self" / "train_log.csv").is_file()
     assert (tmp_path / "run" / "depth" / "train_log.csv").is_file()
-    with pytest.raises(SystemExit, match="--val must leave training scenes"):
-        module.main([*argv, "--val", "7"])
+    with pytest.raises(SystemExit, match="val must leave training scenes"):
+        module.main(["val=7" if arg == "val=2" else arg for arg in argv])
 
 
 @pytest.mark.slow
@@ -229,10 +229,9 @@ def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypat
     write_rendered_release(tmp_path / "data", scenes=2, split="test")
     module = load_example("dslr", monkeypatch)
     table = tmp_path / "out" / "table.json"
-    argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--no-progress",
-            "--device", "cpu", "--eval-split", "test", "--json", str(table), "--steps", "2",
-            "--batch-size", "2", "--width", "8", "--calibrate-every", "1", "--crop", "48",
-            "--no-paper-setting", "--no-blur-match"]
+    argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), *QUIET_CPU,
+            "eval_split=test", f"json={table}", "steps=2", "batch_size=2", "width=8",
+            "calibrate_every=1", "crop=48", "paper_setting=false", "blur_match=false"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
     assert not (tmp_path / "run" / "camera_loss.json").exists()
@@ -253,8 +252,7 @@ def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypat
 @pytest.mark.skipif(not REAL_DSLR.is_dir(), reason="../shared/data/real/dfd_indoor is absent")
 def test_dslr_example_on_five_real_scenes(tmp_path, monkeypatch, capsys):
     module = load_example("dslr", monkeypatch)
-    argv = ["--root", str(REAL_DSLR), "--out", str(tmp_path / "run"), "--no-progress",
-            "--device", "cpu", "--max-scenes", "5", "--val", "2", "--steps", "2",
-            "--calibrate-every", "1"]
+    argv = ["--root", str(REAL_DSLR), "--out", str(tmp_path / "run"), *QUIET_CPU,
+            "max_scenes=5", "val=2", "steps=2", "calibrate_every=1"]
     assert module.main(argv) == 0
     _check_dslr_table(capsys.readouterr().out, 2)

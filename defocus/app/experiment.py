@@ -5,8 +5,8 @@ A training example is a recipe (`examples/<name>.yaml`: `RECIPE_KEYS` and `Train
 fields) run by `run_recipe` with `defocus train`'s options (`--root`, `--set KEY=VALUE`, ...):
 the network trains on random crops of the full-resolution samples within the time budget
 (`TrainConfig.minutes`) and is evaluated on whole test images next to the best constant depth
-(`models.experiment.train_and_evaluate`). The benchmark examples take `benchmark_parser`'s
-options.
+(`models.experiment.train_and_evaluate`). The benchmark examples take `defocus evaluate`'s
+options (`defocus.commands.evaluate.benchmark_parser`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any
 import torch
 from torch.utils.data import Dataset, Subset
 
-from defocus.options import BENCHMARK_DEFAULTS, DEVICE_DEFAULTS, device_kind
+from defocus.options import device_kind
 
 Report = Callable[[str], None]
 
@@ -83,19 +83,28 @@ RECIPE_KEYS = {
     "cache": True,  # keep synthesised focal stacks in the per-user cache
     "memory_cache_mb": 2048.0,  # MiB of full-resolution samples kept in memory
     "threads": 0,  # CPU threads of PyTorch (0: its default)
+    "cpu_minutes": 10.0,  # the time budget on a CPU when neither steps nor minutes is given
 }
+#: Defaults per device kind of the training examples: crop side (pixels), steps (None: the
+#: `max_epochs` passes within the CPU's time budget).
+DEVICE_DEFAULTS = {"cpu": {"crop": 128, "steps": None}, "cuda": {"crop": 256, "steps": 20000}}
+#: Defaults per device kind of the benchmark examples: samples scored, working pixels.
+BENCHMARK_DEFAULTS = {"cpu": {"max_samples": 8, "max_pixels": 250_000},
+                      "cuda": {"max_samples": None, "max_pixels": 1_500_000}}
 
 
-def _recipe(args: argparse.Namespace) -> tuple[dict[str, Any], dict[str, Any], set[str]]:
-    """(the experiment's keys, the `TrainConfig` fields, the keys the user gave) of the recipe
-    `--config` with `--set` overrides; a bad value ends the script in one line."""
+def read_recipe(args: argparse.Namespace, keys: dict[str, Any] = RECIPE_KEYS,
+                ) -> tuple[dict[str, Any], dict[str, Any], set[str]]:
+    """(the experiment's `keys` with their values, the `TrainConfig` fields, the fields the user
+    gave) of the recipe `--config` with `--set` overrides; a bad value ends the script in one
+    line."""
     from models.training.config import parse_overrides, read_yaml_mapping
 
     try:
         given = {**read_yaml_mapping(args.config), **parse_overrides(args.overrides)}
     except ValueError as error:
         raise SystemExit(f"{args.config}: {error}") from None
-    experiment = {key: given.pop(key, value) for key, value in RECIPE_KEYS.items()}
+    experiment = {key: given.pop(key, value) for key, value in keys.items()}
     crop = experiment["crop"]
     crop = crop if isinstance(crop, list) else [crop] if crop is not None else None
     if crop is not None and (len(crop) > 2 or not all(isinstance(c, int) and c >= 0
@@ -129,37 +138,22 @@ def run_recipe(args: argparse.Namespace, report: Report = print) -> dict[str, di
     from datasets import JointAugment
     from models.experiment import keep_freed_memory, train_and_evaluate
     from models.metrics import format_table
-    from models.training import TrainConfig
 
-    recipe = Path(args.config)
-    experiment, fields, given = _recipe(args)
+    experiment, fields, given = read_recipe(args)
     if experiment["threads"]:
         torch.set_num_threads(int(experiment["threads"]))
     keep_freed_memory()
     truncation_warning_once()
-    kind = device_kind(str(fields.get("device", "auto")))
     whole = _dataset(experiment, args, experiment["splits"][0])
-    crop = training_crop(experiment["crop"] or [DEVICE_DEFAULTS[kind]["crop"]], whole, report)
+    crop = recipe_crop(experiment, fields, whole, report)
     train_set = limit(whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1)),
                       experiment["max_train"])
     test_set = whole if experiment["splits"][1] == experiment["splits"][0] else \
         _dataset(experiment, args, experiment["splits"][1])
     test_set = limit(test_set, experiment["max_test"])
     first = train_set[0]
-    defaults = {"out_dir": args.out or f"runs/{recipe.stem}", "device": kind,
-                "max_kernel_size": loss_window(first["image"].shape[-2:])}
-    if "minutes" not in given and "steps" not in given:
-        defaults["minutes"] = DEVICE_DEFAULTS[kind]["minutes"] or 0.0
-    defaults["steps"] = DEVICE_DEFAULTS[kind]["steps"] or _epoch_steps(
-        experiment["max_epochs"], fields.get("batch_size", TrainConfig.batch_size), whole, first)
-    if args.out is not None:
-        fields.pop("out_dir", None)
-    if args.resume or args.overwrite:
-        fields["resume"] = "resume" if args.resume else "overwrite"
-    try:
-        config = TrainConfig.load(None, [], **{**defaults, **fields})
-    except ValueError as error:
-        raise SystemExit(f"{args.config}: {error}") from None
+    config = recipe_config(args, experiment, fields, given, whole, first)
+    kind = device_kind(config.device)
     crop_text = (f"random {tuple(first['image'].shape[-2:])} crops of" if crop else "whole")
     report(f"{experiment['name']}: {len(train_set)} training samples ({crop_text} "
            f"{tuple(whole[0]['image'].shape[-2:])} pixels) and {len(test_set)} whole test "
@@ -174,6 +168,39 @@ def run_recipe(args: argparse.Namespace, report: Report = print) -> dict[str, di
     report(format_table(rows, metrics=tuple(next(iter(rows.values()))))
            if not experiment["has_depth"] else format_table(rows))
     return rows
+
+
+def recipe_crop(experiment: dict[str, Any], fields: dict[str, Any], whole: Dataset,
+                report: Report = _silent) -> tuple[int, int] | None:
+    """The training crop of a recipe (`training_crop`): its `crop`, else the device's."""
+    kind = device_kind(str(fields.get("device", "auto")))
+    return training_crop(experiment["crop"] or [DEVICE_DEFAULTS[kind]["crop"]], whole, report)
+
+
+def recipe_config(args: argparse.Namespace, experiment: dict[str, Any], fields: dict[str, Any],
+                  given: set[str], whole: Dataset, first: dict) -> Any:
+    """The `TrainConfig` of a recipe (`read_recipe`) and `defocus train`'s options: its fields
+    over the defaults of the device (a CPU trains within `cpu_minutes` unless `steps` or
+    `minutes` is given, a GPU 20000 steps), the run folder `--out` and `--resume`/`--overwrite`;
+    `first` is the first training sample (the loss's window). A bad value ends the script."""
+    from models.training import TrainConfig
+
+    kind = device_kind(str(fields.get("device", "auto")))
+    defaults = {"out_dir": args.out or f"runs/{Path(args.config).stem}", "device": kind,
+                "max_kernel_size": loss_window(first["image"].shape[-2:])}
+    if "minutes" not in given and "steps" not in given and kind == "cpu":
+        defaults["minutes"] = experiment["cpu_minutes"]
+    defaults["steps"] = DEVICE_DEFAULTS[kind]["steps"] or _epoch_steps(
+        experiment["max_epochs"], fields.get("batch_size", TrainConfig.batch_size), whole, first)
+    fields = dict(fields)
+    if args.out is not None:
+        fields.pop("out_dir", None)
+    if args.resume or args.overwrite:
+        fields["resume"] = "resume" if args.resume else "overwrite"
+    try:
+        return TrainConfig.load(None, [], **{**defaults, **fields})
+    except ValueError as error:
+        raise SystemExit(f"{args.config}: {error}") from None
 
 
 def _epoch_steps(max_epochs: float, batch_size: int, whole: Dataset, first: dict) -> int:
@@ -198,22 +225,22 @@ def training_crop(crop: Sequence[int], probe: Dataset,
     return None if fitted == (h, w) else fitted
 
 
-def plan_json_option(args: argparse.Namespace, what: str = "metrics JSON",
-                     inputs: Any = None) -> Any:
-    """The checked plan of an example's `--json` (`defocus.options.add_json_argument`), None
-    without it, made before any work: not an existing file of `--root` nor one of `inputs`
-    (`(name, path)` pairs), no earlier result replaced without `--overwrite`
+def plan_json_option(path: Path | None, overwrite: bool, root: Path | None,
+                     what: str = "metrics JSON", inputs: Any = None,
+                     option: str = "--json") -> Any:
+    """The checked plan of an example's JSON output `path` (`option`), None without one, made
+    before any work: not an existing file of `root` (`--root`) nor one of `inputs` (`(name,
+    path)` pairs), no earlier result replaced without `overwrite`
     (`defocus.app.outputs.plan_json`); a refusal ends the script in one line (`SystemExit`).
 
     Example:
-        >>> plan_json_option(argparse.Namespace(json=None)) is None
+        >>> plan_json_option(None, False, None) is None
         True
     """
     from .outputs import plan_json
 
     try:
-        return plan_json(getattr(args, "json", None), getattr(args, "overwrite", False),
-                         inputs, {"--root": getattr(args, "root", None)}, what)
+        return plan_json(path, overwrite, inputs, {"--root": root}, what, option)
     except (OSError, ValueError) as error:
         raise SystemExit(str(error)) from None
 
@@ -230,7 +257,7 @@ def run_benchmark_example(name: str, args: argparse.Namespace, dataset: Dataset,
 
     from .outputs import write_json
 
-    plan = plan_json_option(args)
+    plan = plan_json_option(args.json, args.overwrite, args.root)
     if args.threads:
         torch.set_num_threads(args.threads)
     kind = device_kind(args.device)

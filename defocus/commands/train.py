@@ -57,10 +57,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
     """The parser of an example script: `defocus train`'s options (`--config` is the recipe
     `recipe`, `--set` changes its keys and the `TrainConfig` fields), no other vocabulary."""
-    parser = argparse.ArgumentParser(
-        prog=f"{recipe.stem}.py", allow_abbrev=False,
-        description=recipe.read_text(encoding="utf-8").splitlines()[0].lstrip("# "))
+    text = recipe.read_text(encoding="utf-8")
+    parser = argparse.ArgumentParser(prog=f"{recipe.stem}.py", allow_abbrev=False,
+                                     description=text.splitlines()[0].lstrip("# "))
     add_arguments(parser)
+    parser.epilog = f"The recipe {recipe.name} (--set KEY=VALUE changes a key):\n{text}\n" \
+        f"{parser.epilog}"
     parser.set_defaults(config=recipe)
     return parser
 
