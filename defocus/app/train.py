@@ -65,13 +65,14 @@ def training_config(config: Path | None = None, overrides: Sequence[str] = (),
     if config is not None and not config.is_file():
         raise FileNotFoundError(f"--config {config} does not exist or is not a file")
     keys = {item.partition("=")[0].strip(): item for item in overrides}
-    if out and "out_dir" in keys:
-        raise ValueError(f"--set {keys['out_dir']} and --out {out} both name the output "
-                         "folder: give only --out")
-    if (resume or overwrite) and "resume" in keys:
-        flag = "--resume" if resume else "--overwrite"
-        raise ValueError(f"--set {keys['resume']} and {flag} both say what to do with an "
-                         f"earlier run: give only {flag}")
+    flag = "--resume" if resume else "--overwrite"
+    for refused, message in (
+            (out and "out_dir" in keys, lambda: f"--set {keys['out_dir']} and --out {out} both "
+             "name the output folder: give only --out"),
+            ((resume or overwrite) and "resume" in keys, lambda: f"--set {keys['resume']} and "
+             f"{flag} both say what to do with an earlier run: give only {flag}")):
+        if refused:
+            raise ValueError(message())
     overrides = list(overrides) + ([f"out_dir={out}"] if out else [])
     if resume or overwrite:
         overrides.append(f"resume={'resume' if resume else 'overwrite'}")

@@ -182,13 +182,13 @@ class TrainConfig:
             _check_type(item.name, getattr(self, item.name), item.type)
             if item.type == "float":
                 setattr(self, item.name, float(getattr(self, item.name)))
-        for name, allowed in _CHOICES.items():
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
-        for names, rule, phrase in _RULES:
-            for name in names:
-                if not rule(getattr(self, name)):
-                    raise ValueError(f"{name} must be {phrase}, got {getattr(self, name)!r}")
+        refused = [(name, f"one of {allowed}") for name, allowed in _CHOICES.items()
+                   if getattr(self, name) not in allowed]
+        refused += [(name, phrase) for names, rule, phrase in _RULES for name in names
+                    if not rule(getattr(self, name))]
+        if refused:
+            name, phrase = refused[0]
+            raise ValueError(f"{name} must be {phrase}, got {getattr(self, name)!r}")
         try:
             self.aperture = aperture_spec(self.aperture)
         except (TypeError, ValueError) as error:
@@ -321,13 +321,12 @@ def parse_yaml(text: str, where: str) -> Any:
     """
     try:
         return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, ValueError) as error:  # a ValueError: a key given twice
         mark = getattr(error, "problem_mark", None)
         line = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(error, "problem", None) or type(error).__name__
-        raise ValueError(f"{where} is not valid YAML{line}: {problem}") from None
-    except ValueError as error:
-        raise ValueError(f"{where}: {error}") from None
+        raise ValueError(f"{where} is not valid YAML{line}: {problem}"
+                         if isinstance(error, yaml.YAMLError) else f"{where}: {error}") from None
 
 
 def _check_type(name: str, value: Any, kind: Any) -> None:
