@@ -131,8 +131,7 @@ class Trainer:
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
-        #: the run's progress, which the learning rate follows (steps or the time budget)
-        self.progress = Progress(cfg.steps, cfg.minutes)
+        self.progress = Progress(cfg.steps, cfg.minutes)  # what the learning rate follows
         self.scheduler = build_scheduler(self.optimizer, cfg, self.progress)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
                                    cfg.ssim_window, parse_aperture(cfg.aperture),
@@ -290,9 +289,7 @@ class Trainer:
                     if self.progress.time_spent:  # read at this step's update
                         self.out_of_time = self.step < until
                         break
-            # a signal caught after the last step's check (the loop had ended) still stops the
-            # run: it is not swallowed
-            self._stop_if_asked()
+            self._stop_if_asked()  # a signal after the last step's check: not swallowed
         except TrainingInterrupted:
             raise
         except BaseException:
