@@ -259,12 +259,13 @@ def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
     """
     try:
         data = parse_yaml(Path(path).read_text(encoding="utf-8"), str(path)) or {}
+        refusal = None if isinstance(data, Mapping) else \
+            f"{path} must hold a YAML mapping of config keys, got {type(data).__name__}"
     except UnicodeDecodeError as error:
-        raise ValueError(f"config {path} is not UTF-8 YAML text (byte {error.start} cannot "
-                         "be read); give a YAML file of config keys") from None
-    if not isinstance(data, Mapping):
-        raise ValueError(f"{path} must hold a YAML mapping of config keys, got "
-                         f"{type(data).__name__}")
+        refusal = f"config {path} is not UTF-8 YAML text (byte {error.start} cannot be read); " \
+            "give a YAML file of config keys"
+    if refusal is not None:
+        raise ValueError(refusal)
     return dict(data)
 
 

@@ -121,17 +121,17 @@ class TestSampleChecker:
         needs = ["image", "depth"] + (["focused", "camera"] if cfg.input_mode == "aif+focused"
                                       else [])
         missing = [key for key in needs if sample.get(key) is None]
-        if missing:
-            raise ValueError(f"test sample {name} has no {missing}, which {self.name} "
-                             f"(input_mode={cfg.input_mode!r}) needs; it has {sorted(sample)}")
         focused = sample.get("focused")
-        if cfg.input_mode == "aif+focused" and isinstance(focused, Tensor):
-            n = focused.shape[0] if focused.ndim == 4 else -1
-            if n != cfg.n_focus:
-                raise ValueError(f"{self.name} was trained on n_focus={cfg.n_focus} "
-                                 f"focused photos, but test sample {name} holds focused images "
-                                 f"of shape {tuple(focused.shape)} (F, 3, H, W); evaluate it on "
-                                 f"data with {cfg.n_focus} focused photos per scene")
+        n = cfg.n_focus if not isinstance(focused, Tensor) or cfg.input_mode != "aif+focused" \
+            else focused.shape[0] if focused.ndim == 4 else -1
+        refusal = (f"test sample {name} has no {missing}, which {self.name} (input_mode="
+                   f"{cfg.input_mode!r}) needs; it has {sorted(sample)}" if missing else
+                   f"{self.name} was trained on n_focus={cfg.n_focus} focused photos, but test "
+                   f"sample {name} holds focused images of shape {tuple(focused.shape)} (F, 3, "
+                   f"H, W); evaluate it on data with {cfg.n_focus} focused photos per scene"
+                   if n != cfg.n_focus else None)
+        if refusal is not None:
+            raise ValueError(refusal)
         self._count_range(sample)
         return sample
 
