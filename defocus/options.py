@@ -1,8 +1,10 @@
-"""Option groups shared by the subcommands and the example scripts, and the help formatter.
+"""Option groups shared by the subcommands, and the help formatter.
 
 Each `add_*` function adds one group of options to an `argparse` parser; the subcommands
-(`defocus.commands`) and the scripts under `examples/` build their parsers from these, so an
-option is spelled, checked and documented in one place.
+(`defocus.commands`) build their parsers from these, and the scripts under `examples/` take
+the subcommands' own options (`defocus.commands.train.recipe_parser`,
+`defocus.commands.evaluate.benchmark_parser`), so an option is spelled, checked and documented
+in one place.
 """
 
 from __future__ import annotations
@@ -143,125 +145,6 @@ def dataset_from_options(args: argparse.Namespace, split: str | None = None,
                          scenes=args.scenes, seed=args.data_seed + seed_offset)
 
 
-def _new_parser(description: str) -> argparse.ArgumentParser:
-    return argparse.ArgumentParser(
-        description=description, formatter_class=argparse.ArgumentDefaultsHelpFormatter,
-        allow_abbrev=False)
-
-
-def add_machine_arguments(parser: argparse.ArgumentParser) -> None:
-    """`--device` and `--threads`: where the work runs."""
-    parser.add_argument("--device", default="auto",
-                        help="'auto' (CUDA when available), 'cpu', 'cuda', 'cuda:1', ...")
-    parser.add_argument("--threads", type=int, default=0,
-                        help="CPU threads of PyTorch (0: its default, one per core; on a "
-                             "machine shared with other jobs 1 wastes less time waiting)")
-
-
-def add_training_arguments(parser: argparse.ArgumentParser, out: str) -> None:
-    """The training knobs of the example scripts (`defocus.app.experiment.run_example`)."""
-    parser.add_argument("--steps", type=int, default=None,
-                        help="training steps (default: CPU as many as fit in --minutes, GPU 20000)")
-    parser.add_argument("--minutes", type=float, default=None,
-                        help="time budget of training + evaluation (default: CPU 10, GPU none)")
-    parser.add_argument("--max-epochs", type=float, default=200.0,
-                        help="with --minutes: at most this many passes over the training pixels")
-    parser.add_argument("--batch-size", type=int, default=8, help="samples per step")
-    parser.add_argument("--crop", type=int, nargs="+", metavar="PX", default=None,
-                        help="train on random H [W] crops of the full-resolution samples "
-                             "(default: CPU 128, GPU 256; 0: whole images)")
-    parser.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"), default=None,
-                        help="depths the network can output, metres (default: the dataset's)")
-    parser.add_argument("--depth-spacing", choices=["depth", "inverse"], default="depth",
-                        help="space the network's output evenly in depth or in inverse depth")
-    parser.add_argument("--side", choices=["both", "beyond", "before"], default="both",
-                        help="a prior on the side of the focus plane (one focus setting): where "
-                             "the self-supervised network puts a blur both sides explain; a blur "
-                             "above the far side's bound is put near either way")
-    parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate")
-    parser.add_argument("--smoothness-weight", type=float, default=0.001,
-                        help="weight of the self-supervised loss's edge-aware depth smoothness "
-                             "(the paper: 0.001)")
-    parser.add_argument("--network", choices=["small", "paper"], default="small",
-                        help="depth network (the paper's is large; use a GPU)")
-    parser.add_argument("--width", type=int, default=32, help="channel width of the small network")
-    parser.add_argument("--input-mode", choices=["aif+focused", "aif"], default="aif+focused",
-                        help="network input: the all-in-focus image, optionally with the focused ones")
-    parser.add_argument("--out", type=Path, default=Path(out), help="run folder (logs, checkpoints)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed")
-    parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
-    parser.add_argument("--workers", type=int, default=-1,
-                        help="processes preparing batches ahead of the step (-1: up to 4 on a "
-                             "GPU, none on a small CPU machine)")
-    parser.add_argument("--precision", choices=["float32", "bfloat16"], default="float32",
-                        help="the network's arithmetic (bfloat16: autocast; the renderer and "
-                             "the loss stay float32)")
-    parser.add_argument("--compile", action="store_true", help="torch.compile the network")
-
-
-def add_sample_arguments(parser: argparse.ArgumentParser) -> None:
-    """How the example scripts read and cache a dataset's samples."""
-    parser.add_argument("--size", type=int, nargs=2, metavar=("H", "W"), default=None,
-                        help="resize whole images to H x W pixels first (the pixel pitch follows, "
-                             "so the blur in pixels shrinks too; prefer --crop)")
-    parser.add_argument("--max-train", type=int, default=None, help="use at most this many training samples")
-    parser.add_argument("--max-test", type=int, default=None, help="evaluate on at most this many samples")
-    parser.add_argument("--cache-dir", type=Path, default=None,
-                        help="keep synthesised focal stacks here (default: the per-user cache)")
-    parser.add_argument("--no-cache", action="store_true",
-                        help="keep no synthesised focal stacks on disk")
-    parser.add_argument("--memory-cache-mb", type=float, default=2048,
-                        help="keep up to this many MiB of full-resolution samples in memory")
-
-
-def example_parser(description: str, out: str) -> argparse.ArgumentParser:
-    """The parser of an example script that trains and evaluates on a dataset under `--root`."""
-    parser = _new_parser(description)
-    parser.add_argument("--root", type=Path, required=True, help="dataset folder (see the header)")
-    add_machine_arguments(parser)
-    add_training_arguments(parser, out)
-    add_sample_arguments(parser)
-    return parser
-
-
-def benchmark_parser(description: str, split: str | None) -> argparse.ArgumentParser:
-    """The parser of an example script that scores a label-free method on a focal-stack
-    benchmark under `--root` (`defocus.app.experiment.run_benchmark_example`)."""
-    parser = _new_parser(description)
-    parser.add_argument("--root", type=Path, required=True, help="dataset folder (see the header)")
-    if split is not None:
-        parser.add_argument("--split", default=split, help="the split to score")
-    add_machine_arguments(parser)
-    parser.add_argument("--method", choices=list(METHOD_NAMES), default="auto",
-                        help="label-free method (auto: the sweep with an all-in-focus photo, "
-                             "the relative blur without)")
-    parser.add_argument("--max-samples", type=int, default=None,
-                        help="score at most this many samples (default: CPU 8, GPU all)")
-    parser.add_argument("--max-pixels", type=int, default=None,
-                        help="most pixels of the method's working resolution (default: CPU "
-                             "250000, GPU 1500000); metrics use the native resolution")
-    add_json_argument(parser, "also write the metrics here")
-    return parser
-
-
-def add_json_argument(parser: argparse.ArgumentParser, text: str) -> None:
-    """`--json PATH` and `--overwrite` of an example script: the JSON goes through the output
-    policy (`defocus.app.experiment.plan_json_option`): an existing file is replaced only
-    with `--overwrite`, an input is never written, and it is written whole or not at all."""
-    parser.add_argument("--json", type=Path, default=None, metavar="PATH",
-                        help=f"{text} (an existing file is replaced only with --overwrite)")
-    add_overwrite_argument(parser)
-
-
-#: Defaults per device kind of the training examples: crop side (pixels), steps, time budget
-#: (minutes).
-DEVICE_DEFAULTS = {"cpu": {"crop": 128, "steps": None, "minutes": 10.0},
-                   "cuda": {"crop": 256, "steps": 20000, "minutes": None}}
-#: Defaults per device kind of the benchmark examples: samples scored, working pixels.
-BENCHMARK_DEFAULTS = {"cpu": {"max_samples": 8, "max_pixels": 250_000},
-                      "cuda": {"max_samples": None, "max_pixels": 1_500_000}}
-
-
 def device_kind(name: str) -> str:
     """`"cuda"` or `"cpu"` for a `--device` value (`"auto"`: CUDA when available).
 
@@ -277,30 +160,3 @@ def device_kind(name: str) -> str:
         return "cuda" if torch.device(name).type == "cuda" else "cpu"
     except RuntimeError:
         raise SystemExit(f"--device must be 'auto', 'cpu' or 'cuda[:N]', got {name!r}") from None
-
-
-def crop_size(args: argparse.Namespace) -> tuple[int, int] | None:
-    """The training crop `(H, W)` from `--crop` and the device defaults; None for whole images."""
-    crop = args.crop or [DEVICE_DEFAULTS[device_kind(args.device)]["crop"]]
-    if len(crop) > 2 or any(c < 0 for c in crop):
-        raise SystemExit(f"--crop takes one or two sizes in pixels (0: whole images), got {crop}")
-    if crop[0] == 0:
-        return None
-    return (crop[0], crop[-1])
-
-
-def dataset_kwargs(args: argparse.Namespace) -> dict:
-    """Keyword arguments shared by the dataset classes, from `add_sample_arguments`' options."""
-    cache = None if args.no_cache else (args.cache_dir or "auto")
-    return {"size": None if args.size is None else tuple(args.size), "cache_dir": cache,
-            "memory_cache_mb": args.memory_cache_mb}
-
-
-def check_training_options(args: argparse.Namespace) -> None:
-    """Refuse `--depth-range` and `--threads` values that cannot work (`SystemExit`)."""
-    problems = [f"--depth-range must be 0 < MIN < MAX metres, got {args.depth_range}"
-                for low, high in [args.depth_range or (1, 2)] if not 0 < low < high]
-    problems += [f"--threads must be >= 0 (0: PyTorch's default), got {args.threads}"
-                 for threads in [args.threads] if threads < 0]
-    if problems:
-        raise SystemExit("; ".join(problems))

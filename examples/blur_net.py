@@ -19,20 +19,73 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
+
+import torch
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
+def _per_shot(samples: list[Mapping[str, Any]], key: str) -> torch.Tensor:
+    """`sample[key]` `(3,H,W)` once per shot of each sample, stacked: `(sum F, 3, H, W)`."""
+    return torch.cat([p[key][None].expand(len(p["focused"]), -1, -1, -1) for p in samples])
+
+
+def train_blur_net(
+    net, samples: Iterable[Mapping[str, Any]], steps: int, batch_size: int = 8,
+    lr: float = 1e-3, supervision: str = "self", progress: bool = True,
+    log: list[dict[str, float]] | None = None,
+) -> torch.nn.Module:
+    """Train `net` on samples with `image`, `focused` `(F,3,H,W)` and, for `"depth"`
+    supervision, `coc_px` `(F,1,H,W)`; every shot is one training pair. Samples that also hold
+    `clean_image` and `clean_focused` give the self-supervised loss its clean targets (see
+    `blur_loss`). Adam, cosine schedule, gradient clipping; stops with an error at the first
+    non-finite loss. The library's one training loop is `models.training.Trainer.fit`; this
+    experiment's pairs of photos and blurs fit it less well than this short loop of its own."""
+    from models.depth_from_photos.blur_net import blur_loss
+    from optics.progress import progress_bar
+
+    optimizer = torch.optim.Adam(net.parameters(), lr=lr)
+    schedule = torch.optim.lr_scheduler.LambdaLR(
+        optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, steps) / steps)))
+    stream = iter(samples)
+    net.train()
+    bar = progress_bar(range(int(steps)), desc=f"blur net ({supervision})", disable=not progress)
+    for step in bar:
+        pairs = [next(stream) for _ in range(batch_size)]
+        image = _per_shot(pairs, "image")
+        focused = torch.cat([p["focused"] for p in pairs])
+        target = torch.cat([p["coc_px"] for p in pairs]) if supervision == "depth" else None
+        clean = None
+        if all("clean_image" in p for p in pairs):
+            clean = (_per_shot(pairs, "clean_image"),
+                     torch.cat([p["clean_focused"] for p in pairs]))
+        loss = blur_loss(net, image, focused, supervision, target, clean=clean)
+        if not torch.isfinite(loss):
+            raise FloatingPointError(f"non-finite blur-net loss at step {step}")
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        optimizer.step()
+        schedule.step()
+        if log is not None:
+            log.append({"step": step + 1, "loss": float(loss.detach()),
+                        "lr": schedule.get_last_lr()[0]})
+        bar.set_postfix(loss=f"{float(loss.detach()):.4f}", refresh=False)
+    net.eval()
+    return net
+
+
 def train(config: dict, out: Path, twin: bool = False) -> list[Path]:
     """Train the blur network (and its twin) as `config` says; returns the weights written."""
-    import torch
-
     from datasets.capture import CaptureNoise, RandomCameraScenes
-    from models.depth_from_photos import BlurNet, DepthFromDefocus, train_blur_net
+    from models.depth_from_photos import BlurNet, DepthFromDefocus
     from models.loading import save_weights
 
     torch.set_num_threads(int(config.get("threads", 1)))

@@ -28,11 +28,11 @@ import sys
 
 from datasets import DDFF12
 from defocus.app.experiment import run_benchmark_example
-from defocus.options import benchmark_parser
+from defocus.commands.evaluate import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchmark_parser(__doc__.splitlines()[0], split="val")
+    parser = benchmark_parser("ddff12", "val", __doc__.splitlines()[0])
     parser.add_argument("--shots", type=int, nargs="+", default=None,
                         help="slice indices to use (default: all 10; DFV uses 0 2 4 6 9)")
     args = parser.parse_args(argv)

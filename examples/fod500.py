@@ -27,11 +27,11 @@ import sys
 
 from datasets import FoD500
 from defocus.app.experiment import run_benchmark_example
-from defocus.options import benchmark_parser
+from defocus.commands.evaluate import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = benchmark_parser(__doc__.splitlines()[0], split="test").parse_args(argv)
+    args = benchmark_parser("fod500", "test", __doc__.splitlines()[0]).parse_args(argv)
     run_benchmark_example("FoD500", args, FoD500(args.root, args.split), "fod500", report=print)
     return 0
 

@@ -12,11 +12,14 @@ plus Eigen split files (e.g. from monodepth2: ``splits/eigen/{train,test}_files.
 Sparse LiDAR depth is densified by nearest neighbour for focus synthesis and masked for
 evaluation (Garg crop, 80 m cap).
 
-Training takes random crops (``--crop``) of the full-resolution samples, after their focal
+Training takes random crops (``crop``) of the full-resolution samples, after their focal
 stacks were synthesised at full resolution (cached: the blur in pixels stays the camera's);
 evaluation runs on whole images.
 
-CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
+The recipe is ``examples/kitti.yaml``; ``--set KEY=VALUE`` changes any of its keys or
+of the `TrainConfig` fields (the options of ``defocus train``).
+
+CPU (default; a 10-minute training budget, it prints the plan first)::
 
     python examples/kitti.py --root data/kitti
 
@@ -24,25 +27,21 @@ GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention n
 2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.KITTI` (ours: the paper gives
 none); here 256x256 crops, batch 8, 20000 steps)::
 
-    python examples/kitti.py --root data/kitti --device cuda --network paper --lr 2e-5 \\
-        --steps 20000 --crop 256 --batch-size 8
+    python examples/kitti.py --root data/kitti --set device=cuda network=paper lr=2e-5 \\
+        steps=20000 crop=256 batch_size=8
 """
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
-from datasets import KITTI
-from defocus.app.experiment import run_example
-from defocus.options import dataset_kwargs, example_parser
+from defocus.app.experiment import run_recipe
+from defocus.commands.train import recipe_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = example_parser(__doc__.splitlines()[0], "runs/kitti")
-    args = parser.parse_args(argv)
-    kwargs = dataset_kwargs(args)
-    run_example("KITTI", args, lambda split: KITTI(args.root, split, **kwargs),
-                depth_range=(1.0, 80.0), crop="garg", report=print)
+    run_recipe(recipe_parser(Path(__file__).with_suffix(".yaml")).parse_args(argv))
     return 0
 
 

@@ -9,11 +9,14 @@ Train400Depth, Test134Img, Test134Depth. The folder given as ``--root`` must hol
 Photos are resized to 460x345 by default (the common protocol; the pixel pitch follows);
 evaluation caps depth at 70 m.
 
-Training takes random crops (``--crop``) of the full-resolution samples, after their focal
+Training takes random crops (``crop``) of the full-resolution samples, after their focal
 stacks were synthesised at 460x345 (cached: the blur in pixels stays the camera's); evaluation
 runs on whole images.
 
-CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
+The recipe is ``examples/make3d.yaml``; ``--set KEY=VALUE`` changes any of its keys or
+of the `TrainConfig` fields (the options of ``defocus train``).
+
+CPU (default; a 10-minute training budget, it prints the plan first)::
 
     python examples/make3d.py --root data/make3d
 
@@ -21,26 +24,21 @@ GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention n
 2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.MAKE3D` (ours); here 256x256
 crops, batch 8, 20000 steps)::
 
-    python examples/make3d.py --root data/make3d --device cuda --network paper --lr 2e-5 \\
-        --steps 20000 --crop 256 --batch-size 8
+    python examples/make3d.py --root data/make3d --set device=cuda network=paper lr=2e-5 \\
+        steps=20000 crop=256 batch_size=8
 """
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
-from datasets import Make3D
-from defocus.app.experiment import run_example
-from defocus.options import dataset_kwargs, example_parser
+from defocus.app.experiment import run_recipe
+from defocus.commands.train import recipe_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = example_parser(__doc__.splitlines()[0], "runs/make3d")
-    parser.set_defaults(size=[460, 345])
-    args = parser.parse_args(argv)
-    kwargs = dataset_kwargs(args)
-    run_example("Make3D", args, lambda split: Make3D(args.root, split, **kwargs),
-                depth_range=(1.0, 70.0), report=print)
+    run_recipe(recipe_parser(Path(__file__).with_suffix(".yaml")).parse_args(argv))
     return 0
 
 

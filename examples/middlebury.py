@@ -18,35 +18,31 @@ Focused images are synthesised once per scene at full resolution (camera
 view), cached, and training takes random crops of them: the blur in pixels stays the camera's.
 Evaluation runs on whole images.
 
-CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
+The recipe is ``examples/middlebury.yaml``; ``--set KEY=VALUE`` changes any of its keys or
+of the `TrainConfig` fields (the options of ``defocus train``).
+
+CPU (default; a 10-minute training budget, it prints the plan first)::
 
     python examples/middlebury.py --root builtin
 
 GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam
 lr 2e-5, Gaussian PSF sigma = CoC/2; here 256x256 crops, batch 8, 20000 steps)::
 
-    python examples/middlebury.py --root data/middlebury --device cuda --network paper \\
-        --lr 2e-5 --steps 20000 --crop 256 --batch-size 8
+    python examples/middlebury.py --root data/middlebury --set device=cuda network=paper lr=2e-5 \\
+        steps=20000 crop=256 batch_size=8
 """
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
-from datasets import Middlebury
-from defocus.app.experiment import run_example
-from defocus.options import dataset_kwargs, example_parser
+from defocus.app.experiment import run_recipe
+from defocus.commands.train import recipe_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = example_parser(__doc__.splitlines()[0], "runs/middlebury")
-    args = parser.parse_args(argv)
-    kwargs = dataset_kwargs(args)
-    root = None if str(args.root) == "builtin" else args.root
-    splits = ("all", "all") if root is None or not (root / "train.txt").is_file() else (
-        "train", "test")
-    run_example("Middlebury", args, lambda split: Middlebury(root, split, **kwargs),
-                depth_range=(1.0, 8.0), splits=splits, report=print)
+    run_recipe(recipe_parser(Path(__file__).with_suffix(".yaml")).parse_args(argv))
     return 0
 
 

@@ -29,11 +29,11 @@ import sys
 
 from datasets import MobileDepth
 from defocus.app.experiment import run_benchmark_example
-from defocus.options import benchmark_parser
+from defocus.commands.evaluate import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchmark_parser(__doc__.splitlines()[0], split=None)
+    parser = benchmark_parser("mobile_depth", None, __doc__.splitlines()[0])
     parser.add_argument("--focus-range", type=float, nargs=2, metavar=("NEAR", "FAR"),
                         default=[0.1, 1.0], help="metres the frames' focus is spread over")
     parser.add_argument("--frames", type=int, default=5,

@@ -10,11 +10,14 @@ Data: the labeled NYU Depth v2 set and its split, from the NYU Depth v2 page
 Focused images are synthesised with the paper's camera (35 mm, f/2.8, focus 2 m and 8 m, pixel
 pitch 5.6 um x 4 at 640x480); evaluation uses Eigen's crop and a 10 m cap.
 
-Training takes random crops (``--crop``) of the full-resolution samples, after their focal
+Training takes random crops (``crop``) of the full-resolution samples, after their focal
 stacks were synthesised at full resolution (cached: the blur in pixels stays the camera's);
 evaluation runs on whole images.
 
-CPU (default; about 10 minutes on 2 cores, it prints the plan and ETA first)::
+The recipe is ``examples/nyu.yaml``; ``--set KEY=VALUE`` changes any of its keys or
+of the `TrainConfig` fields (the options of ``defocus train``).
+
+CPU (default; a 10-minute training budget, it prints the plan first)::
 
     python examples/nyu.py --root data/nyu
 
@@ -22,25 +25,21 @@ GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention n
 2e-5, Gaussian PSF sigma = CoC/2, camera preset `datasets.presets.NYU`; here 256x256 crops,
 batch 8, 20000 steps)::
 
-    python examples/nyu.py --root data/nyu --device cuda --network paper --lr 2e-5 \\
-        --steps 20000 --crop 256 --batch-size 8
+    python examples/nyu.py --root data/nyu --set device=cuda network=paper lr=2e-5 \\
+        steps=20000 crop=256 batch_size=8
 """
 
 from __future__ import annotations
 
 import sys
+from pathlib import Path
 
-from datasets import NYUv2
-from defocus.app.experiment import run_example
-from defocus.options import dataset_kwargs, example_parser
+from defocus.app.experiment import run_recipe
+from defocus.commands.train import recipe_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = example_parser(__doc__.splitlines()[0], "runs/nyu")
-    args = parser.parse_args(argv)
-    kwargs = dataset_kwargs(args)
-    run_example("NYU Depth v2", args, lambda split: NYUv2(args.root, split, **kwargs),
-                depth_range=(0.5, 10.0), crop="eigen", report=print)
+    run_recipe(recipe_parser(Path(__file__).with_suffix(".yaml")).parse_args(argv))
     return 0
 
 

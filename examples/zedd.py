@@ -30,11 +30,11 @@ import sys
 
 from datasets import ZEDD
 from defocus.app.experiment import run_benchmark_example
-from defocus.options import benchmark_parser
+from defocus.commands.evaluate import benchmark_parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = benchmark_parser(__doc__.splitlines()[0], split="val")
+    parser = benchmark_parser("zedd", "val", __doc__.splitlines()[0])
     parser.add_argument("--f-number", type=float, default=2.8,
                         help="aperture of the focused shots (1.4, 2.0, 2.8, 4.0 or 5.6)")
     parser.add_argument("--shots", type=int, nargs="+", default=[0, 2, 4, 6, 8],

@@ -7,13 +7,9 @@ The `defocus demo` command and the per-dataset example scripts call these; they 
 from __future__ import annotations
 
 import math
-import resource
-import shutil
-import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
-from pathlib import Path
 from typing import Any
 
 import torch
@@ -50,12 +46,6 @@ def keep_freed_memory() -> bool:
     m_trim_threshold, m_mmap_threshold = -1, -3
     return bool(libc.mallopt(m_mmap_threshold, 32 << 20)) and bool(
         libc.mallopt(m_trim_threshold, 1 << 30))
-
-
-def _clock() -> tuple[float, float, float]:
-    """(wall, user CPU, system CPU) seconds of this process."""
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    return time.perf_counter(), usage.ru_utime, usage.ru_stime
 
 
 def format_duration(seconds: float) -> str:
@@ -130,36 +120,8 @@ def constant_from_training(samples: Sequence[Mapping[str, Any]],
     return None if not depths else best_constant_depth(target=torch.cat(depths))
 
 
-def measure_steps(config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
-                  steps: int = 3) -> dict[str, float]:
-    """Seconds, user and system CPU seconds per training step of `config` on `train_set`.
-
-    Runs `steps + 1` steps in a throwaway run folder (the first, which loads and synthesises
-    data, is timed apart as `first_step_s`).
-    """
-    folder = Path(tempfile.mkdtemp(prefix="defocus-probe-"))
-    try:
-        probe = replace(config, steps=steps + 1, out_dir=folder, progress=False, resume=False,
-                        checkpoint_every=0, val_every=0, figure_every=0)
-        trainer = Trainer(probe, train_set)
-        marks = [_clock()]
-        trainer.step_callback = lambda *_: marks.append(_clock())
-        trainer.fit()
-    finally:
-        shutil.rmtree(folder, ignore_errors=True)
-    first = marks[1][0] - marks[0][0]
-    n = len(marks) - 2
-    wall, user, system = ((marks[-1][i] - marks[1][i]) / max(n, 1) for i in range(3))
-    return {"first_step_s": first, "s_per_step": wall, "user_s_per_step": user,
-            "sys_s_per_step": system}
-
-
 def _silent(message: str) -> None:
     """A `report` that drops the message."""
-
-
-class _OutOfTime(Exception):
-    """Raised by the step callback when the time budget is spent."""
 
 
 def _progress_reporter(total: int, every: int, report: Callable[[str], None],
@@ -199,99 +161,6 @@ def reconstruction_metrics(trainer: Trainer, test_set: Sequence[Mapping[str, Any
     return metrics
 
 
-def _pixels(dataset: Sequence[Mapping[str, Any]]) -> int:
-    """Pixels of one (first) sample of `dataset`."""
-    sample = dataset[0] if hasattr(dataset, "__getitem__") else next(iter(dataset))
-    return int(sample["image"][0].numel())
-
-
-def plan_steps(s_per_step: float, minutes: float, reserve_s: float = 0.0,
-               max_steps: int | None = None, min_steps: int = 1) -> int:
-    """How many steps of `s_per_step` seconds fit in `minutes` minus `reserve_s` seconds
-    (at least `min_steps`, at most `max_steps`).
-
-    Example:
-        >>> plan_steps(0.5, minutes=10, reserve_s=60), plan_steps(0.5, 10, max_steps=100)
-        (1080, 100)
-    """
-    if not minutes > 0:
-        raise ValueError(f"minutes must be > 0, got {minutes!r}")
-    steps = int((minutes * 60 - reserve_s) / max(s_per_step, 1e-6))
-    steps = max(steps, min_steps)
-    return steps if max_steps is None else min(steps, max_steps)
-
-
-def _plan_evaluation(
-    config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
-    test_set: Sequence[Mapping[str, Any]], timing: Mapping[str, float], minutes: float | None,
-    eval_share: float, report: Callable[[str], None] | None,
-) -> tuple[Sequence[Mapping[str, Any]], int, float]:
-    """The test samples to evaluate, their number and the evaluation's estimated seconds
-    (an evenly spaced part of `test_set` where the whole would take more than `eval_share` of
-    the budget)."""
-    started = _clock()
-    first_test = test_set[0] if hasattr(test_set, "__getitem__") else next(iter(test_set))
-    load_one = time.perf_counter() - started[0]
-    n_test = len(test_set) if hasattr(test_set, "__len__") else 1
-    # a forward pass of a whole image: about half a step's cost per pixel (no backward)
-    step_pixels = config.batch_size * _pixels(train_set)
-    forward_one = timing["s_per_step"] * first_test["image"][0].numel() / step_pixels / 2
-    per_test = load_one + forward_one
-    eval_s = per_test * n_test + 2.0
-    if minutes is not None and eval_s > eval_share * minutes * 60 and n_test > 1:
-        fit = max(1, int((eval_share * minutes * 60 - 2.0) / max(per_test, 1e-6)))
-        if fit < n_test:
-            if report is not None:
-                report(f"evaluating {fit} of {n_test} test images (evenly spaced) to fit the "
-                       f"{minutes:g} min budget; --max-test {n_test} or a larger --minutes for "
-                       "all")
-            test_set, n_test = evenly_spaced(test_set, fit), fit
-            eval_s = per_test * n_test + 2.0
-    return test_set, n_test, eval_s
-
-
-def _report_plan(config: TrainConfig, timing: Mapping[str, float], n_test: int, eval_s: float,
-                 minutes: float | None, report: Callable[[str], None]) -> None:
-    """Report the measured seconds per step and the plan (steps, ETA, end time)."""
-    steps = config.steps
-    train_s = steps * timing["s_per_step"]
-    user, system = timing["user_s_per_step"], timing["sys_s_per_step"]
-    report(f"measured {timing['s_per_step']:.3f} s/step (user {user:.3f} s, system "
-           f"{system:.3f} s; first step with data loading {timing['first_step_s']:.1f} s), "
-           f"batch {config.batch_size}, device {config.device}")
-    budget = "" if minutes is None else f" (budget {minutes:g} min)"
-    report(f"plan: {steps} steps, ETA {format_duration(train_s)} training + "
-           f"~{format_duration(eval_s)} evaluating {n_test} whole test images{budget}; "
-           f"done about {time.strftime('%H:%M', time.localtime(time.time() + train_s + eval_s))}")
-
-
-def _fit_before(config: TrainConfig, train_set: Sequence[Mapping[str, Any]],
-                deadline: float | None, minutes: float | None, every: int,
-                report: Callable[[str], None] | None) -> Trainer:
-    """Train `config`, reporting progress every `every` steps (0: never); past `deadline`
-    (`time.perf_counter` seconds) training stops early, with a checkpoint."""
-    steps = config.steps
-    progress = _progress_reporter(steps, every, report) if every and report else None
-
-    def callback(trainer: Trainer, step: int, losses: dict[str, float]) -> None:
-        if progress is not None:
-            progress(trainer, step, losses)
-        if deadline is not None and step < steps and time.perf_counter() > deadline:
-            raise _OutOfTime
-
-    trainer = Trainer(config, train_set, step_callback=callback)
-    if progress is not None:
-        progress.start[0] = trainer.step  # type: ignore[attr-defined]
-    try:
-        trainer.fit()
-    except _OutOfTime:
-        if report is not None:
-            report(f"time budget of {minutes:g} min reached after {trainer.step} of {steps} "
-                   "steps (the machine got slower than measured); evaluating now")
-        trainer.save_checkpoint()
-    return trainer
-
-
 def _result_rows(trainer: Trainer, train_set: Sequence[Mapping[str, Any]],
                  test_set: Sequence[Mapping[str, Any]], crop: str | Sequence[float] | None,
                  has_depth: bool, constant_set: Sequence[Mapping[str, Any]] | None,
@@ -318,21 +187,13 @@ def train_and_evaluate(
     crop: str | Sequence[float] | None = None,
     has_depth: bool = True,
     constant_set: Sequence[Mapping[str, Any]] | None = None,
-    minutes: float | None = None,
-    max_steps: int | None = None,
-    probe_steps: int = 3,
     report_every: int | None = None,
-    eval_share: float = 0.4,
     report: Callable[[str], None] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Train a network with `config` on `train_set`, then evaluate it on whole `test_set` images.
 
-    Before the long part it reports the planned steps, the measured seconds per step (with user
-    and system CPU time) and the ETA. With `minutes`, `config.steps` is replaced by as many
-    steps as fit in that budget together with the evaluation (measured on `probe_steps` steps
-    and one test sample), at most `max_steps`; should the machine get slower than measured,
-    training stops when the budget (less the evaluation's share) is spent, and the table names
-    the steps actually run.
+    Training runs `config.steps` steps or stops when its time budget `config.minutes` is spent
+    (`Trainer.fit`, no probe run); the table names the steps actually run.
 
     Args:
         config: the training run (its `depth_max` is also the evaluation cap).
@@ -344,36 +205,33 @@ def train_and_evaluate(
             reconstruction losses instead of depth metrics.
         constant_set: samples whose depths choose the best constant depth (default
             `train_set`; pass the training samples without random crops).
-        minutes: time budget of training plus evaluation, or None to run `config.steps`.
-        max_steps: upper bound of the planned steps (with `minutes`).
-        probe_steps: steps timed before planning (plus one untimed warm-up step).
         report_every: report a progress line every this many steps (default: about 10 lines;
             0: never).
-        eval_share: with `minutes`, the largest share of the budget the evaluation may take;
-            beyond it an evenly spaced part of `test_set` is evaluated (and that is reported).
-        report: called with each message line (the plan, progress, a budget cut), e.g.
-            `print`; None: silent.
+        report: called with each message line (the plan, progress, the budget), e.g. `print`;
+            None: silent.
 
     Returns:
         table rows: the trained network's, and (with depth) the best constant depth's.
 
     Example:
-        >>> rows = train_and_evaluate(config, train, test, minutes=5, report=print)  # doctest: +SKIP
+        >>> rows = train_and_evaluate(config, train, test, report=print)  # doctest: +SKIP
     """
-    planning = _clock()
-    timing = measure_steps(config, train_set, probe_steps)
-    test_set, n_test, eval_s = _plan_evaluation(config, train_set, test_set, timing, minutes,
-                                                eval_share, report)
-    if minutes is not None:
-        spent = time.perf_counter() - planning[0]
-        steps = plan_steps(timing["s_per_step"], minutes, reserve_s=eval_s + spent + 5,
-                           max_steps=max_steps)
-        config = replace(config, steps=steps)
-    if report is not None:
-        _report_plan(config, timing, n_test, eval_s, minutes, report)
+    say = report if report is not None else _silent
+    budget = f", ETA at most {format_duration(config.minutes * 60)} (budget " \
+        f"{config.minutes:g} min)" if config.minutes else ""
+    say(f"plan: {config.steps} steps at most, batch {config.batch_size}, device "
+        f"{config.device}{budget}; then {len(test_set)} whole test images")
     every = report_every if report_every is not None else max(1, math.ceil(config.steps / 10))
-    deadline = None if minutes is None else planning[0] + minutes * 60 - eval_s
-    trainer = _fit_before(config, train_set, deadline, minutes, every, report)
+    progress = _progress_reporter(config.steps, every, say) if every else None
+    trainer = Trainer(config, train_set, step_callback=progress)
+    if progress is not None:
+        progress.start[0] = trainer.step  # type: ignore[attr-defined]
+    started, first = time.perf_counter(), trainer.step
+    trainer.fit()
+    seconds = time.perf_counter() - started
+    cut = f"; the time budget of {config.minutes:g} min was spent" if trainer.out_of_time else ""
+    say(f"trained {trainer.step - first} steps in {format_duration(seconds)} "
+        f"({seconds / max(trainer.step - first, 1):.3f} s/step){cut}; evaluating")
     return _result_rows(trainer, train_set, test_set, crop, has_depth, constant_set)
 
 

@@ -28,7 +28,7 @@ from .checkpoints import WEIGHTS_KIND, CheckpointError, load_checkpoint, restore
 from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
 from .depth_from_photos.trained_network import TrainedNetwork
 from .networks import build_network
-from .train_config import TrainConfig
+from .training.config import TrainConfig
 
 
 def config_from_state(state: Mapping[str, Any], path: str | Path, **changes: Any) -> TrainConfig:

@@ -34,12 +34,12 @@ RENDER_KEYWORDS = tuple(name for name in inspect.signature(render_defocus).param
 
 def _check_weight(name: str, value: float, high: float = math.inf) -> float:
     """`value` as a float, refused unless a finite number in `[0, high]`."""
-    if isinstance(value, bool | str | bytes):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
     try:
-        number = float(value)
+        number = math.nan if isinstance(value, bool | str | bytes) else float(value)
     except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}") from None
+        number = math.nan
+    if math.isnan(number) and not isinstance(value, float):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
     if not (math.isfinite(number) and 0.0 <= number <= high):
         allowed = "in [0, 1]" if high == 1.0 else "finite and >= 0"
         raise ValueError(f"{name} must be {allowed}, got {value!r}")
@@ -304,14 +304,14 @@ def supervised_depth_loss(depth: Tensor, target: Tensor, mask: Tensor | None = N
         >>> float(supervised_depth_loss(torch.tensor([[3.0, 1.0]]), target, target > 0))
         0.5
     """
-    if depth.shape != target.shape:
-        raise ValueError(f"depth and target must have the same shape, got {tuple(depth.shape)} "
-                         f"and {tuple(target.shape)}")
+    refused = f"depth and target must have the same shape, got {tuple(depth.shape)} and " \
+        f"{tuple(target.shape)}" if depth.shape != target.shape else \
+        f"mask must have the target's shape {tuple(target.shape)}, got {tuple(mask.shape)}" \
+        if mask is not None and mask.shape != target.shape else None
+    if refused:
+        raise ValueError(refused)
     if mask is None:
         return ((depth - target).abs() / target).mean()
-    if mask.shape != target.shape:
-        raise ValueError(f"mask must have the target's shape {tuple(target.shape)}, got "
-                         f"{tuple(mask.shape)}")
     keep = mask if mask.dtype == torch.bool else mask != 0
     safe_target = torch.where(keep, target, torch.ones_like(target))
     safe_depth = torch.where(keep, depth, safe_target)  # outside: error 0, gradient 0

@@ -107,20 +107,18 @@ class DepthHead(nn.Module):
     def __init__(self, depth_min: float, depth_max: float, spacing: str = "depth",
                  side: str = "both", focus_distance: float | None = None):
         super().__init__()
-        if not 0 < depth_min < depth_max:
-            raise ValueError(
-                f"depth_min and depth_max must satisfy 0 < depth_min < depth_max metres, got "
-                f"{depth_min!r} and {depth_max!r}"
-            )
-        if spacing not in DEPTH_SPACINGS:
-            raise ValueError(f"spacing must be one of {DEPTH_SPACINGS}, got {spacing!r}")
-        if side not in SIDES:
-            raise ValueError(f"side must be one of {SIDES}, got {side!r}")
-        if side != "both" and not (focus_distance is not None
-                                   and depth_min < focus_distance < depth_max):
-            raise ValueError(f"side {side!r} needs a focus_distance between depth_min "
-                             f"{depth_min} and depth_max {depth_max} metres, got "
-                             f"{focus_distance!r}")
+        for refused, message in (
+            (not 0 < depth_min < depth_max, "depth_min and depth_max must satisfy 0 < depth_min "
+             f"< depth_max metres, got {depth_min!r} and {depth_max!r}"),
+            (spacing not in DEPTH_SPACINGS,
+             f"spacing must be one of {DEPTH_SPACINGS}, got {spacing!r}"),
+            (side not in SIDES, f"side must be one of {SIDES}, got {side!r}"),
+            (side != "both" and not (focus_distance is not None
+                                     and depth_min < focus_distance < depth_max),
+             f"side {side!r} needs a focus_distance between depth_min {depth_min} and "
+             f"depth_max {depth_max} metres, got {focus_distance!r}")):
+            if refused:
+                raise ValueError(message)
         self.depth_min, self.depth_max = float(depth_min), float(depth_max)
         self.spacing, self.side = spacing, side
         self.focus_distance = None if focus_distance is None else float(focus_distance)
@@ -161,10 +159,12 @@ class _DepthNetwork(nn.Module):
                  depth_spacing: str = "depth", side: str = "both",
                  focus_distance: float | None = None):
         super().__init__()
-        if input_mode not in INPUT_MODES:
-            raise ValueError(f"input_mode must be one of {INPUT_MODES}, got {input_mode!r}")
-        if input_mode == "aif+focused" and int(n_focus) < 1:
-            raise ValueError(f"n_focus must be >= 1 in 'aif+focused' mode, got {n_focus!r}")
+        refused = f"input_mode must be one of {INPUT_MODES}, got {input_mode!r}" \
+            if input_mode not in INPUT_MODES else \
+            f"n_focus must be >= 1 in 'aif+focused' mode, got {n_focus!r}" \
+            if input_mode == "aif+focused" and int(n_focus) < 1 else None
+        if refused:
+            raise ValueError(refused)
         self.input_mode = input_mode
         self.n_focus = int(n_focus) if input_mode == "aif+focused" else 0
         self.head = DepthHead(depth_min, depth_max, depth_spacing, side, focus_distance)

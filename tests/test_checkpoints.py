@@ -26,8 +26,9 @@ from models.checkpoints import (
     save_checkpoint,
     to_plain,
 )
-from models.run_log import CsvLog
-from models.training import Trainer, load_model
+from models.loading import load_model
+from models.training import Trainer
+from models.training.run_log import CsvLog
 
 
 class ShellPayload:

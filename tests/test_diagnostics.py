@@ -18,7 +18,7 @@ from models.diagnostics import (
 )
 from models.losses import DefocusLoss
 from models.networks import DepthHead
-from models.train_config import TrainConfig
+from models.training.config import TrainConfig
 from optics import CameraSettings, render_focal_stack, translate, warp
 
 FOCUS = 1.7

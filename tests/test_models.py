@@ -123,7 +123,7 @@ def test_depth_head_even_in_inverse_depth(dtype):
 
 def test_build_network_and_config_take_the_spacing(tmp_path):
     from models.networks import build_network
-    from models.train_config import TrainConfig
+    from models.training.config import TrainConfig
 
     net = build_network("small", "aif", 0, 0.5, 10.0, width=8, depth_spacing="inverse")
     assert net.head.spacing == "inverse" and not list(net.head.parameters())

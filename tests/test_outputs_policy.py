@@ -275,11 +275,11 @@ def test_dslr_example_json_is_checked_before_any_work(tmp_path, monkeypatch):
     earlier, camera = tmp_path / "table.json", tmp_path / "cam.json"
     earlier.write_text("{}")
     camera.write_text("{}")
-    argv = ["--root", str(tmp_path / "absent"), "--out", str(tmp_path / "run"), "--json"]
+    argv = ["--root", str(tmp_path / "absent"), "--out", str(tmp_path / "run"), "--set"]
     with pytest.raises(SystemExit, match=r"table\.json already exists .*--overwrite"):
-        module.main([*argv, str(earlier)])  # refused before the missing --root is read
-    with pytest.raises(SystemExit, match="input --camera"):
-        module.main([*argv, str(camera), "--camera", str(camera), "--overwrite"])
+        module.main([*argv, f"json={earlier}"])  # refused before the missing --root is read
+    with pytest.raises(SystemExit, match="input camera"):
+        module.main([*argv, f"json={camera}", f"camera={camera}", "--overwrite"])
     assert earlier.read_text() == "{}" and camera.read_text() == "{}"
 
 

@@ -286,7 +286,7 @@ def test_huge_lr_collapse_warns_in_the_log_and_the_summary(tmp_path, scenes, cap
 
 
 def test_log_of_an_older_version_gains_the_new_columns(tmp_path):
-    from models.run_log import CsvLog
+    from models.training.run_log import CsvLog
 
     log = CsvLog(tmp_path / "train_log.csv")
     log.append({"step": 1, "loss": 0.5})

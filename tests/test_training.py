@@ -12,8 +12,9 @@ import torch
 from training_helpers import tiny_config as _tiny
 
 from datasets.synthetic import SyntheticScenes
+from models.loading import load_model
 from models.metrics import METRIC_NAMES, best_constant_depth, depth_metrics
-from models.training import TrainConfig, Trainer, load_model
+from models.training import TrainConfig, Trainer
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -53,7 +54,7 @@ def test_fit_writes_logs_checkpoints_figures(tmp_path, scenes):
     assert {p.name for p in (cfg.out_dir / "checkpoints").iterdir()} == {
         "step_000002.pt", "step_000004.pt", "last.pt"}
     assert (cfg.out_dir / "figures" / "step_000004.png").stat().st_size > 1000
-    assert TrainConfig.from_yaml(cfg.out_dir / "config.yaml") == cfg
+    assert TrainConfig.from_yaml(cfg.out_dir / "config.yaml") == trainer.config  # n_focus: 2
     model, loaded = load_model(cfg.out_dir / "checkpoints" / "last.pt")
     image = scenes[0]["image"][None]
     batch = scenes[0]["camera"].batched(1)
@@ -61,6 +62,22 @@ def test_fit_writes_logs_checkpoints_figures(tmp_path, scenes):
                                trainer.predict(image, scenes[0]["focused"][None], batch))
     metrics = trainer.evaluate(scenes)
     assert set(METRIC_NAMES) <= set(metrics)
+
+
+def test_learning_rate_follows_the_steps_or_the_time_budget(tmp_path, scenes):
+    """Cosine decay over `steps`; with a time budget over max(step / steps, elapsed / budget),
+    so a budgeted run with a huge `steps` still ends at the schedule's end value."""
+    import math
+
+    history = Trainer(_tiny(tmp_path / "steps"), scenes).fit()
+    assert [row["lr"] for row in history] == pytest.approx(
+        [1e-3 * 0.5 * (1 + math.cos(math.pi * s / 4)) for s in (1, 2, 3, 4)])
+    trainer = Trainer(_tiny(tmp_path / "budget", steps=10**9, minutes=0.005), scenes)
+    history = trainer.fit()
+    assert trainer.out_of_time and 1 <= len(history) < 10**9
+    assert history[-1]["lr"] == 0.0  # the cosine's end: decayed over the budget
+    if len(history) > 1:
+        assert history[0]["lr"] > history[-1]["lr"]
 
 
 @pytest.mark.parametrize("supervision", ["self", "depth"])

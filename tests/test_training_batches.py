@@ -16,8 +16,8 @@ import torch
 from training_helpers import tiny_config
 
 from datasets import JointAugment
-from models.sampling import StepSampler
 from models.training import BatchStream, DataWaitWarning, StepTimer, Trainer, auto_workers
+from models.training.sampling import StepSampler
 from models.training.step_timing import JUDGED_AFTER, WARMUP_STEPS
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -321,7 +321,7 @@ def test_no_warnings_from_a_quick_run(tmp_path, scenes):
 
 
 def test_precision_and_compile_mode_are_checked_by_name():
-    from models.train_config import TrainConfig
+    from models.training.config import TrainConfig
 
     with pytest.raises(ValueError, match=r"compile_mode must be one of .*'reduce-overhead'.*"
                                          r"got 'fast'"):

@@ -1,11 +1,12 @@
 """Train and evaluate on a dataset, or score a label-free method on a focal-stack benchmark: the
-work of the scripts under `examples/` (their options: `defocus.options.example_parser` and
-`benchmark_parser`).
+work of the scripts under `examples/`.
 
-Training runs `models.experiment.train_and_evaluate`: the options become a `TrainConfig`, a
-few steps are measured, the budget is planned, the network trains on random crops of the
-full-resolution samples and is evaluated on whole test images next to the best constant depth
-(`models.metrics.best_constant_depth`).
+A training example is a recipe (`examples/<name>.yaml`: `RECIPE_KEYS` and `TrainConfig`
+fields) run by `run_recipe` with `defocus train`'s options (`--root`, `--set KEY=VALUE`, ...):
+the network trains on random crops of the full-resolution samples within the time budget
+(`TrainConfig.minutes`) and is evaluated on whole test images next to the best constant depth
+(`models.experiment.train_and_evaluate`). The benchmark examples take `defocus evaluate`'s
+options (`defocus.commands.evaluate.benchmark_parser`).
 """
 
 from __future__ import annotations
@@ -14,18 +15,13 @@ import argparse
 import math
 import warnings
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
 from torch.utils.data import Dataset, Subset
 
-from defocus.options import (
-    BENCHMARK_DEFAULTS,
-    DEVICE_DEFAULTS,
-    check_training_options,
-    crop_size,
-    device_kind,
-)
+from defocus.options import device_kind
 
 Report = Callable[[str], None]
 
@@ -69,102 +65,158 @@ def truncation_warning_once() -> None:
     warnings.showwarning = show
 
 
-def _training_config(args: argparse.Namespace, first: dict, depth_range: tuple[float, float],
-                     kind: str, steps: int | None):
-    from models.training import TrainConfig
-
-    side = getattr(args, "side", "both")
-    focus = 0.0
-    if side != "both":
-        focus_distances = first["camera"].focus_distance.reshape(-1)
-        if focus_distances.numel() != 1:
-            raise SystemExit(f"--side {side} needs samples of one focus setting, got "
-                             f"{focus_distances.numel()}")
-        focus = float(focus_distances[0])
-    return TrainConfig(
-        steps=steps or 1, batch_size=args.batch_size, lr=args.lr, network=args.network,
-        input_mode=args.input_mode, out_dir=args.out, seed=args.seed,
-        supervision=getattr(args, "supervision", "self"), depth_spacing=args.depth_spacing,
-        side=side, focus_distance=focus,
-        depth_min=depth_range[0], depth_max=depth_range[1],
-        device=kind if args.device == "auto" else args.device,
-        n_focus=int(first["focused"].shape[0]), width=args.width, progress=not args.no_progress,
-        max_kernel_size=loss_window(first["image"].shape[-2:]),
-        workers=args.workers, precision=args.precision, compile=args.compile,
-        smoothness_weight=getattr(args, "smoothness_weight", TrainConfig.smoothness_weight),
-    )
-
-
-def _epoch_steps(args: argparse.Namespace, source: Dataset, first: dict) -> int:
-    """The most steps of `--max-epochs` passes over the training pixels of `source`."""
-    dataset_pixels = len(source) * int(source[0]["image"][0].numel())
-    step_pixels = args.batch_size * int(first["image"][0].numel())
-    return max(10, math.ceil(args.max_epochs * dataset_pixels / step_pixels))
+#: Keys of an example's recipe (`examples/*.yaml`) beside the `TrainConfig` fields, with their
+#: defaults; `--set KEY=VALUE` changes either kind.
+RECIPE_KEYS = {
+    "name": "the dataset",  # as the report names it
+    "data": "synthetic",  # `datasets.registry.DATASET_NAMES`
+    "dataset": {},  # more keyword arguments of the dataset class
+    "splits": ["train", "test"],  # training and test split (the same: test on training data;
+    # "lists": train and test with the folder's train.txt, else "all" for both)
+    "size": None,  # resize whole images to [H, W] first (the blur in pixels shrinks too)
+    "eval_crop": None,  # evaluation crop: "eigen", "garg" or fractions
+    "has_depth": True,  # false: the table holds reconstruction losses
+    "crop": None,  # random training crops [H] or [H, W] (0: whole images; default per device)
+    "max_train": None,  # at most this many training samples
+    "max_test": None,  # at most this many test samples
+    "max_epochs": 200.0,  # with a time budget: at most this many passes over the pixels
+    "cache": True,  # keep synthesised focal stacks in the per-user cache
+    "memory_cache_mb": 2048.0,  # MiB of full-resolution samples kept in memory
+    "threads": 0,  # CPU threads of PyTorch (0: its default)
+    "cpu_minutes": 10.0,  # the time budget on a CPU when neither steps nor minutes is given
+}
+#: Defaults per device kind of the training examples: crop side (pixels), steps (None: the
+#: `max_epochs` passes within the CPU's time budget).
+DEVICE_DEFAULTS = {"cpu": {"crop": 128, "steps": None}, "cuda": {"crop": 256, "steps": 20000}}
+#: Defaults per device kind of the benchmark examples: samples scored, working pixels.
+BENCHMARK_DEFAULTS = {"cpu": {"max_samples": 8, "max_pixels": 250_000},
+                      "cuda": {"max_samples": None, "max_pixels": 1_500_000}}
 
 
-def train_and_evaluate(
-    name: str,
-    args: argparse.Namespace,
-    train_set: Dataset,
-    test_set: Dataset,
-    depth_range: tuple[float, float],
-    crop: str | Sequence[float] | None = None,
-    has_depth: bool = True,
-    constant_set: Dataset | None = None,
-    report: Report = _silent,
-) -> dict[str, dict[str, float]]:
-    """Run `models.experiment.train_and_evaluate` with the options of `example_parser` and
-    report the table; returns its rows.
+def read_recipe(args: argparse.Namespace, keys: dict[str, Any] = RECIPE_KEYS,
+                ) -> tuple[dict[str, Any], dict[str, Any], set[str]]:
+    """(the experiment's `keys` with their values, the `TrainConfig` fields, the fields the user
+    gave) of the recipe `--config` with `--set` overrides; a bad value ends the script in one
+    line."""
+    from models.training.config import parse_overrides, read_yaml_mapping
 
-    `train_set` gives random crops (see `training_crop`); `constant_set`, the same training
-    samples whole, chooses the best constant depth.
-    """
-    from models.experiment import keep_freed_memory
-    from models.experiment import train_and_evaluate as run
+    try:
+        given = {**read_yaml_mapping(args.config), **parse_overrides(args.overrides)}
+    except ValueError as error:
+        raise SystemExit(f"{args.config}: {error}") from None
+    experiment = {key: given.pop(key, value) for key, value in keys.items()}
+    crop = experiment["crop"]
+    crop = crop if isinstance(crop, list) else [crop] if crop is not None else None
+    if crop is not None and (len(crop) > 2 or not all(isinstance(c, int) and c >= 0
+                                                      for c in crop)):
+        raise SystemExit(f"crop takes one or two sizes in pixels (0: whole images), got {crop}")
+    experiment["crop"] = crop
+    if experiment["splits"] == "lists":  # the split lists of the folder, else all for both
+        lists = args.root is not None and (Path(args.root) / "train.txt").is_file()
+        experiment["splits"] = ["train", "test"] if lists else ["all", "all"]
+    return experiment, given, set(given)
+
+
+def _dataset(experiment: dict[str, Any], args: argparse.Namespace, split: str) -> Dataset:
+    from datasets.registry import build_dataset
+
+    size = args.size or experiment["size"]
+    kwargs = dict(experiment["dataset"], memory_cache_mb=experiment["memory_cache_mb"])
+    if experiment["data"] != "lightfield":  # real refocusing: nothing to cache
+        kwargs["cache_dir"] = "auto" if experiment["cache"] else None
+    root = None if str(args.root) == "builtin" else args.root  # a scene shipped with a package
+    return build_dataset(experiment["data"], root, split=split,
+                         size=None if size is None else tuple(size), **kwargs)
+
+
+def run_recipe(args: argparse.Namespace, report: Report = print) -> dict[str, dict[str, float]]:
+    """An example script: train on the dataset of the recipe `args.config` under `--root` with
+    `defocus train`'s options (`defocus.commands.train.recipe_parser`) and evaluate on whole
+    test images (`models.experiment.train_and_evaluate`); returns
+    the table's rows. Training takes random crops (flips and gains) of the whole training
+    samples, which also choose the best constant depth."""
+    from datasets import JointAugment
+    from models.experiment import keep_freed_memory, train_and_evaluate
     from models.metrics import format_table
 
+    experiment, fields, given = read_recipe(args)
+    if experiment["threads"]:
+        torch.set_num_threads(int(experiment["threads"]))
     keep_freed_memory()
     truncation_warning_once()
-    check_training_options(args)
-    if args.depth_range is not None:
-        depth_range = (args.depth_range[0], args.depth_range[1])
-    if args.threads:
-        torch.set_num_threads(args.threads)
-    kind = device_kind(args.device)
-    defaults = DEVICE_DEFAULTS[kind]
-    train_set, test_set = limit(train_set, args.max_train), limit(test_set, args.max_test)
-    if constant_set is not None:
-        constant_set = limit(constant_set, args.max_train)
+    whole = _dataset(experiment, args, experiment["splits"][0])
+    crop = recipe_crop(experiment, fields, whole, report)
+    train_set = limit(whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1)),
+                      experiment["max_train"])
+    test_set = whole if experiment["splits"][1] == experiment["splits"][0] else \
+        _dataset(experiment, args, experiment["splits"][1])
+    test_set = limit(test_set, experiment["max_test"])
     first = train_set[0]
-    steps = args.steps if args.steps is not None else defaults["steps"]
-    minutes = args.minutes if args.minutes is not None else (
-        defaults["minutes"] if steps is None else None)
-    config = _training_config(args, first, depth_range, kind, steps)
-    whole = (constant_set or train_set)[0]["image"].shape[-2:]
-    crop_text = (f"random {tuple(first['image'].shape[-2:])} crops of"
-                 if tuple(first["image"].shape[-2:]) != tuple(whole) else "whole")
-    report(f"{name}: {len(train_set)} training samples ({crop_text} {tuple(whole)} pixels) and "
-           f"{len(test_set)} whole test samples, {config.n_focus} focused images each; "
-           f"device {kind}")
-    max_steps = None if minutes is None else _epoch_steps(
-        args, constant_set if constant_set is not None else train_set, first)
-    rows = run(config, train_set, test_set, crop=crop, has_depth=has_depth,
-               constant_set=constant_set, minutes=minutes, max_steps=max_steps,
-               report_every=None if args.no_progress else 0, report=report)
-    if not has_depth:
+    config = recipe_config(args, experiment, fields, given, whole, first)
+    kind = device_kind(config.device)
+    crop_text = (f"random {tuple(first['image'].shape[-2:])} crops of" if crop else "whole")
+    report(f"{experiment['name']}: {len(train_set)} training samples ({crop_text} "
+           f"{tuple(whole[0]['image'].shape[-2:])} pixels) and {len(test_set)} whole test "
+           f"samples, {int(first['focused'].shape[0])} focused images each; device {kind}")
+    rows = train_and_evaluate(config, train_set, test_set, crop=experiment["eval_crop"],
+                              has_depth=experiment["has_depth"],
+                              constant_set=limit(whole, experiment["max_train"])
+                              if experiment["has_depth"] else None,
+                              report_every=None if config.progress else 0, report=report)
+    if not experiment["has_depth"]:
         report("no ground-truth depth: self-supervised reconstruction losses on the test set")
-    report(format_table(rows, metrics=tuple(next(iter(rows.values())))) if not has_depth
-           else format_table(rows))
+    report(format_table(rows, metrics=tuple(next(iter(rows.values()))))
+           if not experiment["has_depth"] else format_table(rows))
     return rows
 
 
-def training_crop(args: argparse.Namespace, probe: Dataset,
+def recipe_crop(experiment: dict[str, Any], fields: dict[str, Any], whole: Dataset,
+                report: Report = _silent) -> tuple[int, int] | None:
+    """The training crop of a recipe (`training_crop`): its `crop`, else the device's."""
+    kind = device_kind(str(fields.get("device", "auto")))
+    return training_crop(experiment["crop"] or [DEVICE_DEFAULTS[kind]["crop"]], whole, report)
+
+
+def recipe_config(args: argparse.Namespace, experiment: dict[str, Any], fields: dict[str, Any],
+                  given: set[str], whole: Dataset, first: dict) -> Any:
+    """The `TrainConfig` of a recipe (`read_recipe`) and `defocus train`'s options: its fields
+    over the defaults of the device (a CPU trains within `cpu_minutes` unless `steps` or
+    `minutes` is given, a GPU 20000 steps), the run folder `--out` and `--resume`/`--overwrite`;
+    `first` is the first training sample (the loss's window). A bad value ends the script."""
+    from models.training import TrainConfig
+
+    kind = device_kind(str(fields.get("device", "auto")))
+    defaults = {"out_dir": args.out or f"runs/{Path(args.config).stem}", "device": kind,
+                "max_kernel_size": loss_window(first["image"].shape[-2:])}
+    if "minutes" not in given and "steps" not in given and kind == "cpu":
+        defaults["minutes"] = experiment["cpu_minutes"]
+    defaults["steps"] = DEVICE_DEFAULTS[kind]["steps"] or _epoch_steps(
+        experiment["max_epochs"], fields.get("batch_size", TrainConfig.batch_size), whole, first)
+    fields = dict(fields)
+    if args.out is not None:
+        fields.pop("out_dir", None)
+    if args.resume or args.overwrite:
+        fields["resume"] = "resume" if args.resume else "overwrite"
+    try:
+        return TrainConfig.load(None, [], **{**defaults, **fields})
+    except ValueError as error:
+        raise SystemExit(f"{args.config}: {error}") from None
+
+
+def _epoch_steps(max_epochs: float, batch_size: int, whole: Dataset, first: dict) -> int:
+    """The most steps of `max_epochs` passes over the training pixels of `whole`."""
+    dataset_pixels = len(whole) * int(whole[0]["image"][0].numel())
+    step_pixels = batch_size * int(first["image"][0].numel())
+    return max(10, math.ceil(max_epochs * dataset_pixels / step_pixels))
+
+
+def training_crop(crop: Sequence[int], probe: Dataset,
                   report: Report = _silent) -> tuple[int, int] | None:
-    """The crop of `--crop` (or the device default), made to fit inside `probe[0]` (the
-    unaugmented training set): a crop larger than the image becomes the whole image side."""
-    crop = crop_size(args)
-    if crop is None:
+    """The training crop `[H]` or `[H, W]` (0: whole images), made to fit inside `probe[0]`
+    (the unaugmented training set): a crop larger than the image becomes the whole image side."""
+    if crop[0] == 0:
         return None
+    crop = (crop[0], crop[-1])
     h, w = probe[0]["image"].shape[-2:]
     fitted = (min(crop[0], h), min(crop[1], w))
     if fitted != crop:
@@ -173,46 +225,22 @@ def training_crop(args: argparse.Namespace, probe: Dataset,
     return None if fitted == (h, w) else fitted
 
 
-def run_example(
-    name: str,
-    args: argparse.Namespace,
-    make: Callable[[str], Dataset],
-    depth_range: tuple[float, float],
-    splits: tuple[str, str] = ("train", "test"),
-    report: Report = _silent,
-    **evaluate_kwargs: Any,
-) -> dict[str, dict[str, float]]:
-    """The whole example: `make(split)` builds a dataset; training takes random crops (flips and
-    gains) of the whole training samples, which also choose the best constant depth; evaluation
-    runs on the whole test samples (the training set itself when both splits are the same)."""
-    from datasets import JointAugment
-
-    whole = make(splits[0])
-    crop = training_crop(args, whole, report)
-    train = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    test = whole if splits[1] == splits[0] else make(splits[1])
-    if evaluate_kwargs.get("has_depth", True):
-        evaluate_kwargs.setdefault("constant_set", whole)
-    return train_and_evaluate(name, args, train, test, depth_range=depth_range, report=report,
-                              **evaluate_kwargs)
-
-
-def plan_json_option(args: argparse.Namespace, what: str = "metrics JSON",
-                     inputs: Any = None) -> Any:
-    """The checked plan of an example's `--json` (`defocus.options.add_json_argument`), None
-    without it, made before any work: not an existing file of `--root` nor one of `inputs`
-    (`(name, path)` pairs), no earlier result replaced without `--overwrite`
+def plan_json_option(path: Path | None, overwrite: bool, root: Path | None,
+                     what: str = "metrics JSON", inputs: Any = None,
+                     option: str = "--json") -> Any:
+    """The checked plan of an example's JSON output `path` (`option`), None without one, made
+    before any work: not an existing file of `root` (`--root`) nor one of `inputs` (`(name,
+    path)` pairs), no earlier result replaced without `overwrite`
     (`defocus.app.outputs.plan_json`); a refusal ends the script in one line (`SystemExit`).
 
     Example:
-        >>> plan_json_option(argparse.Namespace(json=None)) is None
+        >>> plan_json_option(None, False, None) is None
         True
     """
     from .outputs import plan_json
 
     try:
-        return plan_json(getattr(args, "json", None), getattr(args, "overwrite", False),
-                         inputs, {"--root": getattr(args, "root", None)}, what)
+        return plan_json(path, overwrite, inputs, {"--root": root}, what, option)
     except (OSError, ValueError) as error:
         raise SystemExit(str(error)) from None
 
@@ -229,7 +257,7 @@ def run_benchmark_example(name: str, args: argparse.Namespace, dataset: Dataset,
 
     from .outputs import write_json
 
-    plan = plan_json_option(args)
+    plan = plan_json_option(args.json, args.overwrite, args.root)
     if args.threads:
         torch.set_num_threads(args.threads)
     kind = device_kind(args.device)

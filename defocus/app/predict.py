@@ -113,7 +113,7 @@ def request_problem(request: PredictRequest) -> str | None:
     go together."""
     from models.depth_from_photos import METHODS, depth_range_problem
     from models.depth_from_photos.cost_volume import AGGREGATIONS
-    from models.train_config import check_device
+    from models.devices import check_device
 
     try:
         check_device(request.device)
@@ -279,7 +279,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
         ...                              depth_range=(0.5, 5.0)))  # doctest: +SKIP
     """
     from models import estimate_depth, load_depth_model
-    from models.train_config import select_device
+    from models.devices import select_device
     from optics import CameraSettings
 
     check_request(request)

@@ -65,18 +65,18 @@ def training_config(config: Path | None = None, overrides: Sequence[str] = (),
     if config is not None and not config.is_file():
         raise FileNotFoundError(f"--config {config} does not exist or is not a file")
     keys = {item.partition("=")[0].strip(): item for item in overrides}
-    if out and "out_dir" in keys:
-        raise ValueError(f"--set {keys['out_dir']} and --out {out} both name the output "
-                         "folder: give only --out")
-    if (resume or overwrite) and "resume" in keys:
-        flag = "--resume" if resume else "--overwrite"
-        raise ValueError(f"--set {keys['resume']} and {flag} both say what to do with an "
-                         f"earlier run: give only {flag}")
-    cfg = TrainConfig.from_yaml(config) if config else TrainConfig()
+    flag = "--resume" if resume else "--overwrite"
+    for refused, message in (
+            (out and "out_dir" in keys, lambda: f"--set {keys['out_dir']} and --out {out} both "
+             "name the output folder: give only --out"),
+            ((resume or overwrite) and "resume" in keys, lambda: f"--set {keys['resume']} and "
+             f"{flag} both say what to do with an earlier run: give only {flag}")):
+        if refused:
+            raise ValueError(message())
     overrides = list(overrides) + ([f"out_dir={out}"] if out else [])
     if resume or overwrite:
         overrides.append(f"resume={'resume' if resume else 'overwrite'}")
-    return cfg.override(overrides)
+    return TrainConfig.load(config, overrides)
 
 
 def check_out_dir(out_dir: Path, root: Path | None = None, config: Path | None = None,
@@ -104,26 +104,6 @@ def check_out_dir(out_dir: Path, root: Path | None = None, config: Path | None =
         raise ValueError(f"--config {config} is the config.yaml of the run in --out {out_dir}, "
                          "which --overwrite deletes: copy it elsewhere first, or continue the "
                          "run with --resume")
-
-
-def given_fields(config: Path | None = None, overrides: Sequence[str] = ()) -> set[str]:
-    """The `TrainConfig` fields that a YAML file or `KEY=VALUE` overrides set."""
-    import yaml
-
-    given = {item.split("=", 1)[0].strip() for item in overrides}
-    if config is not None and config.is_file():
-        data = yaml.safe_load(config.read_text()) or {}
-        given |= set(data) if isinstance(data, dict) else set()
-    return given
-
-
-def fit_config_to_data(cfg, first_sample: dict[str, Any], given: set[str]):
-    """`cfg` with the number of focused photos of the data (`first_sample`) unless the user set
-    `n_focus` (a real dataset has as many as its camera took: one for the DSLR pairs)."""
-    n_focus = int(first_sample["focused"].shape[0])
-    if "n_focus" in given or cfg.n_focus == n_focus:
-        return cfg
-    return dataclasses.replace(cfg, n_focus=n_focus)
 
 
 @dataclass

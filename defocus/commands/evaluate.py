@@ -131,3 +131,22 @@ def run(args: argparse.Namespace) -> int:
     if plan is not None:
         write_json(plan, args.json, {**extra, **result.metrics})
     return 0
+
+
+def benchmark_parser(dataset: str, split: str | None,
+                     description: str) -> argparse.ArgumentParser:
+    """The parser of a benchmark example script (`examples/<dataset>.py`): `defocus evaluate
+    --dataset DATASET`'s options (`--split` defaults to `split`; `--max-samples` and
+    `--max-pixels` to the device's, `defocus.app.experiment.BENCHMARK_DEFAULTS`), and where
+    the label-free method runs (`--device`, `--threads`)."""
+    parser = argparse.ArgumentParser(description=description, allow_abbrev=False,
+                                     conflict_handler="resolve")
+    add_arguments(parser)
+    parser.add_argument("--root", type=Path, required=True,
+                        help="the dataset folder in its release layout (see the header)")
+    parser.add_argument("--device", default="auto",
+                        help="'auto' (CUDA when available), 'cpu', 'cuda', 'cuda:1', ...")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="CPU threads of PyTorch (0: its default, one per core)")
+    parser.set_defaults(dataset=dataset, split=split, max_pixels=None)
+    return parser

@@ -6,12 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from defocus.app.train import (
-    check_out_dir,
-    config_fields_help,
-    fit_config_to_data,
-    given_fields,
-)
+from defocus.app.train import check_out_dir, config_fields_help
 from defocus.options import DefaultsOnceFormatter, add_data_arguments, dataset_from_options, say
 
 
@@ -59,6 +54,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_data_arguments(parser)
 
 
+def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
+    """The parser of an example script: `defocus train`'s options (`--config` is the recipe
+    `recipe`, `--set` changes its keys and the `TrainConfig` fields), no other vocabulary."""
+    text = recipe.read_text(encoding="utf-8")
+    parser = argparse.ArgumentParser(prog=f"{recipe.stem}.py", allow_abbrev=False,
+                                     description=text.splitlines()[0].lstrip("# "))
+    add_arguments(parser)
+    parser.epilog = f"The recipe {recipe.name} (--set KEY=VALUE changes a key):\n{text}\n" \
+        f"{parser.epilog}"
+    parser.set_defaults(config=recipe)
+    return parser
+
+
 def run(args: argparse.Namespace) -> int:
     from defocus.app.train import train, training_config
     from models.metrics import format_table
@@ -74,9 +82,8 @@ def run(args: argparse.Namespace) -> int:
             return val
     if args.quiet:
         cfg = dataclasses.replace(cfg, progress=False)
-    train_set = dataset_from_options(args)
-    cfg = fit_config_to_data(cfg, train_set[0], given_fields(args.config, args.overrides))
-    result = train(cfg, train_set, validation, report=say(args))
+    # n_focus 0 (the default) follows the data: the trainer reads the first sample once
+    result = train(cfg, dataset_from_options(args), validation, report=say(args))
     trainer = result.trainer
     if trainer.is_main:
         last = f"; last loss {trainer.history[-1]['loss']:.4f}" if trainer.history else ""

@@ -23,7 +23,7 @@ it picks a method by what the photos are and runs it at a working resolution. Th
 """
 
 from .all_in_focus import fuse_all_in_focus
-from .blur_net import BlurNet, DepthFromDefocus, solve_depth, train_blur_net
+from .blur_net import BlurNet, DepthFromDefocus, solve_depth
 from .confidence import depth_edge_confidence, texture_confidence, texture_weight
 from .cost_volume import CostVolumeDepth
 from .depth_from_focus import DepthFromFocus, focus_measures, focus_peak
@@ -83,7 +83,6 @@ __all__ = [
     "texture_confidence",
     "texture_weight",
     "thin_lens_blur",
-    "train_blur_net",
     "widen_cut_range",
     "working_scale",
 ]

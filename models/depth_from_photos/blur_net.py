@@ -20,8 +20,7 @@ it; `examples/blur_net.py` trains it and `estimate_depth(..., model=...)` runs i
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
-from typing import Any
+from collections.abc import Mapping
 
 import kornia
 import torch
@@ -30,7 +29,6 @@ from torch import Tensor, nn
 
 from optics import CameraSettings, Gaussian, render_defocus
 from optics.checks import check_shape
-from optics.progress import progress_bar
 
 from ..losses import edge_aware_smoothness, photometric_loss
 from .confidence import band_energy, texture_weight
@@ -266,51 +264,3 @@ def blur_loss(net: BlurNet, image: Tensor, focused: Tensor, supervision: str = "
     target = kornia.filters.gaussian_blur2d(target, (size, size), (sigma, sigma),
                                             border_type="replicate")
     return photometric_loss(rendered, target) + smoothness * edge_aware_smoothness(blur + 0.5, image)
-
-
-def per_shot(samples: list[Mapping[str, Any]], key: str) -> Tensor:
-    """`sample[key]` `(3,H,W)` once per shot of each sample, stacked: `(sum F, 3, H, W)`."""
-    return torch.cat([p[key][None].expand(len(p["focused"]), -1, -1, -1) for p in samples])
-
-
-def train_blur_net(
-    net: BlurNet, samples: Iterable[Mapping[str, Any]], steps: int, batch_size: int = 8,
-    lr: float = 1e-3, supervision: str = "self", progress: bool = True,
-    log: list[dict[str, float]] | None = None,
-) -> BlurNet:
-    """Train `net` on samples with `image`, `focused` `(F,3,H,W)` and, for `"depth"`
-    supervision, `coc_px` `(F,1,H,W)`; every shot is one training pair. Samples that also hold
-    `clean_image` and `clean_focused` give the self-supervised loss its clean targets (see
-    `blur_loss`). Adam, cosine schedule, gradient clipping; stops with an error at the first
-    non-finite loss."""
-    optimizer = torch.optim.Adam(net.parameters(), lr=lr)
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, steps) / steps)))
-    stream = iter(samples)
-    net.train()
-    bar = progress_bar(range(int(steps)), desc=f"blur net ({supervision})", disable=not progress)
-    for step in bar:
-        pairs = [next(stream) for _ in range(batch_size)]
-        image = per_shot(pairs, "image")
-        focused = torch.cat([p["focused"] for p in pairs])
-        target = torch.cat([p["coc_px"] for p in pairs]) if supervision == "depth" else None
-        clean = None
-        if all("clean_image" in p for p in pairs):
-            clean = (per_shot(pairs, "clean_image"),
-                     torch.cat([p["clean_focused"] for p in pairs]))
-        loss = blur_loss(net, image, focused, supervision, target, clean=clean)
-        if not torch.isfinite(loss):
-            raise FloatingPointError(f"non-finite blur-net loss at step {step}")
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        optimizer.step()
-        schedule.step()
-        if log is not None:
-            log.append({"step": step + 1, "loss": float(loss.detach()),
-                        "lr": schedule.get_last_lr()[0]})
-        bar.set_postfix(loss=f"{float(loss.detach()):.4f}", refresh=False)
-    net.eval()
-    return net
-
-

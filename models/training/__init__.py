@@ -1,5 +1,5 @@
 """Training: a trainer with exact resume, CSV logs, figures and DDP, run by a `TrainConfig`
-(`models.train_config`, also importable from here).
+(`models.training.config`, also importable from here).
 
 `Trainer` takes any map-style `torch.utils.data.Dataset` (or any iterable) of samples in the
 sample format (see the datasets tutorial). With `supervision="self"` (default) the loss never
@@ -46,28 +46,21 @@ each own their state: a `RunFolder` (`models.training.run_folder`: one run per f
 `Checkpointer` (`models.training.checkpointing`: when checkpoints are written, exact resume
 after a failure), a `SignalGuard` (`models.training.interruption`: SIGINT and SIGTERM) and a
 `SampleChecker` (`models.training.sample_checks`); `models.training.state` holds the rank, the
-schedule, the random states and `to_device`. Outside the package: `models.train_config`,
-`models.sampling` (the batches of each step, flips), `models.checkpoints` (checkpoint files that
-open without running code, `CheckpointStore`), `models.loading` (a checkpoint's config and
-network), `models.run_log` (CSV logs) and `models.plotting` (figures). Checkpoints hold only
+schedule, the random states and `to_device`; `models.training.config` the `TrainConfig`,
+`models.training.sampling` the batches of each step (and flips), `models.training.run_log` the
+CSV logs. Outside the package: `models.checkpoints` (checkpoint files that open without running
+code, `CheckpointStore`), `models.loading` (a checkpoint's config and network),
+`models.devices` (device names) and `models.plotting` (figures). Checkpoints hold only
 tensors and plain data and are read with `torch.load(..., weights_only=True)`: a file holding
 anything else is refused with `CheckpointError` (see `docs/security.md`).
 """
 
 
 from ..checkpoints import CheckpointError
-from ..loading import load_model, read_checkpoint
 from ..metrics import METRIC_NAMES
-from ..train_config import (
-    RESUME_MODES,
-    RUN_CONTROL_KEYS,
-    SUPERVISIONS,
-    TrainConfig,
-    check_device,
-    select_device,
-)
 from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
+from .config import RESUME_MODES, RUN_CONTROL_KEYS, SUPERVISIONS, TrainConfig
 from .interruption import SignalGuard, TrainingInterrupted
 from .run_folder import RunFolder, RunToContinue, run_files
 from .run_warnings import COLLAPSE_FRACTION, LIMIT_TOLERANCE, DepthCollapseWarning, RunWarnings
@@ -80,6 +73,5 @@ __all__ = ["COLLAPSE_FRACTION", "LIMIT_TOLERANCE", "METRIC_NAMES", "RESUME_MODES
            "RUN_CONTROL_KEYS", "SUPERVISIONS", "BatchStream", "CheckpointError", "Checkpointer",
            "DataWaitWarning", "DepthCollapseWarning", "RunFolder", "RunToContinue",
            "RunWarnings", "SampleChecker", "SignalGuard", "StepTimer", "auto_workers",
-           "TrainConfig", "Trainer", "TrainingInterrupted", "build_scheduler", "check_device",
-           "load_model", "process_rank", "read_checkpoint", "rng_state", "run_files",
-           "select_device", "set_rng_state", "to_device"]
+           "TrainConfig", "Trainer", "TrainingInterrupted", "build_scheduler", "process_rank",
+           "rng_state", "run_files", "set_rng_state", "to_device"]

@@ -10,7 +10,7 @@ step finds its batch there. All give the same batches: `models.sampling.StepSamp
 step's samples a function of the step alone.
 
 Example:
-    >>> from models.sampling import StepSampler
+    >>> from models.training.sampling import StepSampler
     >>> samples = [{"image": torch.full((3, 2, 2), float(i))} for i in range(4)]
     >>> with BatchStream(StepSampler(samples, 2, seed=0), 0, 2, torch.device("cpu")) as stream:
     ...     [tuple(batch["image"].shape) for batch, waited in stream]
@@ -36,7 +36,7 @@ from torch.utils.data import DataLoader, Dataset
 from optics import CameraSettings, collate
 from optics.checks import values_checked
 
-from ..sampling import StepSampler
+from .sampling import StepSampler
 from .state import to_device
 
 #: batches each worker prepares ahead of the step that needs them

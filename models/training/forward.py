@@ -13,7 +13,7 @@ from torch import Tensor, nn
 from torch.profiler import record_function
 
 from ..losses import DefocusLoss, supervised_depth_loss
-from ..train_config import TrainConfig
+from .config import TrainConfig
 
 _log = logging.getLogger("models.training")
 
@@ -67,10 +67,7 @@ class NetworkAndLoss:
         image = batch["image"]
         with record_function("network"), torch.autocast(
                 self.device.type, torch.bfloat16, enabled=self.config.precision == "bfloat16"):
-            if self.config.input_mode == "aif":
-                depth = self.network(image)
-            else:
-                depth = self.network(image, batch["focused"], batch["camera"])
+            depth = self.network(image, batch.get("focused"), batch.get("camera"))
         depth = depth.float()  # the renderer and the loss in float32
         if self.config.supervision == "self":
             with record_function("loss"):

@@ -19,9 +19,8 @@ from ..checkpoints import (
     load_checkpoint,
     to_plain,
 )
-from ..loading import config_from_state
-from ..run_log import RunLog
-from ..train_config import RUN_CONTROL_KEYS, TrainConfig
+from .config import RUN_CONTROL_KEYS, TrainConfig
+from .run_log import RunLog
 
 _log = logging.getLogger("models.training")
 
@@ -130,38 +129,38 @@ class RunFolder:
         """
         cfg = self.config
         files = run_files(cfg.out_dir)
-        if cfg.resume == "overwrite":
-            self._check_is_a_run(files)
-            self.removals = files
-            return None
-        self._check_last()
-        if not files:
-            if cfg.resume == "resume":
-                raise ValueError(f"resume='resume' (--resume) but out_dir {cfg.out_dir} holds no "
-                                 "run to continue; check the folder, or start a new run without "
-                                 "--resume")
+        overwrite = cfg.resume == "overwrite"
+        if not overwrite:
+            self._check_last()
+        names = sorted(str(path.relative_to(cfg.out_dir)) for path in files)
+        for refused, message in (
+                (overwrite and not self._is_a_run(files), f"out_dir {cfg.out_dir} holds {names}, "
+                 "named like a run's files, but no training run (no checkpoint, no config.yaml "
+                 "of a run): resume='overwrite' (--overwrite) deletes only a run's files; move "
+                 "them away or choose another out_dir"),
+                (cfg.resume == "resume" and not files, f"resume='resume' (--resume) but out_dir "
+                 f"{cfg.out_dir} holds no run to continue; check the folder, or start a new run "
+                 "without --resume")):
+            if refused:
+                raise ValueError(message)
+        if overwrite or not files:
+            self.removals = files if overwrite else []
             return None
         source, state, saved = self._saved_run(files, device)
         self._check_same_run(saved, int(state["step"]) if state is not None else 0)
         return RunToContinue(source, state)
 
-    def _check_is_a_run(self, files: list[Path]) -> None:
-        """Refuse to delete `files` (named like a run's) from a folder that holds no run: no
-        checkpoint and no `config.yaml` that reads as a `TrainConfig` (`--out . --overwrite`
+    def _is_a_run(self, files: list[Path]) -> bool:
+        """Whether `files` (named like a run's) may be deleted: none, or the folder holds a run
+        (a checkpoint or a `config.yaml` that reads as a `TrainConfig`; `--out . --overwrite`
         in a project folder would delete its own config.yaml)."""
-        out_dir = self.config.out_dir
         if not files or self.checkpoints.exists() or self.checkpoints.list():
-            return
+            return True
         try:
-            TrainConfig.from_yaml(out_dir / "config.yaml")
-            return
+            TrainConfig.from_yaml(self.config.out_dir / "config.yaml")
+            return True
         except (OSError, ValueError, TypeError):
-            pass
-        names = sorted(str(path.relative_to(out_dir)) for path in files)
-        raise ValueError(f"out_dir {out_dir} holds {names}, named like a run's files, but no "
-                         "training run (no checkpoint, no config.yaml of a run): "
-                         "resume='overwrite' (--overwrite) deletes only a run's files; move "
-                         "them away or choose another out_dir")
+            return False
 
     def _check_last(self) -> None:
         """Refuse a `checkpoints/last.pt` that is there but is no file (a folder, a broken
@@ -191,35 +190,34 @@ class RunFolder:
                                       "(resume='overwrite') or choose another out_dir") from None
             if source != self.checkpoints.last:
                 _log.warning("%s is missing: continuing from %s", self.checkpoints.last, source)
+            from ..loading import config_from_state  # loading reads configs of this package
+
             return source, state, config_from_state(state, source, device="auto", resume="auto")
-        if (cfg.out_dir / "config.yaml").is_file():
-            source = cfg.out_dir / "config.yaml"
+        source = cfg.out_dir / "config.yaml"
+        names = ", ".join(str(p.relative_to(cfg.out_dir)) for p in files[:3])
+        problem = f"out_dir {cfg.out_dir} holds files of a training run ({names}) without its " \
+            "config.yaml or checkpoints/last.pt"
+        if source.is_file():
             try:
                 return source, None, TrainConfig.from_yaml(source)
             except (TypeError, ValueError) as error:
-                raise ValueError(f"{source} of the run in out_dir holds an invalid config "
-                                 f"({error}); start over with --overwrite (resume='overwrite') "
-                                 "or choose another out_dir") from None
-        names = ", ".join(str(p.relative_to(cfg.out_dir)) for p in files[:3])
-        raise ValueError(f"out_dir {cfg.out_dir} holds files of a training run ({names}) "
-                         "without its config.yaml or checkpoints/last.pt; start over with "
-                         "--overwrite (resume='overwrite') or choose another out_dir")
+                problem = f"{source} of the run in out_dir holds an invalid config ({error})"
+        raise ValueError(f"{problem}; start over with --overwrite (resume='overwrite') or choose "
+                         "another out_dir") from None
 
     def _check_same_run(self, saved: TrainConfig, step: int) -> None:
         """Refuse to continue a run (at `step`) whose config `saved` differs from this one."""
         cfg = self.config
         diff = config_diff(saved, cfg)
-        if cfg.resume == "resume":
-            if "steps" in diff and cfg.steps >= saved.steps:
-                del diff["steps"]
-            if diff:
-                raise ValueError(
-                    f"cannot resume the run in {cfg.out_dir} (step {step}): its config differs "
-                    f"in {describe_diff(diff)}; only a larger steps may differ when resuming "
-                    "(besides device, progress and the checkpoint settings); start over with "
-                    "--overwrite (resume='overwrite') or choose another out_dir")
-        elif diff:
+        resume = cfg.resume == "resume"
+        if resume and "steps" in diff and cfg.steps >= saved.steps:
+            del diff["steps"]
+        if diff:
             raise ValueError(
+                f"cannot resume the run in {cfg.out_dir} (step {step}): its config differs in "
+                f"{describe_diff(diff)}; only a larger steps may differ when resuming (besides "
+                "device, progress and the checkpoint settings); start over with --overwrite "
+                "(resume='overwrite') or choose another out_dir" if resume else
                 f"out_dir {cfg.out_dir} holds another run (step {step}) whose config differs in "
                 f"{describe_diff(diff)}; continue it with --resume (resume='resume'; only a larger "
                 "steps may differ), start over with --overwrite (resume='overwrite'), or choose "

@@ -4,13 +4,17 @@ and the samples a trained network is evaluated on as they pass."""
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import torch
 from torch import Tensor
 
-from ..sampling import StepSampler
-from ..train_config import TrainConfig
+from .config import TrainConfig
+from .sampling import StepSampler
+
+#: the refusal of a training set without samples
+EMPTY = "train_set holds no samples; give at least one sample"
 
 
 class SampleChecker:
@@ -35,29 +39,35 @@ class SampleChecker:
             keys.append("depth")
         return keys
 
-    def check_first_sample(self) -> None:
-        """Refuse a map-style train_set whose first sample does not fit the config."""
-        train_set = self.sampler.dataset
+    def fit_first_sample(self) -> TrainConfig:
+        """The config with `n_focus` taken from the first sample when it is 0, after refusing
+        a map-style train_set whose first sample does not fit the config (also `config`)."""
+        train_set, cfg = self.sampler.dataset, self.config
         if not self.sampler.is_map_style() or len(train_set) == 0:
-            return
-        with torch.random.fork_rng(devices=[]):  # the check leaves the run's randomness alone
+            if cfg.n_focus == 0 and "focused" in self.needs() and self.sampler.is_map_style():
+                raise ValueError(EMPTY)
+            return cfg  # an empty train_set is refused by `fit`
+        with torch.random.fork_rng(devices=[]):  # the read leaves the run's randomness alone
             sample = train_set[0]
         name = repr(sample.get("id", "#0")) if isinstance(sample, Mapping) else "#0"
-        if not isinstance(sample, Mapping):
-            raise TypeError(f"train_set[0] must be a sample mapping (image, focused, camera, "
-                            f"depth, mask), got a {type(sample).__name__}")
-        missing = [key for key in self.needs() if key not in sample]
-        if missing:
-            raise ValueError(f"sample {name} has no {missing}, which input_mode="
-                             f"{self.config.input_mode!r} with supervision="
-                             f"{self.config.supervision!r} needs; it has {sorted(sample)}")
-        focused = sample.get("focused")
-        if "focused" in self.needs() and isinstance(focused, Tensor):
-            n = focused.shape[0] if focused.ndim == 4 else -1
-            if n != self.config.n_focus:
-                raise ValueError(f"n_focus is {self.config.n_focus} but sample {name} holds "
-                                 f"focused images of shape {tuple(focused.shape)} (F, 3, H, W); "
-                                 f"set n_focus to its number of focused images")
+        missing = [key for key in self.needs() if key not in sample] \
+            if isinstance(sample, Mapping) else None
+        focused = sample.get("focused") if missing == [] else None
+        n = (focused.shape[0] if focused.ndim == 4 else -1) \
+            if "focused" in self.needs() and isinstance(focused, Tensor) else cfg.n_focus
+        self.config = cfg = replace(cfg, n_focus=n) if cfg.n_focus == 0 and n > 0 else cfg
+        for refused, message in (
+            (missing is None, f"train_set[0] must be a sample mapping (image, focused, camera, "
+             f"depth, mask), got a {type(sample).__name__}"),
+            (bool(missing), f"sample {name} has no {missing}, which input_mode="
+             f"{cfg.input_mode!r} with supervision={cfg.supervision!r} needs; it has "
+             f"{sorted(sample) if isinstance(sample, Mapping) else ''}"),
+            (n != cfg.n_focus, f"n_focus is {cfg.n_focus} but sample {name} holds focused images "
+             f"of shape {tuple(getattr(focused, 'shape', ()))} (F, 3, H, W); set n_focus to its "
+             "number of focused images")):
+            if refused:
+                raise (TypeError if missing is None else ValueError)(message)
+        return cfg
 
     def check_depth(self, batch: Mapping[str, Any], step: int) -> None:
         """Refuse ground-truth depth that is not finite and > 0 where the mask says valid, in
@@ -111,17 +121,17 @@ class TestSampleChecker:
         needs = ["image", "depth"] + (["focused", "camera"] if cfg.input_mode == "aif+focused"
                                       else [])
         missing = [key for key in needs if sample.get(key) is None]
-        if missing:
-            raise ValueError(f"test sample {name} has no {missing}, which {self.name} "
-                             f"(input_mode={cfg.input_mode!r}) needs; it has {sorted(sample)}")
         focused = sample.get("focused")
-        if cfg.input_mode == "aif+focused" and isinstance(focused, Tensor):
-            n = focused.shape[0] if focused.ndim == 4 else -1
-            if n != cfg.n_focus:
-                raise ValueError(f"{self.name} was trained on n_focus={cfg.n_focus} "
-                                 f"focused photos, but test sample {name} holds focused images "
-                                 f"of shape {tuple(focused.shape)} (F, 3, H, W); evaluate it on "
-                                 f"data with {cfg.n_focus} focused photos per scene")
+        n = cfg.n_focus if not isinstance(focused, Tensor) or cfg.input_mode != "aif+focused" \
+            else focused.shape[0] if focused.ndim == 4 else -1
+        refusal = (f"test sample {name} has no {missing}, which {self.name} (input_mode="
+                   f"{cfg.input_mode!r}) needs; it has {sorted(sample)}" if missing else
+                   f"{self.name} was trained on n_focus={cfg.n_focus} focused photos, but test "
+                   f"sample {name} holds focused images of shape {tuple(focused.shape)} (F, 3, "
+                   f"H, W); evaluate it on data with {cfg.n_focus} focused photos per scene"
+                   if n != cfg.n_focus else None)
+        if refusal is not None:
+            raise ValueError(refusal)
         self._count_range(sample)
         return sample
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import time
 from collections.abc import Mapping
 from typing import Any
 
@@ -15,7 +16,7 @@ from torch import Tensor
 
 from optics import CameraSettings
 
-from ..train_config import TrainConfig
+from .config import TrainConfig
 
 
 def process_rank() -> tuple[int, int]:
@@ -29,13 +30,47 @@ def process_rank() -> tuple[int, int]:
     return 0, 1
 
 
-def build_scheduler(optimizer: torch.optim.Optimizer,
-                    cfg: TrainConfig) -> torch.optim.lr_scheduler.LRScheduler:
-    """Cosine decay to 0 over `cfg.steps`, or a constant learning rate."""
-    if cfg.lr_schedule == "cosine":
-        return torch.optim.lr_scheduler.LambdaLR(
-            optimizer, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, cfg.steps) / cfg.steps)))
-    return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: 1.0)
+class Progress:
+    """A run's progress in [0, 1], which the learning-rate schedule follows:
+    `max(step / steps, elapsed / budget)`, the elapsed time counted from `start` (one `fit`)
+    against the time budget `minutes` (0: none, the steps alone). A budgeted run with a huge
+    `steps` thus decays its learning rate over the budget; `time_spent` says whether the
+    last reading found the budget spent (where `fit` stops).
+
+    Example:
+        >>> progress = Progress(steps=10)
+        >>> progress(5), progress(20), progress.time_spent
+        (0.5, 1.0, False)
+    """
+
+    def __init__(self, steps: int, minutes: float = 0.0) -> None:
+        self.steps, self.budget_s = steps, minutes * 60.0
+        self.started: float | None = None
+        self.time_share = 0.0
+
+    def start(self) -> None:
+        """Start the clock of the time budget (each `fit`)."""
+        self.started, self.time_share = time.perf_counter(), 0.0
+
+    def __call__(self, step: int) -> float:
+        if self.budget_s and self.started is not None:
+            self.time_share = (time.perf_counter() - self.started) / self.budget_s
+        return min(1.0, max(step / self.steps, self.time_share))
+
+    @property
+    def time_spent(self) -> bool:
+        return self.time_share >= 1.0
+
+
+def build_scheduler(optimizer: torch.optim.Optimizer, cfg: TrainConfig,
+                    progress: Progress | None = None) -> torch.optim.lr_scheduler.LRScheduler:
+    """Cosine decay to 0 over the run's `progress` (default: over `cfg.steps`), or a constant
+    learning rate."""
+    progress = progress or Progress(cfg.steps)
+    curve = {"cosine": lambda p: 0.5 * (1 + math.cos(math.pi * p)),
+             "constant": lambda p: 1.0}[cfg.lr_schedule]
+    # the progress is read at every update, whatever the curve: `fit` stops on that reading
+    return torch.optim.lr_scheduler.LambdaLR(optimizer, lambda s: curve(progress(s)))
 
 
 def rng_state() -> dict[str, Any]:

@@ -27,27 +27,27 @@ from ..checkpoints import (
     to_plain,
 )
 from ..depth_from_photos.tiling import run_network
+from ..devices import select_device
 from ..evaluation import evaluate_network
-from ..loading import read_checkpoint
 from ..losses import DefocusLoss
 from ..networks import build_network
 from ..plotting import plot_prediction
-from ..run_log import RunLog
-from ..sampling import StepSampler, random_flip
-from ..train_config import TrainConfig, select_device
 from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
+from .config import TrainConfig
 from .forward import NetworkAndLoss
 from .interruption import SignalGuard, TrainingInterrupted
 from .run_folder import RunFolder
+from .run_log import RunLog
 from .run_warnings import (
     LIMIT_TOLERANCE,
     DepthCollapseWarning,
     RunWarnings,
     collapse_message,
 )
-from .sample_checks import SampleChecker, TestSampleChecker
-from .state import build_scheduler, process_rank, rng_state, set_rng_state, to_device
+from .sample_checks import EMPTY, SampleChecker, TestSampleChecker
+from .sampling import StepSampler, random_flip
+from .state import Progress, build_scheduler, process_rank, rng_state, set_rng_state, to_device
 from .step_timing import DataWaitWarning, StepTimer
 
 _log = logging.getLogger("models.training")
@@ -58,13 +58,13 @@ class Trainer:
 
     The loop lives here and owns the model, optimiser, schedule, `step`, `history` and
     `warnings`; the rest is composed: the batches of each step come from a
-    `models.sampling.StepSampler` (`sampler`), the run's folder is a
+    `models.training.sampling.StepSampler` (`sampler`), the run's folder is a
     `models.training.run_folder.RunFolder` (`run_folder`), checkpoints are written by a
     `models.training.checkpointing.Checkpointer` (`checkpointer`) into a
     `models.checkpoints.CheckpointStore` (`checkpoints`), signals are caught by a
     `models.training.interruption.SignalGuard` (`signals`), samples are checked by a
     `models.training.sample_checks.SampleChecker` (`sample_checks`), CSV logs go to a
-    `models.run_log.RunLog` (`log`) and figures through `models.plotting.plot_prediction`.
+    `models.training.run_log.RunLog` (`log`) and figures through `models.plotting.plot_prediction`.
 
     One run per `out_dir`: what happens when the folder already holds a run follows
     `config.resume` ("auto": continue the same run, refuse another; "resume": continue, also
@@ -106,12 +106,16 @@ class Trainer:
     def __init__(self, config: TrainConfig, train_set: Iterable[Mapping[str, Any]],
                  val_set: Iterable[Mapping[str, Any]] | None = None,
                  step_callback: Callable[[Trainer, int, dict[str, float]], None] | None = None):
-        self.config = cfg = config
-        to_plain(cfg.to_dict(), "config")  # a config that a checkpoint cannot hold fails now
+        to_plain(config.to_dict(), "config")  # a config that a checkpoint cannot hold fails now
         self.train_set, self.val_set = train_set, val_set
         self.step_callback = step_callback
         self.rank, self.world_size = process_rank()
         self.is_main = self.rank == 0
+        self.sampler = StepSampler(train_set, config.batch_size, config.seed, self.rank,
+                                   self.world_size)
+        self.sample_checks = SampleChecker(config, self.sampler)
+        #: the run's config, its `n_focus` taken from the data when it was 0
+        self.config = cfg = self.sample_checks.fit_first_sample()
         self.device = select_device(cfg.device)
         torch.manual_seed(cfg.seed)
         self.model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min,
@@ -127,28 +131,27 @@ class Trainer:
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
-        self.scheduler = build_scheduler(self.optimizer, cfg)
+        self.progress = Progress(cfg.steps, cfg.minutes)  # what the learning rate follows
+        self.scheduler = build_scheduler(self.optimizer, cfg, self.progress)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
                                    cfg.ssim_window, parse_aperture(cfg.aperture),
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size
                                    ).to(self.device)  # its aperture too: no CPU tensor in a step
         #: the step's network and loss (one compiled graph when `config.compile`)
         self.forward = NetworkAndLoss(cfg, self.ddp_model, self.loss_fn, self.device)
-        self.sampler = StepSampler(train_set, cfg.batch_size, cfg.seed, self.rank,
-                                   self.world_size)
         self.checkpoints = CheckpointStore(cfg.out_dir / "checkpoints", keep=cfg.keep_checkpoints)
         self.log = RunLog(cfg.out_dir)
         self.checkpointer = Checkpointer(self.checkpoints, self.is_main)
         self.run_folder = RunFolder(cfg, self.checkpoints, self.log)
         self.signals = SignalGuard(self.world_size, self.device)
-        self.sample_checks = SampleChecker(cfg, self.sampler)
         self.step = 0
         self.history: list[dict[str, float]] = []
         self.run_warnings = RunWarnings(cfg.out_dir, self.is_main)
         #: the checkpoint (or config.yaml) of the run this trainer continues, if any
         self.resumed_from: Path | None = None
         self.last_validation: dict[str, float] | None = None
-        self.sample_checks.check_first_sample()
+        #: whether the last `fit` stopped before its last step because `config.minutes` was spent
+        self.out_of_time = False
         self._open_run()
 
     @property
@@ -238,8 +241,10 @@ class Trainer:
 
     # -- loop ------------------------------------------------------------------------------
     def fit(self, until: int | None = None) -> list[dict[str, float]]:
-        """Train from the current step to `until` (default `config.steps`); returns the
-        history of logged losses (one dict per step of this run and of resumed runs).
+        """Train from the current step to `until` (default `config.steps`), or until the time
+        budget `config.minutes` is spent (then `out_of_time` is set; the checkpoint, figure and
+        validation follow as at the end); returns the history of logged losses (one dict per
+        step of this run and of resumed runs).
 
         Raises:
             ValueError: `train_set` holds no samples, or a sample has ground-truth depth that
@@ -251,7 +256,7 @@ class Trainer:
 
         cfg = self.config
         if self.sampler.is_map_style() and len(self.train_set) == 0:
-            raise ValueError("train_set holds no samples; give at least one sample")
+            raise ValueError(EMPTY)
         until = cfg.steps if until is None else min(int(until), cfg.steps)
         self.run_warnings = RunWarnings(cfg.out_dir, self.is_main)
         if self.is_main:
@@ -259,6 +264,8 @@ class Trainer:
         bar = progress_bar(total=until, initial=self.step, desc="train", unit="step",
                            disable=not (cfg.progress and self.is_main))
         started = time.perf_counter()
+        self.progress.start()
+        self.out_of_time = False
         self.checkpointer.restart_clock()
         self.step_timer = StepTimer()
         check = self.sample_checks.check_depth if cfg.supervision == "depth" else None
@@ -276,9 +283,10 @@ class Trainer:
                         self.step_callback(self, self.step, losses)
                     self._periodic_tasks()
                     self._stop_if_asked()
-            # a signal caught after the last step's check (the loop had ended) still stops the
-            # run: it is not swallowed
-            self._stop_if_asked()
+                    if self.progress.time_spent:  # read at this step's update
+                        self.out_of_time = self.step < until
+                        break
+            self._stop_if_asked()  # a signal after the last step's check: not swallowed
         except TrainingInterrupted:
             raise
         except BaseException:
@@ -458,6 +466,8 @@ class Trainer:
             CheckpointError: the file is not a checkpoint or holds more than tensors and plain
                 data (refused without running anything).
         """
+        from ..loading import read_checkpoint  # loading reads configs of this package
+
         state, cfg = read_checkpoint(path, resume="overwrite", progress=False, device=device)
         trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
         trainer.load_state_dict(state, path)

@@ -1,25 +1,23 @@
 """The configuration of a training run: `TrainConfig` (every field checked when it is built,
-YAML in and out, `key=value` overrides) and the devices a run may name (`check_device`,
-`select_device`). `models.training.Trainer` runs it.
+YAML in and out, `key=value` overrides). `models.training.Trainer` runs it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
-import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import torch
 import yaml
 
 from optics import DEFAULT_APERTURE, aperture_spec
 from optics.render import MODES as RENDER_MODES
 
-from .networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS, SIDES
+from ..devices import check_device
+from ..networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS, SIDES
 
 #: values of `TrainConfig.supervision`: through the renderer (no depth labels) or on depth
 SUPERVISIONS = ("self", "depth")
@@ -29,7 +27,7 @@ RESUME_MODES = ("auto", "resume", "overwrite")
 #: numbers: where it runs, what it shows and how often it saves)
 RUN_CONTROL_KEYS = ("out_dir", "resume", "device", "progress", "checkpoint_every",
                     "checkpoint_minutes", "keep_checkpoints", "workers", "compile",
-                    "compile_mode")
+                    "compile_mode", "minutes")
 #: values of `TrainConfig.precision`
 PRECISIONS = ("float32", "bfloat16")
 #: values of `TrainConfig.compile_mode` (`torch.compile`'s modes)
@@ -38,12 +36,39 @@ COMPILE_MODES = ("default", "reduce-overhead", "max-autotune", "max-autotune-no-
 MAX_SEED = 2**32 - 1
 
 
+def _finite(low: float, strict: bool = False):
+    """A field rule: a finite number above `low` (or equal unless `strict`)."""
+    return lambda v: math.isfinite(v) and (v > low if strict else v >= low)
+
+
+#: the allowed values of the `TrainConfig` fields that name a choice
+_CHOICES = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
+            "depth_spacing": DEPTH_SPACINGS, "side": SIDES, "supervision": SUPERVISIONS,
+            "lr_schedule": ("cosine", "constant"), "render_mode": RENDER_MODES,
+            "resume": RESUME_MODES, "precision": PRECISIONS, "compile_mode": COMPILE_MODES}
+#: (fields, rule, what the rule asks) of the numeric `TrainConfig` fields
+_RULES = (
+    (("steps", "batch_size", "width", "log_every"), lambda v: v >= 1, "an integer >= 1"),
+    (("n_focus", "checkpoint_every", "keep_checkpoints", "val_every", "figure_every"),
+     lambda v: v >= 0, "an integer >= 0"),
+    (("workers",), lambda v: v >= -1, "an integer >= -1"),
+    (("seed",), lambda v: 0 <= v <= MAX_SEED, f"an integer in [0, {MAX_SEED}] (2**32 - 1)"),
+    (("ssim_window", "max_kernel_size"), lambda v: v >= 1 and v % 2 == 1,
+     "a positive odd number of pixels"),
+    (("lr", "depth_min", "depth_max"), _finite(0, strict=True), "a finite number > 0"),
+    (("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
+      "checkpoint_minutes", "minutes"), _finite(0), "a finite number >= 0 (0: off)"),
+    (("ssim_weight",), lambda v: 0 <= v <= 1, "in [0, 1]"),
+    (("focus_distance",), _finite(0), "a finite number of metres >= 0 (0: none)"),
+)
+
+
 @dataclass
 class TrainConfig:
     """Everything a training run depends on (lengths in metres).
 
-    Load from YAML with `from_yaml`, change fields with `override`
-    (`["steps=100", "lr=3e-4"]`), save with `to_yaml`.
+    Build from a YAML file and `key=value` overrides with `load` (also `from_yaml`,
+    `override`: `["steps=100", "lr=3e-4"]`), save with `to_yaml`.
 
     Example:
         >>> cfg = TrainConfig(steps=10).override(["lr=3e-4", "input_mode=aif"])
@@ -79,8 +104,8 @@ class TrainConfig:
     side: str = "both"
     #: focus distance, metres, of the side prior (0: none; needed unless side is "both")
     focus_distance: float = 0.0
-    #: focused images per sample
-    n_focus: int = 2
+    #: focused images per sample (0: as many as the first training sample holds)
+    n_focus: int = 0
     #: first-scale channels of the small network
     width: int = 32
     #: AdamW weight decay
@@ -141,6 +166,9 @@ class TrainConfig:
     #: `torch.compile`'s mode when `compile`: "default", "reduce-overhead" (CUDA graphs as
     #: well: on a GPU the host launches a step's kernels in one call), "max-autotune", ...
     compile_mode: str = "default"
+    #: time budget of one `fit`, minutes (0: none): training stops after the step that spends
+    #: it and saves a checkpoint, as at the end
+    minutes: float = 0.0
     #: tqdm progress bar
     progress: bool = True
     #: extra keys for your own code (kept in config.yaml)
@@ -152,57 +180,30 @@ class TrainConfig:
             self.resume = "auto" if self.resume else "overwrite"
         for item in dataclasses.fields(self):
             _check_type(item.name, getattr(self, item.name), item.type)
-        for name in ("lr", "depth_min", "depth_max", "weight_decay", "grad_clip", "ssim_weight",
-                     "sharpness_weight", "smoothness_weight", "checkpoint_minutes"):
-            setattr(self, name, float(getattr(self, name)))
-        choices = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
-                   "depth_spacing": DEPTH_SPACINGS, "side": SIDES,
-                   "supervision": SUPERVISIONS, "lr_schedule": ("cosine", "constant"),
-                   "render_mode": RENDER_MODES, "resume": RESUME_MODES,
-                   "precision": PRECISIONS, "compile_mode": COMPILE_MODES}
-        for name, allowed in choices.items():
-            if getattr(self, name) not in allowed:
-                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+            if item.type == "float":
+                setattr(self, item.name, float(getattr(self, item.name)))
+        refused = [(name, f"one of {allowed}") for name, allowed in _CHOICES.items()
+                   if getattr(self, name) not in allowed]
+        refused += [(name, phrase) for names, rule, phrase in _RULES for name in names
+                    if not rule(getattr(self, name))]
+        if refused:
+            name, phrase = refused[0]
+            raise ValueError(f"{name} must be {phrase}, got {getattr(self, name)!r}")
         try:
             self.aperture = aperture_spec(self.aperture)
         except (TypeError, ValueError) as error:
             raise ValueError(f"aperture {self.aperture!r} is not a PSF spec: {error}") from None
-        for name, low in (("steps", 1), ("batch_size", 1), ("n_focus", 1), ("width", 1),
-                          ("log_every", 1), ("seed", 0), ("checkpoint_every", 0),
-                          ("keep_checkpoints", 0), ("val_every", 0), ("figure_every", 0),
-                          ("workers", -1)):
-            if getattr(self, name) < low:
-                raise ValueError(f"{name} must be an integer >= {low}, got {getattr(self, name)!r}")
-        if self.seed > MAX_SEED:
-            raise ValueError(f"seed must be an integer in [0, {MAX_SEED}] (2**32 - 1), got "
-                             f"{self.seed!r}")
-        for name in ("ssim_window", "max_kernel_size"):
-            value = getattr(self, name)
-            if value < 1 or value % 2 == 0:
-                raise ValueError(f"{name} must be a positive odd number of pixels, got {value!r}")
-        for name in ("lr", "depth_min", "depth_max"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {getattr(self, name)!r}")
-        if not self.depth_min < self.depth_max:
-            raise ValueError(f"need 0 < depth_min < depth_max metres, got {self.depth_min!r} "
-                             f"and {self.depth_max!r}")
-        for name in ("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
-                     "checkpoint_minutes"):
-            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0 (0: off), got "
-                                 f"{getattr(self, name)!r}")
-        if not 0 <= self.ssim_weight <= 1:
-            raise ValueError(f"ssim_weight must be in [0, 1], got {self.ssim_weight!r}")
-        self.focus_distance = float(self.focus_distance)
-        if not (math.isfinite(self.focus_distance) and self.focus_distance >= 0):
-            raise ValueError(f"focus_distance must be a finite number of metres >= 0 (0: none), "
-                             f"got {self.focus_distance!r}")
-        if self.side != "both" and not self.depth_min < self.focus_distance < self.depth_max:
-            raise ValueError(f"side {self.side!r} needs a focus_distance between depth_min and "
-                             f"depth_max, got {self.focus_distance!r}")
-        if self.compile_mode != "default" and not self.compile:
-            raise ValueError(f"compile_mode={self.compile_mode!r} needs compile=true (without it "
-                             "nothing is compiled)")
+        for refused, message in (
+            (not self.depth_min < self.depth_max, "need 0 < depth_min < depth_max metres, got "
+             f"{self.depth_min!r} and {self.depth_max!r}"),
+            (self.side != "both" and not self.depth_min < self.focus_distance < self.depth_max,
+             f"side {self.side!r} needs a focus_distance between depth_min and depth_max, got "
+             f"{self.focus_distance!r}"),
+            (self.compile_mode != "default" and not self.compile,
+             f"compile_mode={self.compile_mode!r} needs compile=true (without it nothing is "
+             "compiled)")):
+            if refused:
+                raise ValueError(message)
         check_device(self.device)
 
     def to_dict(self) -> dict[str, Any]:
@@ -222,43 +223,72 @@ class TrainConfig:
         return cls(**{k: _coerce(cls, k, v) for k, v in data.items()})
 
     @classmethod
-    def from_yaml(cls, path: str | Path) -> TrainConfig:
-        """Load a config from a YAML mapping of field names to values.
+    def load(cls, path: str | Path | None = None, overrides: Sequence[str] = (),
+             **defaults: Any) -> TrainConfig:
+        """The one way a config is built from text: `defaults` (fields a program chooses), the
+        YAML file `path` on top, then the `key=value` `overrides` (values parsed as YAML).
 
         Raises:
             ValueError: the file is not UTF-8 YAML text, is not a mapping, names a key twice
-                (YAML would keep the last silently) or holds an invalid config.
+                (YAML would keep the last silently); an override is not `key=value`, its value
+                is not YAML or a key is given twice (which value was meant is unknown); or the
+                result is an invalid config.
+
+        Example:
+            >>> TrainConfig.load(None, ["lr=3e-4"], steps=10).lr
+            0.0003
         """
-        try:
-            data = parse_yaml(Path(path).read_text(encoding="utf-8"), str(path)) or {}
-        except UnicodeDecodeError as error:
-            raise ValueError(f"config {path} is not UTF-8 YAML text (byte {error.start} cannot "
-                             "be read); give a YAML file of config keys") from None
-        if not isinstance(data, Mapping):
-            raise ValueError(f"{path} must hold a YAML mapping of config keys, got "
-                             f"{type(data).__name__}")
-        return cls.from_dict(data)
+        return cls.from_dict({**defaults, **(read_yaml_mapping(path) if path else {}),
+                              **parse_overrides(overrides)})
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> TrainConfig:
+        """Load a config from a YAML mapping of field names to values (`load`)."""
+        return cls.load(path)
 
     def override(self, assignments: Sequence[str]) -> TrainConfig:
-        """A copy with `key=value` assignments applied (values parsed as YAML).
+        """A copy with `key=value` assignments applied (`load`)."""
+        return TrainConfig.load(None, assignments, **self.to_dict())
 
-        Raises:
-            ValueError: an assignment is not `key=value`, its value is not YAML, a key is given
-                twice (which value was meant is unknown), or the result is invalid.
-        """
-        data = self.to_dict()
-        seen: dict[str, str] = {}
-        for item in assignments:
-            key, sep, value = item.partition("=")
-            key = key.strip()
-            if not sep:
-                raise ValueError(f"overrides must look like key=value, got {item!r}")
-            if key in seen:
-                raise ValueError(f"config key {key} is set twice in the overrides ({seen[key]!r} "
-                                 f"and {item!r}): give each key once")
-            seen[key] = item
-            data[key] = parse_yaml(value, f"override {item!r}")
-        return TrainConfig.from_dict(data)
+
+def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
+    """The mapping of config keys that the YAML file `path` holds ({} for an empty file).
+
+    Raises:
+        ValueError: the file is not UTF-8 YAML text, not a mapping, or names a key twice.
+    """
+    try:
+        data = parse_yaml(Path(path).read_text(encoding="utf-8"), str(path)) or {}
+        refusal = None if isinstance(data, Mapping) else \
+            f"{path} must hold a YAML mapping of config keys, got {type(data).__name__}"
+    except UnicodeDecodeError as error:
+        refusal = f"config {path} is not UTF-8 YAML text (byte {error.start} cannot be read); " \
+            "give a YAML file of config keys"
+    if refusal is not None:
+        raise ValueError(refusal)
+    return dict(data)
+
+
+def parse_overrides(assignments: Sequence[str]) -> dict[str, Any]:
+    """The values of `key=value` assignments, parsed as YAML.
+
+    Example:
+        >>> parse_overrides(["steps=5", "aperture=disk"])
+        {'steps': 5, 'aperture': 'disk'}
+    """
+    data: dict[str, Any] = {}
+    seen: dict[str, str] = {}
+    for item in assignments:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        refused = (f"overrides must look like key=value, got {item!r}" if not sep else
+                   f"config key {key} is set twice in the overrides ({seen[key]!r} and "
+                   f"{item!r}): give each key once" if key in seen else None)
+        if refused:
+            raise ValueError(refused)
+        seen[key] = item
+        data[key] = parse_yaml(value, f"override {item!r}")
+    return data
 
 
 class _UniqueKeyLoader(yaml.SafeLoader):
@@ -292,13 +322,12 @@ def parse_yaml(text: str, where: str) -> Any:
     """
     try:
         return yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, ValueError) as error:  # a ValueError: a key given twice
         mark = getattr(error, "problem_mark", None)
         line = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(error, "problem", None) or type(error).__name__
-        raise ValueError(f"{where} is not valid YAML{line}: {problem}") from None
-    except ValueError as error:
-        raise ValueError(f"{where}: {error}") from None
+        raise ValueError(f"{where} is not valid YAML{line}: {problem}"
+                         if isinstance(error, yaml.YAMLError) else f"{where}: {error}") from None
 
 
 def _check_type(name: str, value: Any, kind: Any) -> None:
@@ -316,26 +345,20 @@ def _check_type(name: str, value: Any, kind: Any) -> None:
         raise ValueError(f"config key {name} must be of type {kind}, got {value!r}")
 
 
-def check_device(name: str) -> None:
-    """Raise `ValueError` unless `name` is "auto" or a device this machine has."""
-    if name == "auto":
-        return
+def _convert(kind: str, value: Any) -> Any:
+    """`value` as a field of type `kind`, or `_REFUSED`."""
+    if kind in ("int", "float", "bool") and isinstance(value, bool) != (kind == "bool"):
+        return _REFUSED
     try:
-        device = torch.device(name)
-    except (RuntimeError, ValueError):
-        raise ValueError(f"device must be 'auto' or a torch device such as 'cpu' or 'cuda:0', "
-                         f"got {name!r}") from None
-    if device.type == "cuda":
-        count = torch.cuda.device_count() if torch.cuda.is_available() else 0
-        if (device.index or 0) >= count:
-            raise ValueError(f"device {name!r} is not available: this machine has {count} CUDA "
-                             "device(s); use 'auto' or 'cpu'")
-    elif device.type == "mps" and not torch.backends.mps.is_available():
-        raise ValueError(f"device {name!r} is not available here; use 'auto' or 'cpu'")
-    elif device.type == "xpu" and not (hasattr(torch, "xpu") and torch.xpu.is_available()):
-        raise ValueError(f"device {name!r} is not available here; use 'auto' or 'cpu'")
-    elif device.type not in ("cpu", "cuda", "mps", "xpu"):
-        raise ValueError(f"device must be 'auto', 'cpu', 'cuda[:N]' or 'mps', got {name!r}")
+        if kind == "int":
+            return _REFUSED if isinstance(value, float) and not value.is_integer() else int(value)
+        converters = {"float": float, "Path": Path, "str": str}
+        return converters[kind](value) if kind in converters else value
+    except (TypeError, ValueError, OverflowError):
+        return _REFUSED
+
+
+_REFUSED = object()
 
 
 def _coerce(cls: type, name: str, value: Any) -> Any:
@@ -344,33 +367,12 @@ def _coerce(cls: type, name: str, value: Any) -> Any:
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
     if name == "resume" and isinstance(value, bool):
         return value  # true / false: mapped to "auto" / "overwrite"
-    try:
-        if kind in ("int", "float") and isinstance(value, bool):
-            raise ValueError
-        if kind == "int":
-            if isinstance(value, str) and not value.strip().lstrip("+-").isdigit():
-                value = float(value)  # "1e3": YAML reads an exponent without a dot as text
-            if isinstance(value, float) and not value.is_integer():
-                raise ValueError
-            return int(value)
-        if kind == "float":
-            return float(value)
-        if kind == "bool":
-            if not isinstance(value, bool):
-                raise ValueError
-            return value
-        if kind == "Path":
-            return Path(value)
-        if kind == "str":
-            return str(value)
-    except (TypeError, ValueError):
-        raise ValueError(f"config key {name} must be of type {kind}, got {value!r}") from None
-    return value
-
-
-def select_device(name: str) -> torch.device:
-    """`name`, or for `"auto"` this process's GPU when CUDA is available, else the CPU."""
-    if name == "auto":
-        available = torch.cuda.is_available()
-        name = f"cuda:{int(os.environ.get('LOCAL_RANK', 0))}" if available else "cpu"
-    return torch.device(name)
+    if kind == "int" and isinstance(value, str) and not value.strip().lstrip("+-").isdigit():
+        try:
+            value = float(value)  # "1e3": YAML reads an exponent without a dot as text
+        except ValueError:
+            pass
+    converted = _convert(kind, value)
+    if converted is _REFUSED:
+        raise ValueError(f"config key {name} must be of type {kind}, got {value!r}")
+    return converted
