@@ -7,6 +7,9 @@ one line (exit code 2). `CommandError` is a problem with the command's own optio
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 
 class CommandError(Exception):
     """A problem with the user's input that a command reports in one line (exit code 2)."""
@@ -32,3 +35,21 @@ def one_line(error: BaseException) -> str:
         'two lines'
     """
     return " ".join(str(error).split())
+
+
+@contextlib.contextmanager
+def script_errors() -> Iterator[None]:
+    """End a script (`examples/`) with one line for bad input: a `USER_ERRORS` exception
+    raised inside becomes `SystemExit` with its message.
+
+    Example:
+        >>> with script_errors():
+        ...     raise ValueError("--root: no such folder")
+        Traceback (most recent call last):
+        ...
+        SystemExit: --root: no such folder
+    """
+    try:
+        yield
+    except USER_ERRORS as error:
+        raise SystemExit(one_line(error)) from None

@@ -27,8 +27,9 @@ from __future__ import annotations
 import sys
 
 from datasets import DDFF12
-from defocus.app.experiment import run_benchmark_example
+from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
+from defocus.errors import script_errors
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -37,7 +38,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="slice indices to use (default: all 10; DFV uses 0 2 4 6 9)")
     args = parser.parse_args(argv)
     dataset = DDFF12(args.root, args.split, shots=args.shots)
-    run_benchmark_example("DDFF-12", args, dataset, "ddff12", report=print)
+    with script_errors():
+        run_benchmark_example("DDFF-12", ScriptRequest.of(args), dataset, "ddff12", report=print)
     return 0
 
 

@@ -51,7 +51,6 @@ GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention n
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -63,6 +62,7 @@ import torch
 from datasets import DSLR, JointAugment
 from defocus.app.experiment import (
     RECIPE_KEYS,
+    ScriptRequest,
     limit,
     plan_json_option,
     read_recipe,
@@ -71,6 +71,7 @@ from defocus.app.experiment import (
 )
 from defocus.app.outputs import write_json
 from defocus.commands.train import recipe_parser
+from defocus.errors import script_errors
 from optics import DEFAULT_APERTURE
 
 #: The recipe: the protocol's keys (with their defaults) beside `RECIPE_KEYS` and the
@@ -140,7 +141,7 @@ def calibrate(proto: dict[str, Any], out: Path, train: DSLR, progress: bool) -> 
     return path
 
 
-def match_loss_camera(args: argparse.Namespace, proto: dict[str, Any], out: Path, camera: Path,
+def match_loss_camera(args: ScriptRequest, proto: dict[str, Any], out: Path, camera: Path,
                       pair: dict[str, Any], scenes: range) -> Path:
     """The camera JSON whose blur the training loss agrees with: its effective pixel pitch
     divided by the CoC scale at which the loss scores the true depth best on the calibration
@@ -158,7 +159,7 @@ def match_loss_camera(args: argparse.Namespace, proto: dict[str, Any], out: Path
     return path
 
 
-def datasets(args: argparse.Namespace, proto: dict[str, Any], out: Path,
+def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path,
              progress: bool) -> tuple[DSLR, DSLR, DSLR, Path]:
     """The training and scored scenes (relative pairs), the scored scenes with the lens's own
     camera (for `predict`), and the camera JSON (fitted on the training scenes)."""
@@ -226,12 +227,17 @@ def network_rows(config: Any, proto: dict[str, Any], train: DSLR, augmented: Any
 
 
 def main(argv: list[str] | None = None) -> int:
+    with script_errors():
+        return _main(argv)
+
+
+def _main(argv: list[str] | None) -> int:
     from models.metrics import METRIC_NAMES, format_table
     from models.training import TrainConfig
     from models.training.config import read_yaml_mapping
     from optics.progress import progress_bar
 
-    args = recipe_parser(RECIPE).parse_args(argv)
+    args = ScriptRequest.of(recipe_parser(RECIPE).parse_args(argv))
     names = {field.name for field in dataclasses.fields(TrainConfig)}
     keys = {**RECIPE_KEYS, **{key: value for key, value in read_yaml_mapping(RECIPE).items()
                               if key not in names and key not in RECIPE_KEYS}}

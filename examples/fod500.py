@@ -26,13 +26,15 @@ from __future__ import annotations
 import sys
 
 from datasets import FoD500
-from defocus.app.experiment import run_benchmark_example
+from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
+from defocus.errors import script_errors
 
 
 def main(argv: list[str] | None = None) -> int:
     args = benchmark_parser("fod500", "test", __doc__.splitlines()[0]).parse_args(argv)
-    run_benchmark_example("FoD500", args, FoD500(args.root, args.split), "fod500", report=print)
+    with script_errors():
+        run_benchmark_example("FoD500", ScriptRequest.of(args), FoD500(args.root, args.split), "fod500", report=print)
     return 0
 
 

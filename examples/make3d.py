@@ -33,12 +33,11 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from defocus.app.experiment import run_recipe
-from defocus.commands.train import recipe_parser
+from defocus.commands.train import recipe_main
 
 
 def main(argv: list[str] | None = None) -> int:
-    run_recipe(recipe_parser(Path(__file__).with_suffix(".yaml")).parse_args(argv))
+    recipe_main(Path(__file__).with_suffix(".yaml"), argv)
     return 0
 
 

@@ -28,8 +28,9 @@ from __future__ import annotations
 import sys
 
 from datasets import MobileDepth
-from defocus.app.experiment import run_benchmark_example
+from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
+from defocus.errors import script_errors
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,7 +42,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     dataset = MobileDepth(args.root, focus_range=tuple(args.focus_range),
                           n_shots=args.frames or None)
-    run_benchmark_example("Mobile Depth", args, dataset, None, report=print)
+    with script_errors():
+        run_benchmark_example("Mobile Depth", ScriptRequest.of(args), dataset, None, report=print)
     return 0
 
 

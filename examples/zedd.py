@@ -29,8 +29,9 @@ from __future__ import annotations
 import sys
 
 from datasets import ZEDD
-from defocus.app.experiment import run_benchmark_example
+from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
+from defocus.errors import script_errors
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -41,7 +42,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="focus settings (0-8) of the focused shots")
     args = parser.parse_args(argv)
     dataset = ZEDD(args.root, args.split, shots=args.shots, f_number=args.f_number)
-    run_benchmark_example("ZEDD", args, dataset, "zedd" if args.split == "val" else None, report=print)
+    with script_errors():
+        run_benchmark_example("ZEDD", ScriptRequest.of(args), dataset, "zedd" if args.split == "val" else None, report=print)
     return 0
 
 

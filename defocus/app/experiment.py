@@ -11,7 +11,7 @@ options (`defocus.commands.evaluate.benchmark_parser`).
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable, Sequence
@@ -65,6 +65,38 @@ def truncation_warning_once() -> None:
     warnings.showwarning = show
 
 
+@dataclasses.dataclass(frozen=True)
+class ScriptRequest:
+    """What an example script asks (the options of `defocus.commands.train.recipe_parser` or
+    `defocus.commands.evaluate.benchmark_parser`); `of` takes them from parsed options.
+
+    Example:
+        >>> ScriptRequest.of(type("Options", (), {"root": "data", "extra": 1})()).root
+        'data'
+    """
+
+    config: Path | None = None  # the recipe (YAML)
+    overrides: Sequence[str] = ()  # `--set KEY=VALUE` words
+    root: Path | None = None
+    size: Sequence[int] | None = None
+    out: Path | None = None
+    resume: bool = False
+    overwrite: bool = False
+    split: str | None = None
+    json: Path | None = None
+    method: str = "auto"
+    device: str = "auto"
+    threads: int = 0
+    max_samples: int | None = None
+    max_pixels: int | None = None
+
+    @classmethod
+    def of(cls, options: Any) -> ScriptRequest:
+        """The request of parsed `options` (their attributes of this class's field names)."""
+        return cls(**{field.name: getattr(options, field.name)
+                      for field in dataclasses.fields(cls) if hasattr(options, field.name)})
+
+
 #: Keys of an example's recipe (`examples/*.yaml`) beside the `TrainConfig` fields, with their
 #: defaults; `--set KEY=VALUE` changes either kind.
 RECIPE_KEYS = {
@@ -93,23 +125,23 @@ BENCHMARK_DEFAULTS = {"cpu": {"max_samples": 8, "max_pixels": 250_000},
                       "cuda": {"max_samples": None, "max_pixels": 1_500_000}}
 
 
-def read_recipe(args: argparse.Namespace, keys: dict[str, Any] = RECIPE_KEYS,
+def read_recipe(args: ScriptRequest, keys: dict[str, Any] = RECIPE_KEYS,
                 ) -> tuple[dict[str, Any], dict[str, Any], set[str]]:
     """(the experiment's `keys` with their values, the `TrainConfig` fields, the fields the user
     gave) of the recipe `--config` with `--set` overrides; a bad value ends the script in one
-    line."""
+    line (`ValueError`)."""
     from models.training.config import parse_overrides, read_yaml_mapping
 
     try:
         given = {**read_yaml_mapping(args.config), **parse_overrides(args.overrides)}
     except ValueError as error:
-        raise SystemExit(f"{args.config}: {error}") from None
+        raise ValueError(f"{args.config}: {error}") from None
     experiment = {key: given.pop(key, value) for key, value in keys.items()}
     crop = experiment["crop"]
     crop = crop if isinstance(crop, list) else [crop] if crop is not None else None
     if crop is not None and (len(crop) > 2 or not all(isinstance(c, int) and c >= 0
                                                       for c in crop)):
-        raise SystemExit(f"crop takes one or two sizes in pixels (0: whole images), got {crop}")
+        raise ValueError(f"crop takes one or two sizes in pixels (0: whole images), got {crop}")
     experiment["crop"] = crop
     if experiment["splits"] == "lists":  # the split lists of the folder, else all for both
         lists = args.root is not None and (Path(args.root) / "train.txt").is_file()
@@ -117,7 +149,7 @@ def read_recipe(args: argparse.Namespace, keys: dict[str, Any] = RECIPE_KEYS,
     return experiment, given, set(given)
 
 
-def _dataset(experiment: dict[str, Any], args: argparse.Namespace, split: str) -> Dataset:
+def _dataset(experiment: dict[str, Any], args: ScriptRequest, split: str) -> Dataset:
     from datasets.registry import build_dataset
 
     size = args.size or experiment["size"]
@@ -129,7 +161,7 @@ def _dataset(experiment: dict[str, Any], args: argparse.Namespace, split: str) -
                          size=None if size is None else tuple(size), **kwargs)
 
 
-def run_recipe(args: argparse.Namespace, report: Report = print) -> dict[str, dict[str, float]]:
+def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[str, float]]:
     """An example script: train on the dataset of the recipe `args.config` under `--root` with
     `defocus train`'s options (`defocus.commands.train.recipe_parser`) and evaluate on whole
     test images (`models.experiment.train_and_evaluate`); returns
@@ -177,12 +209,12 @@ def recipe_crop(experiment: dict[str, Any], fields: dict[str, Any], whole: Datas
     return training_crop(experiment["crop"] or [DEVICE_DEFAULTS[kind]["crop"]], whole, report)
 
 
-def recipe_config(args: argparse.Namespace, experiment: dict[str, Any], fields: dict[str, Any],
+def recipe_config(args: ScriptRequest, experiment: dict[str, Any], fields: dict[str, Any],
                   given: set[str], whole: Dataset, first: dict) -> Any:
     """The `TrainConfig` of a recipe (`read_recipe`) and `defocus train`'s options: its fields
     over the defaults of the device (a CPU trains within `cpu_minutes` unless `steps` or
     `minutes` is given, a GPU 20000 steps), the run folder `--out` and `--resume`/`--overwrite`;
-    `first` is the first training sample (the loss's window). A bad value ends the script."""
+    `first` is the first training sample (the loss's window)."""
     from models.training import TrainConfig
 
     kind = device_kind(str(fields.get("device", "auto")))
@@ -200,7 +232,7 @@ def recipe_config(args: argparse.Namespace, experiment: dict[str, Any], fields: 
     try:
         return TrainConfig.load(None, [], **{**defaults, **fields})
     except ValueError as error:
-        raise SystemExit(f"{args.config}: {error}") from None
+        raise ValueError(f"{args.config}: {error}") from None
 
 
 def _epoch_steps(max_epochs: float, batch_size: int, whole: Dataset, first: dict) -> int:
@@ -231,7 +263,7 @@ def plan_json_option(path: Path | None, overwrite: bool, root: Path | None,
     """The checked plan of an example's JSON output `path` (`option`), None without one, made
     before any work: not an existing file of `root` (`--root`) nor one of `inputs` (`(name,
     path)` pairs), no earlier result replaced without `overwrite`
-    (`defocus.app.outputs.plan_json`); a refusal ends the script in one line (`SystemExit`).
+    (`defocus.app.outputs.plan_json`); a refusal is one of `defocus.errors.USER_ERRORS`.
 
     Example:
         >>> plan_json_option(None, False, None) is None
@@ -239,13 +271,10 @@ def plan_json_option(path: Path | None, overwrite: bool, root: Path | None,
     """
     from .outputs import plan_json
 
-    try:
-        return plan_json(path, overwrite, inputs, {"--root": root}, what, option)
-    except (OSError, ValueError) as error:
-        raise SystemExit(str(error)) from None
+    return plan_json(path, overwrite, inputs, {"--root": root}, what, option)
 
 
-def run_benchmark_example(name: str, args: argparse.Namespace, dataset: Dataset,
+def run_benchmark_example(name: str, args: ScriptRequest, dataset: Dataset,
                           protocol: str | None, report: Report = _silent) -> dict[str, float] | None:
     """Score `args.method` on `dataset` with `protocol` (`models.protocols.PROTOCOLS`) and report
     the paper-style table; with no protocol (no ground truth) report the depth range of each

@@ -67,6 +67,17 @@ def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
     return parser
 
 
+def recipe_main(recipe: Path, argv: list[str] | None = None) -> None:
+    """Run an example script: its recipe with `defocus train`'s options `argv`
+    (`defocus.app.experiment.run_recipe`); bad input ends it in one line."""
+    from defocus.app.experiment import ScriptRequest, run_recipe
+    from defocus.errors import script_errors
+
+    args = recipe_parser(recipe).parse_args(argv)
+    with script_errors():
+        run_recipe(ScriptRequest.of(args))
+
+
 def run(args: argparse.Namespace) -> int:
     from defocus.app.train import train, training_config
     from models.metrics import format_table
