@@ -31,11 +31,11 @@ import torch
 from optics import CameraSettings
 
 from .base import DepthDataset
-from .camera_json import camera_for_shots, camera_from_json, load_camera_json
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_depth_png, read_rgb, require_root
+from .io import DataFormatError, read_depth_png, require_root
 from .pairs import register_focused, relative_pair
+from .photos import CameraFile, read_photo, settings_for_shots
 from .presets import DSLR as DSLR_PRESET
 
 #: Folder of the release holding the f/2.8 photos and the depth.
@@ -143,7 +143,7 @@ class DSLR(DepthDataset):
             the wide photos at the stored resolution, replacing the preset; a JSON's
             `reference_f_number` sets `reference_f_number`. Values per shot must be one
             (the scenes' one focused photo): a list of different values is refused by name
-            (`datasets.camera_json`), never cut to its first value.
+            (`datasets.photos.camera_file`), never cut to its first value.
         max_gap_s: the largest time difference, seconds, of a photo and its depth file.
         scenes: keep only these scenes (indices or a slice of the split in time order, e.g.
             `slice(0, 61)` for training and `slice(61, None)` for validation).
@@ -215,14 +215,13 @@ class DSLR(DepthDataset):
         self.settings: CameraSettings | None = None
         # one focused photo per scene: per-shot values of another count are refused by name
         if isinstance(camera, CameraSettings):
-            self.settings = camera_for_shots(camera, 1, "camera", ONE_SHOT)
+            self.settings = settings_for_shots(camera, 1, "camera", ONE_SHOT)
         elif camera is not None:
-            self.settings, extra = camera_from_json(load_camera_json(camera), str(camera), 1,
-                                                    ONE_SHOT)
-            self.reference_f_number = float(extra.get("reference_f_number", 8.0))
-            self.floor_px = float(extra.get("focus_floor_px", 0.0))
-            gain = extra.get("exposure_gain")
-            self.exposure_gain = None if gain is None else [float(g) for g in gain]
+            file = CameraFile.read(camera, 1, ONE_SHOT)
+            self.settings, self.floor_px = file.settings, file.focus_floor_px
+            if file.reference_f_number is not None:
+                self.reference_f_number = file.reference_f_number
+            self.exposure_gain = None if file.exposure_gain is None else list(file.exposure_gain)
         if (self.root / WIDE_FOLDER).is_dir():
             folders = [self.root / WIDE_FOLDER / "rgb" / split,
                        self.root / REFERENCE_FOLDER / "rgb" / split,
@@ -257,8 +256,8 @@ class DSLR(DepthDataset):
 
     def load(self, index: int) -> dict[str, Any]:
         wide_path, ref_path, depth_path = self.files[index]
-        focused = read_rgb(wide_path, dtype=self.dtype)
-        image = read_rgb(ref_path, dtype=self.dtype)
+        focused = read_photo(wide_path, dtype=self.dtype)[0]
+        image = read_photo(ref_path, dtype=self.dtype)[0]
         depth = read_depth_png(depth_path, self.depth_scale, dtype=self.dtype)
         for path, tensor in ((ref_path, image), (depth_path, depth)):
             if tensor.shape[-2:] != focused.shape[-2:]:

@@ -33,7 +33,8 @@ from optics import CameraSettings
 
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_rgb, require_file, require_root
+from .io import DataFormatError, require_file, require_root
+from .photos import read_photo
 from .stacks import FocalStackDataset
 
 #: Focus distance of each render in name order, metres (DefocusNet readme).
@@ -148,8 +149,8 @@ class FoD500(FocalStackDataset):
 
     def load_stack(self, index: int) -> dict[str, Any]:
         renders, depth_path, aif_path = self.scenes[index]
-        focused = torch.stack([read_rgb(p, dtype=self.dtype) for p in renders])
-        image = None if aif_path is None else read_rgb(aif_path, dtype=self.dtype)
+        focused = torch.stack([read_photo(p, dtype=self.dtype)[0] for p in renders])
+        image = None if aif_path is None else read_photo(aif_path, dtype=self.dtype)[0]
         array = read_exr_depth(depth_path)
         check_depth_metres(depth_path, array, 100.0)
         depth = torch.from_numpy(array.astype(np.float64)).to(self.dtype)[None]

@@ -15,11 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
-
-from optics.photo_metadata import MAX_IMAGE_PIXELS as PHOTO_PIXEL_LIMIT
-from optics.photo_metadata import oversize_reason
 
 
 class DataFormatError(ValueError):
@@ -119,10 +115,28 @@ def read_list(path: Path, what: str = "a list of names") -> list[str]:
     return list(first)
 
 
-#: The most pixels of an image file that is decoded (100 megapixels, the limit of every photo
-#: format, raw files included: `optics.photo_metadata.MAX_IMAGE_PIXELS`): a file whose header
-#: states more is refused before any pixel is read (`check_image_size`).
-MAX_IMAGE_PIXELS = PHOTO_PIXEL_LIMIT
+#: The most pixels of an image file that is decoded (100 megapixels), for every format: a PNG,
+#: JPEG or TIFF whose header states more (`check_image_size`) or a raw file whose metadata states
+#: more photosites (`datasets.photos.read_raw`) is refused before any pixel is decoded.
+MAX_IMAGE_PIXELS = 100_000_000
+
+
+def oversize_reason(height: int, width: int, what: str = "pixels",
+                    max_pixels: int = MAX_IMAGE_PIXELS) -> str | None:
+    """Why an image whose file states `height` x `width` `what` (pixels, photosites) is not
+    decoded, or None where it is within `max_pixels`.
+
+    Example:
+        >>> oversize_reason(20000, 20000)
+        '20000x20000 pixels (400 megapixels); at most 100 megapixels are read'
+        >>> oversize_reason(4000, 6000) is None
+        True
+    """
+    height, width = int(height), int(width)
+    if height * width <= max_pixels:
+        return None
+    return (f"{height}x{width} {what} ({height * width / 1e6:.4g} megapixels); at most "
+            f"{max_pixels / 1e6:g} megapixels are read")
 
 
 def check_image_size(path: Path, what: str = "an image",
@@ -226,32 +240,6 @@ def to_unit_range(path: Path, name: str, array: np.ndarray) -> np.ndarray:
             f"float images must lie in [0, 1]{hint}"
         )
     return values
-
-
-def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32) -> Tensor:
-    """Read an 8- or 16-bit RGB photo as a `(3,H,W)` tensor in [0, 1].
-
-    Args:
-        path: PNG or JPEG file.
-        linear: decode the sRGB transfer curve to linear intensity (what the renderer expects).
-        dtype: floating dtype of the result.
-
-    Raises:
-        FileNotFoundError: `path` does not exist.
-        DataFormatError: the file is unreadable, not an RGB(A) image, or a float image that is
-            not finite and within [0, 1].
-    """
-    array = read_image(path, "an RGB photo")
-    if array.ndim == 2:
-        array = np.repeat(array[..., None], 3, axis=2)
-    check_array_shape(path, "the RGB photo", array, (None, None, None))
-    if array.shape[2] not in (3, 4):
-        raise DataFormatError(
-            f"{str(path)!r}: expected an RGB photo with 3 (or 4) channels, got shape {array.shape}"
-        )
-    values = to_unit_range(path, "the RGB photo", np.ascontiguousarray(array[..., :3]))
-    image = torch.from_numpy(values).to(dtype).permute(2, 0, 1)
-    return rgb_to_linear_rgb(image) if linear else image
 
 
 def read_depth_png(path: Path, scale: float, dtype: torch.dtype = torch.float32) -> Tensor:

@@ -29,7 +29,8 @@ from torch import Tensor
 from .base import DepthDataset
 from .depth import densify_nearest, fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_depth_png, read_rgb, read_text, require_file, require_root
+from .io import DataFormatError, read_depth_png, read_text, require_file, require_root
+from .photos import read_photo
 from .presets import KITTI
 
 LAYOUT = (
@@ -176,7 +177,7 @@ class KITTI(DepthDataset):
 
     def load(self, index: int) -> dict[str, Any]:
         image_path, depth_path = self.frames[index]
-        image = read_rgb(image_path, dtype=self.dtype)
+        image = read_photo(image_path, dtype=self.dtype)[0]
         depth = read_depth_png(depth_path, 1 / 256, dtype=self.dtype)
         if depth.shape[-2:] != image.shape[-2:]:
             raise DataFormatError(

@@ -38,7 +38,8 @@ from optics.checks import check_shape
 
 from .base import DepthDataset
 from .focus import CameraPreset
-from .io import DataFormatError, read_list, read_rgb, require_file, require_root
+from .io import DataFormatError, read_list, require_file, require_root
+from .photos import read_photo
 
 LAYOUT = (
     "  <root>/<name>.png   light-field mosaics of n x n views (interleaved ESLF or tiled)\n"
@@ -310,7 +311,7 @@ class LightField(DepthDataset):
     def load_views(self, index: int) -> Tensor:
         """The kept central views `(views, views, 3, H, W)` of light field `index`."""
         path = self.files[index]
-        mosaic = read_rgb(path, dtype=self.dtype)
+        mosaic = read_photo(path, dtype=self.dtype)[0]
         try:
             grid = mosaic_to_views(mosaic, self.n_views, self.layout)
         except ValueError as error:

@@ -25,7 +25,8 @@ import torch.nn.functional as F
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, check_array_shape, load_mat, read_rgb, require_root
+from .io import DataFormatError, check_array_shape, load_mat, require_root
+from .photos import read_photo
 from .presets import MAKE3D
 
 LAYOUT = (
@@ -107,7 +108,7 @@ class Make3D(DepthDataset):
 
     def load(self, index: int) -> dict[str, Any]:
         image_path, depth_path = self.files[index]
-        image = read_rgb(image_path, dtype=self.dtype)
+        image = read_photo(image_path, dtype=self.dtype)[0]
         grid = load_mat(depth_path, "Position3DGrid (H, W, 4)")
         if "Position3DGrid" not in grid:
             raise DataFormatError(f"{str(depth_path)!r}: no 'Position3DGrid' array")

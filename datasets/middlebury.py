@@ -38,10 +38,10 @@ from .io import (
     DataFormatError,
     read_list,
     read_pfm,
-    read_rgb,
     require_file,
     require_root,
 )
+from .photos import read_photo
 from .presets import MIDDLEBURY
 
 #: Calibration of scikit-image's motorcycle scene: focal length in pixels, baseline in metres,
@@ -367,7 +367,7 @@ class Middlebury(DepthDataset):
             image, depth, mask = data["image"][0], data["depth"][0], data["mask"][0]
             calib = data["calib"]
         else:
-            image = read_rgb(scene / "im0.png", dtype=self.dtype)
+            image = read_photo(scene / "im0.png", dtype=self.dtype)[0]
             calib = read_calib(scene / "calib.txt", tuple(image.shape[-2:]))
             disparity = torch.from_numpy(read_pfm(scene / "disp0.pfm").copy()).to(self.dtype)
             if disparity.shape != image.shape[-2:]:

@@ -40,7 +40,8 @@ import torch
 from optics import CameraSettings
 
 from .focus import CameraPreset
-from .io import DataFormatError, read_rgb, read_text, require_root
+from .io import DataFormatError, read_text, require_root
+from .photos import read_photo
 from .stacks import FocalStackDataset
 
 FRAME = re.compile(r"^a(\d+)\.jpe?g$", re.IGNORECASE)
@@ -291,7 +292,7 @@ class MobileDepth(FocalStackDataset):
         keep = list(range(len(frames)))
         if self.n_shots is not None and self.n_shots < len(frames):
             keep = np.linspace(0, len(frames) - 1, self.n_shots).round().astype(int).tolist()
-        shots = [read_rgb(frames[i], dtype=self.dtype) for i in keep]
+        shots = [read_photo(frames[i], dtype=self.dtype)[0] for i in keep]
         for i, shot in zip(keep, shots, strict=True):
             if shot.shape != shots[0].shape:
                 raise DataFormatError(f"{str(frames[i])!r} is {tuple(shot.shape[-2:])} pixels but "

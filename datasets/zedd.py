@@ -45,7 +45,8 @@ from optics import CameraSettings
 from .depth import fill_unknown
 from .focus import CameraPreset
 from .fod500 import check_depth_metres
-from .io import DataFormatError, read_npy, read_rgb, read_text, require_file, require_root
+from .io import DataFormatError, read_npy, read_text, require_file, require_root
+from .photos import read_photo
 from .stacks import FocalStackDataset
 
 APERTURES = (1.4, 2.0, 2.8, 4.0, 5.6, 16.0)
@@ -180,7 +181,7 @@ class ZEDD(FocalStackDataset):
         scene = self.scenes[index]
         K = read_intrinsics(scene / "gt" / "K.txt")
         depth_path = scene / "gt" / "depth.npy"
-        photos = [read_rgb(p, dtype=self.dtype) for p in self._photos(scene)]
+        photos = [read_photo(p, dtype=self.dtype)[0] for p in self._photos(scene)]
         if self.split == "val":
             array = read_npy(depth_path, "a .npy depth map")
             if array.ndim != 2 or not np.issubdtype(array.dtype, np.floating):

@@ -258,7 +258,7 @@ def test_read_photo_pixel_pitch_from_the_35mm_equivalent_focal_length(tmp_path):
 
 
 def test_jpeg_photos_are_known_as_compressed_and_warned_of_when_read_at_full_size(tmp_path):
-    from optics.photo_settings import JPEG_SCALE_LIMIT, compression_warning
+    from datasets.photos.settings import JPEG_SCALE_LIMIT, compression_warning
 
     stored = np.zeros((8, 8, 3), np.uint8)
     _write_jpeg(tmp_path / "a.jpg", stored)

@@ -1,14 +1,14 @@
 """Your own photos: read a JPEG/PNG/TIFF or raw photo upright, with what its file states.
 
 `read_photo` applies the EXIF orientation (a portrait shot stored sideways comes out upright) and
-returns the file's `optics.PhotoMetadata` (`optics.read_metadata`, the one reader of what photo
+returns the file's `datasets.photos.PhotoMetadata` (`datasets.photos.read_metadata`, the one reader of what photo
 files state: focal length, f-number and pixel pitch where the file states them, the pixel pitch
 scaled to the stored image size). TIFFs of more than 8 bits per sample (what raw developers and
 scientific cameras write, either byte order) and 16-bit colour or grey+alpha PNGs keep all their
 bits: Pillow would cut them to 8, so `tifffile` and `pypng` read those. Unsigned integer samples
 (8, 16 or 32 bits) are divided by their type's maximum; signed or floating-point ones are
 refused, as they state no scale of light. The camera settings of photos are resolved by
-`optics.photo_settings`.
+`datasets.photos.settings`.
 """
 
 from __future__ import annotations
@@ -22,9 +22,8 @@ import torch
 from kornia.color import linear_rgb_to_rgb, rgb_to_linear_rgb
 from torch import Tensor
 
-from optics.photo_metadata import RAW_SUFFIXES, PhotoMetadata, read_metadata
-
-from .io import DataFormatError, check_image_size, check_stated_size, require_file
+from ..io import DataFormatError, check_image_size, check_stated_size, require_file
+from .metadata import RAW_SUFFIXES, PhotoMetadata, read_metadata
 
 #: How a JPEG, PNG or TIFF stores intensity (`read_photo`).
 ENCODINGS = ("srgb", "linear")
@@ -173,14 +172,11 @@ def _orient(array: np.ndarray, orientation: int) -> np.ndarray:
 
 def _read_raw_photo(path: Path, dtype: torch.dtype) -> tuple[Tensor, PhotoMetadata]:
     """A raw photo as linear sRGB, upright, and what its metadata says."""
-    from optics.raw import RawReadError, read_raw
+    from .raw import read_raw
 
-    try:
-        # daylight white balance: the same gains for every shot (as-shot ones may differ
-        # between shots), divided by the largest so that only saturated photosites reach 1
-        image, meta = read_raw(path, white_balance="daylight", colour_space="srgb", dtype=dtype)
-    except RawReadError as error:
-        raise DataFormatError(str(error)) from None
+    # daylight white balance: the same gains for every shot (as-shot ones may differ between
+    # shots), divided by the largest so that only saturated photosites reach 1
+    image, meta = read_raw(path, white_balance="daylight", colour_space="srgb", dtype=dtype)
     image = (image[0] / max(meta.white_balance)).clamp(0, 1)
     upright = _orient(image.permute(1, 2, 0).numpy(), meta.orientation)
     return torch.from_numpy(np.ascontiguousarray(upright)).permute(2, 0, 1), meta
@@ -242,7 +238,7 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32, encoding: s
             spares a copy of each; its dtype is kept); it may refuse a size.
 
     Returns:
-        `(image, info)`: the photo and its `optics.PhotoMetadata` (what the file states; the
+        `(image, info)`: the photo and its `datasets.photos.PhotoMetadata` (what the file states; the
         orientation is applied to the image).
 
     Raises:

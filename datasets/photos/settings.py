@@ -2,7 +2,7 @@
 
 One resolver serves every user of real photos. `resolve_known` finds the values that are known,
 each with where it came from: an option the user gave, else a calibration (a `CameraSettings`
-written by `defocus calibrate`), else what every photo's metadata (`optics.PhotoMetadata`)
+written by `defocus calibrate`), else what every photo's metadata (`datasets.photos.PhotoMetadata`)
 states. `resolve_settings` needs them all and makes the `(F,)` `CameraSettings` of the photos
 (`defocus predict`); a calibration fits the ones left unknown (`defocus calibrate`).
 `describe_settings` says in one line which settings were used and where each came from, and
@@ -14,10 +14,11 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
-from .aperture_spec import DEFAULT_APERTURE, LENS_APERTURE
-from .camera import SETTING_FIELDS, CameraSettings
-from .photo_metadata import PhotoMetadata
-from .sensor import Sensor
+from optics import Sensor
+from optics.aperture_spec import DEFAULT_APERTURE, LENS_APERTURE
+from optics.camera import SETTING_FIELDS, CameraSettings
+
+from .metadata import PhotoMetadata
 
 #: Above this working scale (working / photo resolution) JPEG compression costs the sweep
 #: accuracy: measured on the motorcycle (`benchmarks/cameras.py --jpeg 90`), cameras swept at
@@ -96,7 +97,7 @@ def resolve_known(
     what every photo's metadata states.
 
     Args:
-        metadata: the `PhotoMetadata` of each photo (`optics.read_metadata`, `optics.read_raw`,
+        metadata: the `PhotoMetadata` of each photo (`datasets.photos.read_metadata`, `datasets.photos.read_raw`,
             `datasets.photos.read_photo`).
         options: values the user gave, by `CameraSettings` field name (`focal_length`,
             `f_number`, `focus_distance`, `pixel_pitch`): a number or one per photo; `None` or
@@ -234,7 +235,7 @@ def metadata_settings(
     focal_length: float | None = None,
     f_number: float | None = None,
 ) -> CameraSettings:
-    """The `CameraSettings` of an image decoded from one file (`optics.read_raw`): the file's
+    """The `CameraSettings` of an image decoded from one file (`datasets.photos.read_raw`): the file's
     focal length and f-number, and its pixel pitch times the image's `binning`.
 
     Most cameras do not record the focus distance, so it is always given.

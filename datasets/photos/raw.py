@@ -7,8 +7,8 @@ by white balance (white balance is applied here, after decoding, so balanced val
 Colour conversion to linear sRGB or CIE XYZ uses the camera's colour matrix (from the file, as
 LibRaw reads it) and colour-science's sRGB definition.
 
-The metadata (`optics.PhotoMetadata`: camera and lens, exposure, focal length, f-number, pixel
-pitch, levels, CFA, white balance) are read by `optics.read_metadata`, the one reader of what
+The metadata (`datasets.photos.PhotoMetadata`: camera and lens, exposure, focal length, f-number, pixel
+pitch, levels, CFA, white balance) are read by `datasets.photos.read_metadata`, the one reader of what
 photo files state; `read_raw` returns them with the binning, white balance and colour space of
 the decoded image.
 """
@@ -27,14 +27,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .photo_metadata import (
-    MAX_IMAGE_PIXELS,
-    PhotoMetadata,
-    RawReadError,
-    metadata_from_libraw,
-    open_raw,
-    oversize_reason,
-)
+from ..io import MAX_IMAGE_PIXELS, oversize_reason, require_file
+from .metadata import PhotoMetadata, RawReadError, metadata_from_libraw, open_raw
 
 #: White-balance choices of `read_raw`.
 WHITE_BALANCES = ("camera", "daylight", "none")
@@ -108,7 +102,7 @@ def check_raw_size(path: Path, sizes: Any, max_pixels: int = MAX_IMAGE_PIXELS) -
         >>> check_raw_size(Path("x.dng"), SimpleNamespace(raw_height=12000, raw_width=12000))
         Traceback (most recent call last):
         ...
-        optics.photo_metadata.RawReadError: x.dng: its metadata states 12000x12000 photosites (144 megapixels); at most 100 megapixels are read
+        datasets.photos.metadata.RawReadError: x.dng: its metadata states 12000x12000 photosites (144 megapixels); at most 100 megapixels are read
     """
     reason = oversize_reason(sizes.raw_height, sizes.raw_width, "photosites", max_pixels)
     if reason is not None:
@@ -188,7 +182,7 @@ def read_raw(
             an even factor first bins each 2x2 Bayer quad into one RGB pixel (LibRaw's half
             size: no interpolation), then averages `binning/2` squares; an odd one averages
             after demosaicing. The effective pixel pitch is the sensor pitch times `binning`
-            (`optics.photo_settings.metadata_sensor` knows it).
+            (`datasets.photos.settings.metadata_sensor` knows it).
         demosaic: LibRaw algorithm, one of `DEMOSAIC_ALGORITHMS`.
         dtype: floating-point dtype of the image.
         device: device of the image.
@@ -217,9 +211,7 @@ def read_raw(
     """
     white_balance, colour_space, demosaic = _check_options(
         white_balance, colour_space, binning, demosaic, dtype)
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"raw file not found: {path}")
+    path = require_file(Path(path), "a raw photo")
     rgb, meta, half = _decode(path, demosaic, binning, max_pixels)
     image = torch.from_numpy(rgb.astype("float32")).to(device=device, dtype=dtype)
     image = image.permute(2, 0, 1).unsqueeze(0) / 65535.0
@@ -249,7 +241,7 @@ def read_raw_stack(
     Raises:
         ValueError: if `paths` is empty or the images differ in size (the message names both).
     """
-    from .progress import progress_bar
+    from optics.progress import progress_bar
 
     paths = list(paths)
     if not paths:
