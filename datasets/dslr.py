@@ -200,10 +200,11 @@ class DSLR(DepthDataset):
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
-        if not depth_scale > 0:
-            raise ValueError(f"depth_scale must be > 0 metres per unit, got {depth_scale}")
-        if not max_gap_s > 0:
-            raise ValueError(f"max_gap_s must be > 0 seconds, got {max_gap_s}")
+        for name, value, unit in (("depth_scale", depth_scale, "metres per unit"),
+                                  ("max_gap_s", max_gap_s, "seconds"),
+                                  ("sensor_width_px", sensor_width_px, "pixels")):
+            if not value > 0:
+                raise ValueError(f"{name} must be > 0 {unit}, got {value}")
         self.root = require_root(root, "DSLR", LAYOUT)
         self.depth_scale = float(depth_scale)
         self.sensor_width_px = int(sensor_width_px)

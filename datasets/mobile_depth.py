@@ -29,6 +29,7 @@ which states none. Samples have `mask` all False: the benchmark is judged by eye
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -108,15 +109,15 @@ def list_frames(scene: Path) -> list[Path]:
     """The frames `a<N>.jpg` of a scene folder in frame order.
 
     Raises:
-        FileNotFoundError: the folder holds no frame.
-        DataFormatError: the numbering has a gap or a repeat (a frame missing or two files
-            for one number), so the order is not known.
+        DataFormatError: the folder holds fewer than 2 frames (a focal stack of one photo has
+            no defocus to compare), or the numbering has a gap or a repeat (a frame missing or
+            two files for one number), so the order is not known.
     """
     found = sorted(((int(m.group(1)), p) for p in scene.iterdir()
                     if (m := FRAME.match(p.name))), key=lambda x: x[0])
-    if not found:
-        raise FileNotFoundError(f"MobileDepth: no frames a<N>.jpg in {str(scene)!r}. "
-                                f"Expected:\n{LAYOUT}")
+    if len(found) < 2:
+        raise DataFormatError(f"{str(scene)!r}: {len(found)} frame(s) a<N>.jpg; a focal stack "
+                              "needs 2 or more")
     numbers = [n for n, _ in found]
     expected = list(range(numbers[0], numbers[0] + len(numbers)))
     if numbers != expected:
@@ -250,9 +251,12 @@ class MobileDepth(FocalStackDataset):
         own = folder / "focus_dpth.txt"
         if own.is_file():
             try:
-                return own, np.atleast_1d(np.loadtxt(own, dtype=np.float64)).tolist()
+                values = np.loadtxt(own, dtype=np.float64, ndmin=1)
+                if values.ndim != 1:
+                    raise ValueError(f"{values.shape[1]} columns, expected one value a line")
             except ValueError as error:
                 raise DataFormatError(f"{str(own)!r}: not a list of numbers ({error})") from None
+            return own, values.tolist()
         if self.calibration is not None:
             name = CALIBRATION_NAMES.get(folder.name, folder.name)
             path = self.calibration / name / "calibrated.txt"
@@ -269,9 +273,9 @@ class MobileDepth(FocalStackDataset):
             given = given.get(folder.name)
         if given is not None:
             values = [float(d) for d in given]
-            if len(values) != count:
-                raise ValueError(f"focus_distances for scene {folder.name!r} must hold one value "
-                                 f"per frame ({count}), got {len(values)}")
+            if len(values) != count or not all(math.isfinite(v) and v > 0 for v in values):
+                raise ValueError(f"focus_distances for scene {folder.name!r} must hold one "
+                                 f"finite distance > 0 metres per frame ({count}), got {values}")
             return frames, values
         calibrated = self._focus_file(folder)
         if calibrated is None:
