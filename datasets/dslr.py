@@ -33,7 +33,7 @@ from optics import CameraSettings
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_depth_png, require_root
+from .io import read_depth_png, require_one_size, require_root
 from .pairs import register_focused, relative_pair
 from .photos import CameraFile, read_photo, settings_for_shots
 from .presets import DSLR as DSLR_PRESET
@@ -260,12 +260,7 @@ class DSLR(DepthDataset):
         focused = read_photo(wide_path, dtype=self.dtype)[0]
         image = read_photo(ref_path, dtype=self.dtype)[0]
         depth = read_depth_png(depth_path, self.depth_scale, dtype=self.dtype)
-        for path, tensor in ((ref_path, image), (depth_path, depth)):
-            if tensor.shape[-2:] != focused.shape[-2:]:
-                raise DataFormatError(
-                    f"{str(path)!r} is {tuple(tensor.shape[-2:])} pixels but {str(wide_path)!r} "
-                    f"is {tuple(focused.shape[-2:])}; all three files of a scene must match"
-                )
+        require_one_size((wide_path, focused), (ref_path, image), (depth_path, depth))
         if self.settings is not None:
             camera = self.settings.to(self.dtype)
         else:

@@ -33,7 +33,7 @@ from optics import CameraSettings
 
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, require_file, require_root
+from .io import DataFormatError, require_file, require_one_size, require_root
 from .photos import read_photo
 from .stacks import FocalStackDataset
 
@@ -149,16 +149,13 @@ class FoD500(FocalStackDataset):
 
     def load_stack(self, index: int) -> dict[str, Any]:
         renders, depth_path, aif_path = self.scenes[index]
-        focused = torch.stack([read_photo(p, dtype=self.dtype)[0] for p in renders])
+        shots = [read_photo(p, dtype=self.dtype)[0] for p in renders]
         image = None if aif_path is None else read_photo(aif_path, dtype=self.dtype)[0]
         array = read_exr_depth(depth_path)
         check_depth_metres(depth_path, array, 100.0)
         depth = torch.from_numpy(array.astype(np.float64)).to(self.dtype)[None]
-        for path, tensor in ((depth_path, depth), *zip(renders, focused, strict=True),
-                             (aif_path, image)):
-            if tensor is not None and tensor.shape[-2:] != focused.shape[-2:]:
-                raise DataFormatError(f"{str(path)!r} is {tuple(tensor.shape[-2:])} pixels but "
-                                      f"{str(renders[0])!r} is {tuple(focused.shape[-2:])}")
+        require_one_size(*zip(renders, shots, strict=True), (depth_path, depth), (aif_path, image))
+        focused = torch.stack(shots)
         mask = valid_depth_mask(depth)
         require_valid_depth(mask, repr(str(depth_path)))
         pitch = SENSOR_WIDTH / focused.shape[-1]

@@ -242,6 +242,25 @@ def to_unit_range(path: Path, name: str, array: np.ndarray) -> np.ndarray:
     return values
 
 
+def require_one_size(*files: tuple[Path, Tensor | np.ndarray | None]) -> None:
+    """Refuse the files of one sample unless their arrays (`None`: absent, skipped) share the
+    first one's size `(H, W)`, the last two axes, naming the file that differs and the first.
+
+    Example:
+        >>> require_one_size((Path("a.png"), np.zeros((3, 4, 6))), (Path("b.png"), None))
+        >>> require_one_size((Path("a.png"), np.zeros((4, 6))), (Path("d.png"), np.zeros((4, 5))))
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: 'd.png' is (4, 5) pixels but 'a.png' is (4, 6); the files of a sample must have one size
+    """
+    first_path, size = files[0][0], tuple(files[0][1].shape[-2:])
+    for path, array in files[1:]:
+        if array is not None and tuple(array.shape[-2:]) != size:
+            raise DataFormatError(f"{str(path)!r} is {tuple(array.shape[-2:])} pixels but "
+                                  f"{str(first_path)!r} is {size}; the files of a sample must "
+                                  "have one size")
+
+
 def read_depth_png(path: Path, scale: float, dtype: torch.dtype = torch.float32) -> Tensor:
     """Read a 16-bit single-channel depth PNG as `(1,H,W)` metres (`stored * scale`).
 

@@ -29,7 +29,14 @@ from torch import Tensor
 from .base import DepthDataset
 from .depth import densify_nearest, fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_depth_png, read_text, require_file, require_root
+from .io import (
+    DataFormatError,
+    read_depth_png,
+    read_text,
+    require_file,
+    require_one_size,
+    require_root,
+)
 from .photos import read_photo
 from .presets import KITTI
 
@@ -179,11 +186,7 @@ class KITTI(DepthDataset):
         image_path, depth_path = self.frames[index]
         image = read_photo(image_path, dtype=self.dtype)[0]
         depth = read_depth_png(depth_path, 1 / 256, dtype=self.dtype)
-        if depth.shape[-2:] != image.shape[-2:]:
-            raise DataFormatError(
-                f"{str(depth_path)!r}: depth is {tuple(depth.shape[-2:])} pixels but the frame "
-                f"{str(image_path)!r} is {tuple(image.shape[-2:])}"
-            )
+        require_one_size((image_path, image), (depth_path, depth))
         mask = valid_depth_mask(depth)
         require_valid_depth(mask, repr(str(depth_path)))
         check_lidar_depth(depth_path, depth[mask])

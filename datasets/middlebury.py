@@ -39,6 +39,7 @@ from .io import (
     read_list,
     read_pfm,
     require_file,
+    require_one_size,
     require_root,
 )
 from .photos import read_photo
@@ -370,11 +371,7 @@ class Middlebury(DepthDataset):
             image = read_photo(scene / "im0.png", dtype=self.dtype)[0]
             calib = read_calib(scene / "calib.txt", tuple(image.shape[-2:]))
             disparity = torch.from_numpy(read_pfm(scene / "disp0.pfm").copy()).to(self.dtype)
-            if disparity.shape != image.shape[-2:]:
-                raise DataFormatError(
-                    f"{str(scene / 'disp0.pfm')!r} is {tuple(disparity.shape)} pixels but "
-                    f"{str(scene / 'im0.png')!r} is {tuple(image.shape[-2:])}"
-                )
+            require_one_size((scene / "im0.png", image), (scene / "disp0.pfm", disparity))
             depth, mask = disparity_to_depth(disparity, **calib)
             require_valid_depth(mask, repr(str(scene / "disp0.pfm")))
             depth, mask = depth[None], mask[None]

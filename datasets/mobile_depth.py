@@ -41,7 +41,7 @@ import torch
 from optics import CameraSettings
 
 from .focus import CameraPreset
-from .io import DataFormatError, read_text, require_root
+from .io import DataFormatError, read_text, require_one_size, require_root
 from .photos import read_photo
 from .stacks import FocalStackDataset
 
@@ -297,10 +297,7 @@ class MobileDepth(FocalStackDataset):
         if self.n_shots is not None and self.n_shots < len(frames):
             keep = np.linspace(0, len(frames) - 1, self.n_shots).round().astype(int).tolist()
         shots = [read_photo(frames[i], dtype=self.dtype)[0] for i in keep]
-        for i, shot in zip(keep, shots, strict=True):
-            if shot.shape != shots[0].shape:
-                raise DataFormatError(f"{str(frames[i])!r} is {tuple(shot.shape[-2:])} pixels but "
-                                      f"{str(frames[keep[0]])!r} is {tuple(shots[0].shape[-2:])}")
+        require_one_size(*zip([frames[i] for i in keep], shots, strict=True))
         focused = torch.stack(shots)
         h, w = focused.shape[-2:]
         pitch = self.phone["pixel_pitch"] * self.phone["sensor_width_px"] / w

@@ -28,7 +28,7 @@ from optics import CameraSettings
 
 from .base import DepthDataset
 from .focus import CameraPreset
-from .io import DataFormatError, read_list, require_root
+from .io import DataFormatError, read_list, require_one_size, require_root
 from .photos import CameraFile, read_photo
 
 LAYOUT = ("ROOT/<scene>/aif.<ext> and the focused photos named in ROOT/camera.json's or "
@@ -113,13 +113,8 @@ class PhotoFolder(DepthDataset):
     def load(self, index: int) -> dict[str, Any]:
         scene = self.scenes[index]
         image, _ = read_photo(scene["aif"], dtype=self.dtype)
-        focused = []
-        for path in scene["focused"]:
-            photo, _ = read_photo(path, dtype=self.dtype)
-            if photo.shape != image.shape:
-                raise DataFormatError(f"{path} is {tuple(photo.shape[-2:])} pixels but "
-                                      f"{scene['aif']} is {tuple(image.shape[-2:])}")
-            focused.append(photo)
+        focused = [read_photo(path, dtype=self.dtype)[0] for path in scene["focused"]]
+        require_one_size((scene["aif"], image), *zip(scene["focused"], focused, strict=True))
         h, w = image.shape[-2:]
         return {"image": image, "focused": torch.stack(focused),
                 "camera": self.camera_settings(index),

@@ -207,9 +207,6 @@ def _to_linear(array: np.ndarray, dtype: torch.dtype, encoding: str,
     # the stored layout (rows of RGB triples) unless the caller gives the tensor to fill
     image = torch.empty((height, width, 3), dtype=dtype).permute(2, 0, 1) if into is None \
         else into((height, width))
-    if not (isinstance(image, Tensor) and tuple(image.shape) == (3, height, width)):
-        raise ValueError(f"into must give a (3, {height}, {width}) tensor, got "
-                         f"{getattr(image, 'shape', type(image).__name__)}")
     for rows in _row_blocks(height, width):
         block = torch.from_numpy(np.array(array[rows, :, :3]))  # a small copy
         block = block.to(image.dtype).permute(2, 0, 1).div_(scale)
@@ -347,10 +344,7 @@ def save_photo(path: str | Path, image: Tensor) -> Path:
     """
     import png
 
-    check_image = image.detach().cpu().float()
-    if check_image.dim() != 3 or check_image.shape[0] != 3:
-        raise ValueError(f"image must be (3, H, W), got {tuple(image.shape)}")
-    encoded = linear_rgb_to_rgb(check_image.clamp(0, 1)).clamp(0, 1)
+    encoded = linear_rgb_to_rgb(image.detach().cpu().float().clamp(0, 1)).clamp(0, 1)
     array = (encoded.permute(1, 2, 0).numpy() * 65535 + 0.5).astype(np.uint16)
     path = Path(path)
     with open(path, "wb") as handle:

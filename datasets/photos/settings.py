@@ -41,13 +41,6 @@ def _times(value: Any, factor: int) -> Any:
     return [v * factor for v in value] if isinstance(value, (list, tuple)) else value * factor
 
 
-def _check_names(argument: str, names: Collection[str]) -> None:
-    unknown = sorted(set(names) - set(SETTING_FIELDS))
-    if unknown:
-        raise ValueError(f"{argument} must name settings among {list(SETTING_FIELDS)}, got "
-                         f"{unknown}")
-
-
 def _binning(metadata: Sequence[PhotoMetadata]) -> int:
     """The binning all records share (1 for none)."""
     binnings = sorted({meta.binning for meta in metadata})
@@ -115,8 +108,7 @@ def resolve_known(
         Settings nothing gives are in neither.
 
     Raises:
-        ValueError: if `options` or `ignore` names no setting, or the records differ in
-            binning.
+        ValueError: if the records differ in binning.
 
     Example:
         >>> stated = {"focal_length": 0.05, "f_number": 2.8, "pixel_pitch": 4e-6}
@@ -129,8 +121,6 @@ def resolve_known(
         ('given', 'EXIF focal-plane resolution')
     """
     options = dict(options or {})
-    _check_names("options", options)
-    _check_names("ignore", ignore)
     binning = _binning(metadata)
     values: dict[str, Any] = {}
     sources: dict[str, str] = {}
