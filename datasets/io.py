@@ -12,6 +12,7 @@ import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -20,6 +21,35 @@ from torch import Tensor
 
 class DataFormatError(ValueError):
     """A dataset file exists but does not hold what the loader expects."""
+
+
+class ArgumentError(ValueError, TypeError):
+    """An argument refused at a loader's door, for its value or its type (catch either)."""
+
+
+def require_args(*rules: tuple[str, Any, Any, str]) -> None:
+    """The door of a constructor: refuse the first `(name, value, ok, allowed)` rule whose `ok`
+    is false with one `ArgumentError` naming the argument, what is allowed and the value given.
+
+    Example:
+        >>> require_args(("split", "tset", "tset" in ("train", "test"), "one of ('train', 'test')"))
+        Traceback (most recent call last):
+        ...
+        datasets.io.ArgumentError: split must be one of ('train', 'test'), got 'tset'
+    """
+    for name, value, ok, allowed in rules:
+        if not ok:
+            raise ArgumentError(f"{name} must be {allowed}, got {value!r}")
+
+
+def is_size(size: Any) -> bool:
+    """Whether `size` is `(height, width)` pixels, both > 0 (None too: no size).
+
+    Example:
+        >>> is_size((96, 128)), is_size((96, 0)), is_size(None)
+        (True, False, True)
+    """
+    return size is None or (len(size) == 2 and all(int(s) > 0 for s in size))
 
 
 def require_root(root: str | Path | None, dataset: str, layout: str) -> Path:
