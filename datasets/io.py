@@ -145,6 +145,34 @@ def read_list(path: Path, what: str = "a list of names") -> list[str]:
     return list(first)
 
 
+def read_numbers(path: Path, what: str, columns: int | None = None) -> list[list[float]]:
+    """The rows of a text table of numbers (blank lines and `#` comments skipped), refused
+    naming the file and line where a line is not numbers or, with `columns`, not that many.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "focus.txt"
+        >>> _ = path.write_text("0.1\\n0.2 1\\n")
+        >>> read_numbers(path, "one focus value a line", 1)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: ...focus.txt': not lines of numbers (one focus value a line): line 2 is '0.2 1', 2 columns
+    """
+    rows = []
+    for number, line in enumerate(read_text(require_file(path, what), what).splitlines(), 1):
+        if not (fields := line.split("#")[0].split()):
+            continue
+        try:
+            rows.append([float(v) for v in fields])
+        except ValueError:
+            rows.append(None)
+        if rows[-1] is None or columns is not None and len(fields) != columns:
+            raise DataFormatError(f"{str(path)!r}: not lines of numbers ({what}): line {number} "
+                                  f"is {line.strip()!r}" + (f", {len(fields)} columns" if rows[-1]
+                                                            else ""))
+    return rows
+
+
 #: The most pixels of an image file that is decoded (100 megapixels), for every format: a PNG,
 #: JPEG or TIFF whose header states more (`check_image_size`) or a raw file whose metadata states
 #: more photosites (`datasets.photos.read_raw`) is refused before any pixel is decoded.

@@ -41,7 +41,7 @@ import torch
 from optics import CameraSettings
 
 from .focus import CameraPreset
-from .io import DataFormatError, read_text, require_one_size, require_root
+from .io import DataFormatError, read_numbers, require_args, require_one_size, require_root
 from .photos import read_photo
 from .stacks import FocalStackDataset
 
@@ -93,11 +93,7 @@ def read_calibrated(path: Path) -> list[float]:
     Raises:
         DataFormatError: a line that is not numbers, or no frame line.
     """
-    rows = [line.split() for line in read_text(path, "a text table").splitlines() if line.strip()]
-    try:
-        numbers = [[float(v) for v in row] for row in rows]
-    except ValueError as error:
-        raise DataFormatError(f"{str(path)!r}: not lines of numbers ({error})") from None
+    numbers = read_numbers(path, "'<focus value> <aperture>' a frame, then the focal length")
     values = [row[0] for row in numbers[:-1]]
     if not values or any(len(row) < 2 for row in numbers[:-1]):
         raise DataFormatError(f"{str(path)!r}: expected one line '<focus value> <aperture>' a "
@@ -199,29 +195,21 @@ class MobileDepth(FocalStackDataset):
                  calibration: str | Path | None = None, sort_by_focus: bool = False,
                  **kwargs: Any):
         near, far = (float(d) for d in focus_range)
-        if not 0 < near < far:
-            raise ValueError(f"focus_range must be metres (near, far) with 0 < near < far, "
-                             f"got {tuple(focus_range)!r}")
-        if n_shots is not None and n_shots < 1:
-            raise ValueError(f"n_shots must be >= 1 frames, got {n_shots}")
+        require_args(("focus_range", tuple(focus_range), 0 < near < far,
+                      "metres (near, far) with 0 < near < far"),
+                     ("n_shots", n_shots, n_shots is None or n_shots >= 1, ">= 1 frames"))
         self.phone = {**PHONE, **dict(camera or {})}
         super().__init__(CameraPreset(self.phone["focal_length"], self.phone["pixel_pitch"],
                                       (near, far), (self.phone["f_number"],), depth_cap=far),
                          **kwargs)
         self.root = require_root(root, "MobileDepth", LAYOUT)
         found = {p.name: p for p in find_scenes(self.root)}
-        if scenes is not None:
-            missing = [s for s in scenes if s not in found]
-            if missing:
-                raise FileNotFoundError(f"MobileDepth: no scene folder with frames named "
-                                        f"{missing} under {str(self.root)!r}; found "
-                                        f"{sorted(found)}")
-            folders = [found[s] for s in scenes]
-        else:
-            folders = list(found.values())
-        if not folders:
-            raise FileNotFoundError(f"MobileDepth: no scene folders with frames in "
-                                    f"{str(self.root)!r}. Expected:\n{LAYOUT}")
+        missing = [s for s in scenes or () if s not in found]
+        folders = [found[s] for s in (found if scenes is None else scenes) if s in found]
+        if missing or not folders:
+            named = f"named {missing} " if missing else ""
+            raise FileNotFoundError(f"MobileDepth: no scene folder with frames {named}under "
+                                    f"{str(self.root)!r}; found {sorted(found)}. Expected:\n{LAYOUT}")
         self.focus_range, self.n_shots = (near, far), n_shots
         self.depth_range = (near, far)
         self.sort_by_focus = bool(sort_by_focus)
@@ -250,13 +238,7 @@ class MobileDepth(FocalStackDataset):
         """The scene's calibrated focus values and their file, or None where it has none."""
         own = folder / "focus_dpth.txt"
         if own.is_file():
-            try:
-                values = np.loadtxt(own, dtype=np.float64, ndmin=1)
-                if values.ndim != 1:
-                    raise ValueError(f"{values.shape[1]} columns, expected one value a line")
-            except ValueError as error:
-                raise DataFormatError(f"{str(own)!r}: not a list of numbers ({error})") from None
-            return own, values.tolist()
+            return own, [row[0] for row in read_numbers(own, "one focus value a line", 1)]
         if self.calibration is not None:
             name = CALIBRATION_NAMES.get(folder.name, folder.name)
             path = self.calibration / name / "calibrated.txt"
