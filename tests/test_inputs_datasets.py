@@ -142,7 +142,8 @@ def test_bad_calib_txt_named(tmp_path, text, message):
 def test_bad_calib_txt_binary_named(tmp_path):
     path = tmp_path / "calib.txt"
     path.write_bytes(b"\xff\xfe\x00\x01garbage")
-    with pytest.raises(DataFormatError, match=names(path) + ": not a text file"):
+    with pytest.raises(DataFormatError, match=names(path) + ": expected a Middlebury calib.txt in "
+                                                        "UTF-8 text, but byte 1 is 0xff"):
         read_calib(path)
 
 
