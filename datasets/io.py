@@ -54,14 +54,11 @@ def is_size(size: Any) -> bool:
 
 def require_root(root: str | Path | None, dataset: str, layout: str) -> Path:
     """Check that a dataset's `root` folder exists; `layout` describes what it must hold."""
-    if root is None:
-        raise ValueError(f"{dataset}: root must be the dataset folder, got None. Expected:\n{layout}")
-    path = Path(root).expanduser()
-    if not path.is_dir():
+    path = Path(root or "").expanduser()
+    if root is None or not path.is_dir():
         raise FileNotFoundError(
-            f"{dataset}: root folder {str(path)!r} does not exist or is not a folder. "
-            f"Expected:\n{layout}"
-        )
+            f"{dataset}: root folder {None if root is None else str(path)!r} does not exist or is "
+            f"not a folder (root must be the dataset folder). Expected:\n{layout}")
     return path
 
 
@@ -277,26 +274,17 @@ def to_unit_range(path: Path, name: str, array: np.ndarray) -> np.ndarray:
     """
     if np.issubdtype(array.dtype, np.unsignedinteger):
         return array.astype(np.float64) / float(np.iinfo(array.dtype).max)
-    if not np.issubdtype(array.dtype, np.floating):
-        raise DataFormatError(
-            f"{str(path)!r}: {name} has dtype {array.dtype}; expected uint8, uint16 or a float "
-            "image in [0, 1]"
-        )
-    values = array.astype(np.float64)
+    floating = np.issubdtype(array.dtype, np.floating)
+    values = array.astype(np.float64) if floating else np.zeros(0)
     finite = np.isfinite(values)
-    if not finite.all():
+    low, high = (float(values[finite].min()), float(values[finite].max())) if finite.any() \
+        else (0.0, 0.0)
+    if not floating or not finite.all() or low < 0 or high > 1:
+        hint = " (it looks like 0-255 stored as float: divide by 255)" if 1 < high <= 255 else ""
         raise DataFormatError(
-            f"{str(path)!r}: {name} holds {int((~finite).sum())} NaN or infinite value(s); "
-            "images must be finite"
-        )
-    low, high = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
-    if low < 0 or high > 1:
-        hint = " (it looks like 0-255 stored as float: divide by 255)" if high <= 255 and high > 1 \
-            else ""
-        raise DataFormatError(
-            f"{str(path)!r}: {name} is a float image with values in [{low:.4g}, {high:.4g}]; "
-            f"float images must lie in [0, 1]{hint}"
-        )
+            f"{str(path)!r}: {name} has dtype {array.dtype}, {int((~finite).sum())} NaN or "
+            f"infinite value(s) and values in [{low:.4g}, {high:.4g}]; expected uint8, uint16 or "
+            f"a float image, finite and in [0, 1]{hint}")
     return values
 
 
@@ -360,20 +348,16 @@ def read_npy(path: Path, what: str = "an array", max_values: int = MAX_NPY_VALUE
             read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                            else np.lib.format.read_array_header_2_0)
             shape, _, dtype = read_header(file)
+            count = int(np.prod(shape, dtype=np.float64))
+            if count <= max_values and not dtype.hasobject:
+                return np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError, SyntaxError) as error:
         raise DataFormatError(f"{str(path)!r}: cannot be read as {what} in .npy format "
                               f"({error}); the file may be truncated") from None
-    count = int(np.prod(shape, dtype=np.float64))
-    if count > max_values or dtype.hasobject:
-        why = f"{count:.3g} values (at most {max_values:.3g} are read)" if count > max_values \
-            else f"Python objects ({dtype})"
-        raise DataFormatError(f"{str(path)!r}: its header states shape {shape} of {why}; "
-                              f"expected {what}")
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as error:
-        raise DataFormatError(f"{str(path)!r}: cannot be read as {what} in .npy format "
-                              f"({error}); the file may be truncated") from None
+    why = f"{count:.3g} values (at most {max_values:.3g} are read)" if count > max_values \
+        else f"Python objects ({dtype})"
+    raise DataFormatError(f"{str(path)!r}: its header states shape {shape} of {why}; "
+                          f"expected {what}")
 
 
 def read_pfm(path: Path) -> np.ndarray:
