@@ -42,9 +42,8 @@ import torch.nn.functional as F
 
 from optics import CameraSettings
 
-from .depth import fill_unknown
+from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .fod500 import check_depth_metres
 from .io import (
     DataFormatError,
     read_npy,
@@ -185,8 +184,8 @@ class ZEDD(FocalStackDataset):
             if array.ndim != 2 or not np.issubdtype(array.dtype, np.floating):
                 raise DataFormatError(f"{str(depth_path)!r}: expected an (H, W) float depth map "
                                       f"in metres, got shape {array.shape}, dtype {array.dtype}")
-            check_depth_metres(depth_path, array, 200.0)
             depth = torch.from_numpy(array.astype(np.float64)).to(self.dtype)[None]
+            require_valid_depth(valid_depth_mask(depth), repr(str(depth_path)), depth, (0.0, 200.0))
             mask = torch.isfinite(depth) & (depth >= VALID_DEPTH[0]) & (depth <= VALID_DEPTH[1])
             if not bool(mask.any()):
                 raise DataFormatError(f"{str(depth_path)!r}: no depth in {VALID_DEPTH} metres")
