@@ -88,7 +88,7 @@ def test_capture_saves_jpegs_as_pillow_does(tmp_path):
     ({"jpeg_quality": -1}, "jpeg_quality must be an integer in 1-95"),
     ({"jpeg_quality": 90.0}, "jpeg_quality must be an integer in 1-95"),
     ({"jpeg_quality": True}, "jpeg_quality must be an integer in 1-95"),
-    ({"jpeg_quality": 90, "bits": 0}, "jpeg_quality=90 needs bits=8"),
+    ({"jpeg_quality": 90, "bits": 0}, "bits must be 8 for jpeg_quality=90"),
 ])
 def test_capture_noise_refuses_an_impossible_jpeg(fields, message):
     with pytest.raises(ValueError, match=message):
