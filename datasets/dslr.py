@@ -33,7 +33,7 @@ from optics import CameraSettings
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import read_depth_png, require_one_size, require_root
+from .io import read_depth_png, require_args, require_one_size, require_root
 from .pairs import register_focused, relative_pair
 from .photos import CameraFile, read_photo, settings_for_shots
 from .presets import DSLR as DSLR_PRESET
@@ -200,11 +200,9 @@ class DSLR(DepthDataset):
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
-        for name, value, unit in (("depth_scale", depth_scale, "metres per unit"),
-                                  ("max_gap_s", max_gap_s, "seconds"),
-                                  ("sensor_width_px", sensor_width_px, "pixels")):
-            if not value > 0:
-                raise ValueError(f"{name} must be > 0 {unit}, got {value}")
+        require_args(*((name, value, value > 0, f"> 0 {unit}") for name, value, unit in (
+            ("depth_scale", depth_scale, "metres per unit"), ("max_gap_s", max_gap_s, "seconds"),
+            ("sensor_width_px", sensor_width_px, "pixels"))))
         self.root = require_root(root, "DSLR", LAYOUT)
         self.depth_scale = float(depth_scale)
         self.sensor_width_px = int(sensor_width_px)
@@ -229,12 +227,11 @@ class DSLR(DepthDataset):
                        self.root / WIDE_FOLDER / "depth" / split]
         else:
             folders = [self.root / split / name for name in (wide, reference, depth)]
-        for folder in folders:
-            if not folder.is_dir():
-                raise FileNotFoundError(f"DSLR: missing folder {str(folder)!r}. Expected:\n{LAYOUT}")
-        photos = _files(folders[0], PHOTO_SUFFIXES)
+        missing = [str(folder) for folder in folders if not folder.is_dir()]
+        photos = [] if missing else _files(folders[0], PHOTO_SUFFIXES)
         if not photos:
-            raise FileNotFoundError(f"DSLR: no photos in {str(folders[0])!r}")
+            why = f"missing folder {missing[0]!r}" if missing else f"no photos in {str(folders[0])!r}"
+            raise FileNotFoundError(f"DSLR: {why}. Expected:\n{LAYOUT}")
         references = pair_files(photos, _files(folders[1], PHOTO_SUFFIXES), "f/8 photo",
                                 max_gap_s)
         depths = pair_files(photos, _files(folders[2], (".png",)), "depth file", max_gap_s)
@@ -243,10 +240,8 @@ class DSLR(DepthDataset):
         if scenes is not None:
             kept = list(range(len(self.files)))[scenes] if isinstance(scenes, slice) \
                 else list(scenes)
-            bad = [i for i in kept if not 0 <= i < len(self.files)]
-            if bad or not kept:
-                raise ValueError(f"scenes must select among the {len(self.files)} scenes of "
-                                 f"{str(folders[0])!r}, got {scenes!r}")
+            require_args(("scenes", scenes, kept and all(0 <= i < len(self.files) for i in kept),
+                          f"indices among the {len(self.files)} scenes of {str(folders[0])!r}"))
             self.files = [self.files[i] for i in kept]
         self.ids.extend(w.stem for w, _, _ in self.files)
 
