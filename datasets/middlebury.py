@@ -39,6 +39,7 @@ from .io import (
     read_list,
     read_pfm,
     read_text,
+    require_args,
     require_file,
     require_one_size,
     require_root,
@@ -126,8 +127,7 @@ def motorcycle_focus_sweep(
 
     from optics import CameraSettings, render_focal_stack
 
-    if not 0 < float(scale) <= 1:
-        raise ValueError(f"scale must be in (0, 1], got {scale!r}")
+    require_args(("scale", scale, 0 < float(scale) <= 1, "in (0, 1]"))
     scene = load_motorcycle()
     image, depth = scene["image"], scene["depth"]
     if scale != 1:
@@ -154,8 +154,7 @@ def motorcycle_scene(scale: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
     """
     import torch.nn.functional as F
 
-    if not 0 < float(scale) <= 1:
-        raise ValueError(f"scale must be in (0, 1], got {scale!r}")
+    require_args(("scale", scale, 0 < float(scale) <= 1, "in (0, 1]"))
     scene = load_motorcycle()
     known = scene["mask"].to(scene["depth"].dtype)
     if scale != 1:

@@ -99,11 +99,11 @@ class PhotoFolder(DepthDataset):
         camera = CameraFile.read(path, require=("photos",))
         photos = camera.photos
         aif = next((folder / name for name in AIF_NAMES if (folder / name).is_file()), None)
-        if aif is None:
-            raise FileNotFoundError(f"{folder}: no all-in-focus photo ({', '.join(AIF_NAMES)})")
         missing = [name for name in photos if not (folder / name).is_file()]
-        if missing:
-            raise FileNotFoundError(f"{folder}: {path} names {missing}, which are not there")
+        if aif is None or missing:
+            raise FileNotFoundError(f"{folder}: " + (
+                f"{path} names {missing}, which are not there" if missing else
+                f"no all-in-focus photo ({', '.join(AIF_NAMES)})"))
         return {"folder": folder, "camera": camera.settings, "aif": aif,
                 "focused": [folder / name for name in photos]}
 

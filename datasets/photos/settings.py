@@ -197,19 +197,18 @@ def resolve_settings(
     values, sources = resolve_known(metadata, given, calibration)
     focus = values.get("focus_distance", [])
     focus = list(focus) if isinstance(focus, (list, tuple)) else [focus]
-    if len(focus) != n:
-        raise ValueError(f"give --focus-distance with one value per focused photo ({n}): "
-                         + _why_no_focus(focus, sources.get("focus_distance"), metadata,
-                                         calibration))
-    if isinstance(f_numbers, (list, tuple)) and len(f_numbers) not in (0, 1, n):
-        raise ValueError(f"give --f-number once or once per focused photo ({n}), got "
-                         f"{len(f_numbers)}")
-    for name in ("f_number", "focal_length", "pixel_pitch"):
-        if name not in values:
-            missing = [str(meta.path) for meta in metadata if getattr(meta, name) is None]
-            raise ValueError(f"{name} is unknown: {', '.join(missing)} do(es) not state it in "
-                             f"EXIF; give --{name.replace('_', '-')} ({_UNITS[name]}) or "
-                             "--camera fit.json")
+    unknown = next((name for name in ("f_number", "focal_length", "pixel_pitch")
+                    if name not in values), "")
+    why = (f"give --focus-distance with one value per focused photo ({n}): " + _why_no_focus(
+        focus, sources.get("focus_distance"), metadata, calibration) if len(focus) != n else
+        f"give --f-number once or once per focused photo ({n}), got {len(f_numbers)}"
+        if isinstance(f_numbers, (list, tuple)) and len(f_numbers) not in (0, 1, n) else
+        f"{unknown} is unknown: "
+        f"{', '.join(str(m.path) for m in metadata if getattr(m, unknown) is None)} do(es) not "
+        f"state it in EXIF; give --{unknown.replace('_', '-')} ({_UNITS[unknown]}) or --camera "
+        "fit.json" if unknown else None)
+    if why:
+        raise ValueError(why)
     spec = calibration.aperture if calibration is not None else aperture
     settings = CameraSettings(values["focal_length"], values["f_number"], focus,
                               values["pixel_pitch"], aperture=spec)
