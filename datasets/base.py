@@ -34,7 +34,13 @@ from torch.utils.data import Dataset
 from optics import Aperture, CameraSettings
 
 from .focus import CameraPreset, cached_focal_stack, resolve_cache_dir
-from .transforms import JointAugment, check_size, crop_sample, resize_sample
+from .io import is_size, require_args
+from .transforms import JointAugment, crop_sample, resize_sample
+
+
+def _augment_rule(augment: Any) -> tuple[str, str, bool, str]:
+    return ("augment", type(augment).__name__, augment is None or isinstance(augment, JointAugment),
+            "a JointAugment or None")
 
 
 class _MemoryCache:
@@ -111,18 +117,15 @@ class DepthDataset(Dataset):
         dtype: torch.dtype = torch.float32,
         memory_cache_mb: float = 0,
     ):
-        if not isinstance(preset, CameraPreset):
-            raise TypeError(f"preset must be a CameraPreset, got {type(preset).__name__}")
-        if crop is not None and len(crop) != 4:
-            raise ValueError(f"crop must be (top, left, height, width) in pixels, got {crop!r}")
-        if augment is not None and not isinstance(augment, JointAugment):
-            raise TypeError(f"augment must be a JointAugment or None, got {type(augment).__name__}")
-        if not dtype.is_floating_point:
-            raise TypeError(f"dtype must be a floating-point dtype, got {dtype}")
-        if not float(memory_cache_mb) >= 0:
-            raise ValueError(f"memory_cache_mb must be >= 0 MiB, got {memory_cache_mb!r}")
+        require_args(
+            ("preset", type(preset).__name__, isinstance(preset, CameraPreset), "a CameraPreset"),
+            ("size", size, is_size(size), "(height, width) in pixels, both > 0"),
+            ("crop", crop, crop is None or len(crop) == 4, "(top, left, height, width) in pixels"),
+            _augment_rule(augment),
+            ("dtype", dtype, dtype.is_floating_point, "a floating-point dtype"),
+            ("memory_cache_mb", memory_cache_mb, float(memory_cache_mb) >= 0, ">= 0 MiB"))
         self.preset = preset
-        self.size = check_size("size", size)
+        self.size = None if size is None else (int(size[0]), int(size[1]))
         self.crop = None if crop is None else tuple(int(c) for c in crop)
         self.augment = augment
         self.cache_dir = resolve_cache_dir(cache_dir)
@@ -202,8 +205,7 @@ class DepthDataset(Dataset):
             >>> crop["image"].shape, sample["image"].shape
             (torch.Size([3, 16, 24]), torch.Size([3, 50, 74]))
         """
-        if augment is not None and not isinstance(augment, JointAugment):
-            raise TypeError(f"augment must be a JointAugment or None, got {type(augment).__name__}")
+        require_args(_augment_rule(augment))
         view = copy.copy(self)
         view.augment = augment
         return view
@@ -220,14 +222,13 @@ class DepthDataset(Dataset):
         }
         h, w = out["image"].shape[-2:]
         n = out["camera"].n_shots
-        for key, shape in (("focused", (n, 3, h, w)), ("depth", (1, h, w)), ("mask", (1, h, w))):
-            if tuple(out[key].shape) != shape:
-                raise ValueError(
-                    f"{self.name} sample {sample['id']!r}: {key} has shape "
-                    f"{tuple(out[key].shape)}, expected {shape}"
-                )
+        wrong = [f"{key} has shape {tuple(out[key].shape)}, expected {shape}"
+                 for key, shape in (("focused", (n, 3, h, w)), ("depth", (1, h, w)),
+                                    ("mask", (1, h, w))) if tuple(out[key].shape) != shape]
         if not bool(torch.isfinite(out["depth"]).all() and (out["depth"] > 0).all()):
-            raise ValueError(f"{self.name} sample {sample['id']!r}: depth must be finite and > 0")
+            wrong.append("depth must be finite and > 0")
+        if wrong:
+            raise ValueError(f"{self.name} sample {sample['id']!r}: {'; '.join(wrong)}")
         return out
 
     def __repr__(self) -> str:

@@ -29,6 +29,8 @@ from torch import Tensor
 from optics import CameraSettings, render_focal_stack
 from optics.alignment import translate
 
+from .io import require_args
+
 #: PSF specs drawn for training renders (physical apertures; a Gaussian of about the disk's spread).
 TRAINING_APERTURES = ("disk", "polygon:5", "polygon:6", "polygon:7", "polygon:8", "polygon:9",
                       "gaussian:0.3")
@@ -59,12 +61,11 @@ class CaptureNoise:
 
     def __post_init__(self):
         quality = self.jpeg_quality
-        if isinstance(quality, bool) or not isinstance(quality, int) or not 0 <= quality <= 95:
-            raise ValueError(f"jpeg_quality must be an integer in 1-95 (0: no JPEG), got "
-                             f"{quality!r}")
-        if quality and self.bits != 8:
-            raise ValueError(f"jpeg_quality={quality} needs bits=8 (JPEGs hold 8 bits), got "
-                             f"bits={self.bits!r}")
+        require_args(("jpeg_quality", quality, not isinstance(quality, bool) and
+                      isinstance(quality, int) and 0 <= quality <= 95,
+                      "an integer in 1-95 (0: no JPEG)"),
+                     ("bits", self.bits, not quality or self.bits == 8,
+                      f"8 for jpeg_quality={quality} (JPEGs hold 8 bits)"))
 
     @staticmethod
     def none() -> CaptureNoise:

@@ -44,7 +44,7 @@ from kornia.color import rgb_to_linear_rgb
 from optics import CameraSettings
 
 from .focus import CameraPreset
-from .io import DataFormatError, require_file
+from .io import DataFormatError, require_args, require_file
 from .stacks import FocalStackDataset
 
 #: Sub-aperture focal length in pixels (toolbox `refocus.py`, `IntParamLF_SubAperture.mat`).
@@ -142,44 +142,39 @@ class DDFF12(FocalStackDataset):
 
     def __init__(self, root: str | Path, split: str = "val", shots: list[int] | None = None,
                  views: int = 9, **kwargs: Any):
-        if split not in FILES:
-            raise ValueError(f"split must be one of {sorted(FILES)}, got {split!r}")
+        require_args(("split", split, split in FILES, f"one of {sorted(FILES)}"))
         self.camera = ddff_camera(views, shots=None)
         preset = CameraPreset(float(self.camera.focal_length[0]), PIXEL_PITCH,
                               tuple(self.camera.focus_distance.tolist()),
                               (float(self.camera.f_number[0]),), depth_cap=FOCUS_RANGE_M[1])
         super().__init__(preset, **kwargs)
         path = Path(root).expanduser()
-        if path.is_dir():
-            path = path / FILES[split]
-        elif not path.exists():
-            raise FileNotFoundError(f"DDFF12: root {str(path)!r} does not exist. Expected:\n{LAYOUT}")
-        self.path = require_file(path, f"the DDFF-12 HDF5 file with stack_{split}")
+        self.path = require_file(path / FILES[split] if path.is_dir() else path,
+                                 f"the DDFF-12 HDF5 file with stack_{split}")
         self.split, self.views = split, int(views)
         self.stack_key, self.disp_key = f"stack_{split}", f"disp_{split}"
-        with self._open() as file:
-            stacks = self._dataset(file, self.stack_key)
-            if stacks.ndim != 5 or stacks.shape[-1] != 3:
-                raise DataFormatError(f"{str(self.path)!r}: {self.stack_key} must have shape "
-                                      f"(N, slices, H, W, 3), got {stacks.shape}")
-            count, slices = stacks.shape[:2]
-            self.has_depth = self.disp_key in file
-            if self.has_depth:
-                disp = file[self.disp_key]
-                expected = (count, *stacks.shape[2:4])
-                if tuple(disp.shape) not in (expected, (count, 1, *expected[1:])):
-                    raise DataFormatError(
-                        f"{str(self.path)!r}: {self.disp_key} must have shape {expected} (one "
-                        f"disparity map per stack of {self.stack_key}), got {disp.shape}")
-            elif split != "test":
-                raise DataFormatError(f"{str(self.path)!r}: missing key {self.disp_key!r} "
-                                      f"(the disparity of {self.stack_key}); keys: {sorted(file)}")
+        with self._open() as file:  # shapes and dtypes read while the file is open
+            stacks, disp = file.get(self.stack_key), file.get(self.disp_key)
+            self.has_depth = disp is not None
             self.aif_key = f"AiF_{split}" if f"AiF_{split}" in file else None
+            keys = sorted(file)
+            count, slices, h, w = (0, 0, 0, 0) if stacks is None else stacks.shape[:4]
+            expected = f"(N, slices, H, W, 3) and {self.disp_key} float ({count}, {h}, {w})"
+            why = (None if stacks is not None and stacks.ndim == 5 and stacks.shape[-1] == 3 and (
+                disp is None and split == "test" or disp is not None and
+                np.issubdtype(disp.dtype, np.floating) and
+                tuple(disp.shape) in ((count, h, w), (count, 1, h, w))) else
+                f"missing key {self.stack_key!r}" if stacks is None else
+                f"missing key {self.disp_key!r} (the disparity of {self.stack_key})"
+                if disp is None and split != "test" else f"{self.stack_key} must have shape "
+                f"{expected}, got {stacks.shape} and "
+                f"{None if disp is None else (disp.shape, disp.dtype)}")
+        if why:
+            raise DataFormatError(f"{str(self.path)!r}: {why}; keys: {keys}. Expected:\n{LAYOUT}")
         self.shots = list(range(slices)) if shots is None else [int(i) for i in shots]
-        if not self.shots or any(not 0 <= i < slices for i in self.shots) or \
-                sorted(set(self.shots)) != self.shots:
-            raise ValueError(f"shots must be increasing slice indices in 0..{slices - 1}, "
-                             f"got {shots!r}")
+        require_args(("shots", shots, self.shots and all(0 <= i < slices for i in self.shots) and
+                      sorted(set(self.shots)) == self.shots,
+                      f"increasing slice indices in 0..{slices - 1}"))
         self.camera = ddff_camera(views, slices, self.shots)
         self.ids = [f"{split}_{i:04d}" for i in range(count)]
 
@@ -192,15 +187,9 @@ class DDFF12(FocalStackDataset):
             raise DataFormatError(f"{str(self.path)!r}: cannot be opened as an HDF5 file ({error});"
                                   " the download may be truncated") from None
 
-    def _dataset(self, file, key: str):
-        if key not in file:
-            raise DataFormatError(f"{str(self.path)!r}: missing key {key!r}; keys: {sorted(file)}."
-                                  f" Expected:\n{LAYOUT}")
-        return file[key]
-
     def _read(self, file, key: str, index: int) -> np.ndarray:
         try:
-            return np.asarray(self._dataset(file, key)[index])
+            return np.asarray(file[key][index])
         except OSError as error:
             raise DataFormatError(f"{str(self.path)!r}: cannot read {key}[{index}] ({error}); the "
                                   "file may be truncated") from None
@@ -230,9 +219,6 @@ class DDFF12(FocalStackDataset):
             mask = torch.zeros(1, h, w, dtype=torch.bool)
         else:
             disparity = disparity.reshape(h, w)
-            if not np.issubdtype(disparity.dtype, np.floating):
-                raise DataFormatError(f"{str(self.path)!r}: {self.disp_key} must be float "
-                                      f"disparity in pixels, got dtype {disparity.dtype}")
             valid = disparity[np.isfinite(disparity) & (disparity > 0)]
             if valid.size and float((valid > 2 * VALID_DISPARITY[1]).mean()) > 0.5:
                 raise DataFormatError(

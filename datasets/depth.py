@@ -6,6 +6,8 @@ focus synthesis needs a depth at every pixel while evaluation must only use meas
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 from torch import Tensor
@@ -18,21 +20,35 @@ def valid_depth_mask(depth: Tensor) -> Tensor:
     return torch.isfinite(depth) & (depth > 0)
 
 
-def require_valid_depth(mask: Tensor, source: str) -> None:
+def require_valid_depth(mask: Tensor, source: str, depth: Tensor | None = None,
+                        median_metres: tuple[float, float] = (0.0, math.inf),
+                        what: str = "its depths") -> None:
     """Raise `DataFormatError` naming `source` (the file, and frame) if `mask` marks no valid
-    depth pixel: focused images rendered from such a frame would show invented depth.
+    depth pixel (focused images rendered from such a frame would show invented depth), or if
+    the median of `depth`'s positive finite values lies outside `median_metres`: millimetres,
+    disparity or another unit read as metres would scale every depth silently.
 
     Example:
         >>> require_valid_depth(torch.zeros(1, 2, 2, dtype=torch.bool), "'d.png'")
         Traceback (most recent call last):
         ...
         datasets.io.DataFormatError: 'd.png': no valid depth pixel ...
+        >>> depth = torch.tensor([1200.0, 800.0])
+        >>> require_valid_depth(depth > 0, "'d.exr'", depth, (0, 10))
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: 'd.exr': its depths have median 800 m; expected metres with a median in 0-10 m (millimetres? another unit?)
     """
-    if not bool(mask.any()):
-        raise DataFormatError(
-            f"{source}: no valid depth pixel (every value is 0, negative, NaN or inf), so no "
-            f"focused image can be rendered from it; leave this frame out of the split"
-        )
+    positive = None if depth is None else depth[valid_depth_mask(depth)]
+    median = float(positive.median()) if positive is not None and positive.numel() else None
+    low, high = median_metres
+    why = ("no valid depth pixel (every value is 0, negative, NaN or inf), so no focused image "
+           "can be rendered from it; leave this frame out of the split" if not bool(mask.any())
+           else f"{what} have median {median:.4g} m; expected metres with a median in "
+           f"{low:g}-{high:g} m (millimetres? another unit?)"
+           if median is not None and not low <= median <= high else None)
+    if why:
+        raise DataFormatError(f"{source}: {why}")
 
 
 def fill_unknown(depth: Tensor, mask: Tensor, value: float | None = None) -> Tensor:

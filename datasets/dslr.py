@@ -31,11 +31,11 @@ import torch
 from optics import CameraSettings
 
 from .base import DepthDataset
-from .camera_json import camera_for_shots, camera_from_json, load_camera_json
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_depth_png, read_rgb, require_root
+from .io import read_depth_png, require_args, require_one_size, require_root
 from .pairs import register_focused, relative_pair
+from .photos import CameraFile, read_photo, settings_for_shots
 from .presets import DSLR as DSLR_PRESET
 
 #: Folder of the release holding the f/2.8 photos and the depth.
@@ -143,7 +143,7 @@ class DSLR(DepthDataset):
             the wide photos at the stored resolution, replacing the preset; a JSON's
             `reference_f_number` sets `reference_f_number`. Values per shot must be one
             (the scenes' one focused photo): a list of different values is refused by name
-            (`datasets.camera_json`), never cut to its first value.
+            (`datasets.photos.camera_file`), never cut to its first value.
         max_gap_s: the largest time difference, seconds, of a photo and its depth file.
         scenes: keep only these scenes (indices or a slice of the split in time order, e.g.
             `slice(0, 61)` for training and `slice(61, None)` for validation).
@@ -200,10 +200,9 @@ class DSLR(DepthDataset):
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
-        if not depth_scale > 0:
-            raise ValueError(f"depth_scale must be > 0 metres per unit, got {depth_scale}")
-        if not max_gap_s > 0:
-            raise ValueError(f"max_gap_s must be > 0 seconds, got {max_gap_s}")
+        require_args(*((name, value, value > 0, f"> 0 {unit}") for name, value, unit in (
+            ("depth_scale", depth_scale, "metres per unit"), ("max_gap_s", max_gap_s, "seconds"),
+            ("sensor_width_px", sensor_width_px, "pixels"))))
         self.root = require_root(root, "DSLR", LAYOUT)
         self.depth_scale = float(depth_scale)
         self.sensor_width_px = int(sensor_width_px)
@@ -215,26 +214,24 @@ class DSLR(DepthDataset):
         self.settings: CameraSettings | None = None
         # one focused photo per scene: per-shot values of another count are refused by name
         if isinstance(camera, CameraSettings):
-            self.settings = camera_for_shots(camera, 1, "camera", ONE_SHOT)
+            self.settings = settings_for_shots(camera, 1, "camera", ONE_SHOT)
         elif camera is not None:
-            self.settings, extra = camera_from_json(load_camera_json(camera), str(camera), 1,
-                                                    ONE_SHOT)
-            self.reference_f_number = float(extra.get("reference_f_number", 8.0))
-            self.floor_px = float(extra.get("focus_floor_px", 0.0))
-            gain = extra.get("exposure_gain")
-            self.exposure_gain = None if gain is None else [float(g) for g in gain]
+            file = CameraFile.read(camera, 1, ONE_SHOT)
+            self.settings, self.floor_px = file.settings, file.focus_floor_px
+            if file.reference_f_number is not None:
+                self.reference_f_number = file.reference_f_number
+            self.exposure_gain = None if file.exposure_gain is None else list(file.exposure_gain)
         if (self.root / WIDE_FOLDER).is_dir():
             folders = [self.root / WIDE_FOLDER / "rgb" / split,
                        self.root / REFERENCE_FOLDER / "rgb" / split,
                        self.root / WIDE_FOLDER / "depth" / split]
         else:
             folders = [self.root / split / name for name in (wide, reference, depth)]
-        for folder in folders:
-            if not folder.is_dir():
-                raise FileNotFoundError(f"DSLR: missing folder {str(folder)!r}. Expected:\n{LAYOUT}")
-        photos = _files(folders[0], PHOTO_SUFFIXES)
+        missing = [str(folder) for folder in folders if not folder.is_dir()]
+        photos = [] if missing else _files(folders[0], PHOTO_SUFFIXES)
         if not photos:
-            raise FileNotFoundError(f"DSLR: no photos in {str(folders[0])!r}")
+            why = f"missing folder {missing[0]!r}" if missing else f"no photos in {str(folders[0])!r}"
+            raise FileNotFoundError(f"DSLR: {why}. Expected:\n{LAYOUT}")
         references = pair_files(photos, _files(folders[1], PHOTO_SUFFIXES), "f/8 photo",
                                 max_gap_s)
         depths = pair_files(photos, _files(folders[2], (".png",)), "depth file", max_gap_s)
@@ -243,10 +240,8 @@ class DSLR(DepthDataset):
         if scenes is not None:
             kept = list(range(len(self.files)))[scenes] if isinstance(scenes, slice) \
                 else list(scenes)
-            bad = [i for i in kept if not 0 <= i < len(self.files)]
-            if bad or not kept:
-                raise ValueError(f"scenes must select among the {len(self.files)} scenes of "
-                                 f"{str(folders[0])!r}, got {scenes!r}")
+            require_args(("scenes", scenes, kept and all(0 <= i < len(self.files) for i in kept),
+                          f"indices among the {len(self.files)} scenes of {str(folders[0])!r}"))
             self.files = [self.files[i] for i in kept]
         self.ids.extend(w.stem for w, _, _ in self.files)
 
@@ -257,15 +252,10 @@ class DSLR(DepthDataset):
 
     def load(self, index: int) -> dict[str, Any]:
         wide_path, ref_path, depth_path = self.files[index]
-        focused = read_rgb(wide_path, dtype=self.dtype)
-        image = read_rgb(ref_path, dtype=self.dtype)
+        focused = read_photo(wide_path, dtype=self.dtype)[0]
+        image = read_photo(ref_path, dtype=self.dtype)[0]
         depth = read_depth_png(depth_path, self.depth_scale, dtype=self.dtype)
-        for path, tensor in ((ref_path, image), (depth_path, depth)):
-            if tensor.shape[-2:] != focused.shape[-2:]:
-                raise DataFormatError(
-                    f"{str(path)!r} is {tuple(tensor.shape[-2:])} pixels but {str(wide_path)!r} "
-                    f"is {tuple(focused.shape[-2:])}; all three files of a scene must match"
-                )
+        require_one_size((wide_path, focused), (ref_path, image), (depth_path, depth))
         if self.settings is not None:
             camera = self.settings.to(self.dtype)
         else:

@@ -40,10 +40,6 @@ class CameraPreset:
                  min_depth: float = 1e-3, aperture: str = DEFAULT_APERTURE) -> None:
         n = len(focus_distances)
         numbers = list(f_numbers) * n if len(f_numbers) == 1 else list(f_numbers)
-        if len(numbers) != n:
-            raise ValueError(
-                f"f_numbers must hold 1 or {n} values (one per focus distance), got {f_numbers}"
-            )
         #: the settings of the focused images, float64
         self.camera = CameraSettings(focal_length, numbers, list(focus_distances), pixel_pitch,
                                      aperture=aperture)

@@ -33,7 +33,8 @@ from optics import CameraSettings
 
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_rgb, require_file, require_root
+from .io import DataFormatError, require_args, require_file, require_one_size, require_root
+from .photos import read_photo
 from .stacks import FocalStackDataset
 
 #: Focus distance of each render in name order, metres (DefocusNet readme).
@@ -79,23 +80,6 @@ def read_exr_depth(path: Path, channel: str = "R") -> np.ndarray:
                               f"{' '.join(str(error).split())}); the file may be truncated") from None
 
 
-def check_depth_metres(path: Path, depth: np.ndarray, largest: float) -> None:
-    """Refuse a depth map whose typical value (median of the positive finite pixels) exceeds
-    `largest` metres: millimetres read as metres, or disparity or inverse depth stored as depth
-    would give wrong scales silently.
-
-    Example:
-        >>> check_depth_metres(Path("d.exr"), np.array([[1200.0, 800.0]]), 10.0)
-        Traceback (most recent call last):
-        ...
-        datasets.io.DataFormatError: 'd.exr': depth has median 1000 but must be metres up to 10 m (millimetres? divide by 1000)
-    """
-    valid = depth[np.isfinite(depth) & (depth > 0)]
-    if valid.size and float(np.median(valid)) > largest:
-        raise DataFormatError(f"{str(path)!r}: depth has median {float(np.median(valid)):.4g} but "
-                              f"must be metres up to {largest:g} m (millimetres? divide by 1000)")
-
-
 class FoD500(FocalStackDataset):
     """FoD500 focal stacks (5 renders each) with depth in metres.
 
@@ -116,8 +100,7 @@ class FoD500(FocalStackDataset):
     depth_range = (0.1, DEPTH_CAP)
 
     def __init__(self, root: str | Path, split: str = "test", **kwargs: Any):
-        if split not in SPLITS:
-            raise ValueError(f"split must be one of {sorted(SPLITS)}, got {split!r}")
+        require_args(("split", split, split in SPLITS, f"one of {sorted(SPLITS)}"))
         super().__init__(CameraPreset(FOCAL_LENGTH, SENSOR_WIDTH / 256, FOCUS_DISTANCES,
                                       (F_NUMBER,), depth_cap=DEPTH_CAP), **kwargs)
         self.root = require_root(root, "FoD500", LAYOUT)
@@ -148,18 +131,14 @@ class FoD500(FocalStackDataset):
 
     def load_stack(self, index: int) -> dict[str, Any]:
         renders, depth_path, aif_path = self.scenes[index]
-        focused = torch.stack([read_rgb(p, dtype=self.dtype) for p in renders])
-        image = None if aif_path is None else read_rgb(aif_path, dtype=self.dtype)
+        shots = [read_photo(p, dtype=self.dtype)[0] for p in renders]
+        image = None if aif_path is None else read_photo(aif_path, dtype=self.dtype)[0]
         array = read_exr_depth(depth_path)
-        check_depth_metres(depth_path, array, 100.0)
         depth = torch.from_numpy(array.astype(np.float64)).to(self.dtype)[None]
-        for path, tensor in ((depth_path, depth), *zip(renders, focused, strict=True),
-                             (aif_path, image)):
-            if tensor is not None and tensor.shape[-2:] != focused.shape[-2:]:
-                raise DataFormatError(f"{str(path)!r} is {tuple(tensor.shape[-2:])} pixels but "
-                                      f"{str(renders[0])!r} is {tuple(focused.shape[-2:])}")
+        require_one_size(*zip(renders, shots, strict=True), (depth_path, depth), (aif_path, image))
+        focused = torch.stack(shots)
         mask = valid_depth_mask(depth)
-        require_valid_depth(mask, repr(str(depth_path)))
+        require_valid_depth(mask, repr(str(depth_path)), depth, (0.0, 100.0))
         pitch = SENSOR_WIDTH / focused.shape[-1]
         camera = CameraSettings(FOCAL_LENGTH, F_NUMBER, list(FOCUS_DISTANCES), pitch,
                                 aperture="disk").to(self.dtype)

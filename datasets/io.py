@@ -12,30 +12,53 @@ import math
 import re
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
-from kornia.color import rgb_to_linear_rgb
 from torch import Tensor
-
-from optics.photo_metadata import MAX_IMAGE_PIXELS as PHOTO_PIXEL_LIMIT
-from optics.photo_metadata import oversize_reason
 
 
 class DataFormatError(ValueError):
     """A dataset file exists but does not hold what the loader expects."""
 
 
+class ArgumentError(ValueError, TypeError):
+    """An argument refused at a loader's door, for its value or its type (catch either)."""
+
+
+def require_args(*rules: tuple[str, Any, Any, str]) -> None:
+    """The door of a constructor: refuse the first `(name, value, ok, allowed)` rule whose `ok`
+    is false with one `ArgumentError` naming the argument, what is allowed and the value given.
+
+    Example:
+        >>> require_args(("split", "tset", "tset" in ("train", "test"), "one of ('train', 'test')"))
+        Traceback (most recent call last):
+        ...
+        datasets.io.ArgumentError: split must be one of ('train', 'test'), got 'tset'
+    """
+    for name, value, ok, allowed in rules:
+        if not ok:
+            raise ArgumentError(f"{name} must be {allowed}, got {value!r}")
+
+
+def is_size(size: Any) -> bool:
+    """Whether `size` is `(height, width)` pixels, both > 0 (None too: no size).
+
+    Example:
+        >>> is_size((96, 128)), is_size((96, 0)), is_size(None)
+        (True, False, True)
+    """
+    return size is None or (len(size) == 2 and all(int(s) > 0 for s in size))
+
+
 def require_root(root: str | Path | None, dataset: str, layout: str) -> Path:
     """Check that a dataset's `root` folder exists; `layout` describes what it must hold."""
-    if root is None:
-        raise ValueError(f"{dataset}: root must be the dataset folder, got None. Expected:\n{layout}")
-    path = Path(root).expanduser()
-    if not path.is_dir():
+    path = Path(root or "").expanduser()
+    if root is None or not path.is_dir():
         raise FileNotFoundError(
-            f"{dataset}: root folder {str(path)!r} does not exist or is not a folder. "
-            f"Expected:\n{layout}"
-        )
+            f"{dataset}: root folder {None if root is None else str(path)!r} does not exist or is "
+            f"not a folder (root must be the dataset folder). Expected:\n{layout}")
     return path
 
 
@@ -119,10 +142,56 @@ def read_list(path: Path, what: str = "a list of names") -> list[str]:
     return list(first)
 
 
-#: The most pixels of an image file that is decoded (100 megapixels, the limit of every photo
-#: format, raw files included: `optics.photo_metadata.MAX_IMAGE_PIXELS`): a file whose header
-#: states more is refused before any pixel is read (`check_image_size`).
-MAX_IMAGE_PIXELS = PHOTO_PIXEL_LIMIT
+def read_numbers(path: Path, what: str, columns: int | None = None) -> list[list[float]]:
+    """The rows of a text table of numbers (blank lines and `#` comments skipped), refused
+    naming the file and line where a line is not numbers or, with `columns`, not that many.
+
+    Example:
+        >>> import tempfile
+        >>> path = Path(tempfile.mkdtemp()) / "focus.txt"
+        >>> _ = path.write_text("0.1\\n0.2 1\\n")
+        >>> read_numbers(path, "one focus value a line", 1)  # doctest: +ELLIPSIS
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: ...focus.txt': not lines of numbers (one focus value a line): line 2 is '0.2 1', 2 columns
+    """
+    rows = []
+    for number, line in enumerate(read_text(require_file(path, what), what).splitlines(), 1):
+        if not (fields := line.split("#")[0].split()):
+            continue
+        try:
+            rows.append([float(v) for v in fields])
+        except ValueError:
+            rows.append(None)
+        if rows[-1] is None or columns is not None and len(fields) != columns:
+            raise DataFormatError(f"{str(path)!r}: not lines of numbers ({what}): line {number} "
+                                  f"is {line.strip()!r}" + (f", {len(fields)} columns" if rows[-1]
+                                                            else ""))
+    return rows
+
+
+#: The most pixels of an image file that is decoded (100 megapixels), for every format: a PNG,
+#: JPEG or TIFF whose header states more (`check_image_size`) or a raw file whose metadata states
+#: more photosites (`datasets.photos.read_raw`) is refused before any pixel is decoded.
+MAX_IMAGE_PIXELS = 100_000_000
+
+
+def oversize_reason(height: int, width: int, what: str = "pixels",
+                    max_pixels: int = MAX_IMAGE_PIXELS) -> str | None:
+    """Why an image whose file states `height` x `width` `what` (pixels, photosites) is not
+    decoded, or None where it is within `max_pixels`.
+
+    Example:
+        >>> oversize_reason(20000, 20000)
+        '20000x20000 pixels (400 megapixels); at most 100 megapixels are read'
+        >>> oversize_reason(4000, 6000) is None
+        True
+    """
+    height, width = int(height), int(width)
+    if height * width <= max_pixels:
+        return None
+    return (f"{height}x{width} {what} ({height * width / 1e6:.4g} megapixels); at most "
+            f"{max_pixels / 1e6:g} megapixels are read")
 
 
 def check_image_size(path: Path, what: str = "an image",
@@ -205,53 +274,37 @@ def to_unit_range(path: Path, name: str, array: np.ndarray) -> np.ndarray:
     """
     if np.issubdtype(array.dtype, np.unsignedinteger):
         return array.astype(np.float64) / float(np.iinfo(array.dtype).max)
-    if not np.issubdtype(array.dtype, np.floating):
-        raise DataFormatError(
-            f"{str(path)!r}: {name} has dtype {array.dtype}; expected uint8, uint16 or a float "
-            "image in [0, 1]"
-        )
-    values = array.astype(np.float64)
+    floating = np.issubdtype(array.dtype, np.floating)
+    values = array.astype(np.float64) if floating else np.zeros(0)
     finite = np.isfinite(values)
-    if not finite.all():
+    low, high = (float(values[finite].min()), float(values[finite].max())) if finite.any() \
+        else (0.0, 0.0)
+    if not floating or not finite.all() or low < 0 or high > 1:
+        hint = " (it looks like 0-255 stored as float: divide by 255)" if 1 < high <= 255 else ""
         raise DataFormatError(
-            f"{str(path)!r}: {name} holds {int((~finite).sum())} NaN or infinite value(s); "
-            "images must be finite"
-        )
-    low, high = (float(values.min()), float(values.max())) if values.size else (0.0, 0.0)
-    if low < 0 or high > 1:
-        hint = " (it looks like 0-255 stored as float: divide by 255)" if high <= 255 and high > 1 \
-            else ""
-        raise DataFormatError(
-            f"{str(path)!r}: {name} is a float image with values in [{low:.4g}, {high:.4g}]; "
-            f"float images must lie in [0, 1]{hint}"
-        )
+            f"{str(path)!r}: {name} has dtype {array.dtype}, {int((~finite).sum())} NaN or "
+            f"infinite value(s) and values in [{low:.4g}, {high:.4g}]; expected uint8, uint16 or "
+            f"a float image, finite and in [0, 1]{hint}")
     return values
 
 
-def read_rgb(path: Path, linear: bool = True, dtype: torch.dtype = torch.float32) -> Tensor:
-    """Read an 8- or 16-bit RGB photo as a `(3,H,W)` tensor in [0, 1].
+def require_one_size(*files: tuple[Path, Tensor | np.ndarray | None]) -> None:
+    """Refuse the files of one sample unless their arrays (`None`: absent, skipped) share the
+    first one's size `(H, W)`, the last two axes, naming the file that differs and the first.
 
-    Args:
-        path: PNG or JPEG file.
-        linear: decode the sRGB transfer curve to linear intensity (what the renderer expects).
-        dtype: floating dtype of the result.
-
-    Raises:
-        FileNotFoundError: `path` does not exist.
-        DataFormatError: the file is unreadable, not an RGB(A) image, or a float image that is
-            not finite and within [0, 1].
+    Example:
+        >>> require_one_size((Path("a.png"), np.zeros((3, 4, 6))), (Path("b.png"), None))
+        >>> require_one_size((Path("a.png"), np.zeros((4, 6))), (Path("d.png"), np.zeros((4, 5))))
+        Traceback (most recent call last):
+        ...
+        datasets.io.DataFormatError: 'd.png' is (4, 5) pixels but 'a.png' is (4, 6); the files of a sample must have one size
     """
-    array = read_image(path, "an RGB photo")
-    if array.ndim == 2:
-        array = np.repeat(array[..., None], 3, axis=2)
-    check_array_shape(path, "the RGB photo", array, (None, None, None))
-    if array.shape[2] not in (3, 4):
-        raise DataFormatError(
-            f"{str(path)!r}: expected an RGB photo with 3 (or 4) channels, got shape {array.shape}"
-        )
-    values = to_unit_range(path, "the RGB photo", np.ascontiguousarray(array[..., :3]))
-    image = torch.from_numpy(values).to(dtype).permute(2, 0, 1)
-    return rgb_to_linear_rgb(image) if linear else image
+    first_path, size = files[0][0], tuple(files[0][1].shape[-2:])
+    for path, array in files[1:]:
+        if array is not None and tuple(array.shape[-2:]) != size:
+            raise DataFormatError(f"{str(path)!r} is {tuple(array.shape[-2:])} pixels but "
+                                  f"{str(first_path)!r} is {size}; the files of a sample must "
+                                  "have one size")
 
 
 def read_depth_png(path: Path, scale: float, dtype: torch.dtype = torch.float32) -> Tensor:
@@ -295,20 +348,16 @@ def read_npy(path: Path, what: str = "an array", max_values: int = MAX_NPY_VALUE
             read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
                            else np.lib.format.read_array_header_2_0)
             shape, _, dtype = read_header(file)
+            count = int(np.prod(shape, dtype=np.float64))
+            if count <= max_values and not dtype.hasobject:
+                return np.load(path, allow_pickle=False)
     except (ValueError, OSError, EOFError, SyntaxError) as error:
         raise DataFormatError(f"{str(path)!r}: cannot be read as {what} in .npy format "
                               f"({error}); the file may be truncated") from None
-    count = int(np.prod(shape, dtype=np.float64))
-    if count > max_values or dtype.hasobject:
-        why = f"{count:.3g} values (at most {max_values:.3g} are read)" if count > max_values \
-            else f"Python objects ({dtype})"
-        raise DataFormatError(f"{str(path)!r}: its header states shape {shape} of {why}; "
-                              f"expected {what}")
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as error:
-        raise DataFormatError(f"{str(path)!r}: cannot be read as {what} in .npy format "
-                              f"({error}); the file may be truncated") from None
+    why = f"{count:.3g} values (at most {max_values:.3g} are read)" if count > max_values \
+        else f"Python objects ({dtype})"
+    raise DataFormatError(f"{str(path)!r}: its header states shape {shape} of {why}; "
+                          f"expected {what}")
 
 
 def read_pfm(path: Path) -> np.ndarray:

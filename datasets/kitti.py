@@ -24,12 +24,19 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from torch import Tensor
-
 from .base import DepthDataset
 from .depth import densify_nearest, fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, read_depth_png, read_rgb, read_text, require_file, require_root
+from .io import (
+    DataFormatError,
+    read_depth_png,
+    read_text,
+    require_args,
+    require_file,
+    require_one_size,
+    require_root,
+)
+from .photos import read_photo
 from .presets import KITTI
 
 LAYOUT = (
@@ -74,25 +81,6 @@ def parse_split_line(line: str, path: Path, number: int) -> tuple[str, str, str]
 MEDIAN_DEPTH_RANGE_M = (1.0, 120.0)
 
 
-def check_lidar_depth(path: Path, valid: Tensor) -> None:
-    """Refuse a depth PNG whose valid depths (metres, after `/ 256`) have an implausible median.
-
-    Example:
-        >>> import torch
-        >>> check_lidar_depth(Path("d.png"), torch.tensor([20 / 256, 30 / 256]))  # doctest: +ELLIPSIS
-        Traceback (most recent call last):
-        ...
-        datasets.io.DataFormatError: 'd.png': its LiDAR depths have median 0.0781 m ...
-    """
-    median = float(valid.median())
-    low, high = MEDIAN_DEPTH_RANGE_M
-    if not low <= median <= high:
-        raise DataFormatError(
-            f"{str(path)!r}: its LiDAR depths have median {median:.3g} m (stored values "
-            f"{median * 256:.4g}); KITTI depth PNGs hold metres * 256 with a median in "
-            f"{low:g}-{high:g} m. Is the file in another unit (metres unscaled, millimetres)?")
-
-
 class KITTI(DepthDataset):
     """KITTI raw frames with LiDAR depth and synthesised focused images (Eigen split).
 
@@ -124,8 +112,7 @@ class KITTI(DepthDataset):
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
-        if densify not in ("nearest", "none"):
-            raise ValueError(f"densify must be 'nearest' or 'none', got {densify!r}")
+        require_args(("densify", densify, densify in ("nearest", "none"), "'nearest' or 'none'"))
         self.root = require_root(root, "KITTI", LAYOUT)
         self.depth_root = self.root if depth_root is None else require_root(
             depth_root, "KITTI depth", LAYOUT
@@ -137,21 +124,21 @@ class KITTI(DepthDataset):
         require_file(split_path, "a KITTI split file, one frame per line")
         self.frames: list[tuple[Path, Path]] = []
         first: dict[tuple[str, str, str], int] = {}
+        twice: Any = None
         for number, line in enumerate(read_text(split_path, "a split file").splitlines(), start=1):
             if not line.strip():
                 continue
             drive, camera, frame = parse_split_line(line, split_path, number)
             key = (str(Path(drive)), camera, frame)
-            if key in first:
-                raise DataFormatError(f"{str(split_path)!r} lines {first[key]} and {number} both "
-                                      f"name frame {drive}/{camera}/{frame}; a split must list "
-                                      "each frame once")
-            first[key] = number
+            twice = twice or (key in first and (first[key], number, "/".join(key)))
+            first.setdefault(key, number)
             self.frames.append((self._image_path(drive, camera, frame),
                                 self._depth_path(drive, camera, frame)))
             self.ids.append(f"{drive}/{camera}/{frame}")
-        if not self.frames:
-            raise DataFormatError(f"{str(split_path)!r}: the split file lists no frames")
+        if twice or not self.frames:
+            raise DataFormatError(f"{str(split_path)!r}" + (
+                " lines {} and {} both name frame {}; a split must list each frame once".format(
+                    *twice) if twice else ": the split file lists no frames"))
 
     def _image_path(self, drive: str, camera: str, frame: str) -> Path:
         folder = self.root / drive / camera / "data"
@@ -176,16 +163,12 @@ class KITTI(DepthDataset):
 
     def load(self, index: int) -> dict[str, Any]:
         image_path, depth_path = self.frames[index]
-        image = read_rgb(image_path, dtype=self.dtype)
+        image = read_photo(image_path, dtype=self.dtype)[0]
         depth = read_depth_png(depth_path, 1 / 256, dtype=self.dtype)
-        if depth.shape[-2:] != image.shape[-2:]:
-            raise DataFormatError(
-                f"{str(depth_path)!r}: depth is {tuple(depth.shape[-2:])} pixels but the frame "
-                f"{str(image_path)!r} is {tuple(image.shape[-2:])}"
-            )
+        require_one_size((image_path, image), (depth_path, depth))
         mask = valid_depth_mask(depth)
-        require_valid_depth(mask, repr(str(depth_path)))
-        check_lidar_depth(depth_path, depth[mask])
+        require_valid_depth(mask, repr(str(depth_path)), depth, MEDIAN_DEPTH_RANGE_M,
+                            "its LiDAR depths")
         if self.densify == "nearest":
             depth = densify_nearest(depth, mask)
         else:

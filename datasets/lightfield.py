@@ -38,7 +38,8 @@ from optics.checks import check_shape
 
 from .base import DepthDataset
 from .focus import CameraPreset
-from .io import DataFormatError, read_list, read_rgb, require_file, require_root
+from .io import DataFormatError, read_list, require_args, require_file, require_root
+from .photos import read_photo
 
 LAYOUT = (
     "  <root>/<name>.png   light-field mosaics of n x n views (interleaved ESLF or tiled)\n"
@@ -48,16 +49,19 @@ LAYOUT = (
 LAYOUTS = ("interleaved", "tiled")
 
 
-def mosaic_to_views(mosaic: Tensor, n_views: int = 14, layout: str = "interleaved") -> Tensor:
+def mosaic_to_views(mosaic: Tensor, n_views: int = 14, layout: str = "interleaved",
+                    name: str = "mosaic") -> Tensor:
     """Split a light-field mosaic `(C, n*H, n*W)` into views `(n, n, C, H, W)`.
 
     Args:
         mosaic: the mosaic image.
         n_views: views per side (14 for the Lytro Illum).
         layout: `"interleaved"` (micro-lens blocks, Lytro ESLF) or `"tiled"`.
+        name: what the refusal calls the mosaic (e.g. its file).
 
     Raises:
-        ValueError: the mosaic size is not a multiple of `n_views`, or an unknown layout.
+        DataFormatError: naming `name`, the mosaic size is not a multiple of `n_views`, or an
+            unknown layout.
 
     Example:
         >>> mosaic = torch.arange(16.0).reshape(1, 4, 4)
@@ -68,15 +72,12 @@ def mosaic_to_views(mosaic: Tensor, n_views: int = 14, layout: str = "interleave
         tensor([[2., 3.],
                 [6., 7.]])
     """
-    if layout not in LAYOUTS:
-        raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
     check_shape("mosaic", mosaic, ["C", "H", "W"])
     c, h, w = mosaic.shape
-    if h % n_views or w % n_views:
-        raise ValueError(
-            f"mosaic of {h}x{w} pixels is not a grid of {n_views}x{n_views} views "
-            f"(both sizes must be multiples of {n_views})"
-        )
+    if layout not in LAYOUTS or h % n_views or w % n_views:
+        raise DataFormatError(f"{name} of {h}x{w} pixels is not a grid of {n_views}x{n_views} "
+                              f"views in layout {layout!r} (both sizes must be multiples of "
+                              f"{n_views}; layouts: {LAYOUTS})")
     hh, ww = h // n_views, w // n_views
     if layout == "interleaved":
         views = mosaic.reshape(c, hh, n_views, ww, n_views).permute(2, 4, 0, 1, 3)
@@ -124,10 +125,9 @@ def refocus(views: Tensor, disparity: float | Sequence[float] | Tensor, radius: 
         True
     """
     check_shape("views", views, ["N", "N", "C", "H", "W"])
-    if views.shape[0] != views.shape[1]:
-        raise ValueError(f"views must be a square grid (n, n, C, H, W), got {tuple(views.shape)}")
-    if not radius >= 0:
-        raise ValueError(f"radius must be >= 0 view steps, got {radius}")
+    if views.shape[0] != views.shape[1] or not radius >= 0:
+        raise ValueError(f"views must be a square grid (n, n, C, H, W) and radius >= 0 view steps, "
+                         f"got {tuple(views.shape)} and {radius}")
     d = torch.as_tensor(disparity, dtype=views.dtype, device=views.device)
     single = d.ndim == 0
     d = d.reshape(-1)
@@ -286,10 +286,10 @@ class LightField(DepthDataset):
         calibration: LightFieldCalibration | None = None,
         **kwargs: Any,
     ):
-        if layout not in LAYOUTS:
-            raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
-        if not (0 < views <= n_views and (views % 2 == 1 or views == n_views)):
-            raise ValueError(f"views must be odd and in 1..{n_views} (or {n_views}), got {views}")
+        require_args(("layout", layout, layout in LAYOUTS, f"one of {LAYOUTS}"),
+                     ("views", views, 0 < views <= n_views and (views % 2 == 1 or views == n_views),
+                      f"odd and in 1..{n_views} (or {n_views})"),
+                     ("radius", radius, radius > 0, "> 0 view steps for a finite f-number"))
         self.calibration = calibration or LightFieldCalibration()
         super().__init__(self.calibration.preset(focus_disparities, radius), **kwargs)
         self.root = require_root(root, "LightField", LAYOUT)
@@ -310,11 +310,8 @@ class LightField(DepthDataset):
     def load_views(self, index: int) -> Tensor:
         """The kept central views `(views, views, 3, H, W)` of light field `index`."""
         path = self.files[index]
-        mosaic = read_rgb(path, dtype=self.dtype)
-        try:
-            grid = mosaic_to_views(mosaic, self.n_views, self.layout)
-        except ValueError as error:
-            raise DataFormatError(f"{str(path)!r}: {error}") from error
+        grid = mosaic_to_views(read_photo(path, dtype=self.dtype)[0], self.n_views, self.layout,
+                               repr(str(path)))
         first = self.n_views // 2 - self.views // 2
         return grid[first : first + self.views, first : first + self.views]
 

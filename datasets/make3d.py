@@ -25,7 +25,8 @@ import torch.nn.functional as F
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .io import DataFormatError, check_array_shape, load_mat, read_rgb, require_root
+from .io import DataFormatError, check_array_shape, load_mat, require_args, require_root
+from .photos import read_photo
 from .presets import MAKE3D
 
 LAYOUT = (
@@ -45,9 +46,11 @@ def match_files(image_dir: Path, depth_dir: Path) -> list[tuple[Path, Path]]:
     """`(photo, depth file)` pairs matched by `<name>`, sorted by photo; a photo without its
     depth file or a depth file without its photo is refused (neither is dropped silently)."""
     photos = sorted(p for p in image_dir.iterdir()
-                    if p.suffix.lower() in PHOTO_SUFFIXES and p.is_file())
+                    if p.suffix.lower() in PHOTO_SUFFIXES and p.is_file()) \
+        if image_dir.is_dir() else []
     if not photos:
-        raise FileNotFoundError(f"Make3D: no img-*.jpg photos in {str(image_dir)!r}")
+        raise FileNotFoundError(f"Make3D: no img-*.jpg photos in {str(image_dir)!r} (a folder). "
+                                f"Expected:\n{LAYOUT}")
     names = {photo.stem.removeprefix("img-"): photo for photo in photos}
     if len(names) != len(photos):
         stems = [photo.stem for photo in photos]
@@ -95,23 +98,15 @@ class Make3D(DepthDataset):
     ):
         kwargs.setdefault("size", (460, 345))
         super().__init__(preset, **kwargs)
-        if split not in FOLDERS:
-            raise ValueError(f"split must be one of {tuple(FOLDERS)}, got {split!r}")
+        require_args(("split", split, split in FOLDERS, f"one of {tuple(FOLDERS)}"))
         self.root = require_root(root, "Make3D", LAYOUT)
-        image_dir, depth_dir = (self.root / f for f in FOLDERS[split])
-        for folder in (image_dir, depth_dir):
-            if not folder.is_dir():
-                raise FileNotFoundError(f"Make3D: missing folder {str(folder)!r}. Expected:\n{LAYOUT}")
-        self.files = match_files(image_dir, depth_dir)
+        self.files = match_files(*(self.root / f for f in FOLDERS[split]))
         self.ids = [image.stem.removeprefix("img-") for image, _ in self.files]
 
     def load(self, index: int) -> dict[str, Any]:
         image_path, depth_path = self.files[index]
-        image = read_rgb(image_path, dtype=self.dtype)
-        grid = load_mat(depth_path, "Position3DGrid (H, W, 4)")
-        if "Position3DGrid" not in grid:
-            raise DataFormatError(f"{str(depth_path)!r}: no 'Position3DGrid' array")
-        grid = np.asarray(grid["Position3DGrid"])
+        image = read_photo(image_path, dtype=self.dtype)[0]
+        grid = load_mat(depth_path, "Position3DGrid (H, W, 4)").get("Position3DGrid", np.zeros(0))
         check_array_shape(depth_path, "Position3DGrid", grid, (None, None, 4))
         depth = torch.from_numpy(grid[..., 3].astype(np.float64)).to(self.dtype)[None, None]
         depth = F.interpolate(depth, size=image.shape[-2:], mode="nearest-exact")[0]

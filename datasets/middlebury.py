@@ -38,10 +38,13 @@ from .io import (
     DataFormatError,
     read_list,
     read_pfm,
-    read_rgb,
+    read_text,
+    require_args,
     require_file,
+    require_one_size,
     require_root,
 )
+from .photos import read_photo
 from .presets import MIDDLEBURY
 
 #: Calibration of scikit-image's motorcycle scene: focal length in pixels, baseline in metres,
@@ -124,8 +127,7 @@ def motorcycle_focus_sweep(
 
     from optics import CameraSettings, render_focal_stack
 
-    if not 0 < float(scale) <= 1:
-        raise ValueError(f"scale must be in (0, 1], got {scale!r}")
+    require_args(("scale", scale, 0 < float(scale) <= 1, "in (0, 1]"))
     scene = load_motorcycle()
     image, depth = scene["image"], scene["depth"]
     if scale != 1:
@@ -152,8 +154,7 @@ def motorcycle_scene(scale: float = 1.0) -> tuple[Tensor, Tensor, Tensor]:
     """
     import torch.nn.functional as F
 
-    if not 0 < float(scale) <= 1:
-        raise ValueError(f"scale must be in (0, 1], got {scale!r}")
+    require_args(("scale", scale, 0 < float(scale) <= 1, "in (0, 1]"))
     scene = load_motorcycle()
     known = scene["mask"].to(scene["depth"].dtype)
     if scale != 1:
@@ -218,12 +219,8 @@ MIN_BASELINE_MM = 1.0
 def calib_entries(path: Path, expected: str) -> dict[str, str]:
     """The `key=value` lines of a `calib.txt`; a key given twice with different values is
     refused (which one holds would be a guess)."""
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as error:
-        raise DataFormatError(f"{str(path)!r}: not a text file ({error}); {expected}") from None
     entries: dict[str, str] = {}
-    for line in text.splitlines():
+    for line in read_text(path, "a Middlebury calib.txt").splitlines():
         if "=" not in line:
             continue
         key, value = (part.strip() for part in line.split("=", 1))
@@ -234,22 +231,11 @@ def calib_entries(path: Path, expected: str) -> dict[str, str]:
     return entries
 
 
-def check_calib_size(path: Path, entries: dict[str, str], size: tuple[int, int]) -> None:
-    """Refuse a `calib.txt` whose `width`/`height` differ from the image's `size` `(H, W)`:
-    its focal length and `doffs` are pixels of another resolution, so depth would be scaled."""
-    for key, actual in (("height", size[0]), ("width", size[1])):
-        if key not in entries:
-            continue
-        try:
-            stated = float(entries[key])
-        except ValueError:
-            raise DataFormatError(f"{str(path)!r}: {key} must be a number of pixels, got "
-                                  f"{entries[key]!r}") from None
-        if stated != actual:
-            raise DataFormatError(
-                f"{str(path)!r}: states {key}={entries[key]} but the image is {size[0]}x{size[1]} "
-                f"pixels; its focal length and doffs are pixels at another resolution (resize "
-                "the image and disparity back, or scale cam0, doffs, width and height with them)")
+def _number(text: str | None) -> float:
+    try:
+        return float(text)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return math.nan
 
 
 def read_calib(path: Path, size: tuple[int, int] | None = None) -> dict[str, float]:
@@ -259,7 +245,7 @@ def read_calib(path: Path, size: tuple[int, int] | None = None) -> dict[str, flo
     Args:
         path: the `calib.txt`.
         size: `(H, W)` of the scene's image, checked against the file's `height`/`width` where
-            it states them.
+            it states them (else its focal length and `doffs` are pixels of another resolution).
 
     Raises:
         FileNotFoundError: the file is missing.
@@ -270,36 +256,30 @@ def read_calib(path: Path, size: tuple[int, int] | None = None) -> dict[str, flo
     require_file(path, "a Middlebury calib.txt (cam0=[f 0 cx; ...], doffs=, baseline=)")
     expected = "expected lines cam0=[f 0 cx; 0 f cy; 0 0 1], doffs=<px> and baseline=<mm>"
     entries = calib_entries(path, expected)
-    try:
-        cam0 = [float(v) for v in re.split(r"[\s;\[\]]+", entries["cam0"].strip()) if v]
-        calib = {
-            "focal_length_px": cam0[0],
-            "baseline_m": float(entries["baseline"]) * 1e-3,
-            "doffs_px": float(entries["doffs"]),
-        }
-    except (KeyError, ValueError, IndexError) as error:
-        raise DataFormatError(
-            f"{str(path)!r}: {expected}; could not read {error}"
-        ) from error
-    if len(cam0) != 9:
-        raise DataFormatError(
-            f"{str(path)!r}: cam0 must hold the 9 entries of a 3x3 matrix, got {len(cam0)} "
-            f"({entries['cam0'].strip()!r}); {expected}"
-        )
-    for key, entry, low in (("cam0 focal length", "focal_length_px", 0.0),
-                            ("baseline", "baseline_m", MIN_BASELINE_MM * 1e-3)):
-        if not (math.isfinite(calib[entry]) and calib[entry] > low):
-            raw = entries["baseline"].strip() if key == "baseline" else cam0[0]
-            hint = " (millimetres: is it metres?)" if key == "baseline" and calib[entry] > 0 else ""
-            bound = f"{low * 1e3:g} mm" if key == "baseline" else f"{low:g}"
-            raise DataFormatError(f"{str(path)!r}: {key} must be finite and > {bound}, got "
-                                  f"{raw}{hint}; {expected}")
-    if not math.isfinite(calib["doffs_px"]):
-        raise DataFormatError(f"{str(path)!r}: doffs must be a finite number of pixels, got "
-                              f"{entries['doffs'].strip()}; {expected}")
-    if size is not None:
-        check_calib_size(path, entries, size)
-    return calib
+    cam0 = [_number(v) for v in re.split(r"[\s;\[\]]+", entries.get("cam0", "")) if v]
+    focal, doffs, baseline = (cam0 or [math.nan])[0], *(_number(entries.get(k)) for k in (
+        "doffs", "baseline"))
+    missing = [key for key in ("cam0", "doffs", "baseline") if key not in entries]
+    hint = " (millimetres: is it metres?)" if baseline > 0 else ""
+    image = f"the image is {size[0]}x{size[1]} pixels" if size else ""
+    rules = [(not missing, f"could not read {', '.join(map(repr, missing))}"),
+             (len(cam0) == 9, f"cam0 must hold the 9 entries of a 3x3 matrix, got {len(cam0)} "
+                              f"({entries.get('cam0')!r})"),
+             (math.isfinite(focal) and focal > 0, f"cam0 focal length must be finite and > 0, "
+                                                  f"got {focal:g}"),
+             (math.isfinite(baseline) and baseline > MIN_BASELINE_MM,
+              f"baseline must be finite and > {MIN_BASELINE_MM:g} mm, got "
+              f"{entries.get('baseline')}{hint}"),
+             (math.isfinite(doffs), f"doffs must be a finite number of pixels, got "
+                                    f"{entries.get('doffs')}")]
+    rules += [(_number(entries[key]) == actual, f"states {key}={entries[key]} but {image}; its "
+               "focal length and doffs are pixels at another resolution (resize the image and "
+               "disparity back, or scale cam0, doffs, width and height with them)")
+              for key, actual in zip(("height", "width"), size or (), strict=False) if key in entries]
+    why = next((why for ok, why in rules if not ok), None)
+    if why:
+        raise DataFormatError(f"{str(path)!r}: {why}; {expected}")
+    return {"focal_length_px": focal, "baseline_m": baseline * 1e-3, "doffs_px": doffs}
 
 
 class Middlebury(DepthDataset):
@@ -367,14 +347,10 @@ class Middlebury(DepthDataset):
             image, depth, mask = data["image"][0], data["depth"][0], data["mask"][0]
             calib = data["calib"]
         else:
-            image = read_rgb(scene / "im0.png", dtype=self.dtype)
+            image = read_photo(scene / "im0.png", dtype=self.dtype)[0]
             calib = read_calib(scene / "calib.txt", tuple(image.shape[-2:]))
             disparity = torch.from_numpy(read_pfm(scene / "disp0.pfm").copy()).to(self.dtype)
-            if disparity.shape != image.shape[-2:]:
-                raise DataFormatError(
-                    f"{str(scene / 'disp0.pfm')!r} is {tuple(disparity.shape)} pixels but "
-                    f"{str(scene / 'im0.png')!r} is {tuple(image.shape[-2:])}"
-                )
+            require_one_size((scene / "im0.png", image), (scene / "disp0.pfm", disparity))
             depth, mask = disparity_to_depth(disparity, **calib)
             require_valid_depth(mask, repr(str(scene / "disp0.pfm")))
             depth, mask = depth[None], mask[None]

@@ -29,6 +29,7 @@ which states none. Samples have `mask` all False: the benchmark is judged by eye
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -40,7 +41,8 @@ import torch
 from optics import CameraSettings
 
 from .focus import CameraPreset
-from .io import DataFormatError, read_rgb, read_text, require_root
+from .io import DataFormatError, read_numbers, require_args, require_one_size, require_root
+from .photos import read_photo
 from .stacks import FocalStackDataset
 
 FRAME = re.compile(r"^a(\d+)\.jpe?g$", re.IGNORECASE)
@@ -91,11 +93,7 @@ def read_calibrated(path: Path) -> list[float]:
     Raises:
         DataFormatError: a line that is not numbers, or no frame line.
     """
-    rows = [line.split() for line in read_text(path, "a text table").splitlines() if line.strip()]
-    try:
-        numbers = [[float(v) for v in row] for row in rows]
-    except ValueError as error:
-        raise DataFormatError(f"{str(path)!r}: not lines of numbers ({error})") from None
+    numbers = read_numbers(path, "'<focus value> <aperture>' a frame, then the focal length")
     values = [row[0] for row in numbers[:-1]]
     if not values or any(len(row) < 2 for row in numbers[:-1]):
         raise DataFormatError(f"{str(path)!r}: expected one line '<focus value> <aperture>' a "
@@ -107,15 +105,15 @@ def list_frames(scene: Path) -> list[Path]:
     """The frames `a<N>.jpg` of a scene folder in frame order.
 
     Raises:
-        FileNotFoundError: the folder holds no frame.
-        DataFormatError: the numbering has a gap or a repeat (a frame missing or two files
-            for one number), so the order is not known.
+        DataFormatError: the folder holds fewer than 2 frames (a focal stack of one photo has
+            no defocus to compare), or the numbering has a gap or a repeat (a frame missing or
+            two files for one number), so the order is not known.
     """
     found = sorted(((int(m.group(1)), p) for p in scene.iterdir()
                     if (m := FRAME.match(p.name))), key=lambda x: x[0])
-    if not found:
-        raise FileNotFoundError(f"MobileDepth: no frames a<N>.jpg in {str(scene)!r}. "
-                                f"Expected:\n{LAYOUT}")
+    if len(found) < 2:
+        raise DataFormatError(f"{str(scene)!r}: {len(found)} frame(s) a<N>.jpg; a focal stack "
+                              "needs 2 or more")
     numbers = [n for n, _ in found]
     expected = list(range(numbers[0], numbers[0] + len(numbers)))
     if numbers != expected:
@@ -197,29 +195,21 @@ class MobileDepth(FocalStackDataset):
                  calibration: str | Path | None = None, sort_by_focus: bool = False,
                  **kwargs: Any):
         near, far = (float(d) for d in focus_range)
-        if not 0 < near < far:
-            raise ValueError(f"focus_range must be metres (near, far) with 0 < near < far, "
-                             f"got {tuple(focus_range)!r}")
-        if n_shots is not None and n_shots < 1:
-            raise ValueError(f"n_shots must be >= 1 frames, got {n_shots}")
+        require_args(("focus_range", tuple(focus_range), 0 < near < far,
+                      "metres (near, far) with 0 < near < far"),
+                     ("n_shots", n_shots, n_shots is None or n_shots >= 1, ">= 1 frames"))
         self.phone = {**PHONE, **dict(camera or {})}
         super().__init__(CameraPreset(self.phone["focal_length"], self.phone["pixel_pitch"],
                                       (near, far), (self.phone["f_number"],), depth_cap=far),
                          **kwargs)
         self.root = require_root(root, "MobileDepth", LAYOUT)
         found = {p.name: p for p in find_scenes(self.root)}
-        if scenes is not None:
-            missing = [s for s in scenes if s not in found]
-            if missing:
-                raise FileNotFoundError(f"MobileDepth: no scene folder with frames named "
-                                        f"{missing} under {str(self.root)!r}; found "
-                                        f"{sorted(found)}")
-            folders = [found[s] for s in scenes]
-        else:
-            folders = list(found.values())
-        if not folders:
-            raise FileNotFoundError(f"MobileDepth: no scene folders with frames in "
-                                    f"{str(self.root)!r}. Expected:\n{LAYOUT}")
+        missing = [s for s in scenes or () if s not in found]
+        folders = [found[s] for s in (found if scenes is None else scenes) if s in found]
+        if missing or not folders:
+            named = f"named {missing} " if missing else ""
+            raise FileNotFoundError(f"MobileDepth: no scene folder with frames {named}under "
+                                    f"{str(self.root)!r}; found {sorted(found)}. Expected:\n{LAYOUT}")
         self.focus_range, self.n_shots = (near, far), n_shots
         self.depth_range = (near, far)
         self.sort_by_focus = bool(sort_by_focus)
@@ -248,10 +238,7 @@ class MobileDepth(FocalStackDataset):
         """The scene's calibrated focus values and their file, or None where it has none."""
         own = folder / "focus_dpth.txt"
         if own.is_file():
-            try:
-                return own, np.atleast_1d(np.loadtxt(own, dtype=np.float64)).tolist()
-            except ValueError as error:
-                raise DataFormatError(f"{str(own)!r}: not a list of numbers ({error})") from None
+            return own, [row[0] for row in read_numbers(own, "one focus value a line", 1)]
         if self.calibration is not None:
             name = CALIBRATION_NAMES.get(folder.name, folder.name)
             path = self.calibration / name / "calibrated.txt"
@@ -268,9 +255,9 @@ class MobileDepth(FocalStackDataset):
             given = given.get(folder.name)
         if given is not None:
             values = [float(d) for d in given]
-            if len(values) != count:
-                raise ValueError(f"focus_distances for scene {folder.name!r} must hold one value "
-                                 f"per frame ({count}), got {len(values)}")
+            if len(values) != count or not all(math.isfinite(v) and v > 0 for v in values):
+                raise ValueError(f"focus_distances for scene {folder.name!r} must hold one "
+                                 f"finite distance > 0 metres per frame ({count}), got {values}")
             return frames, values
         calibrated = self._focus_file(folder)
         if calibrated is None:
@@ -291,11 +278,8 @@ class MobileDepth(FocalStackDataset):
         keep = list(range(len(frames)))
         if self.n_shots is not None and self.n_shots < len(frames):
             keep = np.linspace(0, len(frames) - 1, self.n_shots).round().astype(int).tolist()
-        shots = [read_rgb(frames[i], dtype=self.dtype) for i in keep]
-        for i, shot in zip(keep, shots, strict=True):
-            if shot.shape != shots[0].shape:
-                raise DataFormatError(f"{str(frames[i])!r} is {tuple(shot.shape[-2:])} pixels but "
-                                      f"{str(frames[keep[0]])!r} is {tuple(shots[0].shape[-2:])}")
+        shots = [read_photo(frames[i], dtype=self.dtype)[0] for i in keep]
+        require_one_size(*zip([frames[i] for i in keep], shots, strict=True))
         focused = torch.stack(shots)
         h, w = focused.shape[-2:]
         pitch = self.phone["pixel_pitch"] * self.phone["sensor_width_px"] / w

@@ -28,6 +28,7 @@ from .io import (
     DataFormatError,
     load_mat,
     open_mat73,
+    require_args,
     require_file,
     require_root,
     to_unit_range,
@@ -58,30 +59,20 @@ def split_indices(path: Path, split: str, count: int) -> np.ndarray:
     """
     splits = load_mat(path, "'trainNdxs' and 'testNdxs'")
     key = "trainNdxs" if split == "train" else "testNdxs"
-    if key not in splits:
-        raise DataFormatError(f"{str(path)!r}: no {key!r} array")
-    values = np.asarray(splits[key]).reshape(-1)
-    if values.size == 0:
-        raise DataFormatError(f"{str(path)!r}: {key} is empty; expected the 1-based indices of "
-                              f"the {split} frames")
-    if not np.issubdtype(values.dtype, np.number) or np.iscomplexobj(values):
-        raise DataFormatError(f"{str(path)!r}: {key} has dtype {values.dtype}; expected 1-based "
-                              "frame indices")
-    whole = np.isfinite(values) & (values == np.round(values))
-    if not whole.all():
-        raise DataFormatError(f"{str(path)!r}: {key} must hold whole 1-based indices, got "
-                              f"{values[~whole][:5].tolist()}")
+    values = np.asarray(splits.get(key, np.zeros(0))).reshape(-1)
+    whole = np.zeros(values.shape, bool)
+    if np.issubdtype(values.dtype, np.number) and not np.iscomplexobj(values):
+        whole = np.isfinite(values) & (values == np.round(values)) & (values >= 1) & (values <= count)
+    unique, counts = np.unique(values[whole].astype(np.int64), return_counts=True)
+    why = (f"no {key!r} array" if key not in splits else f"{key} is empty" if not values.size else
+           f"{key} must hold whole 1-based indices, got {values[~whole][:5].tolist()} (frames are "
+           f"1..{count})" if not whole.all() else
+           f"{key} lists frame(s) {unique[counts > 1][:5].tolist()} more than once"
+           if (counts > 1).any() else None)
+    if why:
+        raise DataFormatError(f"{str(path)!r}: {why}; expected the 1-based indices of the {split} "
+                              "frames, each once")
     indices = values.astype(np.int64) - 1
-    if indices.min() < 0 or indices.max() >= count:
-        raise DataFormatError(
-            f"{str(path)!r}: {key} must be 1-based indices in 1..{count}, got "
-            f"{indices.min() + 1}..{indices.max() + 1}"
-        )
-    unique, counts = np.unique(indices, return_counts=True)
-    if (counts > 1).any():
-        raise DataFormatError(f"{str(path)!r}: {key} lists frame(s) "
-                              f"{(unique[counts > 1] + 1)[:5].tolist()} more than once; each "
-                              "frame must be listed once")
     return indices
 
 
@@ -122,32 +113,29 @@ class NYUv2(DepthDataset):
         self, root: str | Path, split: str = "train", preset: CameraPreset = NYU, **kwargs: Any
     ):
         super().__init__(preset, **kwargs)
-        if split not in SPLITS:
-            raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+        require_args(("split", split, split in SPLITS, f"one of {SPLITS}"))
         self.root = require_root(root, "NYUv2", LAYOUT)
         self.split = split
         self.mat_path = require_file(
             self.root / "nyu_depth_v2_labeled.mat", "the NYU Depth v2 labeled set (MAT v7.3)"
         )
         with open_mat73(self.mat_path, "'images' and 'depths'") as file:
-            for key in ("images", "depths"):
-                if key not in file:
-                    raise DataFormatError(
-                        f"{str(self.mat_path)!r}: no {key!r} array; found {sorted(file.keys())}"
-                    )
-            images, depths = file["images"].shape, file["depths"].shape
-            image_dtype, depth_dtype = file["images"].dtype, file["depths"].dtype
-        if len(images) != 4 or images[1] != 3 or len(depths) != 3 or depths != (
+            missing = [key for key in ("images", "depths") if key not in file]
+            if not missing:
+                images, depths = file["images"].shape, file["depths"].shape
+                image_dtype, depth_dtype = file["images"].dtype, file["depths"].dtype
+                stored = all(np.issubdtype(t, np.unsignedinteger) or np.issubdtype(t, np.floating)
+                             for t in (image_dtype, depth_dtype))
+            keys = sorted(file.keys())
+        if missing or not stored or len(images) != 4 or images[1] != 3 or depths != (
             images[0], images[2], images[3]
         ):
+            found = f"keys {keys}" if missing else f"{images} {image_dtype} and {depths} {depth_dtype}"
             raise DataFormatError(
-                f"{str(self.mat_path)!r}: expected images (N,3,W,H) and depths (N,W,H) as h5py "
-                f"reads MATLAB's HxWx3xN and HxWxN arrays, got {images} and {depths}"
+                f"{str(self.mat_path)!r}: expected arrays 'images' (N,3,W,H) and 'depths' (N,W,H) "
+                "of unsigned integers or floats, as h5py reads MATLAB's HxWx3xN and HxWxN arrays, "
+                f"got {found}"
             )
-        for key, dtype in (("images", image_dtype), ("depths", depth_dtype)):
-            if not (np.issubdtype(dtype, np.unsignedinteger) or np.issubdtype(dtype, np.floating)):
-                raise DataFormatError(f"{str(self.mat_path)!r}: {key} has dtype {dtype}; expected "
-                                      "unsigned integers or floats")
         #: Metres per stored depth unit: 1 for float metres, 1e-3 for integer millimetres.
         self.depth_scale = 1.0
         if np.issubdtype(depth_dtype, np.integer):

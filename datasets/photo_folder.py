@@ -27,31 +27,14 @@ import torch
 from optics import CameraSettings
 
 from .base import DepthDataset
-from .camera_json import camera_from_json, load_camera_json
 from .focus import CameraPreset
-from .io import DataFormatError, read_list, require_root
+from .io import DataFormatError, read_list, require_one_size, require_root
+from .photos import CameraFile, read_photo
 
 LAYOUT = ("ROOT/<scene>/aif.<ext> and the focused photos named in ROOT/camera.json's or "
           "ROOT/<scene>/camera.json's \"photos\" list")
 #: File names of the all-in-focus photo (any of these suffixes).
 AIF_NAMES = ("aif.png", "aif.tif", "aif.tiff", "aif.jpg", "aif.jpeg", "aif.dng")
-
-
-def read_scene_camera(path: Path) -> tuple[CameraSettings, list[str]]:
-    """The settings and the focused photos' file names of a scene's camera JSON: values per
-    shot are one per photo of `"photos"` (a list of another count is refused naming the key,
-    `datasets.camera_json`)."""
-    data = load_camera_json(path)
-    photos = data.get("photos")
-    if not isinstance(photos, list) or not all(isinstance(p, str) for p in photos):
-        raise DataFormatError(f"{path}: \"photos\" must list the focused photos' file names, in "
-                              f"the order of the camera's shots; got {photos!r}")
-    settings, _ = camera_from_json(data, str(path), len(photos),
-                                   f'"photos" names {len(photos)} focused photos')
-    if len(photos) != settings.n_shots:
-        raise DataFormatError(f"{path}: \"photos\" names {len(photos)} photos but the camera has "
-                              f"{settings.n_shots} shots (one focus distance per photo)")
-    return settings, photos
 
 
 class PhotoFolder(DepthDataset):
@@ -113,31 +96,25 @@ class PhotoFolder(DepthDataset):
         path = own if own.is_file() else self.root / "camera.json"
         if not path.is_file():
             raise FileNotFoundError(f"{folder}: no camera.json here or in {self.root}")
-        camera, photos = read_scene_camera(path)
+        camera = CameraFile.read(path, require=("photos",))
+        photos = camera.photos
         aif = next((folder / name for name in AIF_NAMES if (folder / name).is_file()), None)
-        if aif is None:
-            raise FileNotFoundError(f"{folder}: no all-in-focus photo ({', '.join(AIF_NAMES)})")
         missing = [name for name in photos if not (folder / name).is_file()]
-        if missing:
-            raise FileNotFoundError(f"{folder}: {path} names {missing}, which are not there")
-        return {"folder": folder, "camera": camera, "aif": aif,
+        if aif is None or missing:
+            raise FileNotFoundError(f"{folder}: " + (
+                f"{path} names {missing}, which are not there" if missing else
+                f"no all-in-focus photo ({', '.join(AIF_NAMES)})"))
+        return {"folder": folder, "camera": camera.settings, "aif": aif,
                 "focused": [folder / name for name in photos]}
 
     def camera_settings(self, index: int) -> CameraSettings:
         return self.scenes[index]["camera"].to(self.dtype)
 
     def load(self, index: int) -> dict[str, Any]:
-        from .photos import read_photo
-
         scene = self.scenes[index]
         image, _ = read_photo(scene["aif"], dtype=self.dtype)
-        focused = []
-        for path in scene["focused"]:
-            photo, _ = read_photo(path, dtype=self.dtype)
-            if photo.shape != image.shape:
-                raise DataFormatError(f"{path} is {tuple(photo.shape[-2:])} pixels but "
-                                      f"{scene['aif']} is {tuple(image.shape[-2:])}")
-            focused.append(photo)
+        focused = [read_photo(path, dtype=self.dtype)[0] for path in scene["focused"]]
+        require_one_size((scene["aif"], image), *zip(scene["focused"], focused, strict=True))
         h, w = image.shape[-2:]
         return {"image": image, "focused": torch.stack(focused),
                 "camera": self.camera_settings(index),

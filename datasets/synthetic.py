@@ -30,6 +30,7 @@ from torch.utils.data import Dataset
 from optics import Aperture, render_focal_stack
 
 from .focus import CameraPreset
+from .io import require_args
 
 #: The default camera of the synthetic scenes and of the demo (lengths in metres).
 SYNTHETIC_PRESET = CameraPreset(
@@ -204,10 +205,9 @@ class SyntheticScenes(Dataset):
         cache: bool = True,
         **render_kwargs: Any,
     ):
-        if int(num_scenes) <= 0:
-            raise ValueError(f"num_scenes must be > 0, got {num_scenes!r}")
-        if len(size) != 2 or min(size) < 4:
-            raise ValueError(f"size must be (height, width) pixels, each >= 4, got {size!r}")
+        require_args(("num_scenes", num_scenes, int(num_scenes) > 0, "> 0"),
+                     ("size", size, len(size) == 2 and min(size) >= 4,
+                      "(height, width) pixels, each >= 4"))
         self.num_scenes = int(num_scenes)
         self.size = (int(size[0]), int(size[1]))
         self.preset = preset

@@ -21,23 +21,10 @@ from typing import Any
 import torch
 import torch.nn.functional as F
 
+from .io import is_size, require_args
+
 #: Sample entries laid out as images `(..., H, W)`.
 SPATIAL_KEYS = ("image", "focused", "depth", "mask")
-
-
-def check_size(name: str, size: Sequence[int] | None) -> tuple[int, int] | None:
-    """`size` as `(height, width)` pixels, both > 0 (None stays None); a `ValueError` that
-    names the argument `name` otherwise.
-
-    Example:
-        >>> check_size("crop_size", [96, 128])
-        (96, 128)
-    """
-    if size is None:
-        return None
-    if len(size) != 2 or any(int(s) <= 0 for s in size):
-        raise ValueError(f"{name} must be (height, width) in pixels, both > 0, got {size!r}")
-    return int(size[0]), int(size[1])
 
 
 def crop_sample(sample: dict[str, Any], top: int, left: int, height: int, width: int) -> dict:
@@ -79,7 +66,7 @@ def resize_sample(sample: dict[str, Any], size: Sequence[int]) -> dict:
         >>> r["image"].shape, r["camera"].pixel_pitch
         (torch.Size([3, 4, 4]), tensor([2.0000e-05]))
     """
-    height, width = check_size("size", size)
+    height, width = (int(s) for s in size)
     h, w = sample["image"].shape[-2:]
     if (h, w) == (height, width):
         return dict(sample)
@@ -139,11 +126,12 @@ class JointAugment:
     gain: float = 0.0
 
     def __post_init__(self) -> None:
-        self.crop_size = check_size("crop_size", self.crop_size)
-        if not 0.0 <= self.hflip <= 1.0:
-            raise ValueError(f"hflip must be a probability in [0, 1], got {self.hflip}")
-        if not 0.0 <= self.gain < 1.0:
-            raise ValueError(f"gain must be in [0, 1), got {self.gain}")
+        require_args(
+            ("crop_size", self.crop_size, is_size(self.crop_size),
+             "(height, width) in pixels, both > 0"),
+            ("hflip", self.hflip, 0.0 <= self.hflip <= 1.0, "a probability in [0, 1]"),
+            ("gain", self.gain, 0.0 <= self.gain < 1.0, "in [0, 1)"))
+        self.crop_size = None if self.crop_size is None else tuple(int(s) for s in self.crop_size)
 
     def make_params(
         self, height: int, width: int, generator: torch.Generator | None = None

@@ -42,10 +42,18 @@ import torch.nn.functional as F
 
 from optics import CameraSettings
 
-from .depth import fill_unknown
+from .depth import fill_unknown, require_valid_depth, valid_depth_mask
 from .focus import CameraPreset
-from .fod500 import check_depth_metres
-from .io import DataFormatError, read_npy, read_rgb, read_text, require_file, require_root
+from .io import (
+    DataFormatError,
+    read_npy,
+    read_numbers,
+    read_text,
+    require_args,
+    require_file,
+    require_root,
+)
+from .photos import read_photo
 from .stacks import FocalStackDataset
 
 APERTURES = (1.4, 2.0, 2.8, 4.0, 5.6, 16.0)
@@ -85,22 +93,17 @@ def read_metadata(path: Path) -> dict[int, tuple[str, float]]:
             run, code, distance = parts
             k, metres = int(run.removeprefix("run_")), float(distance)
         except ValueError:
-            raise DataFormatError(f"{str(path)!r} line {number}: expected run_<k> TAB <hex> TAB "
-                                  f"<focus distance in metres>, got {line!r}") from None
+            metres = math.nan
         if not (math.isfinite(metres) and metres > 0):
-            raise DataFormatError(f"{str(path)!r} line {number}: focus distance of run_{k} must be "
-                                  f"finite and > 0 metres, got {distance}")
+            raise DataFormatError(f"{str(path)!r} line {number}: expected run_<k> TAB <hex> TAB "
+                                  f"<focus distance, finite and > 0 metres>, got {line!r}")
         runs[k] = (code, metres)
     return runs
 
 
 def read_intrinsics(path: Path) -> np.ndarray:
     """A 3x3 intrinsics matrix in pixels from a whitespace-separated text file."""
-    require_file(path, "a 3x3 intrinsics matrix K.txt in pixels")
-    try:
-        matrix = np.loadtxt(path, dtype=np.float64)
-    except ValueError as error:
-        raise DataFormatError(f"{str(path)!r}: not a text matrix ({error})") from None
+    matrix = np.array(read_numbers(path, "a 3x3 intrinsics matrix K.txt in pixels", 3))
     if matrix.shape != (3, 3) or not np.isfinite(matrix).all() or matrix[0, 0] <= 0:
         raise DataFormatError(f"{str(path)!r}: expected a 3x3 intrinsics matrix with fx > 0 "
                               f"pixels, got shape {matrix.shape}")
@@ -135,12 +138,9 @@ class ZEDD(FocalStackDataset):
     def __init__(self, root: str | Path, split: str = "val",
                  shots: Sequence[int] = DEFAULT_SHOTS, f_number: float = DEFAULT_F_NUMBER,
                  sensor_width: float = SENSOR_WIDTH, **kwargs: Any):
-        if split not in ("val", "test"):
-            raise ValueError(f"split must be 'val' or 'test', got {split!r}")
-        if float(f_number) not in APERTURES:
-            raise ValueError(f"f_number must be one of {APERTURES}, got {f_number!r}")
-        if not 0 < sensor_width < 0.1:
-            raise ValueError(f"sensor_width must be metres in (0, 0.1), got {sensor_width!r}")
+        require_args(("split", split, split in ("val", "test"), "'val' or 'test'"),
+                     ("f_number", f_number, float(f_number) in APERTURES, f"one of {APERTURES}"),
+                     ("sensor_width", sensor_width, 0 < sensor_width < 0.1, "metres in (0, 0.1)"))
         self.root = require_root(root, "ZEDD", LAYOUT)
         self.metadata_path = self.root / "metadata.txt"
         runs = read_metadata(self.metadata_path)
@@ -154,11 +154,9 @@ class ZEDD(FocalStackDataset):
         super().__init__(CameraPreset(0.05, sensor_width / 1824, tuple(focus), (self.f_number,),
                                       depth_cap=VALID_DEPTH[1]), **kwargs)
         folder = self.root / split
-        if not folder.is_dir():
-            raise FileNotFoundError(f"ZEDD: missing folder {str(folder)!r}. Expected:\n{LAYOUT}")
-        self.scenes = sorted(p for p in folder.iterdir() if p.is_dir())
+        self.scenes = sorted(p for p in folder.iterdir() if p.is_dir()) if folder.is_dir() else []
         if not self.scenes:
-            raise FileNotFoundError(f"ZEDD: no scene folders in {str(folder)!r}")
+            raise FileNotFoundError(f"ZEDD: no scene folders in {str(folder)!r}. Expected:\n{LAYOUT}")
         self.split = split
         for scene in self.scenes:
             for path in self._photos(scene):
@@ -180,14 +178,14 @@ class ZEDD(FocalStackDataset):
         scene = self.scenes[index]
         K = read_intrinsics(scene / "gt" / "K.txt")
         depth_path = scene / "gt" / "depth.npy"
-        photos = [read_rgb(p, dtype=self.dtype) for p in self._photos(scene)]
+        photos = [read_photo(p, dtype=self.dtype)[0] for p in self._photos(scene)]
         if self.split == "val":
             array = read_npy(depth_path, "a .npy depth map")
             if array.ndim != 2 or not np.issubdtype(array.dtype, np.floating):
                 raise DataFormatError(f"{str(depth_path)!r}: expected an (H, W) float depth map "
                                       f"in metres, got shape {array.shape}, dtype {array.dtype}")
-            check_depth_metres(depth_path, array, 200.0)
             depth = torch.from_numpy(array.astype(np.float64)).to(self.dtype)[None]
+            require_valid_depth(valid_depth_mask(depth), repr(str(depth_path)), depth, (0.0, 200.0))
             mask = torch.isfinite(depth) & (depth >= VALID_DEPTH[0]) & (depth <= VALID_DEPTH[1])
             if not bool(mask.any()):
                 raise DataFormatError(f"{str(depth_path)!r}: no depth in {VALID_DEPTH} metres")

@@ -25,10 +25,7 @@ from .camera import Camera, CameraSettings
 from .collate import collate
 from .focal_stack import render_focal_stack
 from .lens import ThinLens
-from .photo_metadata import PhotoMetadata, RawReadError, read_metadata
-from .photo_settings import resolve_known, resolve_settings
 from .plotting import plot_calibration, plot_depth_calibration
-from .raw import read_raw, read_raw_stack
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
 
@@ -74,13 +71,4 @@ __all__ = [
     "side_cues",
     "plot_calibration",
     "plot_depth_calibration",
-    # raw photos
-    "RawReadError",
-    "read_raw",
-    "read_raw_stack",
-    # what photo files state, and the camera settings of photos
-    "PhotoMetadata",
-    "read_metadata",
-    "resolve_known",
-    "resolve_settings",
 ]

@@ -9,6 +9,7 @@ import pytest
 import torch
 from _synthetic_dng import synthetic_camera, write_pairs
 
+from datasets.photos import read_raw
 from optics import (
     CalibrationPair,
     Camera,
@@ -21,7 +22,6 @@ from optics import (
     fit_thin_lens_curve,
     measure_blur,
     plot_calibration,
-    read_raw,
 )
 from optics.calibration.measure import ConstantBlur as _ConstantBlur
 

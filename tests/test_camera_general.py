@@ -88,7 +88,7 @@ def test_capture_saves_jpegs_as_pillow_does(tmp_path):
     ({"jpeg_quality": -1}, "jpeg_quality must be an integer in 1-95"),
     ({"jpeg_quality": 90.0}, "jpeg_quality must be an integer in 1-95"),
     ({"jpeg_quality": True}, "jpeg_quality must be an integer in 1-95"),
-    ({"jpeg_quality": 90, "bits": 0}, "jpeg_quality=90 needs bits=8"),
+    ({"jpeg_quality": 90, "bits": 0}, "bits must be 8 for jpeg_quality=90"),
 ])
 def test_capture_noise_refuses_an_impossible_jpeg(fields, message):
     with pytest.raises(ValueError, match=message):
@@ -258,7 +258,7 @@ def test_read_photo_pixel_pitch_from_the_35mm_equivalent_focal_length(tmp_path):
 
 
 def test_jpeg_photos_are_known_as_compressed_and_warned_of_when_read_at_full_size(tmp_path):
-    from optics.photo_settings import JPEG_SCALE_LIMIT, compression_warning
+    from datasets.photos.settings import JPEG_SCALE_LIMIT, compression_warning
 
     stored = np.zeros((8, 8, 3), np.uint8)
     _write_jpeg(tmp_path / "a.jpg", stored)

@@ -186,8 +186,8 @@ def test_largest_coc_refuses_a_range_that_is_not_increasing(near, far):
 
 
 def test_a_miscounted_focus_distance_names_its_source():
-    from optics.photo_metadata import PhotoMetadata
-    from optics.photo_settings import resolve_settings
+    from datasets.photos.metadata import PhotoMetadata
+    from datasets.photos.settings import resolve_settings
 
     stated = {"focal_length": 0.05, "f_number": 2.0}
     photos = [PhotoMetadata("a.jpg", stated), PhotoMetadata("b.jpg", stated)]

@@ -4,6 +4,7 @@ broken downloads (from the library and from `defocus evaluate`)."""
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import h5py
@@ -271,6 +272,31 @@ def test_mobile_depth_errors(tmp_path):
     write_mobile_depth(tmp_path / "order", focus=[1.0, 3.0, 2.0, 4.0, 5.0])
     with pytest.raises(DataFormatError, match="focus_dpth.txt.*strictly"):
         MobileDepth(tmp_path / "order")
+
+
+@pytest.mark.parametrize("bad", [math.nan, -1.0, math.inf])
+def test_mobile_depth_refuses_focus_values_that_are_no_distance_naming_the_file(tmp_path, bad):
+    folder = write_mobile_depth(tmp_path, frames=3, focus=[1.0, bad, 3.0])
+    with pytest.raises(DataFormatError, match=f"{folder / 'focus_dpth.txt'}'?: focus values"):
+        MobileDepth(tmp_path)
+    with pytest.raises(ValueError, match="focus_distances for scene 'keyboard' must hold one "
+                                         "finite distance > 0"):
+        MobileDepth(tmp_path, focus_distances=[1.0, bad, 3.0])
+
+
+def test_mobile_depth_refuses_a_corrupt_frame_one_frame_and_two_columns(tmp_path):
+    folder = write_mobile_depth(tmp_path / "corrupt", frames=3)
+    frame = folder / "a01.jpg"
+    frame.write_bytes(frame.read_bytes()[:200])
+    with pytest.raises(DataFormatError, match=f"{frame}'?: cannot be read as a photo"):
+        MobileDepth(tmp_path / "corrupt")[0]
+    folder = write_mobile_depth(tmp_path / "one", frames=1)
+    with pytest.raises(DataFormatError, match=f"{folder}'?: 1 frame.* needs 2 or more"):
+        MobileDepth(tmp_path / "one")
+    folder = write_mobile_depth(tmp_path / "columns", frames=3)
+    (folder / "focus_dpth.txt").write_text("0.1 1\n0.2 1\n0.3 1\n")
+    with pytest.raises(DataFormatError, match="focus_dpth.txt'?: .*2 columns"):
+        MobileDepth(tmp_path / "columns")
 
 
 def test_fuse_by_sharpness_takes_each_pixel_from_the_sharpest_shot():

@@ -145,7 +145,7 @@ def test_scenes_select_by_time_order(tmp_path):
     dataset = DSLR(tmp_path, scenes=slice(1, None))
     assert dataset.ids == sorted(DSLR_TIMES)[1:] and len(dataset) == 2
     assert DSLR(tmp_path, scenes=[2]).ids == [sorted(DSLR_TIMES)[2]]
-    with pytest.raises(ValueError, match="scenes must select among the 3 scenes"):
+    with pytest.raises(ValueError, match="scenes must be indices among the 3 scenes"):
         DSLR(tmp_path, scenes=[5])
 
 

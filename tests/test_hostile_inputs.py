@@ -18,11 +18,11 @@ from PIL import Image
 
 from datasets.io import DataFormatError, read_npy
 from datasets.photos import check_photo_content, read_photo
+from datasets.photos.metadata import PhotoMetadata
+from datasets.photos.settings import resolve_settings
 from defocus.cli import main
 from models import estimate_depth
 from optics import CameraSettings, parse_aperture
-from optics.photo_metadata import PhotoMetadata
-from optics.photo_settings import resolve_settings
 
 SETTINGS = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
 CAMERA = ["--focal-length", "0.05", "--pixel-pitch", "2e-5"]
@@ -106,7 +106,7 @@ def test_a_raw_file_over_the_pixel_limit_is_refused_before_decoding(tmp_path, mo
     import rawpy
     from _synthetic_dng import write_dng
 
-    from optics.raw import RawReadError, read_raw
+    from datasets.photos.raw import RawReadError, read_raw
 
     path = write_dng(tmp_path / "small.dng", np.full((32, 48), 2000, np.uint16))
     with pytest.raises(RawReadError, match="states 32x48 photosites .*at most 0.001 megapixels"):

@@ -18,9 +18,8 @@ from test_datasets_fixtures import (
 
 from datasets import DSLR, KITTI, DataFormatError, Middlebury, NYUv2
 from datasets.depth import densify_nearest, fill_unknown
-from datasets.io import read_rgb
 from datasets.middlebury import read_calib
-from optics import read_raw
+from datasets.photos import read_photo, read_raw
 
 
 def names(path) -> str:
@@ -86,13 +85,14 @@ def test_case13_read_raw_refuses_integer_dtypes(tmp_path):
             read_raw(tmp_path / "x.dng", dtype=dtype)
 
 
-def test_float_photo_outside_unit_range_refused(tmp_path):
+def test_float_photo_refused_naming_the_file(tmp_path):
+    """The one photo decoder of the loaders (`read_photo`) refuses floating-point samples,
+    0-255 stored as float or not: they state no scale of light."""
     path = tmp_path / "photo.tiff"
-    iio.imwrite(path, np.full((4, 5, 3), 200.0, dtype=np.float32))
-    with pytest.raises(DataFormatError, match=names(path) + ".*0-255 stored as float"):
-        read_rgb(path)
-    iio.imwrite(path, np.full((4, 5, 3), 0.25, dtype=np.float32))
-    assert torch.allclose(read_rgb(path, linear=False), torch.full((3, 4, 5), 0.25))
+    for value in (200.0, 0.25):
+        iio.imwrite(path, np.full((4, 5, 3), value, dtype=np.float32))
+        with pytest.raises(DataFormatError, match=names(path) + ".*float32 samples"):
+            read_photo(path)
 
 
 def test_kitti_frame_without_lidar_points_refused(tmp_path):
@@ -142,7 +142,8 @@ def test_bad_calib_txt_named(tmp_path, text, message):
 def test_bad_calib_txt_binary_named(tmp_path):
     path = tmp_path / "calib.txt"
     path.write_bytes(b"\xff\xfe\x00\x01garbage")
-    with pytest.raises(DataFormatError, match=names(path) + ": not a text file"):
+    with pytest.raises(DataFormatError, match=names(path) + ": expected a Middlebury calib.txt in "
+                                                        "UTF-8 text, but byte 1 is 0xff"):
         read_calib(path)
 
 

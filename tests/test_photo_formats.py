@@ -159,7 +159,7 @@ def test_a_32_bit_tiff_tifffile_cannot_decode_is_refused_not_clipped(tmp_path, m
 def test_read_metadata_refuses_a_photo_whose_header_is_damaged(tmp_path):
     from PIL import Image
 
-    from optics.photo_metadata import read_metadata
+    from datasets.photos.metadata import read_metadata
 
     good = tmp_path / "good.jpg"
     Image.new("RGB", (8, 6)).save(good)

@@ -1,4 +1,4 @@
-"""Tests of optics.raw: real raw files (../shared/data/raw) and synthetic Bayer DNGs."""
+"""Tests of datasets.photos.raw: real raw files (../shared/data/raw) and synthetic Bayer DNGs."""
 
 from __future__ import annotations
 
@@ -10,15 +10,17 @@ import pytest
 import torch
 from _synthetic_dng import BLACK, WB, WHITE, write_dng
 
-from optics import (
-    CameraSettings,
+from datasets.photos import (
     PhotoMetadata,
     RawReadError,
+    metadata_sensor,
+    metadata_settings,
     read_metadata,
     read_raw,
     read_raw_stack,
+    resolve_known,
 )
-from optics.photo_settings import metadata_sensor, metadata_settings, resolve_known
+from optics import CameraSettings
 
 SAMPLES = Path(os.environ.get("DEFOCUS_RAW_SAMPLES", Path(__file__).parents[2] / "shared/data/raw"))
 needs_samples = pytest.mark.skipif(
@@ -178,7 +180,7 @@ def test_stack_and_bad_options(tmp_path):
     c = write_dng(tmp_path / "c.dng", _mosaic(32, 32))
     images, metas = read_raw_stack([a, b], binning=2)
     assert images.shape == (2, 3, 16, 24) and len(metas) == 2
-    with pytest.raises(ValueError, match="c.dng is"):
+    with pytest.raises(ValueError, match="c.dng'? is"):
         read_raw_stack([a, c])
     with pytest.raises(ValueError, match="at least one"):
         read_raw_stack([])

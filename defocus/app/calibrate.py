@@ -81,7 +81,8 @@ def calibrate_from_dataset(name: str, root: Path | None, split: str = "train",
 def read_pairs(pairs: Sequence[Sequence[str]], binning: int = 1, white_balance: str = "camera"):
     """The `CalibrationPair`s of `(sharp file, defocused file, distance text)` triples and the
     metadata of the last defocused file."""
-    from optics import CalibrationPair, read_raw
+    from datasets.photos import read_raw
+    from optics import CalibrationPair
 
     found, meta = [], None
     for sharp_path, blurred_path, distance_text in pairs:
@@ -106,7 +107,8 @@ def calibrate_from_pairs(pairs: Sequence[Sequence[str]], known: Mapping[str, Any
     metadata (`optics.resolve_known`, except for the names in `fit`); the rest is fitted.
     Returns the `CalibrationResult` and where each known value came from ("option" or
     "metadata"). `options` go to `optics.calibrate` (margin_px, adam_steps, ...)."""
-    from optics import calibrate, resolve_known
+    from datasets.photos import resolve_known
+    from optics import calibrate
 
     found, meta = read_pairs(pairs, binning, white_balance)
     # known values: the options', else the last defocused file's metadata (pitch x binning)

@@ -330,7 +330,7 @@ def check_calibration_shots(request: PredictRequest, calibration, n_photos: int)
 
 
 def _settings(request: PredictRequest, photos: Photos, calibration, report: Report):
-    from optics.photo_settings import describe_settings, resolve_settings
+    from datasets.photos import describe_settings, resolve_settings
 
     if not photos.infos:
         return None
@@ -354,7 +354,7 @@ def _method(request: PredictRequest, model, photos: Photos, image_settings):
 
 
 def _report_working_resolution(out, depth_range, infos, method, report: Report) -> None:
-    from optics.photo_settings import compression_warning
+    from datasets.photos import compression_warning
 
     near, far = depth_range
     moved = ", ".join(f"({dy:+.1f}, {dx:+.1f}, x{zoom:.4f}, {turn:+.2f} deg)"

@@ -2,7 +2,7 @@
 
 One resolver serves every user of real photos. `resolve_known` finds the values that are known,
 each with where it came from: an option the user gave, else a calibration (a `CameraSettings`
-written by `defocus calibrate`), else what every photo's metadata (`optics.PhotoMetadata`)
+written by `defocus calibrate`), else what every photo's metadata (`datasets.photos.PhotoMetadata`)
 states. `resolve_settings` needs them all and makes the `(F,)` `CameraSettings` of the photos
 (`defocus predict`); a calibration fits the ones left unknown (`defocus calibrate`).
 `describe_settings` says in one line which settings were used and where each came from, and
@@ -14,10 +14,11 @@ from __future__ import annotations
 from collections.abc import Collection, Mapping, Sequence
 from typing import Any
 
-from .aperture_spec import DEFAULT_APERTURE, LENS_APERTURE
-from .camera import SETTING_FIELDS, CameraSettings
-from .photo_metadata import PhotoMetadata
-from .sensor import Sensor
+from optics import Sensor
+from optics.aperture_spec import DEFAULT_APERTURE, LENS_APERTURE
+from optics.camera import SETTING_FIELDS, CameraSettings
+
+from .metadata import PhotoMetadata
 
 #: Above this working scale (working / photo resolution) JPEG compression costs the sweep
 #: accuracy: measured on the motorcycle (`benchmarks/cameras.py --jpeg 90`), cameras swept at
@@ -38,13 +39,6 @@ def _times(value: Any, factor: int) -> Any:
     if factor == 1:
         return value
     return [v * factor for v in value] if isinstance(value, (list, tuple)) else value * factor
-
-
-def _check_names(argument: str, names: Collection[str]) -> None:
-    unknown = sorted(set(names) - set(SETTING_FIELDS))
-    if unknown:
-        raise ValueError(f"{argument} must name settings among {list(SETTING_FIELDS)}, got "
-                         f"{unknown}")
 
 
 def _binning(metadata: Sequence[PhotoMetadata]) -> int:
@@ -96,7 +90,7 @@ def resolve_known(
     what every photo's metadata states.
 
     Args:
-        metadata: the `PhotoMetadata` of each photo (`optics.read_metadata`, `optics.read_raw`,
+        metadata: the `PhotoMetadata` of each photo (`datasets.photos.read_metadata`, `datasets.photos.read_raw`,
             `datasets.photos.read_photo`).
         options: values the user gave, by `CameraSettings` field name (`focal_length`,
             `f_number`, `focus_distance`, `pixel_pitch`): a number or one per photo; `None` or
@@ -114,8 +108,7 @@ def resolve_known(
         Settings nothing gives are in neither.
 
     Raises:
-        ValueError: if `options` or `ignore` names no setting, or the records differ in
-            binning.
+        ValueError: if the records differ in binning.
 
     Example:
         >>> stated = {"focal_length": 0.05, "f_number": 2.8, "pixel_pitch": 4e-6}
@@ -128,8 +121,6 @@ def resolve_known(
         ('given', 'EXIF focal-plane resolution')
     """
     options = dict(options or {})
-    _check_names("options", options)
-    _check_names("ignore", ignore)
     binning = _binning(metadata)
     values: dict[str, Any] = {}
     sources: dict[str, str] = {}
@@ -206,19 +197,18 @@ def resolve_settings(
     values, sources = resolve_known(metadata, given, calibration)
     focus = values.get("focus_distance", [])
     focus = list(focus) if isinstance(focus, (list, tuple)) else [focus]
-    if len(focus) != n:
-        raise ValueError(f"give --focus-distance with one value per focused photo ({n}): "
-                         + _why_no_focus(focus, sources.get("focus_distance"), metadata,
-                                         calibration))
-    if isinstance(f_numbers, (list, tuple)) and len(f_numbers) not in (0, 1, n):
-        raise ValueError(f"give --f-number once or once per focused photo ({n}), got "
-                         f"{len(f_numbers)}")
-    for name in ("f_number", "focal_length", "pixel_pitch"):
-        if name not in values:
-            missing = [str(meta.path) for meta in metadata if getattr(meta, name) is None]
-            raise ValueError(f"{name} is unknown: {', '.join(missing)} do(es) not state it in "
-                             f"EXIF; give --{name.replace('_', '-')} ({_UNITS[name]}) or "
-                             "--camera fit.json")
+    unknown = next((name for name in ("f_number", "focal_length", "pixel_pitch")
+                    if name not in values), "")
+    why = (f"give --focus-distance with one value per focused photo ({n}): " + _why_no_focus(
+        focus, sources.get("focus_distance"), metadata, calibration) if len(focus) != n else
+        f"give --f-number once or once per focused photo ({n}), got {len(f_numbers)}"
+        if isinstance(f_numbers, (list, tuple)) and len(f_numbers) not in (0, 1, n) else
+        f"{unknown} is unknown: "
+        f"{', '.join(str(m.path) for m in metadata if getattr(m, unknown) is None)} do(es) not "
+        f"state it in EXIF; give --{unknown.replace('_', '-')} ({_UNITS[unknown]}) or --camera "
+        "fit.json" if unknown else None)
+    if why:
+        raise ValueError(why)
     spec = calibration.aperture if calibration is not None else aperture
     settings = CameraSettings(values["focal_length"], values["f_number"], focus,
                               values["pixel_pitch"], aperture=spec)
@@ -234,7 +224,7 @@ def metadata_settings(
     focal_length: float | None = None,
     f_number: float | None = None,
 ) -> CameraSettings:
-    """The `CameraSettings` of an image decoded from one file (`optics.read_raw`): the file's
+    """The `CameraSettings` of an image decoded from one file (`datasets.photos.read_raw`): the file's
     focal length and f-number, and its pixel pitch times the image's `binning`.
 
     Most cameras do not record the focus distance, so it is always given.

@@ -9,7 +9,7 @@ levels, the CFA pattern, the white balances and the colour matrices.
 
 The record holds what the file states, not a camera: its camera values (focal length, f-number,
 focus distance, pixel pitch) carry the names and units of `CameraSettings`, the one camera value
-type, and `optics.photo_settings` turns records and options into `CameraSettings`.
+type, and `datasets.photos.settings` turns records and options into `CameraSettings`.
 
 The pixel pitch comes from the focal-plane resolution tags; for JPEG, TIFF and PNG photos it is
 scaled to the stored image size (a downscaled JPEG has a larger effective pitch than the sensor)
@@ -32,16 +32,14 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from .camera import SETTING_FIELDS
+from optics.camera import SETTING_FIELDS
+
+from ..io import DataFormatError, require_file
 
 #: File name endings read as raw photos (LibRaw), not as images.
 RAW_SUFFIXES = (".dng", ".cr2", ".cr3", ".crw", ".nef", ".nrw", ".arw", ".srf", ".sr2", ".rw2",
                 ".raw", ".rwl", ".orf", ".raf", ".pef", ".srw", ".x3f", ".mrw", ".3fr", ".iiq",
                 ".erf", ".kdc", ".dcr", ".mos", ".mef")
-#: The most pixels of a photo that is decoded (100 megapixels), for every format: a PNG, JPEG
-#: or TIFF whose header states more (`datasets.io.check_image_size`) or a raw file whose
-#: metadata states more photosites (`optics.read_raw`) is refused before any pixel is decoded.
-MAX_IMAGE_PIXELS = 100_000_000
 #: Diagonal of a 36 x 24 mm frame, metres: what a 35 mm equivalent focal length is defined on.
 FULL_FRAME_DIAGONAL = float(np.hypot(0.036, 0.024))
 #: Metres per unit of the EXIF FocalPlaneResolutionUnit (2: inch, the default; 3: cm; 4: mm;
@@ -54,26 +52,8 @@ _INFINITE_DISTANCE = 0xFFFFFFFF
 _LIBRAW_FLIP_TO_EXIF = {0: 1, 3: 3, 5: 8, 6: 6}
 
 
-class RawReadError(ValueError):
+class RawReadError(DataFormatError):
     """A raw file that LibRaw cannot decode, or that decodes to no image data."""
-
-
-def oversize_reason(height: int, width: int, what: str = "pixels",
-                    max_pixels: int = MAX_IMAGE_PIXELS) -> str | None:
-    """Why a photo whose file states `height` x `width` `what` (pixels, photosites) is not
-    decoded, or None where it is within `max_pixels`.
-
-    Example:
-        >>> oversize_reason(20000, 20000)
-        '20000x20000 pixels (400 megapixels); at most 100 megapixels are read'
-        >>> oversize_reason(4000, 6000) is None
-        True
-    """
-    height, width = int(height), int(width)
-    if height * width <= max_pixels:
-        return None
-    return (f"{height}x{width} {what} ({height * width / 1e6:.4g} megapixels); at most "
-            f"{max_pixels / 1e6:g} megapixels are read")
 
 
 @dataclass(frozen=True)
@@ -81,7 +61,7 @@ class PhotoMetadata:
     """What a photo's file states about how it was taken (`None` where it says nothing).
 
     Lengths in metres, times in seconds. The camera values the file states are held in
-    `stated`, by `CameraSettings` field name and in its units (`optics.photo_settings` makes
+    `stated`, by `CameraSettings` field name and in its units (`datasets.photos.settings` makes
     settings of them), and read as `focal_length`, `f_number`, `focus_distance` and
     `pixel_pitch` (`None` where the file does not state them).
 
@@ -98,7 +78,7 @@ class PhotoMetadata:
             2 % off at 26 mm).
         orientation: how to turn the stored image upright, as an EXIF orientation (1: as is,
             3: half a turn, 6: a quarter turn clockwise, 8: counter-clockwise).
-        compressed: the file is a JPEG (lossy: see `optics.photo_settings.compression_warning`).
+        compressed: the file is a JPEG (lossy: see `datasets.photos.settings.compression_warning`).
         camera_make: e.g. `"Canon"`.
         camera_model: e.g. `"Canon EOS 6D"`.
         lens_model: e.g. `"EF24-105mm f/4L IS USM"`.
@@ -110,7 +90,7 @@ class PhotoMetadata:
         white_level: raw files: white (saturation) level (raw units).
         camera_white_balance: raw files: as-shot multipliers `(R, G, B)` normalised to `G = 1`.
         daylight_white_balance: raw files: daylight multipliers `(R, G, B)`, `G = 1`.
-        white_balance: the multipliers applied to the decoded image (`optics.read_raw`).
+        white_balance: the multipliers applied to the decoded image (`datasets.photos.read_raw`).
         colour_matrix: raw files: 3x3 matrix from white-balanced camera RGB to linear sRGB
             (rows sum to 1).
         xyz_to_camera: raw files: 3x3 matrix from CIE XYZ to camera RGB (the DNG `ColorMatrix`).
@@ -457,10 +437,8 @@ def read_metadata(
         >>> meta.focal_length, meta.orientation, meta.compressed
         (None, 1, False)
     """
-    path = Path(path)
+    path = require_file(Path(path), "a photo")
     raw = path.suffix.lower() in RAW_SUFFIXES
-    if not path.is_file():
-        raise FileNotFoundError(f"{'raw file' if raw else 'photo'} not found: {path}")
     if not raw:
         size = image_size if image_size is not None else _stored_size(path)
         if size is None:

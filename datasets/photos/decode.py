@@ -1,14 +1,14 @@
 """Your own photos: read a JPEG/PNG/TIFF or raw photo upright, with what its file states.
 
 `read_photo` applies the EXIF orientation (a portrait shot stored sideways comes out upright) and
-returns the file's `optics.PhotoMetadata` (`optics.read_metadata`, the one reader of what photo
+returns the file's `datasets.photos.PhotoMetadata` (`datasets.photos.read_metadata`, the one reader of what photo
 files state: focal length, f-number and pixel pitch where the file states them, the pixel pitch
 scaled to the stored image size). TIFFs of more than 8 bits per sample (what raw developers and
 scientific cameras write, either byte order) and 16-bit colour or grey+alpha PNGs keep all their
 bits: Pillow would cut them to 8, so `tifffile` and `pypng` read those. Unsigned integer samples
 (8, 16 or 32 bits) are divided by their type's maximum; signed or floating-point ones are
 refused, as they state no scale of light. The camera settings of photos are resolved by
-`optics.photo_settings`.
+`datasets.photos.settings`.
 """
 
 from __future__ import annotations
@@ -22,9 +22,8 @@ import torch
 from kornia.color import linear_rgb_to_rgb, rgb_to_linear_rgb
 from torch import Tensor
 
-from optics.photo_metadata import RAW_SUFFIXES, PhotoMetadata, read_metadata
-
-from .io import DataFormatError, check_image_size, check_stated_size, require_file
+from ..io import DataFormatError, check_image_size, check_stated_size, require_file
+from .metadata import RAW_SUFFIXES, PhotoMetadata, read_metadata
 
 #: How a JPEG, PNG or TIFF stores intensity (`read_photo`).
 ENCODINGS = ("srgb", "linear")
@@ -173,14 +172,11 @@ def _orient(array: np.ndarray, orientation: int) -> np.ndarray:
 
 def _read_raw_photo(path: Path, dtype: torch.dtype) -> tuple[Tensor, PhotoMetadata]:
     """A raw photo as linear sRGB, upright, and what its metadata says."""
-    from optics.raw import RawReadError, read_raw
+    from .raw import read_raw
 
-    try:
-        # daylight white balance: the same gains for every shot (as-shot ones may differ
-        # between shots), divided by the largest so that only saturated photosites reach 1
-        image, meta = read_raw(path, white_balance="daylight", colour_space="srgb", dtype=dtype)
-    except RawReadError as error:
-        raise DataFormatError(str(error)) from None
+    # daylight white balance: the same gains for every shot (as-shot ones may differ between
+    # shots), divided by the largest so that only saturated photosites reach 1
+    image, meta = read_raw(path, white_balance="daylight", colour_space="srgb", dtype=dtype)
     image = (image[0] / max(meta.white_balance)).clamp(0, 1)
     upright = _orient(image.permute(1, 2, 0).numpy(), meta.orientation)
     return torch.from_numpy(np.ascontiguousarray(upright)).permute(2, 0, 1), meta
@@ -211,9 +207,6 @@ def _to_linear(array: np.ndarray, dtype: torch.dtype, encoding: str,
     # the stored layout (rows of RGB triples) unless the caller gives the tensor to fill
     image = torch.empty((height, width, 3), dtype=dtype).permute(2, 0, 1) if into is None \
         else into((height, width))
-    if not (isinstance(image, Tensor) and tuple(image.shape) == (3, height, width)):
-        raise ValueError(f"into must give a (3, {height}, {width}) tensor, got "
-                         f"{getattr(image, 'shape', type(image).__name__)}")
     for rows in _row_blocks(height, width):
         block = torch.from_numpy(np.array(array[rows, :, :3]))  # a small copy
         block = block.to(image.dtype).permute(2, 0, 1).div_(scale)
@@ -242,7 +235,7 @@ def read_photo(path: str | Path, dtype: torch.dtype = torch.float32, encoding: s
             spares a copy of each; its dtype is kept); it may refuse a size.
 
     Returns:
-        `(image, info)`: the photo and its `optics.PhotoMetadata` (what the file states; the
+        `(image, info)`: the photo and its `datasets.photos.PhotoMetadata` (what the file states; the
         orientation is applied to the image).
 
     Raises:
@@ -351,10 +344,7 @@ def save_photo(path: str | Path, image: Tensor) -> Path:
     """
     import png
 
-    check_image = image.detach().cpu().float()
-    if check_image.dim() != 3 or check_image.shape[0] != 3:
-        raise ValueError(f"image must be (3, H, W), got {tuple(image.shape)}")
-    encoded = linear_rgb_to_rgb(check_image.clamp(0, 1)).clamp(0, 1)
+    encoded = linear_rgb_to_rgb(image.detach().cpu().float().clamp(0, 1)).clamp(0, 1)
     array = (encoded.permute(1, 2, 0).numpy() * 65535 + 0.5).astype(np.uint16)
     path = Path(path)
     with open(path, "wb") as handle:

@@ -7,8 +7,8 @@ by white balance (white balance is applied here, after decoding, so balanced val
 Colour conversion to linear sRGB or CIE XYZ uses the camera's colour matrix (from the file, as
 LibRaw reads it) and colour-science's sRGB definition.
 
-The metadata (`optics.PhotoMetadata`: camera and lens, exposure, focal length, f-number, pixel
-pitch, levels, CFA, white balance) are read by `optics.read_metadata`, the one reader of what
+The metadata (`datasets.photos.PhotoMetadata`: camera and lens, exposure, focal length, f-number, pixel
+pitch, levels, CFA, white balance) are read by `datasets.photos.read_metadata`, the one reader of what
 photo files state; `read_raw` returns them with the binning, white balance and colour space of
 the decoded image.
 """
@@ -27,14 +27,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from .photo_metadata import (
-    MAX_IMAGE_PIXELS,
-    PhotoMetadata,
-    RawReadError,
-    metadata_from_libraw,
-    open_raw,
-    oversize_reason,
-)
+from ..io import MAX_IMAGE_PIXELS, oversize_reason, require_args, require_file, require_one_size
+from .metadata import PhotoMetadata, RawReadError, metadata_from_libraw, open_raw
 
 #: White-balance choices of `read_raw`.
 WHITE_BALANCES = ("camera", "daylight", "none")
@@ -46,38 +40,30 @@ MIN_BYTES_PER_PHOTOSITE = 0.02
 DEMOSAIC_ALGORITHMS = ("linear", "ahd", "dcb", "vng", "ppg")
 
 
-def _check_choice(name: str, value: str, allowed: Sequence[str]) -> str:
-    if not isinstance(value, str) or value.lower() not in allowed:
-        raise ValueError(f"{name} must be one of {list(allowed)}, got {value!r}")
-    return value.lower()
-
-
 def _srgb_to_xyz() -> Tensor:
     import colour
 
     return torch.as_tensor(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ)
 
 
-def _check_options(
-    white_balance: str, colour_space: str, binning: int, demosaic: str, dtype: torch.dtype
-) -> tuple[str, str, str]:
-    """`read_raw`'s options checked: `(white_balance, colour_space, demosaic)` in lower case."""
-    if not isinstance(dtype, torch.dtype) or not dtype.is_floating_point:
-        raise TypeError(
-            f"dtype must be a floating-point torch dtype (torch.float32, torch.float64, ...), "
-            f"got {dtype!r}: the image is scaled to [0, 1] and white-balanced, which integers "
-            "would truncate"
-        )
-    white_balance = _check_choice("white_balance", white_balance, WHITE_BALANCES)
-    colour_space = _check_choice("colour_space", colour_space, COLOUR_SPACES)
-    demosaic = _check_choice("demosaic", demosaic, DEMOSAIC_ALGORITHMS)
-    if isinstance(binning, bool) or not isinstance(binning, int) or binning < 1:
-        raise ValueError(f"binning must be an integer >= 1, got {binning!r}")
-    if colour_space != "camera" and white_balance == "none":
-        raise ValueError(
-            f"colour_space={colour_space!r} needs white-balanced camera RGB; "
-            "use white_balance='camera' or 'daylight'"
-        )
+def _options(white_balance: str, colour_space: str, binning: int, demosaic: str,
+             dtype: torch.dtype) -> tuple[str, str, str]:
+    """`read_raw`'s door: `(white_balance, colour_space, demosaic)` in lower case, refused by one
+    table naming the option."""
+    white_balance, colour_space, demosaic = (v.lower() if isinstance(v, str) else v
+                                             for v in (white_balance, colour_space, demosaic))
+    require_args(
+        ("dtype", dtype, isinstance(dtype, torch.dtype) and dtype.is_floating_point,
+         "a floating-point torch dtype (torch.float32, torch.float64, ...): the image is scaled "
+         "to [0, 1] and white-balanced, which integers would truncate"),
+        *((name, value, value in allowed, f"one of {list(allowed)}") for name, value, allowed in (
+            ("white_balance", white_balance, WHITE_BALANCES),
+            ("colour_space", colour_space, COLOUR_SPACES),
+            ("demosaic", demosaic, DEMOSAIC_ALGORITHMS))),
+        ("binning", binning, isinstance(binning, int) and not isinstance(binning, bool) and
+         binning >= 1, "an integer >= 1"),
+        ("white_balance", white_balance, colour_space == "camera" or white_balance != "none",
+         f"'camera' or 'daylight': colour_space={colour_space!r} needs white-balanced camera RGB"))
     return white_balance, colour_space, demosaic
 
 
@@ -108,7 +94,7 @@ def check_raw_size(path: Path, sizes: Any, max_pixels: int = MAX_IMAGE_PIXELS) -
         >>> check_raw_size(Path("x.dng"), SimpleNamespace(raw_height=12000, raw_width=12000))
         Traceback (most recent call last):
         ...
-        optics.photo_metadata.RawReadError: x.dng: its metadata states 12000x12000 photosites (144 megapixels); at most 100 megapixels are read
+        datasets.photos.metadata.RawReadError: x.dng: its metadata states 12000x12000 photosites (144 megapixels); at most 100 megapixels are read
     """
     reason = oversize_reason(sizes.raw_height, sizes.raw_width, "photosites", max_pixels)
     if reason is not None:
@@ -188,7 +174,7 @@ def read_raw(
             an even factor first bins each 2x2 Bayer quad into one RGB pixel (LibRaw's half
             size: no interpolation), then averages `binning/2` squares; an odd one averages
             after demosaicing. The effective pixel pitch is the sensor pitch times `binning`
-            (`optics.photo_settings.metadata_sensor` knows it).
+            (`datasets.photos.settings.metadata_sensor` knows it).
         demosaic: LibRaw algorithm, one of `DEMOSAIC_ALGORITHMS`.
         dtype: floating-point dtype of the image.
         device: device of the image.
@@ -215,11 +201,9 @@ def read_raw(
         >>> image.shape, meta.focal_length, meta.f_number  # doctest: +SKIP
         (torch.Size([1, 3, 204, 306]), 0.065, 5.6)
     """
-    white_balance, colour_space, demosaic = _check_options(
+    white_balance, colour_space, demosaic = _options(
         white_balance, colour_space, binning, demosaic, dtype)
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"raw file not found: {path}")
+    path = require_file(Path(path), "a raw photo")
     rgb, meta, half = _decode(path, demosaic, binning, max_pixels)
     image = torch.from_numpy(rgb.astype("float32")).to(device=device, dtype=dtype)
     image = image.permute(2, 0, 1).unsqueeze(0) / 65535.0
@@ -247,9 +231,10 @@ def read_raw_stack(
         `(images, metadata)`: `(N, 3, H, W)` images and a list of `N` `PhotoMetadata`.
 
     Raises:
-        ValueError: if `paths` is empty or the images differ in size (the message names both).
+        ValueError: if `paths` is empty or the images differ in size (`DataFormatError`
+            naming both files).
     """
-    from .progress import progress_bar
+    from optics.progress import progress_bar
 
     paths = list(paths)
     if not paths:
@@ -257,11 +242,7 @@ def read_raw_stack(
     images, metas = [], []
     for path in progress_bar(paths, desc="reading raw", disable=not progress):
         image, meta = read_raw(path, **kwargs)
-        if images and image.shape != images[0].shape:
-            raise ValueError(
-                f"all images must have one size: {paths[0]} is {tuple(images[0].shape[-2:])}, "
-                f"{path} is {tuple(image.shape[-2:])}"
-            )
         images.append(image)
         metas.append(meta)
+    require_one_size(*zip((Path(p) for p in paths), images, strict=True))
     return torch.cat(images), metas
