@@ -74,7 +74,7 @@ LAYOUT = (
 )
 
 
-def read_metadata(path: Path) -> dict[int, tuple[str, float]]:
+def read_shot_list(path: Path) -> dict[int, tuple[str, float]]:
     """ZEDD's `metadata.txt`: run number -> (motor hex code, focus distance in metres).
 
     Raises:
@@ -143,7 +143,7 @@ class ZEDD(FocalStackDataset):
                      ("sensor_width", sensor_width, 0 < sensor_width < 0.1, "metres in (0, 0.1)"))
         self.root = require_root(root, "ZEDD", LAYOUT)
         self.metadata_path = self.root / "metadata.txt"
-        runs = read_metadata(self.metadata_path)
+        runs = read_shot_list(self.metadata_path)
         self.shots = [int(i) for i in shots]
         for k in sorted({i + 1 for i in self.shots} | {AIF_RUN}):
             if k not in runs:
