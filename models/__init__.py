@@ -6,7 +6,7 @@ The names most work needs are here; each lives in one module:
 |---|---|---|
 | `estimate_depth` | `models.depth_from_photos` | depth of one scene from its photos (the label-free methods, or a trained model) |
 | `load_depth_model` | `models.loading` | a trained model from any weight file (`defocus train` checkpoint or weights file) |
-| `evaluate`, `label_free_method` | `models.evaluation` | a method's metrics over samples, with a benchmark's protocol |
+| `evaluate`, `label_free_method`, `network_method` | `models.evaluation` | the one evaluation loop: a method's metrics over samples, with a benchmark's protocol; a label-free method or a trained network as a method |
 | `depth_metrics`, `depth_order`, `best_constant_depth`, `format_table` | `models.metrics` | metrics and the paper-style table |
 | `PROTOCOLS`, `protocol_metrics` | `models.protocols` | the focal-stack benchmarks' own scoring |
 | `Trainer`, `TrainConfig` | `models.training` | training runs |
@@ -25,7 +25,7 @@ Example:
 
 from .depth_from_photos import TrainedNetwork, estimate_depth
 from .diagnostics import loss_at_depths
-from .evaluation import MeanMetrics, Method, evaluate, label_free_method
+from .evaluation import MeanMetrics, Method, evaluate, label_free_method, network_method
 from .experiment import compare_on_scene, train_and_evaluate
 from .loading import is_weights_file, load_depth_model, load_weights, save_weights
 from .losses import DefocusLoss, supervised_depth_loss
@@ -75,6 +75,7 @@ __all__ = [
     "load_depth_model",
     "load_weights",
     "loss_at_depths",
+    "network_method",
     "protocol_metrics",
     "save_weights",
     "supervised_depth_loss",

@@ -22,6 +22,7 @@ from .calibration import (
     side_cues,
 )
 from .camera import Camera, CameraSettings
+from .checks import checks_disabled, set_checks
 from .collate import collate
 from .focal_stack import render_focal_stack
 from .lens import ThinLens
@@ -58,6 +59,9 @@ __all__ = [
     "translate",
     "undo_motion",
     "warp",
+    # the switch of the tensor checks (on by default)
+    "checks_disabled",
+    "set_checks",
     # calibration and its figures
     "CalibrationError",
     "CalibrationPair",

@@ -315,14 +315,16 @@ def check_photo_content(photo: Tensor, name: str = "photo") -> None:
         ...
         ValueError: near.png is one flat colour (every pixel 0 in linear intensity): it has no texture for defocus to blur
     """
-    low, high = float(photo.min()), float(photo.max())
+    # one pass, block by block (no full-size temporary): the range and the clipped pixels
+    low, high, clipped = float("inf"), float("-inf"), 0
+    for rows in _row_blocks(photo.shape[-2], photo.shape[-1]):
+        darkest, brightest = photo[:, rows].aminmax(dim=0)
+        low, high = min(low, float(darkest.min())), max(high, float(brightest.max()))
+        clipped += int(((brightest <= 1e-4) | (darkest >= 0.999)).sum())
     if high - low <= 1e-6:
         raise ValueError(f"{name} is one flat colour (every pixel {low:.3g} in linear "
                          "intensity): it has no texture for defocus to blur")
-    clipped, height, width = 0, photo.shape[-2], photo.shape[-1]
-    for rows in _row_blocks(height, width):  # block by block: no full-size temporary
-        block = photo[:, rows]
-        clipped += int(((block.amax(0) <= 1e-4) | (block.amin(0) >= 0.999)).sum())
+    height, width = photo.shape[-2], photo.shape[-1]
     fraction = clipped / max(height * width, 1)
     if fraction > MAX_CLIPPED_FRACTION:
         raise ValueError(f"{name} is {fraction:.1%} black or saturated pixels (at most "

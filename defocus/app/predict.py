@@ -11,7 +11,6 @@ that network.
 from __future__ import annotations
 
 import dataclasses
-import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -20,8 +19,9 @@ from typing import Any
 
 import torch
 
+from datasets.photos import CameraFile
 from defocus.options import check_positive
-from optics.checks import is_real_number, values_checked
+from optics.checks import values_checked
 
 from .outputs import OutputPlan, plan_files
 
@@ -151,17 +151,13 @@ def check_beyond_lens(request: PredictRequest, settings, depth_range) -> None:
                              f"{'NEAR ' if option == '--depth-range' else ''}{value:g} m")
 
 
-def apply_camera_policy(request: PredictRequest, extra: dict[str, Any], has_model: bool,
+def apply_camera_policy(request: PredictRequest, camera: CameraFile | None, has_model: bool,
                         report: Report = _silent) -> None:
     """Where the camera JSON was fitted with references that were not sharp
     (`reference_f_number`, e.g. f/8 beside f/2.8), `--image` counts as such a shot; then the
     options about `--image` are checked."""
-    check_photo_order(request, extra.get("photos"))
-    reference = extra.get("reference_f_number")
-    if reference is not None and not (is_real_number(reference) and math.isfinite(reference)
-                                      and reference >= 1):
-        raise ValueError(f'{request.camera}: "reference_f_number" must be an f-number >= 1, '
-                         f"got {reference!r}")
+    check_photo_order(request, None if camera is None else camera.photos)
+    reference = None if camera is None else camera.reference_f_number
     if request.image is not None and request.image_f_number is None and not has_model \
             and request.method in ("auto", "relative-blur") and reference is not None:
         request.image_f_number = float(reference)
@@ -280,16 +276,18 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     """
     from models import estimate_depth, load_depth_model
     from models.devices import select_device
-    from optics import CameraSettings
 
     check_request(request)
     plan = plan_outputs(request)  # before any work: nothing is lost, nothing refused late
     device = select_device(request.device)
     # the model first: a file that is no model is refused before any photo is read
     model = None if request.checkpoint is None else load_depth_model(request.checkpoint, device)
-    calibration, extra = CameraSettings.read_json(request.camera) if request.camera \
-        else (None, {})
-    apply_camera_policy(request, extra, model is not None, report)
+    camera = None if request.camera is None else CameraFile.read(
+        request.camera, n_shots=len(request.focused),
+        shots=f"--focused gives {len(request.focused)} photo(s)",
+        given=[name for name, value in request.camera_options.items() if value not in (None, [])])
+    apply_camera_policy(request, camera, model is not None, report)
+    calibration = None if camera is None else camera.settings
     photos = read_photos(request)
     settings = _settings(request, photos, calibration, report)
     depth_range = depth_range_of(request, model, len(photos.infos))
@@ -316,26 +314,11 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     return out
 
 
-def check_calibration_shots(request: PredictRequest, calibration, n_photos: int) -> None:
-    """Refuse per-shot values of the `--camera` JSON that do not match the photos: values that
-    differ between shots are used one per photo, never the first one for all."""
-    for name in ("focal_length", "f_number", "pixel_pitch"):
-        values = getattr(calibration, name).reshape(-1).tolist()
-        given = request.camera_options.get(name)
-        if len(set(values)) > 1 and len(values) != n_photos and given in (None, []):
-            raise ValueError(f'{request.camera}: "{name}" holds {len(values)} different values '
-                             f"{values}, one per shot, but {n_photos} --focused photo(s) are "
-                             f"given: give one value for all, one per photo, or "
-                             f"--{name.replace('_', '-')}")
-
-
 def _settings(request: PredictRequest, photos: Photos, calibration, report: Report):
     from datasets.photos import describe_settings, resolve_settings
 
     if not photos.infos:
         return None
-    if calibration is not None:
-        check_calibration_shots(request, calibration, len(photos.infos))
     settings, sources = resolve_settings(photos.infos, request.camera_options, calibration)
     report(describe_settings(settings, sources))
     return settings
