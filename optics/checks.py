@@ -141,8 +141,7 @@ def as_parameter_tensor(name: str, value: ParamLike) -> Tensor:
 _VALUES_CHECKED = contextvars.ContextVar("optics_values_checked", default=False)
 
 
-@contextlib.contextmanager
-def values_checked() -> Iterator[None]:
+def values_checked() -> contextlib.AbstractContextManager[None]:
     """Skip the checks that read tensor values inside the block, as under tracing: for code
     whose inputs were checked where they entered (e.g. a training batch checked on the host
     when it was prepared) and whose results are checked once at the end (the training step's
@@ -153,6 +152,13 @@ def values_checked() -> Iterator[None]:
         >>> with values_checked():
         ...     check_tensor("f_number", torch.tensor([-1.0]), values="positive")  # not read
     """
+    if torch.compiler.is_compiling():  # traced code reads no values, and a graph may not
+        return contextlib.nullcontext()  # set a context variable
+    return _values_checked()
+
+
+@contextlib.contextmanager
+def _values_checked() -> Iterator[None]:
     token = _VALUES_CHECKED.set(True)
     try:
         yield

@@ -74,7 +74,7 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
         ValueError: a sample the network cannot read: a key it needs is missing, or it holds
             another number of focused photos than the network was trained on.
     """
-    from models.train_config import select_device
+    from models.devices import select_device
 
     from models.evaluation import evaluate_network
     from models.loading import load_model

@@ -6,7 +6,7 @@ the seconds the training loop waited for it. With `workers > 0` the batches are 
 (pinned memory and `non_blocking` copies when the device is a GPU); with `workers = 0` each batch
 is prepared when it is asked for. On a GPU with workers, a thread of the training process moves
 the next batches to the device on a side CUDA stream while the current step runs, so that the
-step finds its batch there. All give the same batches: `models.sampling.StepSampler` makes each
+step finds its batch there. All give the same batches: `models.training.sampling.StepSampler` makes each
 step's samples a function of the step alone.
 
 Example:
