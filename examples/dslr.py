@@ -83,46 +83,40 @@ def side_bound_row(val: DSLR, depth_range: tuple[float, float],
                    side: str) -> dict[str, dict[str, float]]:
     """The error that no self-supervised training removes under the side prior: each scored
     scene's true depth with its ambiguous blur put on `side` (`fold_to_side`), averaged."""
+    from models import evaluate
     from models.diagnostics import fold_to_side
-    from models.evaluation import MeanMetrics
-    from models.metrics import depth_metrics
 
-    means = MeanMetrics()
-    for index in range(len(val)):
-        sample = val[index]
+    def bound(sample: dict) -> torch.Tensor:
         focus = float(sample["camera"].focus_distance.reshape(-1)[0])
-        folded = fold_to_side(sample["depth"], focus, depth_range, side)
-        means.add(depth_metrics(pred=folded[None], target=sample["depth"][None],
-                                mask=sample["mask"][None], max_depth=depth_range[1]))
-    return {f"bound: the true depth through one focus plane, side {side}": means.mean()}
+        return fold_to_side(sample["depth"], focus, depth_range, side)
+
+    return {f"bound: the true depth through one focus plane, side {side}": evaluate(
+        bound, (val[i] for i in range(len(val))), "eigen", max_depth=depth_range[1])}
 
 
 def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int,
-                    side: str = "both", report=None) -> dict[str, dict[str, float]]:
+                    side: str = "both") -> dict[str, dict[str, float]]:
     """`estimate_depth` on each scored scene (the f/8 photo as one more shot), averaged; with a
     side prior, over the depth range on that side of the fitted focus plane only."""
+    from models import evaluate
     from models.depth_from_photos import estimate_depth
-    from models.evaluation import MeanMetrics
-    from models.metrics import depth_metrics
     from optics.progress import progress_bar
 
-    means = MeanMetrics()
-    for index in progress_bar(range(len(val)), desc="label-free predict"):
-        sample = val[index]
+    def label_free(sample: dict) -> torch.Tensor:
         settings = sample["camera"]
-        reference = val.reference_settings(settings)
         focus = float(settings.focus_distance.reshape(-1)[0])
         span = {"beyond": (focus, depth_range[1]), "before": (depth_range[0], focus)}.get(
             side, depth_range)
         with torch.no_grad():
-            depth = estimate_depth(sample["focused"], settings, span,
-                                   image=sample["image"], image_settings=reference,
-                                   all_in_focus=False, max_pixels=max_pixels,
-                                   refine_range=side == "both")["depth"]
-        means.add(depth_metrics(pred=depth, target=sample["depth"], mask=sample["mask"],
-                                max_depth=depth_range[1]))
+            return estimate_depth(sample["focused"], settings, span, image=sample["image"],
+                                  image_settings=val.reference_settings(settings),
+                                  all_in_focus=False, max_pixels=max_pixels,
+                                  refine_range=side == "both")["depth"]
+
+    samples = (val[i] for i in progress_bar(range(len(val)), desc="label-free predict"))
     prior = "" if side == "both" else f", side {side}"
-    return {f"label-free predict (f/8 as a shot, fitted camera{prior})": means.mean()}
+    return {f"label-free predict (f/8 as a shot, fitted camera{prior})": evaluate(
+        label_free, samples, "eigen", max_depth=depth_range[1])}
 
 
 def calibrate(proto: dict[str, Any], out: Path, train: DSLR, progress: bool) -> Path:
