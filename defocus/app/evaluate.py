@@ -75,7 +75,6 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
             another number of focused photos than the network was trained on.
     """
     from models.devices import select_device
-
     from models.evaluation import evaluate_network
     from models.loading import load_model
     from models.training import COLLAPSE_FRACTION
