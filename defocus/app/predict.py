@@ -254,6 +254,20 @@ def depth_range_of(request: PredictRequest, model: Any, n_photos: int) -> tuple[
     return model.depth_range
 
 
+def warn_other_camera(model: Any, settings) -> None:
+    """Warn in one line where a network trained for one camera reads photos of another
+    (`models.depth_from_photos.trained_network.camera_mismatch`): its depth is then likely
+    wrong."""
+    from models.depth_from_photos import TrainedNetwork
+    from models.depth_from_photos.trained_network import camera_mismatch
+
+    if isinstance(model, TrainedNetwork) and model.input_mode == "aif+focused" \
+            and settings is not None:
+        problem = camera_mismatch(model.camera, settings)
+        if problem is not None:
+            warnings.warn(problem, stacklevel=2)
+
+
 def image_shot_settings(request: PredictRequest, settings):
     """The settings of `--image` as one more shot (`--image-f-number`), else None."""
     if request.image_f_number is None:
@@ -290,6 +304,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     calibration = None if camera is None else camera.settings
     photos = read_photos(request)
     settings = _settings(request, photos, calibration, report)
+    warn_other_camera(model, settings)
     depth_range = depth_range_of(request, model, len(photos.infos))
     if settings is not None:
         check_beyond_lens(request, settings, depth_range)

@@ -431,7 +431,9 @@ class Trainer:
                 "optimizer": self.optimizer.state_dict(),
                 "scheduler": self.scheduler.state_dict(), "step": self.step,
                 "config": to_plain(self.config.to_dict(), "config"),
-                "history": [dict(row) for row in self.history], "rng": rng_state()}
+                "history": [dict(row) for row in self.history], "rng": rng_state(),
+                **({} if self.sample_checks.camera is None else
+                   {"camera": self.sample_checks.camera})}
 
     def load_state_dict(self, state: Mapping[str, Any], source: str | Path = "checkpoint") -> None:
         """Restore what `state_dict` returned (also older checkpoints without `rng`) from
