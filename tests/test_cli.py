@@ -85,6 +85,24 @@ def test_demo_writes_metrics_json_and_figures(tmp_path, capsys):
         assert (out / name).stat().st_size > 0, name
     printed = capsys.readouterr().out
     assert "self_supervised" in printed and "best constant abs rel" in printed
+    assert "goal" not in printed.lower()  # a user's table states results, not targets
+
+
+def test_product_text_states_results_not_goals():
+    """What users read (the packages' output and docstrings, the examples, README and docs)
+    speaks of results; the team's targets live in benchmarks/."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    files = [root / "README.md", *(path for folder in ("defocus", "models", "optics",
+                                                       "datasets", "examples", "docs")
+                                   for pattern in ("*.py", "*.md")
+                                   for path in (root / folder).rglob(pattern))]
+    found = [f"{path.relative_to(root)}:{number}" for path in files
+             for number, line in enumerate(path.read_text().splitlines(), 1)
+             if re.search(r"\bgoals?\b", line, re.IGNORECASE)]
+    assert not found, found
 
 
 def test_predict_marks_the_mirrored_depths_on_the_figure_and_the_summary(tmp_path, capsys):
