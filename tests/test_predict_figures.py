@@ -63,11 +63,12 @@ def test_depth_preview_has_a_scale_in_metres_beside_the_photos_pixels(tmp_path):
 
 
 def test_training_figure_title_names_the_sample_and_the_step(tmp_path, monkeypatch):
+    from training_helpers import tiny_config
+
     import models.training.trainer
     from datasets.synthetic import SyntheticScenes
     from models.plotting import figure_title
     from models.training import Trainer
-    from training_helpers import tiny_config
 
     assert figure_title("", 50) == "step 50"
     titles = []
