@@ -176,7 +176,8 @@ def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn
 
     A weights file of `save_weights` gives the camera-general `DepthFromDefocus`; a checkpoint
     of `defocus train` gives its network wrapped as a `TrainedNetwork` (its input mode,
-    focused photos and depth range from the checkpoint's config).
+    focused photos and depth range from the checkpoint's config, and the camera it was trained
+    for where the checkpoint records it).
 
     Args:
         path: a weights file or a training checkpoint.
@@ -198,8 +199,10 @@ def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn
     if state.get("kind") == WEIGHTS_KIND:  # the experimental camera-general network
         return _weights_model(state).to(device)
     network, config = _network(state, path, device)
+    camera = state.get("camera")  # the camera it was trained for (older checkpoints: none)
     return TrainedNetwork(network, config.input_mode, config.n_focus,
-                          (config.depth_min, config.depth_max))
+                          (config.depth_min, config.depth_max),
+                          camera=camera if isinstance(camera, Mapping) else None)
 
 
 __all__ = ["config_from_state", "is_weights_file", "load_depth_model", "load_model", "load_weights",

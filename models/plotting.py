@@ -20,12 +20,24 @@ def linear_to_srgb(linear: Tensor) -> Tensor:
     return linear_rgb_to_rgb(linear.clamp(0, 1))
 
 
+def figure_title(sample_id: object, step: int) -> str:
+    """The title of a training figure: which sample it shows and after which step.
+
+    Example:
+        >>> figure_title("0-0", 50)
+        'sample 0-0, step 50'
+        >>> figure_title(None, 50)
+        'step 50'
+    """
+    return f"step {step}" if sample_id in (None, "") else f"sample {sample_id}, step {step}"
+
+
 def plot_prediction(
     path: str | Path, image: Tensor, depth: Tensor, focused: Tensor | None = None,
     target: Tensor | None = None, mask: Tensor | None = None, title: str = "",
     depth_range: tuple[float, float] | None = None, confidence: Tensor | None = None,
     image_label: str = "all in focus (input)", stated_range: tuple[float, float] | None = None,
-    mirrored_depths: tuple[float, float] | None = None,
+    mirrored_depths: tuple[float, float] | None = None, focused_labels: list[str] | None = None,
 ) -> Path:
     """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
     its confidence, ground-truth depth and the relative error `|d - g| / g` (masked pixels
@@ -50,6 +62,8 @@ def plot_prediction(
             hatched on the depth colour bar, the predicted depth's pixels within it hatched,
             the span named under the panel and, in a PNG, stored as its text
             `MIRRORED_DEPTHS_KEY` (`figure_mirrored_depths` reads it back).
+        focused_labels: the title of each focused image's panel (e.g. its file name and focus
+            distance); by default "focused image 1", ...
 
     Returns:
         the path written.
@@ -62,7 +76,7 @@ def plot_prediction(
     depth = depth.detach().float().cpu()
     target = None if target is None else target.detach().float().cpu()
     panels = _prediction_panels(image, depth, focused, target, mask, confidence, image_label,
-                                stated_range)
+                                stated_range, focused_labels)
     if depth_range is None and stated_range is not None:
         depth_range = robust_range(depth)
     elif depth_range is None:
@@ -98,13 +112,15 @@ def plot_prediction(
 def _prediction_panels(image: Tensor, depth: Tensor, focused: Tensor | None,
                        target: Tensor | None, mask: Tensor | None, confidence: Tensor | None,
                        image_label: str, stated_range: tuple[float, float] | None,
+                       focused_labels: list[str] | None = None,
                        ) -> list[tuple[str, Tensor, str]]:
     """`(title, data, kind)` of each panel of `plot_prediction` (kind: `"rgb"`, `"depth"`,
     `"confidence"` or `"error"`), on the CPU."""
     panels: list[tuple[str, Tensor, str]] = [(image_label, image.detach().float().cpu(), "rgb")]
     if focused is not None:
         for i, f in enumerate(focused.detach().float().cpu()):
-            panels.append((f"focused image {i + 1}", f, "rgb"))
+            label = f"focused image {i + 1}" if focused_labels is None else focused_labels[i]
+            panels.append((label, f, "rgb"))
     stated = "" if stated_range is None else \
         f" (stated {stated_range[0]:g}-{stated_range[1]:g})"
     panels.append((f"predicted depth (m){stated}", depth[0], "depth"))
@@ -216,31 +232,53 @@ def _mark(bar, limits: tuple[float, float], stated: tuple[float, float]) -> None
 
 def save_depth_preview(path: str | Path, depth: Tensor,
                        limits: tuple[float, float] | None = None) -> Path:
-    """Save depth `(H,W)` or `(1,H,W)` metres as a colour-mapped 8-bit PNG to look at (near
-    bright, far dark, as in the figures; colours over `limits`, by default `robust_range`);
-    unknown (non-finite) depth is grey. The metric depth is in `depth.npy` and the millimetre
-    PNG.
+    """Save depth `(H,W)` or `(1,H,W)` metres as a colour-mapped PNG to look at: the map at the
+    photo's own pixels (near bright, far dark, as in the figures; colours over `limits`, by
+    default `robust_range`; unknown, non-finite depth grey) with a colour scale in metres to its
+    right (`PREVIEW_BAR_PX` pixels wide; the image at least `PREVIEW_MIN_HEIGHT` pixels high).
+    The scale's ends are stored as the PNG's text `DEPTH_SCALE_KEY`. The metric depth is in
+    `depth.npy` and the millimetre PNG.
 
     Example:
         >>> import tempfile
+        >>> from PIL import Image
         >>> path = save_depth_preview(Path(tempfile.mkdtemp()) / "depth.png",
-        ...                           torch.rand(1, 8, 8) + 1)
-        >>> path.name
-        'depth.png'
+        ...                           torch.rand(1, 8, 8) + 1, (1.0, 2.0))
+        >>> Image.open(path).text[DEPTH_SCALE_KEY]
+        '1 2'
     """
     import matplotlib
     import numpy as np
-    from PIL import Image
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
 
     depth = depth.detach().float().cpu().reshape(depth.shape[-2:])
     low, high = limits or robust_range(depth)
+    cmap = matplotlib.colormaps["magma_r"]
     scaled = ((depth - low) / max(high - low, 1e-12)).clamp(0, 1).numpy()
-    rgb = matplotlib.colormaps["magma_r"](scaled, bytes=True)[..., :3]  # uint8: 3 bytes a pixel
+    rgb = cmap(scaled, bytes=True)[..., :3]  # uint8: 3 bytes a pixel
     rgb[~np.isfinite(depth.numpy())] = 153
+    h, w = rgb.shape[:2]
+    width, height = w + PREVIEW_BAR_PX, max(h, PREVIEW_MIN_HEIGHT)
+    fig = Figure(figsize=(width / 100, height / 100), dpi=100, facecolor="white")
+    fig.figimage(np.ascontiguousarray(rgb), xo=0, yo=height - h, origin="upper")  # 1:1 pixels
+    bar_axes = fig.add_axes(((w + 10) / width, 0.08, 14 / width, 0.84))
+    bar = fig.colorbar(ScalarMappable(Normalize(low, high), cmap), cax=bar_axes)
+    bar.ax.tick_params(labelsize=7)
+    bar.set_label("depth (m)", fontsize=8)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.ascontiguousarray(rgb)).save(path)
+    fig.savefig(path, dpi=100, metadata={DEPTH_SCALE_KEY: f"{low:.6g} {high:.6g}"})
     return path
+
+
+#: Width (pixels) of the colour scale right of the map in `save_depth_preview`.
+PREVIEW_BAR_PX = 90
+#: Least height (pixels) of `save_depth_preview`'s image: room for the scale's labels.
+PREVIEW_MIN_HEIGHT = 200
+#: The PNG text key under which `save_depth_preview` stores its scale's ends, metres.
+DEPTH_SCALE_KEY = "Depth scale (m)"
 
 
 #: Longest side (pixels) of a panel's data: a figure panel shows a few hundred pixels, and a

@@ -85,6 +85,24 @@ def test_demo_writes_metrics_json_and_figures(tmp_path, capsys):
         assert (out / name).stat().st_size > 0, name
     printed = capsys.readouterr().out
     assert "self_supervised" in printed and "best constant abs rel" in printed
+    assert "goal" not in printed.lower()  # a user's table states results, not targets
+
+
+def test_product_text_states_results_not_goals():
+    """What users read (the packages' output and docstrings, the examples, README and docs)
+    speaks of results; the team's targets live in benchmarks/."""
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    files = [root / "README.md", *(path for folder in ("defocus", "models", "optics",
+                                                       "datasets", "examples", "docs")
+                                   for pattern in ("*.py", "*.md")
+                                   for path in (root / folder).rglob(pattern))]
+    found = [f"{path.relative_to(root)}:{number}" for path in files
+             for number, line in enumerate(path.read_text().splitlines(), 1)
+             if re.search(r"\bgoals?\b", line, re.IGNORECASE)]
+    assert not found, found
 
 
 def test_predict_marks_the_mirrored_depths_on_the_figure_and_the_summary(tmp_path, capsys):
@@ -109,3 +127,35 @@ def test_predict_marks_the_mirrored_depths_on_the_figure_and_the_summary(tmp_pat
     assert span is not None
     assert f"depths {span[0]:.2f}-{span[1]:.2f} m may lie mirrored" in capsys.readouterr().out
     assert figure_mirrored_depths(tmp_path / "one" / "figure.png") == pytest.approx(span)
+
+
+def test_predict_warns_when_the_photos_camera_is_not_the_networks(tmp_path, capsys):
+    """A network trained for the synthetic scenes' camera (f/1.4 focused at 2 and 6 m) on the
+    sample photos (f/1.8 at 2.3 and 4.6 m): one warning naming both cameras and what to do;
+    none when the photos' camera is the training one."""
+    import warnings
+
+    from defocus.app.sample import write_sample_set
+
+    out = tmp_path / "run"
+    assert main(["train", "--out", str(out), "--scenes", "2", "--size", "16", "16", "--set",
+                 "steps=1", "batch_size=1", "width=4", "--quiet"]) == 0
+    checkpoint = str(out / "checkpoints" / "last.pt")
+    sample = write_sample_set(tmp_path / "s", scale=0.1)
+    photos = ["--image", str(sample.folder / "aif.png"), "--focused",
+              str(sample.folder / "near.png"), str(sample.folder / "far.png")]
+    with pytest.warns(UserWarning) as caught:
+        assert main(["predict", checkpoint, *photos, "--camera", str(sample.folder /
+                     "camera.json"), "--out", str(tmp_path / "other"), "--quiet"]) == 0
+    message = [str(w.message) for w in caught if "trained for" in str(w.message)]
+    assert len(message) == 1 and "\n" not in message[0]
+    assert "f/1.8 focused at 2.3, 4.6 m" in message[0]
+    assert "f/1.4 focused at 2, 6 m" in message[0]
+    assert "without a model file" in message[0] and "defocus train" in message[0]
+    capsys.readouterr()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert main(["predict", checkpoint, *photos, "--focus-distance", "2.01", "6",
+                     "--f-number", "1.4", "--focal-length", "0.05", "--pixel-pitch", "180e-6",
+                     "--out", str(tmp_path / "same"), "--quiet"]) == 0
+    assert not [w for w in caught if "trained for" in str(w.message)]

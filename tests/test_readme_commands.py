@@ -38,8 +38,32 @@ def test_readme_sample_and_predict_commands_run_as_written(tmp_path, monkeypatch
         assert main([*argv, "--quiet"]) == 0, (argv, capsys.readouterr().err)
     truth = np.load(tmp_path / "samples" / "depth.npy")
     constant = np.median(truth)
+    stated = readme_expected_figures()
     for run in ("runs/predict", "runs/predict_stack"):
         depth = np.load(tmp_path / run / "depth.npy")
         error = np.mean(np.abs(depth - truth) / truth)
         assert error < 0.6 * np.mean(np.abs(constant - truth) / truth), (run, error)
+        assert abs(error - stated[run]) <= 0.02, (run, error, stated[run])  # what users see
         assert (tmp_path / run / "depth.png").is_file()
+    # the best constant depth, as the README names it: no other constant scores lower
+    best = min((np.mean(np.abs(c - truth) / truth), c) for c in np.arange(1.5, 8.0, 0.01))
+    assert abs(best[0] - stated["constant"]) <= 0.005 and abs(best[1] - stated["depth"]) <= 0.02
+
+
+def readme_expected_figures() -> dict[str, float]:
+    """The abs rel the README tells users to expect of its two predict commands, and the best
+    constant depth with its abs rel."""
+    text = " ".join(README.read_text().split())
+    found = re.search(r"about (\d+\.\d+) for `runs/predict` .*? about (\d+\.\d+) for "
+                      r"`runs/predict_stack` .*?\((\d+\.\d+) m, chosen on the truth\), scores "
+                      r"(\d+\.\d+)", text)
+    assert found, "the README states what to expect of the sample commands"
+    pair, stack, depth, constant = (float(v) for v in found.groups())
+    return {"runs/predict": pair, "runs/predict_stack": stack, "depth": depth,
+            "constant": constant}
+
+
+def test_the_readme_says_what_to_expect_of_the_sample_and_of_make_test():
+    figures = readme_expected_figures()
+    assert 0 < figures["runs/predict"] < figures["constant"]
+    assert "`make test` take about" in " ".join(README.read_text().split())

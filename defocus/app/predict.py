@@ -65,6 +65,8 @@ class Photos:
     image_info: Any
     infos: list[Any]
     first_path: Path
+    #: the `--focused` files, in their order
+    focused_paths: list[Path] = dataclasses.field(default_factory=list)
 
 
 #: The largest depth depth_mm.png holds, millimetres (16 bits).
@@ -215,7 +217,7 @@ def read_photos(request: PredictRequest) -> Photos:
         _check_photo(named, len(named) - 1)
     # without focused photos only a network that reads the all-in-focus photo alone runs
     focused = stack[0] if stack else image[None]
-    return Photos(image, focused, image_info, infos, named[0][1])
+    return Photos(image, focused, image_info, infos, named[0][1], list(request.focused))
 
 
 def _check_photo(named: list[tuple[str, Path, torch.Tensor]], index: int) -> None:
@@ -254,6 +256,20 @@ def depth_range_of(request: PredictRequest, model: Any, n_photos: int) -> tuple[
     return model.depth_range
 
 
+def warn_other_camera(model: Any, settings) -> None:
+    """Warn in one line where a network trained for one camera reads photos of another
+    (`models.depth_from_photos.trained_network.camera_mismatch`): its depth is then likely
+    wrong."""
+    from models.depth_from_photos import TrainedNetwork
+    from models.depth_from_photos.trained_network import camera_mismatch
+
+    if isinstance(model, TrainedNetwork) and model.input_mode == "aif+focused" \
+            and settings is not None:
+        problem = camera_mismatch(model.camera, settings)
+        if problem is not None:
+            warnings.warn(problem, stacklevel=2)
+
+
 def image_shot_settings(request: PredictRequest, settings):
     """The settings of `--image` as one more shot (`--image-f-number`), else None."""
     if request.image_f_number is None:
@@ -290,6 +306,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     calibration = None if camera is None else camera.settings
     photos = read_photos(request)
     settings = _settings(request, photos, calibration, report)
+    warn_other_camera(model, settings)
     depth_range = depth_range_of(request, model, len(photos.infos))
     if settings is not None:
         check_beyond_lens(request, settings, depth_range)
@@ -309,7 +326,8 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     out["method"] = method
     out["low_confidence"] = None if out["confidence"] is None else \
         float((out["confidence"] < LOW_CONFIDENCE).float().mean())
-    out["written"] = write_outputs(request.out, out, photos, plan)
+    out["written"] = write_outputs(request.out, out, photos, plan, None if settings is None
+                                   else settings.focus_distance.reshape(-1).tolist())
     out["removed"] = [path.name for path in plan.removed]
     return out
 
@@ -356,11 +374,33 @@ def _report_working_resolution(out, depth_range, infos, method, report: Report) 
         warnings.warn(jpeg, stacklevel=1)
 
 
+def panel_titles(photos: Photos, focus_distances: list[float] | None = None,
+                 ) -> tuple[str, list[str] | None]:
+    """The titles of figure.png's photo panels: the `--image` file's name (else "all-in-focus
+    (fused)") and each focused photo's file name with its focus distance, metres.
+
+    Example:
+        >>> photos = Photos(None, torch.zeros(2, 3, 4, 4), None, [{}, {}], Path("n.png"),
+        ...                 [Path("n.png"), Path("f.png")])
+        >>> panel_titles(photos, [2.3, 4.6])
+        ('all-in-focus (fused)', ['n.png, focused at 2.3 m', 'f.png, focused at 4.6 m'])
+    """
+    image = "all-in-focus (fused)" if photos.image is None else photos.first_path.name
+    if not photos.infos or len(photos.focused_paths) != len(photos.focused):
+        return image, None
+    distances = focus_distances or [None] * len(photos.focused_paths)
+    return image, [path.name if distance is None else f"{path.name}, focused at {distance:.3g} m"
+                   for path, distance in zip(photos.focused_paths, distances, strict=True)]
+
+
 def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
-                  plan: OutputPlan | None = None) -> list[str]:
+                  plan: OutputPlan | None = None,
+                  focus_distances: list[float] | None = None) -> list[str]:
     """Write depth.npy (metres), depth_mm.png (16-bit millimetres), depth.png (a
-    colour-mapped preview), confidence.png, all_in_focus.png and figure.png (the depths that may
-    lie mirrored across the focus plane, `out["mirrored_depths"]`, hatched) under `folder`,
+    colour-mapped preview with a scale in metres), confidence.png, all_in_focus.png and
+    figure.png (each photo panel titled by `panel_titles`, with the focused photos'
+    `focus_distances`; the depths that may lie mirrored across the focus plane,
+    `out["mirrored_depths"]`, hatched) under `folder`,
     each whole or not at all, through `plan`
     (by default one that replaces no earlier result, `defocus.app.outputs`); an earlier run's
     file of `OUTPUT_FILES` that this run does not write (confidence.png where the method gives
@@ -392,11 +432,11 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
         files["confidence.png"] = lambda path: Image.fromarray(
             (confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(path)
     files["all_in_focus.png"] = lambda path: save_photo(path, fused)
+    image_title, focused_titles = panel_titles(photos, focus_distances)
     files["figure.png"] = lambda path: plot_prediction(
         path, fused, depth, photos.focused if photos.infos else None,
-        title=str(photos.first_path.name), stated_range=tuple(out["depth_range"]),
-        confidence=confidence, image_label="all in focus (input)"
-        if photos.image is not None else "all in focus (fused)",
+        stated_range=tuple(out["depth_range"]), confidence=confidence,
+        image_label=image_title, focused_labels=focused_titles,
         mirrored_depths=out.get("mirrored_depths"))
     with plan.writing(remove_unwritten=True) as write:
         for name, writer in files.items():

@@ -54,6 +54,7 @@ def run(args: argparse.Namespace) -> int:
           f"best constant depth {result.constant_depth:.2f} m):")
     print(format_table(result.metrics))
     print(f"\nself-supervised abs rel / best constant abs rel = {result.ratio:.2f} "
-          f"(goal <= 0.5); {time.perf_counter() - started:.0f} s in all")
+          f"(lower is better; 1 is no better than one depth everywhere); "
+          f"{time.perf_counter() - started:.0f} s in all")
     print(f"wrote {result.metrics_path} and figures under {args.out}")
     return 0

@@ -122,7 +122,8 @@ def run_at_working_resolution(
     max_coc_px = model.max_coc_px if max_coc_px is None else max_coc_px
     scale = working_scale(settings, near, far, (h, w), max_coc_px, max_pixels)
     check_working_size(settings, near, far, (h, w), scale)
-    passes = progress_bar(total=None, desc="depth", unit="pass", disable=not progress)
+    passes = progress_bar(total=None, desc="depth", unit=" pass", bar_format=PASSES_FORMAT,
+                          disable=not progress)
     out = _run_at(model, image, focused, settings, near, far, scale, align)
     passes.update()
     if refine_range:
@@ -145,6 +146,9 @@ def run_at_working_resolution(
     return out
 
 
+#: The progress bar of `run_at_working_resolution`: how many passes over the depth range are
+#: done (their number is known only as they end).
+PASSES_FORMAT = "{desc}: passes over the depth range done: {n_fmt} [{elapsed}]"
 #: How much finer (ratio of working scales) the scene's own depth range must allow before
 #: `run_at_working_resolution` computes the depth a second time.
 REFINE_GAIN = 1.25

@@ -7,11 +7,77 @@ trained for.
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
+
+import torch
 from torch import Tensor, nn
 
 from optics import CameraSettings
+from optics.camera import SETTING_FIELDS
 
 from .tiling import check_tiling, run_network
+
+#: Relative difference below which two camera values count as the same (`camera_mismatch`).
+CAMERA_TOLERANCE = 0.02
+
+
+def camera_record(settings: CameraSettings) -> dict[str, list[float]]:
+    """The camera of `settings` as plain data for a checkpoint: each of focal length, f-number,
+    focus distance and pixel pitch as a list of floats, one per shot (`(F,)`; the first of a
+    batch).
+
+    Example:
+        >>> camera_record(CameraSettings(0.05, 1.4, [2.0, 6.0], 1e-5))["focus_distance"]
+        [2.0, 6.0]
+    """
+    values = [getattr(settings, name) for name in SETTING_FIELDS]
+    values = torch.broadcast_tensors(*values)
+    return {name: [float(v) for v in (value[0] if value.ndim > 1 else value).reshape(-1)]
+            for name, value in zip(SETTING_FIELDS, values, strict=True)}
+
+
+def describe_camera(record: Mapping[str, Sequence[float]]) -> str:
+    """A camera of `camera_record` in a few words: f-number, focus distances, focal length and
+    pixel pitch.
+
+    Example:
+        >>> describe_camera(camera_record(CameraSettings(0.05, 1.4, [2.0, 6.0], 1.8e-4)))
+        'f/1.4 focused at 2, 6 m (focal length 50 mm, pixel pitch 180 um)'
+    """
+    def values(name: str, scale: float = 1.0) -> str:
+        return "/".join(dict.fromkeys(f"{v * scale:.3g}" for v in record[name]))
+
+    focus = ", ".join(f"{v:.3g}" for v in record["focus_distance"])
+    return (f"f/{values('f_number')} focused at {focus} m (focal length "
+            f"{values('focal_length', 1e3)} mm, pixel pitch {values('pixel_pitch', 1e6)} um)")
+
+
+def camera_mismatch(trained: Mapping[str, Sequence[float]] | None, settings: CameraSettings,
+                    tolerance: float = CAMERA_TOLERANCE) -> str | None:
+    """One line saying that the photos' camera `settings` is not the camera `trained` (a
+    `camera_record`) that a network was trained for, naming both and what to do; None where
+    they agree within `tolerance` (relative) or the training camera is unknown.
+
+    Example:
+        >>> trained = camera_record(CameraSettings(0.05, 1.4, [2.0, 6.0], 1.8e-4))
+        >>> camera_mismatch(trained, CameraSettings(0.05, 1.4, [2.01, 6.0], 1.8e-4)) is None
+        True
+        >>> camera_mismatch(trained, CameraSettings(0.05, 1.8, [2.3, 4.6], 1.8e-4))[:60]
+        'the photos were taken with f/1.8 focused at 2.3, 4.6 m (foca'
+    """
+    if not trained or any(name not in trained for name in SETTING_FIELDS):
+        return None
+    photos = camera_record(settings)
+    same = all(len(trained[name]) == len(photos[name]) and all(
+        abs(a - b) <= tolerance * max(abs(a), abs(b)) for a, b in zip(trained[name],
+                                                                      photos[name], strict=True))
+        for name in SETTING_FIELDS)
+    if same:
+        return None
+    return (f"the photos were taken with {describe_camera(photos)} but the network was trained "
+            f"for {describe_camera(trained)}: its depth is likely wrong; run without a model "
+            "file (the label-free methods work with any camera) or train one for this camera "
+            "with `defocus train`")
 
 
 class TrainedNetwork(nn.Module):
@@ -29,6 +95,7 @@ class TrainedNetwork(nn.Module):
             networks' group normalisation sees each tile's statistics, so seams may show).
         tile: side of a tile's kept centre, pixels.
         overlap: context around each tile, pixels.
+        camera: the camera it was trained for (`camera_record`), None where unknown.
 
     Example:
         >>> import torch
@@ -46,12 +113,14 @@ class TrainedNetwork(nn.Module):
 
     def __init__(self, network: nn.Module, input_mode: str, n_focus: int,
                  depth_range: tuple[float, float], max_pixels: int = 2_000_000,
-                 tile: int = 1024, overlap: int = 64):
+                 tile: int = 1024, overlap: int = 64,
+                 camera: Mapping[str, Sequence[float]] | None = None):
         super().__init__()
         check_tiling(tile, overlap)
         self.max_pixels, self.tile, self.overlap = int(max_pixels), int(tile), int(overlap)
         self.network, self.input_mode, self.n_focus = network, input_mode, int(n_focus)
         self.depth_range = (float(depth_range[0]), float(depth_range[1]))
+        self.camera = None if camera is None else {k: list(v) for k, v in camera.items()}
 
     def forward(self, image: Tensor, focused: Tensor | None, settings: CameraSettings | None,
                 near: float, far: float) -> dict[str, Tensor]:

@@ -10,6 +10,9 @@ from typing import Any
 import torch
 from torch import Tensor
 
+from optics import CameraSettings
+
+from ..depth_from_photos.trained_network import camera_record
 from .config import TrainConfig
 from .sampling import StepSampler
 
@@ -28,6 +31,8 @@ class SampleChecker:
 
     def __init__(self, config: TrainConfig, sampler: StepSampler) -> None:
         self.config, self.sampler = config, sampler
+        #: the camera of the first training sample (`camera_record`), None where unknown
+        self.camera: dict[str, list[float]] | None = None
 
     def needs(self) -> list[str]:
         """The sample keys that training with this config reads."""
@@ -53,6 +58,8 @@ class SampleChecker:
         missing = [key for key in self.needs() if key not in sample] \
             if isinstance(sample, Mapping) else None
         focused = sample.get("focused") if missing == [] else None
+        if isinstance(sample, Mapping) and isinstance(sample.get("camera"), CameraSettings):
+            self.camera = camera_record(sample["camera"])
         n = (focused.shape[0] if focused.ndim == 4 else -1) \
             if "focused" in self.needs() and isinstance(focused, Tensor) else cfg.n_focus
         self.config = cfg = replace(cfg, n_focus=n) if cfg.n_focus == 0 and n > 0 else cfg

@@ -31,7 +31,7 @@ from ..devices import select_device
 from ..evaluation import evaluate_network
 from ..losses import DefocusLoss
 from ..networks import build_network
-from ..plotting import plot_prediction
+from ..plotting import figure_title, plot_prediction
 from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
 from .config import TrainConfig
@@ -420,7 +420,7 @@ class Trainer:
         path = path or self.config.out_dir / "figures" / f"step_{self.step:06d}.png"
         return plot_prediction(path, sample["image"], depth[0], sample.get("focused"),
                                sample.get("depth"), sample.get("mask"),
-                               title=f"{sample.get('id', '')} step {self.step}",
+                               title=figure_title(sample.get("id"), self.step),
                                depth_range=(self.config.depth_min, self.config.depth_max))
 
     # -- checkpoints -------------------------------------------------------------------------
@@ -431,7 +431,9 @@ class Trainer:
                 "optimizer": self.optimizer.state_dict(),
                 "scheduler": self.scheduler.state_dict(), "step": self.step,
                 "config": to_plain(self.config.to_dict(), "config"),
-                "history": [dict(row) for row in self.history], "rng": rng_state()}
+                "history": [dict(row) for row in self.history], "rng": rng_state(),
+                **({} if self.sample_checks.camera is None else
+                   {"camera": self.sample_checks.camera})}
 
     def load_state_dict(self, state: Mapping[str, Any], source: str | Path = "checkpoint") -> None:
         """Restore what `state_dict` returned (also older checkpoints without `rng`) from
