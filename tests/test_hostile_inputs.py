@@ -461,4 +461,4 @@ def test_a_folder_where_a_file_is_expected_is_named_as_such(tmp_path, capsys):
     assert f"'{folder}' is a folder: expected" in _one_line(capsys)
     assert main(["predict", "--focused", *photos, "--camera", str(folder), "--depth-range", "1",
                  "5", "--out", str(tmp_path / "o")]) == 2
-    assert f"{folder} is a folder: expected a camera JSON file" in _one_line(capsys)
+    assert f"'{folder}' is a folder: expected a camera JSON, a file" in _one_line(capsys)

@@ -176,7 +176,7 @@ def apply_camera_policy(request: PredictRequest, camera: CameraFile | None, has_
 def check_photo_order(request: PredictRequest, listed: Any) -> None:
     """Refuse `--focused` photos that are the ones the camera JSON's `"photos"` list names
     (by file name) in another order: its per-shot settings would go to the wrong photos."""
-    if not (isinstance(listed, list) and all(isinstance(name, str) for name in listed)):
+    if listed is None:  # (the camera file checked its names)
         return
     given = [path.name for path in request.focused]
     listed = [Path(name).name for name in listed]
