@@ -181,7 +181,7 @@ def closest_options(word: str, options: list[str]) -> list[str]:
 
     for fits in (lambda words: words[:len(typed)] == typed,
                  lambda words: len(words) >= len(typed)
-                 and all(have.startswith(want) for have, want in zip(words, typed)),
+                 and all(have.startswith(want) for have, want in zip(words, typed, strict=False)),
                  in_order):
         found = [option for option, words in named.items() if fits(words)]
         if found and all(typed):
