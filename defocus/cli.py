@@ -66,7 +66,21 @@ class CommandParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)  # adds --help through add_argument
 
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
-        action = super().add_argument(*args, **kwargs)
+        return self._record(super().add_argument(*args, **kwargs), kwargs)
+
+    def add_argument_group(self, *args: Any, **kwargs: Any):  # noqa: ANN201 (argparse's)
+        return self._recording(super().add_argument_group(*args, **kwargs))
+
+    def add_mutually_exclusive_group(self, **kwargs: Any):  # noqa: ANN201 (argparse's)
+        return self._recording(super().add_mutually_exclusive_group(**kwargs))
+
+    def _recording(self, group):  # noqa: ANN001, ANN202
+        """`group` with its `add_argument` recording into this parser too."""
+        add = group.add_argument
+        group.add_argument = lambda *args, **kwargs: self._record(add(*args, **kwargs), kwargs)
+        return group
+
+    def _record(self, action: argparse.Action, kwargs: dict[str, Any]) -> argparse.Action:
         self.arguments.append(action)
         self.options.update(dict.fromkeys(action.option_strings, action))
         if action.nargs == 0 or kwargs.get("action") in _REPEATABLE_ACTIONS:

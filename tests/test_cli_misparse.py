@@ -124,3 +124,8 @@ def test_help_still_shows_the_usage(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["predict", "--help"])
     assert stop.value.code == 0 and capsys.readouterr().out.startswith("usage: defocus predict")
+
+
+def test_options_of_a_group_are_known(capsys):
+    err = _refused(["train", "--resum"], capsys)  # --resume is in a mutually exclusive group
+    assert err.endswith("(did you mean --resume?)"), err

@@ -22,12 +22,13 @@ def demo_training_help() -> str:
         >>> "steps=500" in demo_training_help()
         True
     """
-    from datasets.synthetic import SYNTHETIC_PRESET as preset
-    from defocus.commands import demo
+    import inspect
 
-    demo_parser = argparse.ArgumentParser(add_help=False)
-    demo.add_arguments(demo_parser)
-    ran = demo_parser.parse_args([])
+    from datasets.synthetic import SYNTHETIC_PRESET as preset
+    from defocus.app.demo import run_demo
+
+    ran = argparse.Namespace(**{name: parameter.default for name, parameter
+                                in inspect.signature(run_demo).parameters.items()})
     focus = " and ".join(f"{distance:g}" for distance in preset.focus_distances)
     return (f"Its defaults are TrainConfig's own (below). `defocus demo` trains the small network "
             f"with\n  --set steps={ran.steps} batch_size={ran.batch_size} lr={ran.lr:g} "
