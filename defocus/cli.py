@@ -6,8 +6,9 @@ and prints. Only the chosen subcommand's module is imported and its parser built
 --help` lists every command from `COMMANDS` alone, and `defocus predict --help` imports no
 training code.
 
-Errors: a bad value, a missing file or a refused input ends the command with one line on stderr,
-`defocus COMMAND: error: MESSAGE`, and exit code 2, as argparse does for bad options. The
+Errors: a bad value, a missing file, a refused input or a mistyped command line ends the command
+with one line on stderr, `defocus COMMAND: error: MESSAGE`, and exit code 2 (a mistyped option
+is named with the closest one; `--help` shows the usage). The
 traceback is shown with `--debug` or the environment variable `DEFOCUS_DEBUG=1`. Any other
 exception is also one line (exit code 1) that says it is unexpected. Ctrl-C (SIGINT) or SIGTERM
 ends a command with one line and exit code 130 or 143 (`defocus train` saves a checkpoint
@@ -149,8 +150,8 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     `closest_options`), a number taken for a positional or left over (a value too many for the
     option before it), an option that takes values given twice or given an empty value."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(chosen_command(argv) or "")
     name = chosen_command(argv)
+    parser = build_parser(name or "")
     if name in parser.commands:
         at = argv.index(name)
         for options, words, owner in ((parser.options, argv[:at], parser),
