@@ -29,8 +29,6 @@ def earlier_run(tmp_path, monkeypatch):
      "missing file 'a.png': expected a photo"),
     (["predict", "--image", "{photo}", "--depth-range", "1", "5"],
      "depth from defocus needs --focused photos"),
-    (["predict", "--image", "{photo}", "--focused", "{photo}"],
-     "give --depth-range NEAR FAR"),
 ])
 def test_predict_checks_its_inputs_before_its_outputs(earlier_run, capsys, argv, message):
     photo = earlier_run / "photo.png"

@@ -138,8 +138,6 @@ def request_problem(request: PredictRequest) -> str | None:
          "focused photos with an all-in-focus photo: give --image"),
         (model is None and n_focused == 0, lambda: "depth from defocus needs --focused photos "
          "(2 or more, each focused at its own --focus-distance)"),
-        (model is None and request.depth_range is None, lambda: "give --depth-range NEAR FAR "
-         "(metres): the thin lens has two depths for each blur, the range picks the right one"),
     )
     return next((message() for broken, message in rules if broken), None)
 
