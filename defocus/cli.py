@@ -6,8 +6,9 @@ and prints. Only the chosen subcommand's module is imported and its parser built
 --help` lists every command from `COMMANDS` alone, and `defocus predict --help` imports no
 training code.
 
-Errors: a bad value, a missing file or a refused input ends the command with one line on stderr,
-`defocus COMMAND: error: MESSAGE`, and exit code 2, as argparse does for bad options. The
+Errors: a bad value, a missing file, a refused input or a mistyped command line ends the command
+with one line on stderr, `defocus COMMAND: error: MESSAGE`, and exit code 2 (a mistyped option
+is named with the closest one; `--help` shows the usage). The
 traceback is shown with `--debug` or the environment variable `DEFOCUS_DEBUG=1`. Any other
 exception is also one line (exit code 1) that says it is unexpected. Ctrl-C (SIGINT) or SIGTERM
 ends a command with one line and exit code 130 or 143 (`defocus train` saves a checkpoint
@@ -20,6 +21,7 @@ import argparse
 import difflib
 import importlib
 import os
+import re
 import signal
 import sys
 import threading
@@ -45,6 +47,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 #: `add_argument` actions that may be given more than once: they add up (flags take no value).
 _REPEATABLE_ACTIONS = ("append", "append_const", "extend", "count", "help", "version")
+#: A word that is a number (`1.5`, `-8.3`, `2e-3`, `inf`): a value, never an option or a file.
+_NUMBER = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?|[-+]?(inf|nan)", re.IGNORECASE)
 
 
 class CommandParser(argparse.ArgumentParser):
@@ -63,12 +67,31 @@ class CommandParser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)  # adds --help through add_argument
 
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
-        action = super().add_argument(*args, **kwargs)
+        return self._record(super().add_argument(*args, **kwargs), kwargs)
+
+    def add_argument_group(self, *args: Any, **kwargs: Any):  # noqa: ANN201 (argparse's)
+        return self._recording(super().add_argument_group(*args, **kwargs))
+
+    def add_mutually_exclusive_group(self, **kwargs: Any):  # noqa: ANN201 (argparse's)
+        return self._recording(super().add_mutually_exclusive_group(**kwargs))
+
+    def _recording(self, group):  # noqa: ANN001, ANN202
+        """`group` with its `add_argument` recording into this parser too."""
+        add = group.add_argument
+        group.add_argument = lambda *args, **kwargs: self._record(add(*args, **kwargs), kwargs)
+        return group
+
+    def _record(self, action: argparse.Action, kwargs: dict[str, Any]) -> argparse.Action:
         self.arguments.append(action)
         self.options.update(dict.fromkeys(action.option_strings, action))
         if action.nargs == 0 or kwargs.get("action") in _REPEATABLE_ACTIONS:
             self.repeatable.add(action)
         return action
+
+    def error(self, message: str):  # noqa: ANN201 (argparse's signature; it never returns)
+        """End with one line, `PROG: error: MESSAGE`, and exit code 2 (no usage block: `--help`
+        shows it)."""
+        self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
 
 
 def add_global_options(parser: argparse.ArgumentParser, after_command: bool = False) -> None:
@@ -122,23 +145,108 @@ def chosen_command(argv: list[str]) -> str | None:
 
 
 def parse(argv: list[str] | None = None) -> argparse.Namespace:
-    """The parsed command line; an unknown option is answered by its subcommand's usage and the
-    closest option it has; an option that takes values given twice or given an empty value is
-    refused."""
+    """The parsed command line. Refused in one line: an unknown option (before anything is
+    parsed, so that its values never become positionals; named with the closest option,
+    `closest_options`), a number taken for a positional or left over (a value too many for the
+    option before it), an option that takes values given twice or given an empty value."""
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser(chosen_command(argv) or "")
+    name = chosen_command(argv)
+    parser = build_parser(name or "")
+    if name in parser.commands:
+        at = argv.index(name)
+        for options, words, owner in ((parser.options, argv[:at], parser),
+                                      (parser.commands[name].options, argv[at + 1:],
+                                       parser.commands[name])):
+            problem = _unknown_option(options, words)
+            if problem:
+                owner.error(problem)
     args, unknown = parser.parse_known_args(argv)
     command = parser.commands[args.command]
+    words = argv[argv.index(args.command) + 1:]
     if unknown:
-        hints = [close[0] for word in unknown if word.startswith("-")
-                 for close in [difflib.get_close_matches(word.split("=")[0], list(command.options),
-                                                         n=1, cutoff=0.75)] if close]
-        hint = f" (did you mean {', '.join(dict.fromkeys(hints))}?)" if hints else ""
-        command.error(f"unrecognized arguments: {' '.join(unknown)}{hint}")
-    problem = _repeated_or_empty(command, argv[argv.index(args.command) + 1:])
+        number = next((word for word in unknown if _NUMBER.fullmatch(word)), None)
+        command.error(_stray_number(command, words, number, None) if number is not None
+                      else f"unrecognized arguments: {' '.join(unknown)}")
+    problem = _number_as_positional(command, args, words) or _repeated_or_empty(command, words)
     if problem:
         command.error(problem)
     return args
+
+
+def closest_options(word: str, options: list[str]) -> list[str]:
+    """The options `word` (an unknown option) most likely means, best first: those whose words
+    begin with the typed words (`--focus` -> `--focus-distance`, not `--focused`), then those
+    whose words start with them (`--foc` -> `--focused`, `--focus-distance`), then those that
+    have words starting with them in order (`--range` -> `--depth-range`), else the closest
+    spelling (`--focsed` -> `--focused`); empty where none is close.
+
+    Example:
+        >>> closest_options("--focus", ["--focused", "--focus-distance", "--image-focus-distance"])
+        ['--focus-distance']
+        >>> closest_options("--depth", ["--depth-range", "--out"])
+        ['--depth-range']
+    """
+    typed = word.lstrip("-").partition("=")[0].split("-")
+    named = {option: option.lstrip("-").split("-") for option in options
+             if option.startswith("--")}
+
+    def in_order(words: list[str]) -> bool:
+        rest = iter(words)
+        return all(any(have.startswith(want) for have in rest) for want in typed)
+
+    for fits in (lambda words: words[:len(typed)] == typed,
+                 lambda words: len(words) >= len(typed)
+                 and all(have.startswith(want) for have, want in zip(words, typed, strict=False)),
+                 in_order):
+        found = [option for option, words in named.items() if fits(words)]
+        if found and all(typed):
+            return found[:3]
+    return difflib.get_close_matches(word.partition("=")[0], list(named), n=1, cutoff=0.75)
+
+
+def _unknown_option(options: dict[str, argparse.Action], words: list[str]) -> str | None:
+    """Why `words` are refused: the first word that is an option none of `options` names (a
+    number such as `-8.3` is a value), with the closest options; None where there is none."""
+    for word in words:
+        if word == "--":
+            return None
+        if len(word) < 2 or not word.startswith("-") or _NUMBER.fullmatch(word) \
+                or word.partition("=")[0] in options:
+            continue
+        close = closest_options(word, list(options))
+        hint = f" (did you mean {' or '.join(close)}?)" if close else ""
+        return f"unrecognized option {word.partition('=')[0]}{hint}"
+    return None
+
+
+def _number_as_positional(command: CommandParser, args: argparse.Namespace,
+                          words: list[str]) -> str | None:
+    """Why a positional (a file, a folder) is refused: it is a number, a value too many for the
+    option before it (`--depth-range 1.5 8 9` would make 9 the checkpoint)."""
+    for action in command.arguments:
+        value = None if action.option_strings else getattr(args, action.dest, None)
+        for item in value if isinstance(value, list) else [value]:
+            if item is not None and _NUMBER.fullmatch(str(item)):
+                return _stray_number(command, words, str(item), action)
+    return None
+
+
+def _stray_number(command: CommandParser, words: list[str], number: str,
+                  positional: argparse.Action | None) -> str:
+    """The one-line refusal of `number`, a value no option takes: what it would have become,
+    and how many values the option before it takes."""
+    index = words.index(number) if number in words else len(words)
+    before = next((word.partition("=")[0] for word in reversed(words[:index])
+                   if word.partition("=")[0] in command.options), None)
+    action = command.options.get(before)
+    count = None if action is None else 1 if action.nargs is None else action.nargs
+    takes = f"{before} takes {count} value{'s' * (count != 1)}" if isinstance(count, int) \
+        else f"{before} takes numbers only before the next option" if before else ""
+    if positional is None:
+        return f"{number} is a value too many{': ' + takes if takes else ''}"
+    name = positional.metavar or positional.dest.upper()
+    return (f"{number} would be {name}, a number where a path goes{'; ' + takes if takes else ''}"
+            f" (a path named so: write ./{number})")
 
 
 def _repeated_or_empty(command: CommandParser, words: list[str]) -> str | None:

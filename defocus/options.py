@@ -85,14 +85,6 @@ def say(args: argparse.Namespace):
     return lambda text: print(text, flush=True)
 
 
-def show_progress(args: argparse.Namespace) -> bool:
-    """Progress bars: on a terminal unless `--quiet`; anywhere with `--progress`."""
-    from optics.progress import writes_to_terminal
-
-    return bool(getattr(args, "progress", False)) or (
-        writes_to_terminal() and not getattr(args, "quiet", False))
-
-
 def add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
     """`--overwrite`: replace the results of an earlier run (the output policy,
     `defocus.app.outputs`: without it an existing output file is refused; inputs are never
@@ -103,18 +95,21 @@ def add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def add_data_arguments(
-    parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (), default: str = "synthetic"
+    parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (), default: str = "synthetic",
+    data_help: str = "",
 ) -> None:
     """`--data`, `--root`, `--split`, `--size`, `--scenes`, `--data-seed`: the dataset a
-    command trains or evaluates on (`dataset_from_options` builds it)."""
+    command trains or evaluates on (`dataset_from_options` builds it); `data_help` ends the
+    help of `--data`."""
     from datasets.registry import DATASET_NAMES
 
     parser.add_argument(
         "--data",
         choices=sorted([*DATASET_NAMES, *extra_choices]),
         default=default,
-        help="dataset: synthetic scenes (embedded), the real motorcycle scene "
-        "(evaluate) or a real-format folder given by --root",
+        help="dataset: synthetic scenes (embedded), "
+        + ("the real motorcycle scene, " if "motorcycle" in extra_choices else "")
+        + "or a real-format folder given by --root" + data_help,
     )
     parser.add_argument(
         "--root", type=Path, default=None, help="dataset folder (all but --data synthetic)"

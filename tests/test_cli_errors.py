@@ -55,7 +55,7 @@ BAD_INPUT = {
     "predict aggregation": ["predict", "--image", "photo.png", "--aggregation", "boxes"],
     "predict aggregation with a model": ["predict", "{ck}", "--image", "photo.png",
                                          "--aggregation", "windows"],
-    "render focus 0": ["render", "--focus", "0", "--scale", "0.1"],
+    "render focus 0": ["render", "--focus-distance", "0", "--scale", "0.1"],
     "render scale 0": ["render", "--scale", "0"],
     "render f-number 0": ["render", "--f-number", "0", "--scale", "0.1"],
     "render focal length": ["render", "--focal-length", "-1", "--scale", "0.1"],
@@ -149,7 +149,7 @@ def test_flags_may_be_repeated(tmp_path, capsys):
     assert code == 2 and "missing file" in capsys.readouterr().err  # not the repeated --quiet
 
 
-@pytest.mark.parametrize("argv", [["render", "--focus", "1e300"],
+@pytest.mark.parametrize("argv", [["render", "--focus-distance", "1e300"],
                                   ["predict", "--focused", "a.png", "b.png", "--focus-distance",
                                    "2.3", "1e39", "--depth-range", "1", "5"]])
 def test_values_too_large_for_any_camera_are_named(argv, capsys):

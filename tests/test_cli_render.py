@@ -4,7 +4,8 @@ from defocus.cli import main
 
 
 def test_render_writes_focus_sweep_of_the_motorcycle(tmp_path):
-    assert main(["render", "--out", str(tmp_path), "--scale", "0.25", "--focus", "2.2", "5.0"]) == 0
+    assert main(["render", "--out", str(tmp_path), "--scale", "0.25", "--focus-distance",
+                 "2.2", "5.0"]) == 0
     figure = mpimg.imread(tmp_path / "focus_sweep.png")
     assert figure.ndim == 3 and figure.shape[0] > 100 and figure.shape[1] > 300
 

@@ -138,8 +138,22 @@ def request_problem(request: PredictRequest) -> str | None:
          + depth_range_problem(*request.depth_range)),
         (image is None and request.method == "sweep", lambda: "--method sweep compares the "
          "focused photos with an all-in-focus photo: give --image"),
+        (model is None and n_focused == 0, lambda: "depth from defocus needs --focused photos "
+         "(2 or more, each focused at its own --focus-distance)"),
     )
     return next((message() for broken, message in rules if broken), None)
+
+
+def check_inputs_exist(request: PredictRequest) -> None:
+    """Refuse a photo, camera JSON or model file that is missing, naming it: the inputs are
+    checked before the outputs, so that a wrong path is not answered by an earlier run's
+    files."""
+    from datasets.io import require_file
+
+    for path, what in ((request.image, "a photo"), *((p, "a photo") for p in request.focused),
+                       (request.camera, "a camera JSON"), (request.checkpoint, "a model file")):
+        if path is not None:
+            require_file(Path(path), what)
 
 
 def check_beyond_lens(request: PredictRequest, settings, depth_range) -> None:
@@ -294,6 +308,7 @@ def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]
     from models.devices import select_device
 
     check_request(request)
+    check_inputs_exist(request)  # the inputs before the outputs
     plan = plan_outputs(request)  # before any work: nothing is lost, nothing refused late
     device = select_device(request.device)
     # the model first: a file that is no model is refused before any photo is read

@@ -19,7 +19,7 @@ import argparse
 from pathlib import Path
 
 from defocus.errors import CommandError
-from defocus.options import add_overwrite_argument, aperture_argument, check_positive, show_progress
+from defocus.options import add_overwrite_argument, aperture_argument, check_positive
 from optics import LENS_APERTURE
 
 KNOWN = ("focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
@@ -62,9 +62,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--margin", type=int, default=None, help="border left out, pixels")
     parser.add_argument("--adam-steps", type=int, default=60, help="Adam iterations")
     parser.add_argument("--lbfgs-steps", type=int, default=40, help="L-BFGS iterations")
-    parser.add_argument("--progress", action="store_true",
-                        help="show progress bars also where standard error is no terminal (on "
-                             "a terminal they show unless --quiet)")
     add_overwrite_argument(parser)
 
 
@@ -97,7 +94,7 @@ def run_dataset(args: argparse.Namespace, plan=None) -> int:
     from optics import plot_depth_calibration
 
     fit, count = calibrate_from_dataset(args.dataset, args.root, args.split, args.scenes,
-                                        args.aperture, args.focus_distance, show_progress(args))
+                                        args.aperture, args.focus_distance, not args.quiet)
     values = fit.settings.to_dict()
     print(f"{args.dataset}: {count} samples of {args.split!r}")
     for name in ("focus_distance", "pixel_pitch", "f_number", "focal_length", "aperture"):
@@ -125,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     result, sources = calibrate_from_pairs(
         args.pair, known, fit=args.fit, aperture=args.aperture, binning=args.binning,
         white_balance=args.white_balance, margin_px=args.margin, adam_steps=args.adam_steps,
-        lbfgs_steps=args.lbfgs_steps, progress=show_progress(args))
+        lbfgs_steps=args.lbfgs_steps, progress=not args.quiet)
     for name, source in sources.items():
         print(f"{name}: from the {source}")
     print(result.table())

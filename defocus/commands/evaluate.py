@@ -25,11 +25,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
                         help="checkpoint file (.pt) written by training; optional with --dataset "
                              "(then a label-free method is scored)")
-    add_data_arguments(parser, extra_choices=("motorcycle",), default="motorcycle")
+    add_data_arguments(parser, extra_choices=("motorcycle",), default="motorcycle",
+                       data_help="; scored with the depth metrics (a focal-stack benchmark is "
+                                 "--dataset)")
     parser.set_defaults(split=None)
     parser.add_argument("--dataset", choices=BENCHMARKS, default=None,
-                        help="a focal-stack benchmark in its release layout under --root, scored "
-                             "with its paper's protocol (replaces --data)")
+                        help="instead of --data: a focal-stack benchmark in its release layout "
+                             "under --root, scored with its paper's own protocol and metrics")
     parser.add_argument("--method", choices=METHOD_NAMES, default="auto",
                         help="label-free method for --dataset without a checkpoint (auto: the "
                              "sweep with an all-in-focus photo, the relative blur without)")

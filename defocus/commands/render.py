@@ -12,8 +12,10 @@ from optics import LENS_APERTURE
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     # a string, not a Path: Path("") is the current folder, and an empty --out is refused
     parser.add_argument("--out", type=str, default=Path("runs/render"), help="output folder")
-    parser.add_argument("--focus", type=float, nargs="+", default=[2.2, 3.0, 4.0, 5.0],
-                        help="focus distances in metres (the scene spans about 2.1-5.0 m)")
+    parser.add_argument("--focus-distance", type=float, nargs="+", default=[2.2, 3.0, 4.0, 5.0],
+                        metavar="M",
+                        help="focus distance of each rendered photo, metres (the scene spans "
+                             "about 2.1-5.0 m)")
     parser.add_argument("--focal-length", type=float, default=0.085, help="focal length in metres")
     parser.add_argument("--f-number", type=float, default=1.4, help="f-number (dimensionless)")
     parser.add_argument("--aperture", type=aperture_argument, default=LENS_APERTURE,
@@ -27,10 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    check_positive(args, "focus", "focal_length", "f_number")
+    check_positive(args, "focus_distance", "focal_length", "f_number")
     from defocus.app.render import write_focus_sweep
 
-    path = write_focus_sweep(args.out, args.focus, args.focal_length, args.f_number,
+    path = write_focus_sweep(args.out, args.focus_distance, args.focal_length, args.f_number,
                              args.aperture, args.mode, args.scale, args.overwrite)
     print(f"wrote {path}")
     return 0

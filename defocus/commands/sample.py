@@ -30,5 +30,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {', '.join(path.name for path in sample.files)} under {sample.folder}")
     print(f"try: defocus predict --image {sample.folder / 'aif.png'} --focused "
           f"{sample.folder / 'near.png'} {sample.folder / 'far.png'} --camera "
-          f"{sample.folder / 'camera.json'} --depth-range {near:g} {far:g}")
+          f"{sample.folder / 'camera.json'} --depth-range {near:g} {far:g} --out "
+          f"{sample.folder / 'predict'} --overwrite")
     return 0

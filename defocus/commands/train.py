@@ -14,9 +14,36 @@ class _HelpFormatter(DefaultsOnceFormatter, argparse.RawDescriptionHelpFormatter
     """Defaults after each option (once); the epilog (the config fields) kept line by line."""
 
 
+def demo_training_help() -> str:
+    """What `defocus demo` trains with, as `defocus train` options: the defaults of `train` are
+    `TrainConfig`'s, not the demo's.
+
+    Example:
+        >>> "steps=500" in demo_training_help()
+        True
+    """
+    import inspect
+
+    from datasets.synthetic import SYNTHETIC_PRESET as preset
+    from defocus.app.demo import run_demo
+
+    ran = argparse.Namespace(**{name: parameter.default for name, parameter
+                                in inspect.signature(run_demo).parameters.items()})
+    focus = " and ".join(f"{distance:g}" for distance in preset.focus_distances)
+    return (f"Its defaults are TrainConfig's own (below). `defocus demo` trains the small network "
+            f"with\n  --set steps={ran.steps} batch_size={ran.batch_size} lr={ran.lr:g} "
+            f"width={ran.width} smoothness_weight={ran.smoothness_weight:g} "
+            f"input_mode=aif+focused\n  depth_min={preset.min_depth:g} "
+            f"depth_max={preset.depth_cap:g} --scenes {ran.scenes} --size {ran.size} {ran.size}"
+            f"\non the synthetic scenes ({preset.focal_length * 1000:g} mm "
+            f"f/{float(preset.camera.f_number.reshape(-1)[0]):g}, focused at {focus} m).")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.formatter_class = _HelpFormatter
     parser.epilog = config_fields_help()
+    parser.description = f"{parser.description}.\n{demo_training_help()}" \
+        if parser.description else demo_training_help()
     parser.add_argument(
         "--config",
         type=Path,
@@ -58,9 +85,9 @@ def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
     """The parser of an example script: `defocus train`'s options (`--config` is the recipe
     `recipe`, `--set` changes its keys and the `TrainConfig` fields), no other vocabulary."""
     text = recipe.read_text(encoding="utf-8")
-    parser = argparse.ArgumentParser(prog=f"{recipe.stem}.py", allow_abbrev=False,
-                                     description=text.splitlines()[0].lstrip("# "))
+    parser = argparse.ArgumentParser(prog=f"{recipe.stem}.py", allow_abbrev=False)
     add_arguments(parser)
+    parser.description = text.splitlines()[0].lstrip("# ")  # the recipe's, not the demo's
     parser.epilog = f"The recipe {recipe.name} (--set KEY=VALUE changes a key):\n{text}\n" \
         f"{parser.epilog}"
     parser.set_defaults(config=recipe)
