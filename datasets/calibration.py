@@ -4,7 +4,7 @@ A dataset of real aperture pairs (`datasets.DSLR`: an f/8 photo as `image`, the 
 `focused`, a registered depth map) is a calibration target that covers every depth at once.
 `depth_pairs` turns samples into aligned `optics.CalibrationPair`s (the two photos of a pair
 can be several pixels apart, which would read as blur); `calibrate_dataset` fits the camera
-(`optics.calibrate_from_depth`) and is what `defocus calibrate --dataset` runs. Its JSON is what
+(`optics.calibrate_from_depth`) and is what `defocus calibrate --data` runs. Its JSON is what
 `defocus predict --camera` and the loaders' `camera=` read.
 """
 

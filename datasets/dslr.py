@@ -17,7 +17,7 @@ too. Photos are 8- or 16-bit sRGB PNG or JPEG, decoded to linear intensity. The 
 real focused image; the f/8 photo is the `image` (nearly, not fully, in focus: its own blur is
 about `2.8 / 8` of the f/2.8 one, `reference_f_number`). The camera is `datasets.presets.DSLR`
 (35 mm, f/2.8, focus 1.7 m, the full-frame pitch scaled to the stored width), or a camera JSON
-(`camera=`) such as `defocus calibrate --dataset dslr` writes (`datasets.calibration`).
+(`camera=`) such as `defocus calibrate --data dslr` writes (`datasets.calibration`).
 """
 
 from __future__ import annotations
@@ -139,7 +139,7 @@ class DSLR(DepthDataset):
         reference: sub-folder of the f/8 reference photos (flat layout).
         depth: sub-folder of the depth PNGs (flat layout).
         preset: the camera of the wide photo (`datasets.presets.DSLR` by default).
-        camera: a camera JSON (`defocus calibrate --dataset dslr`) or settings for
+        camera: a camera JSON (`defocus calibrate --data dslr`) or settings for
             the wide photos at the stored resolution, replacing the preset; a JSON's
             `reference_f_number` sets `reference_f_number`. Values per shot must be one
             (the scenes' one focused photo): a list of different values is refused by name

@@ -36,7 +36,7 @@ def stack_dataset_classes() -> dict[str, type]:
     return {"ddff12": DDFF12, "fod500": FoD500, "zedd": ZEDD, "mobile_depth": MobileDepth}
 
 
-#: Names of the focal-stack benchmarks (`defocus evaluate --dataset NAME`).
+#: Names of the focal-stack benchmarks (`defocus evaluate --data NAME`).
 STACK_DATASET_NAMES = ("ddff12", "fod500", "zedd", "mobile_depth")
 
 

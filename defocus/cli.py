@@ -177,8 +177,9 @@ def closest_options(word: str, options: list[str]) -> list[str]:
     """The options `word` (an unknown option) most likely means, best first: those whose words
     begin with the typed words (`--focus` -> `--focus-distance`, not `--focused`), then those
     whose words start with them (`--foc` -> `--focused`, `--focus-distance`), then those that
-    have words starting with them in order (`--range` -> `--depth-range`), else the closest
-    spelling (`--focsed` -> `--focused`); empty where none is close.
+    have words starting with them in order (`--range` -> `--depth-range`), then the longest
+    option the word runs on past (`--dataset` -> `--data`), else the closest spelling
+    (`--focsed` -> `--focused`); empty where none is close.
 
     Example:
         >>> closest_options("--focus", ["--focused", "--focus-distance", "--image-focus-distance"])
@@ -201,6 +202,9 @@ def closest_options(word: str, options: list[str]) -> list[str]:
         found = [option for option, words in named.items() if fits(words)]
         if found and all(typed):
             return found[:3]
+    extended = [option for option in named if word.partition("=")[0].startswith(option)]
+    if extended:  # the typed word runs on past an option (`--dataset` -> `--data`)
+        return [max(extended, key=len)]
     return difflib.get_close_matches(word.partition("=")[0], list(named), n=1, cutoff=0.75)
 
 

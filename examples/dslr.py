@@ -14,7 +14,7 @@ What it does, on the split's scenes in time order (the last ``val`` are the vali
 never used to fit or train; with ``--set eval_split=test`` every scene of ``--split`` trains and
 the other split is scored, the paper's protocol):
 
-1. calibrates the camera on the training scenes (``defocus calibrate --dataset dslr``: the
+1. calibrates the camera on the training scenes (``defocus calibrate --data dslr``: the
    blur measured by depth, the thin lens with a floor, the exposure gain; skipped with
    ``camera=JSON``), then scales its blur to the one the training loss agrees with at the
    true depth of those scenes (`models.diagnostics.match_blur_scale`, ``camera_loss.json``;

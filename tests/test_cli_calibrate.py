@@ -50,11 +50,11 @@ def test_cli_calibrate_bad_inputs(tmp_path, capsys):
 @pytest.mark.parametrize("name", ["zedd", "mobile_depth"])
 def test_calibrate_refuses_a_focal_stack_benchmark_at_the_door(tmp_path, capsys, name):
     """A focal-stack benchmark has no aperture pairs to fit: refused in one line naming
-    --dataset and the benchmark, before its folder is read (it used to fail on "0 depth bins")."""
-    assert main(["calibrate", "--dataset", name, "--root", str(tmp_path / "missing"),
+    --data and the benchmark, before its folder is read (it used to fail on "0 depth bins")."""
+    assert main(["calibrate", "--data", name, "--root", str(tmp_path / "missing"),
                  "--out", str(tmp_path / "fit.json")]) == 2
     err = capsys.readouterr().err.strip()
-    assert err.startswith("defocus calibrate: error: --dataset must be a dataset of real "
+    assert err.startswith("defocus calibrate: error: --data must be a dataset of real "
                           "photos with depth") and "\n" not in err, err
     assert f"got {name!r} (a focal-stack benchmark" in err, err
     assert not (tmp_path / "fit.json").exists()

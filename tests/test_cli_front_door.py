@@ -75,16 +75,26 @@ def test_calibrate_shows_progress_unless_quiet(tmp_path, monkeypatch):
 
     monkeypatch.setattr(calibrate, "calibrate_from_dataset",
                         lambda *args: fake(*args[:-1], progress=args[-1]))
-    base = ["calibrate", "--dataset", "dslr", "--root", str(tmp_path),
+    base = ["calibrate", "--data", "dslr", "--root", str(tmp_path),
             "--out", str(tmp_path / "fit.json")]
     assert main(base) == 1 and main([*base, "--quiet"]) == 1
     assert seen == [True, False]
 
 
-def test_evaluate_help_tells_data_from_dataset():
-    options = build_parser("evaluate").commands["evaluate"].options
-    assert "--dataset" in options["--data"].help and "depth metrics" in options["--data"].help
-    assert options["--dataset"].help.startswith("instead of --data: a focal-stack benchmark")
+def test_one_option_names_the_data_of_every_command(capsys):
+    """`--data` names what a command reads, in every command (evaluate's focal-stack benchmarks
+    among its choices); `--dataset` is no option, and its closest option is named."""
+    for command in ("train", "evaluate", "calibrate"):
+        options = build_parser(command).commands[command].options
+        assert "--data" in options and "--dataset" not in options, command
+    evaluate = build_parser("evaluate").commands["evaluate"].options["--data"]
+    assert {"ddff12", "zedd", "motorcycle", "nyu"} <= set(evaluate.choices)
+    assert "depth metrics" in evaluate.help and "own protocol" in evaluate.help
+    with pytest.raises(SystemExit) as stop:
+        main(["evaluate", "--dataset", "zedd", "--root", "x"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2
+    assert len(err.strip().splitlines()) == 1 and "--data" in err, err
 
 
 def test_train_help_names_only_its_choices_and_what_the_demo_uses(capsys):

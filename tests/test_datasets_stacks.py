@@ -340,7 +340,7 @@ def test_evaluate_reports_broken_benchmarks_in_one_line(case, tmp_path, capsys):
     if name == "mobile":
         name = "mobile_depth"
     out = tmp_path / "out.json"
-    argv = ["evaluate", "--dataset", name, "--json", str(out)]
+    argv = ["evaluate", "--data", name, "--json", str(out)]
     if case != "no root":
         argv += ["--root", str(root)]
     assert main(argv) == 2
@@ -359,7 +359,7 @@ def test_evaluate_scores_a_benchmark_on_fixtures(tmp_path, capsys):
 
     write_ddff12(tmp_path / "ddff", n=1, h=24, w=32)
     out = tmp_path / "ddff.json"
-    assert main(["evaluate", "--dataset", "ddff12", "--root", str(tmp_path / "ddff"),
+    assert main(["evaluate", "--data", "ddff12", "--root", str(tmp_path / "ddff"),
                  "--max-samples", "1", "--json", str(out)]) == 0
     text = capsys.readouterr().out
     assert "| method" in text and "bump" in text and "Hazirbas" in text
@@ -368,7 +368,7 @@ def test_evaluate_scores_a_benchmark_on_fixtures(tmp_path, capsys):
     metrics = json.loads(out.read_text())
     assert metrics["images"] == 1 and metrics["protocol"] == "ddff12"
     write_mobile_depth(tmp_path / "mobile")
-    assert main(["evaluate", "--dataset", "mobile_depth", "--root", str(tmp_path / "mobile")]) == 0
+    assert main(["evaluate", "--data", "mobile_depth", "--root", str(tmp_path / "mobile")]) == 0
     assert "judged by eye" in capsys.readouterr().out
 
 

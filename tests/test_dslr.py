@@ -155,7 +155,7 @@ def test_calibrate_command_recovers_the_rendering_camera(tmp_path):
 
     write_rendered_release(tmp_path / "data")
     out = tmp_path / "fit" / "camera.json"
-    assert main(["calibrate", "--dataset", "dslr", "--root", str(tmp_path / "data"),
+    assert main(["calibrate", "--data", "dslr", "--root", str(tmp_path / "data"),
                  "--psf", "gaussian", "--out", str(out)]) == 0
     settings, extra = CameraSettings.read_json(out)
     assert float(settings.focus_distance[0]) == pytest.approx(1.7, rel=0.05)
@@ -173,11 +173,11 @@ def test_calibrate_command_errors(tmp_path, capsys):
     assert main(["calibrate", "--out", str(tmp_path / "x.json")]) != 0
     assert "give either --pair" in capsys.readouterr().err
     write_dslr_release(tmp_path / "data")
-    assert main(["calibrate", "--dataset", "dslr", "--root", str(tmp_path / "data"),
+    assert main(["calibrate", "--data", "dslr", "--root", str(tmp_path / "data"),
                  "--scenes", "7:9"]) != 0
     assert "--scenes '7:9' selects none of the 3 samples" in capsys.readouterr().err
-    assert main(["calibrate", "--dataset", "synthetic", "--root", str(tmp_path)]) != 0
-    assert "--dataset must be a dataset of real photos" in capsys.readouterr().err
+    assert main(["calibrate", "--data", "synthetic", "--root", str(tmp_path)]) != 0
+    assert "--data must be a dataset of real photos" in capsys.readouterr().err
 
 
 def test_relative_samples_model_the_reference_blur(tmp_path):

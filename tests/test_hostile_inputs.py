@@ -275,11 +275,11 @@ def test_a_mostly_clipped_photo_is_refused():
 
 
 def test_calibrate_dataset_refuses_options_it_ignores(tmp_path, capsys):
-    argv = ["calibrate", "--dataset", "dslr", "--root", str(tmp_path), "--focal-length", "0.05",
+    argv = ["calibrate", "--data", "dslr", "--root", str(tmp_path), "--focal-length", "0.05",
             "--f-number", "2"]
     assert main(argv) == 2
     err = _one_line(capsys)
-    assert "--focal-length, --f-number do(es) nothing with --dataset" in err
+    assert "--focal-length, --f-number do(es) nothing with --data" in err
     assert main(["calibrate", "--pair", "a.dng", "b.dng", "2", "--scenes", "0:3"]) == 2
     assert "--scenes do(es) nothing with --pair" in _one_line(capsys)
 

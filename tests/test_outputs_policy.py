@@ -208,7 +208,7 @@ def test_calibrate_never_writes_a_file_of_the_dataset(tmp_path, capsys):
     root = tmp_path / "data"
     root.mkdir()
     (root / "depth.png").write_bytes(b"input depth")
-    argv = ["calibrate", "--dataset", "dslr", "--root", str(root), "--figure",
+    argv = ["calibrate", "--data", "dslr", "--root", str(root), "--figure",
             str(root / "depth.png"), "--out", str(tmp_path / "fit.json"), "--overwrite"]
     assert main(argv) == 2
     assert "--root" in _error(capsys) and (root / "depth.png").read_bytes() == b"input depth"

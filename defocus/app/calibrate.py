@@ -66,9 +66,9 @@ def calibrate_from_dataset(name: str, root: Path | None, split: str = "train",
     allowed = sorted(set(classes) - {"synthetic", *STACK_DATASET_NAMES})
     if name not in allowed or root is None:
         stack = " (a focal-stack benchmark: shots focused at many distances, not aperture " \
-            "pairs; score it with `defocus evaluate --dataset`)" if name in STACK_DATASET_NAMES else ""
-        raise ValueError("--dataset needs --root, the dataset's folder" if name in allowed else
-                         f"--dataset must be a dataset of real photos with depth, one of "
+            "pairs; score it with `defocus evaluate --data`)" if name in STACK_DATASET_NAMES else ""
+        raise ValueError("--data needs --root, the dataset's folder" if name in allowed else
+                         f"--data must be a dataset of real photos with depth, one of "
                          f"{allowed}, got {name!r}{stack}")
     dataset = classes[name](root, split=split)  # full resolution
     indices = parse_scenes(scenes, len(dataset))

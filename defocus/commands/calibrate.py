@@ -5,7 +5,7 @@ same planar target and the target's distance in metres. All defocused shots shar
 setting being calibrated. Known values come from the options, else from the defocused files'
 metadata; everything else is fitted.
 
-`--dataset NAME --root DIR` fits instead the camera a dataset of real aperture pairs with depth
+`--data NAME --root DIR` fits instead the camera a dataset of real aperture pairs with depth
 was shot with (e.g. `dslr`: f/8 and f/2.8 photos and registered depth), from its samples
 (`datasets.calibration.calibrate_dataset`): the blur measured by depth and the thin lens with a
 floor fitted to it; the focal length and f-number are the dataset's stated ones.
@@ -31,12 +31,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar=("SHARP", "BLURRED", "DISTANCE"),
         help="sharp reference raw file, defocused raw file, target distance in metres (repeat)",
     )
-    parser.add_argument("--dataset", default=None,
+    parser.add_argument("--data", default=None,
                         help="instead of --pair: a dataset of real pairs with depth, e.g. dslr")
-    parser.add_argument("--root", type=Path, default=None, help="the --dataset's folder")
-    parser.add_argument("--split", default="train", help="the --dataset's split")
+    parser.add_argument("--root", type=Path, default=None, help="the --data's folder")
+    parser.add_argument("--split", default="train", help="the --data's split")
     parser.add_argument("--scenes", default=None, metavar="START:STOP",
-                        help="the --dataset's samples to fit on, a Python slice of the split "
+                        help="the --data's samples to fit on, a Python slice of the split "
                              "(e.g. 0:61; default: all)")
     parser.add_argument("--out", type=Path, default=Path("fit.json"), help="JSON of the fit")
     parser.add_argument("--figure", type=Path, default=None,
@@ -65,26 +65,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_overwrite_argument(parser)
 
 
-#: Options of the --pair mode that --dataset ignores, with their defaults.
+#: Options of the --pair mode that --data ignores, with their defaults.
 PAIR_ONLY = {"--focal-length": ("focal_length", None), "--f-number": ("f_number", None),
              "--pixel-pitch": ("pixel_pitch", None), "--psf-scale": ("psf_scale", None),
              "--fit": ("fit", []), "--binning": ("binning", 1),
              "--white-balance": ("white_balance", "camera"), "--margin": ("margin", None),
              "--adam-steps": ("adam_steps", 60), "--lbfgs-steps": ("lbfgs_steps", 40)}
-#: Options of the --dataset mode that --pair ignores, with their defaults.
+#: Options of the --data mode that --pair ignores, with their defaults.
 DATASET_ONLY = {"--root": ("root", None), "--split": ("split", "train"),
                 "--scenes": ("scenes", None)}
 
 
 def check_mode_options(args: argparse.Namespace) -> None:
-    """Refuse options that the chosen mode (--pair or --dataset) would ignore."""
-    mode, ignored = ("--dataset", PAIR_ONLY) if args.dataset is not None \
+    """Refuse options that the chosen mode (--pair or --data) would ignore."""
+    mode, ignored = ("--data", PAIR_ONLY) if args.data is not None \
         else ("--pair", DATASET_ONLY)
     given = [option for option, (name, default) in ignored.items()
              if getattr(args, name) != default]
     if given:
         why = (" (the focal length and f-number are the dataset's stated ones)"
-               if mode == "--dataset" else "")
+               if mode == "--data" else "")
         raise CommandError(f"{', '.join(given)} do(es) nothing with {mode}{why}; leave "
                            f"{'it' if len(given) == 1 else 'them'} out")
 
@@ -93,10 +93,10 @@ def run_dataset(args: argparse.Namespace, plan=None) -> int:
     from defocus.app.calibrate import calibrate_from_dataset
     from optics import plot_depth_calibration
 
-    fit, count = calibrate_from_dataset(args.dataset, args.root, args.split, args.scenes,
+    fit, count = calibrate_from_dataset(args.data, args.root, args.split, args.scenes,
                                         args.aperture, args.focus_distance, not args.quiet)
     values = fit.settings.to_dict()
-    print(f"{args.dataset}: {count} samples of {args.split!r}")
+    print(f"{args.data}: {count} samples of {args.split!r}")
     for name in ("focus_distance", "pixel_pitch", "f_number", "focal_length", "aperture"):
         print(f"  {name}: {values[name]}")
     for name, value in fit.extras().items():
@@ -108,13 +108,13 @@ def run(args: argparse.Namespace) -> int:
     from defocus.app.calibrate import calibrate_from_pairs
     from optics import plot_calibration
 
-    if (args.pair is None) == (args.dataset is None):
-        raise CommandError("give either --pair SHARP BLURRED DISTANCE (repeat) or --dataset NAME "
+    if (args.pair is None) == (args.data is None):
+        raise CommandError("give either --pair SHARP BLURRED DISTANCE (repeat) or --data NAME "
                            "--root DIR")
     check_positive(args, "focal_length", "f_number", "pixel_pitch", "focus_distance", "psf_scale")
     check_mode_options(args)
     plan = _plan(args)
-    if args.dataset is not None:
+    if args.data is not None:
         return run_dataset(args, plan)
     known = {"focal_length": args.focal_length, "f_number": args.f_number,
              "pixel_pitch": args.pixel_pitch, "focus_distance": args.focus_distance,

@@ -1,5 +1,5 @@
 """`defocus evaluate`: metrics of a trained checkpoint on a dataset or the motorcycle scene, or
-of a method on a focal-stack benchmark with the benchmark's own protocol (`--dataset`)."""
+of a method on a focal-stack benchmark with the benchmark's own protocol (`--data`)."""
 
 from __future__ import annotations
 
@@ -23,22 +23,20 @@ BENCHMARKS = STACK_DATASET_NAMES
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
-                        help="checkpoint file (.pt) written by training; optional with --dataset "
+                        help="checkpoint file (.pt) written by training; optional with a benchmark's "
                              "(then a label-free method is scored)")
-    add_data_arguments(parser, extra_choices=("motorcycle",), default="motorcycle",
-                       data_help="; scored with the depth metrics (a focal-stack benchmark is "
-                                 "--dataset)")
+    add_data_arguments(parser, extra_choices=("motorcycle", *BENCHMARKS), default="motorcycle",
+                       data_help="; scored with the depth metrics, or a focal-stack benchmark "
+                                 f"({', '.join(BENCHMARKS)}) in its release layout under --root, "
+                                 "scored with its paper's own protocol and metrics")
     parser.set_defaults(split=None)
-    parser.add_argument("--dataset", choices=BENCHMARKS, default=None,
-                        help="instead of --data: a focal-stack benchmark in its release layout "
-                             "under --root, scored with its paper's own protocol and metrics")
     parser.add_argument("--method", choices=METHOD_NAMES, default="auto",
-                        help="label-free method for --dataset without a checkpoint (auto: the "
+                        help="label-free method for --data without a checkpoint (auto: the "
                              "sweep with an all-in-focus photo, the relative blur without)")
     parser.add_argument("--max-samples", type=int, default=None,
-                        help="--dataset: score at most this many samples")
+                        help="--data: score at most this many samples")
     parser.add_argument("--max-pixels", type=int, default=1_500_000,
-                        help="--dataset: most pixels of the label-free method's working "
+                        help="--data: most pixels of the label-free method's working "
                              "resolution (metrics are computed at the native resolution)")
     parser.add_argument("--scale", type=float, default=0.25,
                         help="downscale factor of the motorcycle scene (--data motorcycle)")
@@ -71,11 +69,11 @@ def request_of(args: argparse.Namespace):
 
     check_depth_bounds(args.min_depth, math.inf if args.depth_cap is None else args.depth_cap,
                        names=("--min-depth", "--depth-cap"))
-    benchmark = args.dataset is not None
+    benchmark = args.data in BENCHMARKS
     for refused, message in (
-            (not benchmark and args.checkpoint is None, "give a checkpoint file, or --dataset "
+            (not benchmark and args.checkpoint is None, "give a checkpoint file, or --data "
              "NAME --root FOLDER to score a label-free method on a focal-stack benchmark"),
-            (benchmark and args.root is None, f"--dataset {args.dataset} needs --root, the "
+            (benchmark and args.root is None, f"--data {args.data} needs --root, the "
              "dataset folder"),
             (benchmark and args.max_samples is not None and args.max_samples < 1,
              f"--max-samples must be >= 1, got {args.max_samples}"),
@@ -88,13 +86,13 @@ def request_of(args: argparse.Namespace):
         from datasets.registry import build_stack_dataset
         from models.protocols import PROTOCOLS
 
-        dataset = build_stack_dataset(args.dataset, args.root, split=args.split)
-        if args.dataset not in PROTOCOLS:
-            print(f"{args.dataset}: {len(dataset)} scenes read from {args.root}; it has no "
+        dataset = build_stack_dataset(args.data, args.root, split=args.split)
+        if args.data not in PROTOCOLS:
+            print(f"{args.data}: {len(dataset)} scenes read from {args.root}; it has no "
                   "ground-truth depth, so it is judged by eye: nothing is scored (see "
-                  f"examples/{args.dataset}.py for the depth maps)")
+                  f"examples/{args.data}.py for the depth maps)")
             return None
-        return EvaluateRequest(dataset, protocol=args.dataset, method=args.method,
+        return EvaluateRequest(dataset, protocol=args.data, method=args.method,
                                max_samples=args.max_samples, max_pixels=args.max_pixels,
                                **common)
     if args.data == "motorcycle":
@@ -138,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 def benchmark_parser(dataset: str, split: str | None,
                      description: str) -> argparse.ArgumentParser:
     """The parser of a benchmark example script (`examples/<dataset>.py`): `defocus evaluate
-    --dataset DATASET`'s options (`--split` defaults to `split`; `--max-samples` and
+    --data DATASET`'s options (`--split` defaults to `split`; `--max-samples` and
     `--max-pixels` to the device's, `defocus.app.experiment.BENCHMARK_DEFAULTS`), and where
     the label-free method runs (`--device`, `--threads`)."""
     parser = argparse.ArgumentParser(description=description, allow_abbrev=False,
@@ -150,5 +148,5 @@ def benchmark_parser(dataset: str, split: str | None,
                         help="'auto' (CUDA when available), 'cpu', 'cuda', 'cuda:1', ...")
     parser.add_argument("--threads", type=int, default=0,
                         help="CPU threads of PyTorch (0: its default, one per core)")
-    parser.set_defaults(dataset=dataset, split=split, max_pixels=None)
+    parser.set_defaults(data=dataset, split=split, max_pixels=None)
     return parser

@@ -5,7 +5,7 @@
 reads the DFD-indoor training scenes (``../shared/data/real/dfd_indoor``, or the folder in
 ``$DEFOCUS_DSLR_DATA``), fits the camera on the first 61 of them by time (every third scene, as
 ``examples/dslr.py`` does; the last 20 stay for validation) exactly as
-``defocus calibrate --dataset dslr --aperture gaussian`` does, and writes
+``defocus calibrate --data dslr --aperture gaussian`` does, and writes
 ``docs/tutorials/img/dslr_calibration.png``: the blur measured by depth and the fitted thin lens
 with its floor.
 """
