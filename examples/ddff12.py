@@ -27,6 +27,7 @@ from __future__ import annotations
 import sys
 
 from datasets import DDFF12
+from defocus.app import request_from
 from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
 from defocus.errors import script_errors
@@ -39,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     dataset = DDFF12(args.root, args.split, shots=args.shots)
     with script_errors():
-        run_benchmark_example("DDFF-12", ScriptRequest.of(args), dataset, "ddff12", report=print)
+        run_benchmark_example("DDFF-12", request_from(ScriptRequest, args), dataset, "ddff12", report=print)
     return 0
 
 

@@ -60,6 +60,7 @@ from typing import Any
 import torch
 
 from datasets import DSLR, JointAugment
+from defocus.app import request_from
 from defocus.app.experiment import (
     RECIPE_KEYS,
     ScriptRequest,
@@ -231,7 +232,7 @@ def _main(argv: list[str] | None) -> int:
     from models.training.config import read_yaml_mapping
     from optics.progress import progress_bar
 
-    args = ScriptRequest.of(recipe_parser(RECIPE).parse_args(argv))
+    args = request_from(ScriptRequest, recipe_parser(RECIPE).parse_args(argv))
     names = {field.name for field in dataclasses.fields(TrainConfig)}
     keys = {**RECIPE_KEYS, **{key: value for key, value in read_yaml_mapping(RECIPE).items()
                               if key not in names and key not in RECIPE_KEYS}}

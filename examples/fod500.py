@@ -26,6 +26,7 @@ from __future__ import annotations
 import sys
 
 from datasets import FoD500
+from defocus.app import request_from
 from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
 from defocus.errors import script_errors
@@ -34,7 +35,7 @@ from defocus.errors import script_errors
 def main(argv: list[str] | None = None) -> int:
     args = benchmark_parser("fod500", "test", __doc__.splitlines()[0]).parse_args(argv)
     with script_errors():
-        run_benchmark_example("FoD500", ScriptRequest.of(args), FoD500(args.root, args.split), "fod500", report=print)
+        run_benchmark_example("FoD500", request_from(ScriptRequest, args), FoD500(args.root, args.split), "fod500", report=print)
     return 0
 
 

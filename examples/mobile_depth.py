@@ -28,6 +28,7 @@ from __future__ import annotations
 import sys
 
 from datasets import MobileDepth
+from defocus.app import request_from
 from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
 from defocus.errors import script_errors
@@ -43,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     dataset = MobileDepth(args.root, focus_range=tuple(args.focus_range),
                           n_shots=args.frames or None)
     with script_errors():
-        run_benchmark_example("Mobile Depth", ScriptRequest.of(args), dataset, None, report=print)
+        run_benchmark_example("Mobile Depth", request_from(ScriptRequest, args), dataset, None, report=print)
     return 0
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 import sys
 
 from datasets import ZEDD
+from defocus.app import request_from
 from defocus.app.experiment import ScriptRequest, run_benchmark_example
 from defocus.commands.evaluate import benchmark_parser
 from defocus.errors import script_errors
@@ -43,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     dataset = ZEDD(args.root, args.split, shots=args.shots, f_number=args.f_number)
     with script_errors():
-        run_benchmark_example("ZEDD", ScriptRequest.of(args), dataset, "zedd" if args.split == "val" else None, report=print)
+        run_benchmark_example("ZEDD", request_from(ScriptRequest, args), dataset, "zedd" if args.split == "val" else None, report=print)
     return 0
 
 

@@ -68,12 +68,8 @@ def truncation_warning_once() -> None:
 @dataclasses.dataclass(frozen=True)
 class ScriptRequest:
     """What an example script asks (the options of `defocus.commands.train.recipe_parser` or
-    `defocus.commands.evaluate.benchmark_parser`); `of` takes them from parsed options.
-
-    Example:
-        >>> ScriptRequest.of(type("Options", (), {"root": "data", "extra": 1})()).root
-        'data'
-    """
+    `defocus.commands.evaluate.benchmark_parser`), built from them by
+    `defocus.app.request_from`."""
 
     config: Path | None = None  # the recipe (YAML)
     overrides: Sequence[str] = ()  # `--set KEY=VALUE` words
@@ -89,12 +85,6 @@ class ScriptRequest:
     threads: int = 0
     max_samples: int | None = None
     max_pixels: int | None = None
-
-    @classmethod
-    def of(cls, options: Any) -> ScriptRequest:
-        """The request of parsed `options` (their attributes of this class's field names)."""
-        return cls(**{field.name: getattr(options, field.name)
-                      for field in dataclasses.fields(cls) if hasattr(options, field.name)})
 
 
 #: Keys of an example's recipe (`examples/*.yaml`) beside the `TrainConfig` fields, with their

@@ -84,16 +84,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import dataclasses
-
+    from defocus.app import request_from
     from defocus.app.predict import PredictRequest, predict
 
     camera = ("focus_distance", "f_number", "focal_length", "pixel_pitch")
-    request = PredictRequest(
-        **{field.name: getattr(args, field.name) for field in dataclasses.fields(PredictRequest)
-           if field.name not in ("camera_options", "progress")},
-        progress=not args.quiet,
-        camera_options={name: getattr(args, name) for name in camera})
+    request = request_from(PredictRequest, args, progress=not args.quiet,
+                           camera_options={name: getattr(args, name) for name in camera})
     out = predict(request, report=say(args))
     from defocus.app.predict import LOW_CONFIDENCE
     from models.plotting import percentile_range

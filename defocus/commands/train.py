@@ -97,12 +97,13 @@ def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
 def recipe_main(recipe: Path, argv: list[str] | None = None) -> None:
     """Run an example script: its recipe with `defocus train`'s options `argv`
     (`defocus.app.experiment.run_recipe`); bad input ends it in one line."""
+    from defocus.app import request_from
     from defocus.app.experiment import ScriptRequest, run_recipe
     from defocus.errors import script_errors
 
     args = recipe_parser(recipe).parse_args(argv)
     with script_errors():
-        run_recipe(ScriptRequest.of(args))
+        run_recipe(request_from(ScriptRequest, args))
 
 
 def run(args: argparse.Namespace) -> int:
