@@ -10,6 +10,10 @@ from typing import Any, TypeVar
 Request = TypeVar("Request")
 
 
+def silent(text: str) -> None:
+    """The `report` callback that drops the text (a workflow's default: nothing is printed)."""
+
+
 def request_from(cls: type[Request], options: Any, **given: Any) -> Request:
     """The request dataclass `cls` of parsed `options`: each field from the option of its name
     where there is one, the fields `given` over those.

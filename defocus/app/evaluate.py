@@ -12,11 +12,9 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from defocus.app import silent
+
 Report = Callable[[str], None]
-
-
-def _silent(text: str) -> None:
-    """A `report` that drops the message."""
 
 
 @dataclasses.dataclass
@@ -41,7 +39,7 @@ class EvaluateRequest:
     crop: str | None = None
     median_scaling: bool = False
     #: called with each progress line
-    report: Report = _silent
+    report: Report = silent
 
 
 @dataclasses.dataclass

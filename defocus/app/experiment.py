@@ -21,13 +21,10 @@ from typing import Any
 import torch
 from torch.utils.data import Dataset, Subset
 
+from defocus.app import silent
 from defocus.options import device_kind
 
 Report = Callable[[str], None]
-
-
-def _silent(text: str) -> None:
-    """A `report` that drops the text."""
 
 
 def loss_window(size: Sequence[int], largest: int = 63) -> int:
@@ -193,7 +190,7 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
 
 
 def recipe_crop(experiment: dict[str, Any], fields: dict[str, Any], whole: Dataset,
-                report: Report = _silent) -> tuple[int, int] | None:
+                report: Report = silent) -> tuple[int, int] | None:
     """The training crop of a recipe (`training_crop`): its `crop`, else the device's."""
     kind = device_kind(str(fields.get("device", "auto")))
     return training_crop(experiment["crop"] or [DEVICE_DEFAULTS[kind]["crop"]], whole, report)
@@ -233,7 +230,7 @@ def _epoch_steps(max_epochs: float, batch_size: int, whole: Dataset, first: dict
 
 
 def training_crop(crop: Sequence[int], probe: Dataset,
-                  report: Report = _silent) -> tuple[int, int] | None:
+                  report: Report = silent) -> tuple[int, int] | None:
     """The training crop `[H]` or `[H, W]` (0: whole images), made to fit inside `probe[0]`
     (the unaugmented training set): a crop larger than the image becomes the whole image side."""
     if crop[0] == 0:
@@ -265,7 +262,7 @@ def plan_json_option(path: Path | None, overwrite: bool, root: Path | None,
 
 
 def run_benchmark_example(name: str, args: ScriptRequest, dataset: Dataset,
-                          protocol: str | None, report: Report = _silent) -> dict[str, float] | None:
+                          protocol: str | None, report: Report = silent) -> dict[str, float] | None:
     """Score `args.method` on `dataset` with `protocol` (`models.protocols.PROTOCOLS`) and report
     the paper-style table; with no protocol (no ground truth) report the depth range of each
     scene instead. Returns the metrics; `--json` is planned before any sample is scored and
@@ -305,7 +302,7 @@ def run_benchmark_example(name: str, args: ScriptRequest, dataset: Dataset,
 
 
 def score_benchmark(samples, method, protocol: str, count: int,
-                    report: Report = _silent) -> dict[str, float]:
+                    report: Report = silent) -> dict[str, float]:
     """`models.evaluate` of `method` on `count` samples with `protocol`, reporting each
     sample's abs rel as it is scored."""
     from models import evaluate

@@ -20,6 +20,7 @@ from typing import Any
 import torch
 
 from datasets.photos import CameraFile
+from defocus.app import silent
 from defocus.options import check_positive
 from optics.checks import values_checked
 
@@ -76,10 +77,6 @@ OUTPUT_FILES = {"depth.npy": "depth map", "depth_mm.png": "depth map in millimet
                 "depth.png": "depth preview",
                 "confidence.png": "confidence map", "all_in_focus.png": "all-in-focus photo",
                 "figure.png": "figure"}
-
-
-def _silent(text: str) -> None:
-    """A `report` that drops the text."""
 
 
 def plan_outputs(request: PredictRequest) -> OutputPlan:
@@ -168,7 +165,7 @@ def check_beyond_lens(request: PredictRequest, settings, depth_range) -> None:
 
 
 def apply_camera_policy(request: PredictRequest, camera: CameraFile | None, has_model: bool,
-                        report: Report = _silent) -> None:
+                        report: Report = silent) -> None:
     """Where the camera JSON was fitted with references that were not sharp
     (`reference_f_number`, e.g. f/8 beside f/2.8), `--image` counts as such a shot; then the
     options about `--image` are checked."""
@@ -294,7 +291,7 @@ def image_shot_settings(request: PredictRequest, settings):
         focus_distance=torch.tensor([focus], dtype=torch.float64))
 
 
-def predict(request: PredictRequest, report: Report = _silent) -> dict[str, Any]:
+def predict(request: PredictRequest, report: Report = silent) -> dict[str, Any]:
     """Run `defocus predict`'s whole job and write its outputs under `request.out`; returns
     `estimate_depth`'s result with `written` (the files), `removed` (the files of an earlier
     run that this one does not write, removed under `--overwrite` so that the folder holds one
