@@ -8,7 +8,7 @@ from optics import collate  # the collate function of data loaders over these da
 from .base import DepthDataset
 from .ddff12 import DDFF12
 from .dslr import DSLR
-from .focus import CameraPreset, cached_focal_stack
+from .focus import CameraPreset, SynthesizedFocus, cached_focal_stack
 from .fod500 import FoD500
 from .io import DataFormatError
 from .kitti import KITTI
@@ -19,6 +19,7 @@ from .mobile_depth import MobileDepth
 from .nyu import NYUv2
 from .photo_folder import PhotoFolder
 from .presets import PRESETS
+from .rgbd import RGBD
 from .stacks import FocalStackDataset
 from .transforms import JointAugment
 from .zedd import ZEDD
@@ -41,6 +42,8 @@ __all__ = [
     "MobileDepth",
     "NYUv2",
     "PhotoFolder",
+    "RGBD",
+    "SynthesizedFocus",
     "ZEDD",
     "cached_focal_stack",
     "collate",

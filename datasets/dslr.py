@@ -13,7 +13,14 @@ seconds, and no depth file serves two photos. The f/8 photo of a scene has the f
 name (else it too is paired by nearest time).
 
 The older flat layout (`<root>/<split>/{f2.8,f8,depth}/<name>.png|jpg`, paired by name) is read
-too. Photos are 8- or 16-bit sRGB PNG or JPEG, decoded to linear intensity. The f/2.8 photo is the
+too.
+
+Two ways to read a scene (`focus`): `"real"` (the default) gives the real f/2.8 photo as the
+focused image; `"synthesized"` reads the set the paper's way (Gur & Wolf 2019), as an RGB-D
+set: the f/8 photo is the all-in-focus image and the focused images are rendered from it and
+the registered depth through the PSF layer at the paper's two focus settings,
+`datasets.focus.PAPER_FOCUS_FRACTIONS` of the depth cap (2 m and 8 m of 10 m), with the DSLR
+camera (35 mm, the f-number and pixel pitch of the preset or of `camera=`). Photos are 8- or 16-bit sRGB PNG or JPEG, decoded to linear intensity. The f/2.8 photo is the
 real focused image; the f/8 photo is the `image` (nearly, not fully, in focus: its own blur is
 about `2.8 / 8` of the f/2.8 one, `reference_f_number`). The camera is `datasets.presets.DSLR`
 (35 mm, f/2.8, focus 1.7 m, the full-frame pitch scaled to the stored width), or a camera JSON
@@ -32,7 +39,7 @@ from optics import CameraSettings
 
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
-from .focus import CameraPreset
+from .focus import CameraPreset, paper_focus
 from .io import read_depth_png, require_args, require_one_size, require_root
 from .pairs import register_focused, relative_pair
 from .photos import CameraFile, read_photo, settings_for_shots
@@ -43,6 +50,8 @@ WIDE_FOLDER = "dfd_dataset_indoor_N2_8"
 #: Folder of the release holding the f/8 photos.
 REFERENCE_FOLDER = "dfd_dataset_indoor_N8"
 PHOTO_SUFFIXES = (".png", ".jpg", ".jpeg")
+#: How the focused images are read (`DSLR(focus=...)`): the real f/2.8 photo, or synthesised.
+FOCUS_MODES = ("real", "synthesized")
 #: What the scenes have, for the error on a camera of several shots.
 ONE_SHOT = "a DSLR scene has one focused (f/2.8) photo"
 LAYOUT = (
@@ -157,13 +166,20 @@ class DSLR(DepthDataset):
             the shots of a scene are 0.3 to 4 pixels apart, which a loss through the renderer
             reads as blur. Default: on for `relative` samples (training), off otherwise
             (`estimate_depth` and the calibration register the photos themselves).
-        **kwargs: `size`, `crop`, `augment`, `dtype` of `DepthDataset`.
+        focus: `"real"`: the f/2.8 photo is the focused image; `"synthesized"`: the f/8 photo
+            is the all-in-focus image and two focused images are rendered from it and the depth
+            (module docstring) with the camera's focal length, f-number and pixel pitch (of
+            the preset or `camera`; its focus distance, floor and exposure gain are not used).
+            The f/2.8 photo is then not read; `relative` and `register` do not apply.
+        **kwargs: `size`, `crop`, `augment`, `cache_dir`, `dtype`, `memory_cache_mb` of
+            `DepthDataset`.
 
     Raises:
         FileNotFoundError: `root` or a folder is missing, or a photo has no f/8 photo or depth
             file (the message names the file).
         DataFormatError: an unreadable file, photos and depth of different sizes, or a
             camera with different values for several shots.
+        ValueError: an unknown `focus`, or `relative`/`register` with `focus="synthesized"`.
 
     Example:
         >>> import tempfile, numpy as np, imageio.v3 as iio
@@ -178,6 +194,9 @@ class DSLR(DepthDataset):
         >>> sample = DSLR(root)[0]
         >>> sample["focused"].shape, float(sample["depth"].mean())
         (torch.Size([1, 3, 8, 8]), 2.0)
+        >>> rendered = DSLR(root, focus="synthesized")[0]
+        >>> rendered["focused"].shape, rendered["camera"].focus_distance.tolist()
+        (torch.Size([2, 3, 8, 8]), [2.0, 8.0])
     """
 
     name = "dslr"
@@ -197,12 +216,20 @@ class DSLR(DepthDataset):
         scenes: slice | range | list[int] | None = None,
         relative: bool = False,
         register: bool | None = None,
+        focus: str = "real",
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
         require_args(*((name, value, value > 0, f"> 0 {unit}") for name, value, unit in (
             ("depth_scale", depth_scale, "metres per unit"), ("max_gap_s", max_gap_s, "seconds"),
-            ("sensor_width_px", sensor_width_px, "pixels"))))
+            ("sensor_width_px", sensor_width_px, "pixels"))),
+            ("focus", focus, focus in FOCUS_MODES, f"one of {', '.join(FOCUS_MODES)}"))
+        if focus == "synthesized" and (relative or register):
+            raise ValueError(f"DSLR: {'relative' if relative else 'register'}=True applies to "
+                             "the real f/2.8 photos; focus='synthesized' renders the focused "
+                             "images from the f/8 photo and the depth")
+        #: `"real"` (the f/2.8 photo) or `"synthesized"` (rendered from the f/8 photo and depth)
+        self.focus = focus
         self.root = require_root(root, "DSLR", LAYOUT)
         self.depth_scale = float(depth_scale)
         self.sensor_width_px = int(sensor_width_px)
@@ -250,18 +277,28 @@ class DSLR(DepthDataset):
         `estimate_depth(image_settings=...)`."""
         return camera.replace(f_number=torch.full_like(camera.f_number, self.reference_f_number))
 
+    def lens_settings(self, width: int) -> CameraSettings:
+        """The `(1,)` settings of the f/2.8 photos `width` pixels wide: the camera JSON's, else
+        the preset's with the full sensor's pitch scaled to that width."""
+        if self.settings is not None:
+            return self.settings.to(self.dtype)
+        camera = self.preset.settings(self.dtype)
+        return camera.replace(pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / width))
+
     def load(self, index: int) -> dict[str, Any]:
         wide_path, ref_path, depth_path = self.files[index]
-        focused = read_photo(wide_path, dtype=self.dtype)[0]
         image = read_photo(ref_path, dtype=self.dtype)[0]
         depth = read_depth_png(depth_path, self.depth_scale, dtype=self.dtype)
+        mask = valid_depth_mask(depth)
+        if self.focus == "synthesized":  # the focused images are rendered by `DepthDataset`
+            require_one_size((ref_path, image), (depth_path, depth))
+            require_valid_depth(mask, repr(str(depth_path)))
+            camera = paper_focus(self.lens_settings(image.shape[-1]), self.preset.depth_cap)
+            return {"image": image, "camera": camera, "depth": fill_unknown(depth, mask),
+                    "mask": mask}
+        focused = read_photo(wide_path, dtype=self.dtype)[0]
         require_one_size((wide_path, focused), (ref_path, image), (depth_path, depth))
-        if self.settings is not None:
-            camera = self.settings.to(self.dtype)
-        else:
-            camera = self.preset.settings(self.dtype)
-            camera = camera.replace(
-                pixel_pitch=camera.pixel_pitch * (self.sensor_width_px / image.shape[-1]))
+        camera = self.lens_settings(image.shape[-1])
         pair = {"image": image, "focused": focused[None]}
         if self.register:
             pair = register_focused(pair)
@@ -269,6 +306,5 @@ class DSLR(DepthDataset):
         if self.relative:
             pair["image"], camera = relative_pair(pair["image"], camera, self.reference_f_number,
                                                   self.floor_px, self.exposure_gain)
-        mask = valid_depth_mask(depth)
         require_valid_depth(mask, repr(str(depth_path)))
         return {**pair, "camera": camera, "depth": fill_unknown(depth, mask), "mask": mask}

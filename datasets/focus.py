@@ -198,3 +198,70 @@ def cached_focal_stack(
         torch.save(stack.cpu(), tmp)
         os.replace(tmp, path)
     return stack
+
+
+#: The paper's focus settings (Gur & Wolf 2019): two focused images, at these fractions of the
+#: far end of the depth range (2 m and 8 m of NYU's 10 m).
+PAPER_FOCUS_FRACTIONS = (0.2, 0.8)
+
+
+def paper_focus(settings: CameraSettings, depth_cap: float,
+                fractions: Sequence[float] = PAPER_FOCUS_FRACTIONS) -> CameraSettings:
+    """The camera of `settings` (its first shot's focal length, f-number, pixel pitch and
+    aperture) focused at each of `fractions` of `depth_cap` metres: the paper's two focus
+    settings, from which the focused images of an RGB-D scene are synthesised.
+
+    Example:
+        >>> camera = CameraSettings(0.035, 2.8, 1.7, 55.7e-6)
+        >>> paper_focus(camera, 10.0).focus_distance.tolist()
+        [2.0, 8.0]
+    """
+    first = settings.select_shots([0] * len(fractions))
+    distances = torch.tensor([float(f) * float(depth_cap) for f in fractions],
+                             dtype=first.focus_distance.dtype)
+    return first.replace(focus_distance=distances.expand_as(first.focus_distance).clone())
+
+
+class SynthesizedFocus(torch.utils.data.Dataset):
+    """`samples` with their focused images rendered anew from their all-in-focus `image` and
+    `depth` through `settings` (`cached_focal_stack`): a data set scored with the camera a
+    network was trained for (the blur it learned is that camera's), whatever camera its own
+    focused images had.
+
+    Args:
+        samples: unbatched samples with `image` `(3,H,W)` and `depth` `(1,H,W)` metres.
+        settings: `(F,)` settings of the focused images; the pixel pitch is the effective one
+            at the samples' resolution, taken as it is.
+        min_depth: depths below it are rendered at it, metres.
+        cache_dir: folder of cached focal stacks (`cached_focal_stack`), or None.
+        keep: keep the rendered samples in memory (a small set scored several times).
+
+    Example:
+        >>> from datasets.synthetic import SyntheticScenes
+        >>> scenes = SyntheticScenes(num_scenes=1, size=(16, 16))
+        >>> camera = CameraSettings(0.035, 2.8, [2.0, 8.0, 9.0], 1e-4)
+        >>> SynthesizedFocus(scenes, camera)[0]["focused"].shape
+        torch.Size([3, 3, 16, 16])
+    """
+
+    def __init__(self, samples: Sequence[Any], settings: CameraSettings, min_depth: float = 1e-3,
+                 cache_dir: str | Path | None = None, keep: bool = False) -> None:
+        self.samples, self.settings = samples, settings
+        self.min_depth, self.cache_dir = float(min_depth), cache_dir
+        self._kept: dict[int, dict[str, Any]] | None = {} if keep else None
+
+    def __len__(self) -> int:
+        return len(self.samples)
+
+    def __getitem__(self, index: int) -> dict[str, Any]:
+        if self._kept is not None and index in self._kept:
+            return dict(self._kept[index])
+        sample = dict(self.samples[index])
+        settings = self.settings.to(sample["image"].dtype)
+        sample["focused"] = cached_focal_stack(
+            sample["image"], sample["depth"].clamp_min(self.min_depth), settings,
+            cache_dir=self.cache_dir).clamp(0, 1)
+        sample["camera"] = settings
+        if self._kept is not None:
+            self._kept[index] = dict(sample)
+        return sample

@@ -37,6 +37,30 @@ LAYOUT = ("ROOT/<scene>/aif.<ext> and the focused photos named in ROOT/camera.js
 AIF_NAMES = ("aif.png", "aif.tif", "aif.tiff", "aif.jpg", "aif.jpeg", "aif.dng")
 
 
+def split_scenes(root: Path, split: str) -> list[str]:
+    """The scene folder names of `split` in the folder of scenes `root`: those listed in
+    `root/<split>.txt` (one per line), else, for `"train"` and `"all"`, every folder (hidden
+    and tool folders such as `.ipynb_checkpoints` and `__MACOSX` hold no scene).
+
+    Raises:
+        FileNotFoundError: the list names a folder that is not there, or another split has no
+            list.
+    """
+    listed = root / f"{split}.txt"
+    if listed.is_file():
+        names = read_list(listed, f"the list of {split} scenes")
+        missing = [name for name in names if not (root / name).is_dir()]
+        if missing:
+            raise FileNotFoundError(f"{listed} names scene folders {missing}, which are not "
+                                    f"in {root}")
+        return names
+    if split not in ("train", "all"):
+        raise FileNotFoundError(f"{root}: no {listed.name} listing the scenes of split "
+                                f"{split!r}; only 'train' and 'all' take every scene folder")
+    return sorted(p.name for p in root.iterdir()
+                  if p.is_dir() and not p.name.startswith((".", "__")))
+
+
 class PhotoFolder(DepthDataset):
     """Scenes of your own photos (module docstring), for self-supervised training.
 
@@ -61,7 +85,7 @@ class PhotoFolder(DepthDataset):
 
     def __init__(self, root: str | Path, split: str = "train", **kwargs: Any):
         self.root = require_root(root, "PhotoFolder", LAYOUT)
-        self.scenes = [self._scene(self.root / name) for name in self._names(split)]
+        self.scenes = [self._scene(self.root / name) for name in split_scenes(self.root, split)]
         if not self.scenes:
             raise FileNotFoundError(f"{self.root}: no scene folders; expected {LAYOUT}")
         first = self.scenes[0]["camera"]
@@ -74,22 +98,6 @@ class PhotoFolder(DepthDataset):
                               aperture=first.aperture)
         super().__init__(preset, **kwargs)
         self.ids = [scene["folder"].name for scene in self.scenes]
-
-    def _names(self, split: str) -> list[str]:
-        listed = self.root / f"{split}.txt"
-        if listed.is_file():
-            names = read_list(listed, f"the list of {split} scenes")
-            missing = [name for name in names if not (self.root / name).is_dir()]
-            if missing:
-                raise FileNotFoundError(f"{listed} names scene folders {missing}, which are not "
-                                        f"in {self.root}")
-            return names
-        if split not in ("train", "all"):
-            raise FileNotFoundError(f"{self.root}: no {listed.name} listing the scenes of split "
-                                    f"{split!r}; only 'train' and 'all' take every scene folder")
-        # hidden and tool folders (.ipynb_checkpoints, __MACOSX) hold no scene
-        return sorted(p.name for p in self.root.iterdir()
-                      if p.is_dir() and not p.name.startswith((".", "__")))
 
     def _scene(self, folder: Path) -> dict[str, Any]:
         own = folder / "camera.json"

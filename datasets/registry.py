@@ -18,11 +18,12 @@ def dataset_classes() -> dict[str, type]:
     from .middlebury import Middlebury
     from .nyu import NYUv2
     from .photo_folder import PhotoFolder
+    from .rgbd import RGBD
     from .synthetic import SyntheticScenes
 
     return {"synthetic": SyntheticScenes, "dslr": DSLR, "nyu": NYUv2, "kitti": KITTI,
             "make3d": Make3D, "middlebury": Middlebury, "lightfield": LightField,
-            "folder": PhotoFolder,
+            "folder": PhotoFolder, "rgbd": RGBD,
             **stack_dataset_classes()}
 
 
@@ -42,12 +43,45 @@ STACK_DATASET_NAMES = ("ddff12", "fod500", "zedd", "mobile_depth")
 
 #: Names accepted by `build_dataset`.
 DATASET_NAMES = ("synthetic", "dslr", "nyu", "kitti", "make3d", "middlebury", "lightfield",
-                 "folder")
+                 "folder", "rgbd")
+
+#: How each dataset's focused images come (`build_dataset(focus=...)`): `"real"` photos,
+#: `"synthesized"` from the all-in-focus image and depth, or either (the first is the default).
+FOCUS = {"synthetic": ("synthesized",), "nyu": ("synthesized",), "kitti": ("synthesized",),
+         "make3d": ("synthesized",), "middlebury": ("synthesized",),
+         "rgbd": ("synthesized",), "dslr": ("real", "synthesized"), "lightfield": ("real",),
+         "folder": ("real",)}
+
+
+def focus_of(name: str, focus: str | None = None) -> str:
+    """How the focused images of dataset `name` come: `focus` where the dataset has it, its
+    default for None.
+
+    Raises:
+        ValueError: `focus` is not one of the dataset's (`FOCUS`).
+
+    Example:
+        >>> focus_of("dslr"), focus_of("dslr", "synthesized"), focus_of("nyu")
+        ('real', 'synthesized', 'synthesized')
+        >>> focus_of("folder", "synthesized")
+        Traceback (most recent call last):
+        ...
+        ValueError: --focus synthesized: the folder dataset has real focused photos only (no depth to render them from); it takes --focus real
+    """
+    modes = FOCUS[name]
+    if focus is None:
+        return modes[0]
+    if focus not in modes:
+        why = "real focused photos only (no depth to render them from)" if modes == ("real",) \
+            else "no real focused photos: its focused images are synthesised from its depth"
+        raise ValueError(f"--focus {focus}: the {name} dataset has {why}; it takes --focus "
+                         f"{' or '.join(modes)}")
+    return focus
 
 
 def build_dataset(name: str, root: str | Path | None = None, split: str = "train",
                   size: tuple[int, int] | None = (48, 48), scenes: int = 256, seed: int = 0,
-                  **kwargs: Any) -> DepthDataset | Any:
+                  focus: str | None = None, **kwargs: Any) -> DepthDataset | Any:
     """The dataset called `name`.
 
     Args:
@@ -58,6 +92,8 @@ def build_dataset(name: str, root: str | Path | None = None, split: str = "train
             (None: real data at its own size).
         scenes: number of synthetic scenes.
         seed: seed of the synthetic scenes.
+        focus: `"real"` or `"synthesized"` focused images where the dataset has both
+            (`dslr`); None: the dataset's own (`FOCUS`, `focus_of`).
         **kwargs: passed to the dataset class.
 
     Example:
@@ -66,6 +102,9 @@ def build_dataset(name: str, root: str | Path | None = None, split: str = "train
     """
     if name not in DATASET_NAMES:
         raise ValueError(f"unknown dataset {name!r}; expected one of {', '.join(DATASET_NAMES)}")
+    focus = focus_of(name, focus)
+    if len(FOCUS[name]) > 1:
+        kwargs["focus"] = focus
     cls = dataset_classes()[name]
     if name == "synthetic":
         return cls(scenes, tuple(size), seed=seed, **kwargs)
