@@ -15,6 +15,8 @@ from pathlib import Path
 #: Label-free methods (`models.depth_from_photos.METHODS`, listed here so that the help is
 #: built without importing the models) and "auto".
 METHOD_NAMES = ("auto", "sweep", "relative-blur", "focus")
+#: How a dataset's focused images come (`datasets.registry.FOCUS`; `--focus`).
+FOCUS_MODES = ("real", "synthesized")
 
 
 class DefaultsOnceFormatter(argparse.HelpFormatter):
@@ -96,11 +98,11 @@ def add_overwrite_argument(parser: argparse.ArgumentParser) -> None:
 
 def add_data_arguments(
     parser: argparse.ArgumentParser, extra_choices: tuple[str, ...] = (), default: str = "synthetic",
-    data_help: str = "",
+    data_help: str = "", focus: bool = True,
 ) -> None:
-    """`--data`, `--root`, `--split`, `--size`, `--scenes`, `--data-seed`: the dataset a
-    command trains or evaluates on (`dataset_from_options` builds it); `data_help` ends the
-    help of `--data`."""
+    """`--data`, `--root`, `--split`, `--size`, `--scenes`, `--data-seed` and (with `focus`)
+    `--focus`: the dataset a command trains or evaluates on (`dataset_from_options` builds
+    it); `data_help` ends the help of `--data`."""
     from datasets.registry import DATASET_NAMES
 
     parser.add_argument(
@@ -128,6 +130,13 @@ def add_data_arguments(
         "--scenes", type=int, default=256, help="number of synthetic scenes (--data synthetic)"
     )
     parser.add_argument("--data-seed", type=int, default=0, help="seed of the synthetic scenes")
+    if focus:
+        parser.add_argument(
+            "--focus", choices=FOCUS_MODES, default=None,
+            help="the focused images: the real photos, or synthesised the paper's way from the "
+            "all-in-focus image and the depth (--data dslr: the f/8 photo and its depth, "
+            "rendered at 0.2 and 0.8 of the 10 m depth cap). Default: the dataset's own (dslr: "
+            "real; rgbd, nyu, middlebury, ...: synthesized; folder: real)")
 
 
 def dataset_from_options(args: argparse.Namespace, split: str | None = None,
@@ -137,7 +146,8 @@ def dataset_from_options(args: argparse.Namespace, split: str | None = None,
 
     size = tuple(args.size) if args.size else (48, 48) if args.data == "synthetic" else None
     return build_dataset(args.data, args.root, split=split or args.split, size=size,
-                         scenes=args.scenes, seed=args.data_seed + seed_offset)
+                         scenes=args.scenes, seed=args.data_seed + seed_offset,
+                         focus=getattr(args, "focus", None))
 
 
 def device_kind(name: str) -> str:

@@ -38,6 +38,9 @@ class EvaluateRequest:
     min_depth: float = 1e-3
     crop: str | None = None
     median_scaling: bool = False
+    #: the samples' focused images are synthesised from their image and depth: they are
+    #: rendered anew with the camera the checkpoint was trained for (`checkpoint_focus`)
+    synthesize: bool = False
     #: called with each progress line
     report: Report = silent
 
@@ -62,11 +65,38 @@ def run_evaluation(request: EvaluateRequest) -> EvaluateResult:
     return evaluate_checkpoint(request)
 
 
+def checkpoint_focus(samples: Sequence[Any], checkpoint: Path,
+                     aperture: str) -> tuple[Sequence[Any], str | None, str | None]:
+    """`samples` with their focused images rendered anew from their image and depth with the
+    camera `checkpoint` was trained for (`datasets.SynthesizedFocus`, PSF `aperture`): the blur
+    a network learned is its camera's, so a network trained on one data set is scored on
+    another with that blur. Returns (the samples, a line saying which camera rendered them, a
+    warning where the checkpoint records no camera: then the samples are left as they are).
+    """
+    from datasets import SynthesizedFocus
+    from models.checkpoints import load_checkpoint
+    from models.depth_from_photos.trained_network import describe_camera
+    from optics import CameraSettings
+    from optics.camera import SETTING_FIELDS
+
+    record = load_checkpoint(checkpoint, mmap=True).get("camera")
+    if not isinstance(record, dict) or any(name not in record for name in SETTING_FIELDS):
+        return samples, None, (f"checkpoint {checkpoint} records no camera (written before "
+                                "checkpoints did): the focused images are rendered with the "
+                                "data's own camera, which may not be the one it was trained for")
+    settings = CameraSettings(*(record[name] for name in SETTING_FIELDS), aperture=aperture)
+    return (SynthesizedFocus(samples, settings),
+            f"focused images rendered with the camera the checkpoint was trained for: "
+            f"{describe_camera(record)}", None)
+
+
 def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
     """The depth metrics of a `defocus train` checkpoint on `request.samples`, and a warning
     when the network collapsed to its depth limits, or when much of the ground truth lies
     outside the depth range the network can output (the metrics then mean little; both joined
-    by "; ").
+    by "; "). With `request.synthesize` the samples' focused images are rendered with the
+    checkpoint's camera first (`checkpoint_focus`; not for a network that reads the
+    all-in-focus image alone).
 
     Raises:
         ValueError: a sample the network cannot read: a key it needs is missing, or it holds
@@ -81,10 +111,15 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
     checkpoint = request.checkpoint
     network, config = load_model(checkpoint, select_device("auto"))
     checker = TestSampleChecker(config, f"checkpoint {checkpoint}")
-    metrics = evaluate_network(network, config, request.samples, checker,
+    samples, warnings = request.samples, []
+    if request.synthesize and config.input_mode == "aif+focused":
+        samples, rendered, warning = checkpoint_focus(samples, checkpoint, config.aperture)
+        warnings.append(warning)
+        if rendered is not None:
+            request.report(rendered)
+    metrics = evaluate_network(network, config, samples, checker,
                                min_depth=request.min_depth, max_depth=request.depth_cap,
                                crop=request.crop, median_scaling=request.median_scaling)
-    warnings: list[str | None] = []
     if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:
         warnings.append(f"{metrics['at_depth_limits']:.0%} of the predicted pixels sit at "
                         f"depth_min ({config.depth_min} m) or depth_max ({config.depth_max} m): "

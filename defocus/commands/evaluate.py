@@ -1,5 +1,11 @@
 """`defocus evaluate`: metrics of a trained checkpoint on a dataset or the motorcycle scene, or
-of a method on a focal-stack benchmark with the benchmark's own protocol (`--data`)."""
+of a method on a focal-stack benchmark with the benchmark's own protocol (`--data`).
+
+Where the data's focused images are synthesised from its depth (`--focus synthesized`, the
+default of every dataset but dslr, folder and lightfield), they are rendered with the camera
+the checkpoint was trained for: a network learned its camera's blur, so a network trained on
+one data set is scored on another (`--data rgbd`, `--data dslr --focus synthesized`,
+`middlebury`, `synthetic`, ...) with that blur."""
 
 from __future__ import annotations
 
@@ -81,6 +87,19 @@ def request_of(args: argparse.Namespace):
              f"--max-pixels must be >= 1024, got {args.max_pixels}")):
         if refused:
             raise CommandError(message)
+    focus = args.focus
+    if args.data == "motorcycle" or benchmark:
+        own = "synthesized" if args.data == "motorcycle" else "real"
+        if focus not in (None, own):
+            raise CommandError(f"--focus {focus}: --data {args.data} has "
+                               + ("its focused images rendered from its depth" if own ==
+                                  "synthesized" else "real focal stacks only")
+                               + f"; it takes --focus {own}")
+        focus = own
+    else:
+        from datasets.registry import focus_of
+
+        focus = focus_of(args.data, focus)
     common = {"checkpoint": args.checkpoint, "report": say(args)}
     if benchmark:
         from datasets.registry import build_stack_dataset
@@ -103,7 +122,7 @@ def request_of(args: argparse.Namespace):
         samples = dataset_from_options(args, split=args.split or "test", seed_offset=1_000)
     return EvaluateRequest(samples, depth_cap=args.depth_cap, crop=args.crop,
                            median_scaling=args.median_scaling, min_depth=args.min_depth,
-                           **common)
+                           synthesize=focus == "synthesized", **common)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -39,7 +39,9 @@ def demo_training_help() -> str:
             f"f/{float(preset.camera.f_number.reshape(-1)[0]):g}, focused at {focus} m).")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
+    """`defocus train`'s options; `focus=False` leaves out `--focus` (an example script's
+    recipe says how its data is read)."""
     parser.formatter_class = _HelpFormatter
     parser.epilog = config_fields_help()
     parser.description = f"{parser.description}.\n{demo_training_help()}" \
@@ -78,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="start over: delete the output folder's previous run (config, logs, checkpoints, "
         "figures; other files stay) when training starts (resume=overwrite)",
     )
-    add_data_arguments(parser)
+    add_data_arguments(parser, focus=focus)
 
 
 def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
@@ -86,7 +88,7 @@ def recipe_parser(recipe: Path) -> argparse.ArgumentParser:
     `recipe`, `--set` changes its keys and the `TrainConfig` fields), no other vocabulary."""
     text = recipe.read_text(encoding="utf-8")
     parser = argparse.ArgumentParser(prog=f"{recipe.stem}.py", allow_abbrev=False)
-    add_arguments(parser)
+    add_arguments(parser, focus=False)
     parser.description = text.splitlines()[0].lstrip("# ")  # the recipe's, not the demo's
     parser.epilog = f"The recipe {recipe.name} (--set KEY=VALUE changes a key):\n{text}\n" \
         f"{parser.epilog}"
