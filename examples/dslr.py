@@ -7,11 +7,12 @@ marcelampc/d3net_depth_estimation, folder `dfd_datasets/dfd_indoor`), read as re
 photo), 645x432 JPEGs, with registered depth. Give ``--root`` the `dfd_indoor` folder.
 
 The recipe is ``examples/dslr.yaml``; ``--set KEY=VALUE`` changes any of its keys (the
-protocol's: ``val``, ``eval_split``, ``camera``, ``calibrate_every``, ...) or of the
-`TrainConfig` fields (the options of ``defocus train``).
+protocol's: ``val``, ``eval_split``, ``focus``, ``camera``, ``calibrate_every``, ...) or of the
+`TrainConfig` fields (the options of ``defocus train``); ``--focus`` and ``--eval-split`` are
+the keys ``focus`` and ``eval_split`` as options.
 
 What it does, on the split's scenes in time order (the last ``val`` are the validation set,
-never used to fit or train; with ``--set eval_split=test`` every scene of ``--split`` trains and
+never used to fit or train; with ``--eval-split test`` every scene of ``--split`` trains and
 the other split is scored, the paper's protocol):
 
 1. calibrates the camera on the training scenes (``defocus calibrate --data dslr``: the
@@ -20,13 +21,14 @@ the other split is scored, the paper's protocol):
    true depth of those scenes (`models.diagnostics.match_blur_scale`, ``camera_loss.json``;
    off with ``blur_match=false``): the calibration fits the blur by its squared error, the
    paper's loss (SSIM, L1, sharpness) prefers about 1.2x that blur on this set;
-2. trains three networks on the same scenes with the same budget: the self-supervised one (the
+2. trains four networks on the same scenes with the same budget: the self-supervised one (the
    f/8 photo rendered through the PSF layer at the predicted depth must reproduce the real f/2.8
    photo; no depth in the loss), its depth-supervised twin, and the paper's own setting (the
-   network sees the f/8 photo alone, ``input_mode=aif``, trained through the PSF layer). The
-   render models the pair as calibrated (`DSLR(relative=True)`): the f/2.8 photo registered onto
-   the f/8 one (`datasets.pairs.register_focused`), the f/8 photo's own blur, the floor and the
-   exposure gain;
+   network sees the f/8 photo alone, ``input_mode=aif``), trained through the PSF layer and
+   with depth labels (``paper_setting=false`` leaves these two out). The render models the
+   pair as calibrated (`DSLR(relative=True)`): the f/2.8 photo registered onto the f/8 one
+   (`datasets.pairs.register_focused`), the f/8 photo's own blur, the floor and the exposure
+   gain;
 3. one focus plane cannot tell near from far: the self-supervised networks put a blur that both
    sides explain on the side ``side`` states (default ``beyond``: a prior, chosen on the
    training scenes, 22 % of whose pixels are nearer than the focus plane), and a blur above the
@@ -34,13 +36,37 @@ the other split is scored, the paper's protocol):
 4. scores them on the held-out scenes beside the label-free `predict` (no training: the f/8
    photo as one more shot, `estimate_depth(image_settings=...)`, with the fitted camera) and the
    best constant depth of the training scenes, prints the table (``json=PATH`` writes it). A
-   row marked ``bound:`` scores the true depth with its ambiguous blur put on ``side``
+   row marked ``bound:`` scores the true depth of the scored scenes (the validation scenes, or
+   the ``eval_split``'s) with its ambiguous blur put on ``side``
    (`models.diagnostics.fold_to_side`): what a self-supervised network that found the loss's
-   best everywhere would score under that prior. No training can do better on those scenes.
+   best everywhere would score under that prior; no training can do better on those scenes.
+   With ``side=both`` (no prior) the table shows the bound of each side: a network without a
+   prior must tell near from far by other cues (the image's content) to do better than the
+   better of the two.
 
-CPU (default: 2.5 minutes per network, about 10 minutes on 2 cores)::
+``--focus synthesized`` reads the set the paper's way (Gur & Wolf 2019), as an RGB-D set: the
+f/8 photo is the all-in-focus image and the two focused images are rendered from it and the
+registered depth through the PSF layer at the paper's focus settings, 0.2 and 0.8 of the far
+end of the depth range (2 m and 8 m), with the DSLR camera (35 mm, the preset's f/2.8 and pixel
+pitch, or those of ``camera=JSON``; `DSLR(focus="synthesized")`). Two focus planes tell near
+from far, so nothing is calibrated, matched or registered and no side prior applies (``side``
+is ``both``; setting ``side``, ``calibrate_every``, ``relative``, ``register``,
+``blur_match`` or ``predict_side`` is refused); the label-free `predict` reads the two rendered
+images with the rendering camera, and there is no ``bound:`` row.
+
+Every row of the table and of the JSON file (``json=PATH``: method name -> ``metrics``,
+``input``, ``supervision``, ``seed``) says what the method reads (``input``: ``aif``, the f/8
+photo alone; ``aif+focused``, with the focused photo(s); ``none``: no image, the constant depth
+and the bounds) and how it learned (``supervision``: ``self``, through the PSF layer; ``depth``,
+from depth labels; ``none``: no training), with the run's ``seed`` (`TrainConfig.seed`).
+Its ``metrics`` are the depth metrics (`models.metrics.METRIC_NAMES`) and ``depth_order``
+(the rank correlation with the true depth; a constant depth scores 0).
+
+CPU (default: 2.5 minutes per network, about 12 minutes on 2 cores)::
 
     python examples/dslr.py --root data/dfd_indoor
+    python examples/dslr.py --root data/dfd_indoor --focus synthesized --eval-split test \\
+        --set json=dslr_synthesized.json
 
 GPU, the paper's protocol (Gur & Wolf 2019: ResNet-50 + dense ASPP + attention network, Adam lr
 2e-5, Gaussian PSF sigma = CoC/2, real f/2.8 and f/8 photos; 256x256 crops, batch 8)::
@@ -78,6 +104,40 @@ from optics import DEFAULT_APERTURE
 #: The recipe: the protocol's keys (with their defaults) beside `RECIPE_KEYS` and the
 #: `TrainConfig` fields.
 RECIPE = Path(__file__).with_suffix(".yaml")
+#: The recipe keys of the real f/2.8 photos (calibration, registration, the side prior), which
+#: ``--focus synthesized`` does not use: setting one there is refused.
+REAL_FOCUS_KEYS = ("side", "calibrate_every", "relative", "register", "blur_match",
+                   "predict_side")
+#: What a method reads (a row's ``input``) where it reads no image: the constant, the bounds.
+NO_INPUT = "none"
+
+Row = dict[str, Any]
+
+
+def table_row(metrics: dict[str, float], input_mode: str, supervision: str, seed: int) -> Row:
+    """A row of the table's JSON: the method's `metrics` (the counts `images` and `skipped`
+    of `models.evaluate` left out), what it reads (`input`: ``"aif"``, ``"aif+focused"`` or
+    ``"none"``), how it learned (`supervision`: ``"self"``, ``"depth"`` or ``"none"``) and the
+    run's `seed`.
+
+    Example:
+        >>> table_row({"abs_rel": 0.2, "images": 3}, "aif", "self", 0)
+        {'metrics': {'abs_rel': 0.2}, 'input': 'aif', 'supervision': 'self', 'seed': 0}
+    """
+    kept = {key: value for key, value in metrics.items() if key not in ("images", "skipped")}
+    return {"metrics": kept, "input": input_mode, "supervision": supervision, "seed": int(seed)}
+
+
+def order_of(depth_cap: float):
+    """An `also` of `models.evaluate`: each scene's `depth_order` (ground truth up to
+    `depth_cap` metres)."""
+    from models.metrics import depth_order
+
+    def also(depth: torch.Tensor, sample: dict) -> dict[str, float]:
+        return {"depth_order": depth_order(pred=depth, target=sample["depth"],
+                                           mask=sample.get("mask"), max_depth=depth_cap)}
+
+    return also
 
 
 def side_bound_row(val: DSLR, depth_range: tuple[float, float],
@@ -92,16 +152,33 @@ def side_bound_row(val: DSLR, depth_range: tuple[float, float],
         return fold_to_side(sample["depth"], focus, depth_range, side)
 
     return {f"bound: the true depth through one focus plane, side {side}": evaluate(
-        bound, (val[i] for i in range(len(val))), "eigen", max_depth=depth_range[1])}
+        bound, (val[i] for i in range(len(val))), "eigen", max_depth=depth_range[1],
+        also=order_of(depth_range[1]))}
+
+
+def bound_rows(val: DSLR, depth_range: tuple[float, float],
+               side: str) -> dict[str, dict[str, float]]:
+    """The `side_bound_row` of the scored scenes under the prior `side`; with ``"both"`` (no
+    prior) that of each side. None with synthesised focus (two focus planes tell the sides)."""
+    if val.focus == "synthesized":
+        return {}
+    rows: dict[str, dict[str, float]] = {}
+    for each in (("beyond", "before") if side == "both" else (side,)):
+        rows.update(side_bound_row(val, depth_range, each))
+    return rows
 
 
 def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int,
                     side: str = "both") -> dict[str, dict[str, float]]:
-    """`estimate_depth` on each scored scene (the f/8 photo as one more shot), averaged; with a
-    side prior, over the depth range on that side of the fitted focus plane only."""
+    """`estimate_depth` on each scored scene, averaged: the f/8 photo as one more shot beside
+    the real f/2.8 one, with the fitted camera (with a side prior, over the depth range on that
+    side of the fitted focus plane only); with synthesised focus, the two rendered images with
+    the rendering camera and the f/8 photo as the all-in-focus image."""
     from models import evaluate
     from models.depth_from_photos import estimate_depth
     from optics.progress import progress_bar
+
+    real = val.focus == "real"
 
     def label_free(sample: dict) -> torch.Tensor:
         settings = sample["camera"]
@@ -110,14 +187,16 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
             side, depth_range)
         with torch.no_grad():
             return estimate_depth(sample["focused"], settings, span, image=sample["image"],
-                                  image_settings=val.reference_settings(settings),
-                                  all_in_focus=False, max_pixels=max_pixels,
+                                  image_settings=val.reference_settings(settings) if real
+                                  else None, all_in_focus=False, max_pixels=max_pixels,
                                   refine_range=side == "both")["depth"]
 
     samples = (val[i] for i in progress_bar(range(len(val)), desc="label-free predict"))
     prior = "" if side == "both" else f", side {side}"
-    return {f"label-free predict (f/8 as a shot, fitted camera{prior})": evaluate(
-        label_free, samples, "eigen", max_depth=depth_range[1])}
+    name = f"label-free predict (f/8 as a shot, fitted camera{prior})" if real else \
+        "label-free predict (the two rendered images, the rendering camera)"
+    return {name: evaluate(label_free, samples, "eigen", max_depth=depth_range[1],
+                           also=order_of(depth_range[1]))}
 
 
 def calibrate(proto: dict[str, Any], out: Path, train: DSLR, progress: bool) -> Path:
@@ -155,9 +234,11 @@ def match_loss_camera(args: ScriptRequest, proto: dict[str, Any], out: Path, cam
 
 
 def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path,
-             progress: bool) -> tuple[DSLR, DSLR, DSLR, Path]:
-    """The training and scored scenes (relative pairs), the scored scenes with the lens's own
-    camera (for `predict`), and the camera JSON (fitted on the training scenes)."""
+             progress: bool) -> tuple[DSLR, DSLR, DSLR, Path | None]:
+    """The training and scored scenes, the scored scenes of the label-free `predict`, and the
+    camera JSON of the training (None: the preset's). Real focus: relative pairs, the lens's
+    own camera for `predict`, the camera fitted on the training scenes; synthesised focus: the
+    scenes rendered with the preset's or ``camera``'s lens, for training and `predict` alike."""
     count = len(DSLR(args.root, args.split).files)
     if proto["max_scenes"] is not None:
         count = min(count, proto["max_scenes"])
@@ -172,6 +253,13 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path,
         scored = (args.split, range(count - proto["val"], count))
     else:
         fit_on, scored = range(0, count), (proto["eval_split"], None)
+    if proto["focus"] == "synthesized":
+        camera = Path(proto["camera"]) if proto["camera"] else None
+        rendered = {"focus": "synthesized", "camera": camera,
+                    "cache_dir": "auto" if proto["cache"] else None, **kwargs}
+        train = DSLR(args.root, args.split, scenes=fit_on, **rendered)
+        val = DSLR(args.root, scored[0], scenes=scored[1], **rendered)
+        return train, val, val, camera
     train = DSLR(args.root, args.split, scenes=fit_on, **kwargs)
     camera = Path(proto["camera"]) if proto["camera"] else calibrate(proto, out, train, progress)
     pair = {"camera": camera, "relative": proto["relative"],
@@ -187,19 +275,20 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path,
 #: the networks of the table: (label, supervision, input mode, whether the side prior applies)
 NETWORKS = (("self-supervised", "self", "aif+focused", True),
             ("depth-supervised", "depth", "aif+focused", False),
-            ("self-supervised, f/8 photo alone (the paper's setting)", "self", "aif", True))
+            ("self-supervised, f/8 photo alone (the paper's setting)", "self", "aif", True),
+            ("depth-supervised, f/8 photo alone (the paper's setting)", "depth", "aif", False))
 
 
 def network_rows(config: Any, proto: dict[str, Any], train: DSLR, augmented: Any,
-                 val: DSLR) -> dict[str, dict[str, float]]:
+                 val: DSLR) -> dict[str, Row]:
     """Train each network of `NETWORKS` (`config` with its supervision, input and side) on
     `augmented` within its budget and score it on whole `val` images beside the best constant
-    depth of `train` (`models.experiment.train_and_evaluate`)."""
+    depth of `train` (`models.experiment.train_and_evaluate`); the rows of `table_row`."""
     from models.experiment import train_and_evaluate
     from models.metrics import format_table
 
     train_set, test_set = limit(augmented, proto["max_train"]), limit(val, proto["max_test"])
-    rows: dict[str, dict[str, float]] = {}
+    rows: dict[str, Row] = {}
     for label, supervision, input_mode, sided in NETWORKS:
         if input_mode == "aif" and not proto["paper_setting"]:
             continue
@@ -216,9 +305,48 @@ def network_rows(config: Any, proto: dict[str, Any], train: DSLR, augmented: Any
                                    report_every=None if run.progress else 0, report=print)
         print(format_table(found))
         prior = f", side {config.side}" if sided and config.side != "both" else ""
-        for name, row in found.items():
-            rows[name if name.startswith("best constant") else f"{name} [{label}{prior}]"] = row
+        for name, metrics in found.items():
+            if name.startswith("best constant"):  # a constant map orders nothing: 0
+                rows[name] = table_row({**metrics, "depth_order": 0.0}, NO_INPUT, "none",
+                                       config.seed)
+            else:
+                rows[f"{name} [{label}{prior}]"] = table_row(metrics, input_mode, supervision,
+                                                             config.seed)
     return rows
+
+
+def parser():
+    """`defocus train`'s options (`recipe_parser`) and the recipe keys ``focus`` and
+    ``eval_split`` as options."""
+    parsed = recipe_parser(RECIPE)
+    parsed.add_argument("--focus", choices=("real", "synthesized"), default=None,
+                        help="the focused images: the real f/2.8 photos, or rendered from the "
+                             "f/8 photo and the depth at 0.2 and 0.8 of the depth cap (the "
+                             "recipe key focus; default: the recipe's, real)")
+    parsed.add_argument("--eval-split", default=None, metavar="SPLIT",
+                        help="train on every scene of --split and score this split, e.g. test "
+                             "(the recipe key eval_split; default: the recipe's, the last val "
+                             "scenes of --split)")
+    return parsed
+
+
+def keys_as_options(options: Any) -> Any:
+    """`options` with ``--focus`` and ``--eval-split`` as ``--set`` words; the same key given
+    both ways is refused (which one was meant is unknown)."""
+    from models.training.config import parse_overrides
+
+    given = parse_overrides(options.overrides)
+    words = list(options.overrides)
+    for key, option in (("focus", "--focus"), ("eval_split", "--eval-split")):
+        value = getattr(options, key)
+        if value is None:
+            continue
+        if key in given:
+            raise ValueError(f"{option} {value} and --set {key}={given[key]} both set {key}: "
+                             f"give only {option}")
+        words.append(f"{key}={value}")
+    options.overrides = words
+    return options
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -226,17 +354,44 @@ def main(argv: list[str] | None = None) -> int:
         return _main(argv)
 
 
-def _main(argv: list[str] | None) -> int:
-    from models.metrics import METRIC_NAMES, format_table
+def recipe_keys() -> dict[str, Any]:
+    """The recipe's keys beside the `TrainConfig` fields, with their defaults."""
     from models.training import TrainConfig
     from models.training.config import read_yaml_mapping
+
+    names = {field.name for field in dataclasses.fields(TrainConfig)}
+    return {**RECIPE_KEYS, **{key: value for key, value in read_yaml_mapping(RECIPE).items()
+                              if key not in names and key not in RECIPE_KEYS}}
+
+
+def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, Any]) -> None:
+    """Refuse an unknown ``focus``; with ``synthesized``, a key of the real photos that the
+    user set (`REAL_FOCUS_KEYS`, ``side`` other than both), and make ``side`` both."""
+    from models.training.config import parse_overrides
+
+    if proto["focus"] not in ("real", "synthesized"):
+        raise ValueError(f"focus must be real or synthesized, got {proto['focus']!r}")
+    if proto["focus"] != "synthesized":
+        return
+    given = parse_overrides(args.overrides)
+    refused = [f"{key}={given[key]}" for key in REAL_FOCUS_KEYS if key in given
+               and not (key in ("side", "predict_side") and given[key] == "both")]
+    if refused:
+        raise ValueError(f"--set {' '.join(refused)}: the real f/2.8 photos' calibration, "
+                         "registration and side prior; --focus synthesized renders two focus "
+                         "planes, which tell near from far (side both)")
+    fields["side"] = "both"
+    proto["predict_side"] = "both"
+
+
+def _main(argv: list[str] | None) -> int:
+    from models.depth_from_photos.trained_network import camera_record, describe_camera
+    from models.metrics import METRIC_NAMES, format_table
     from optics.progress import progress_bar
 
-    args = request_from(ScriptRequest, recipe_parser(RECIPE).parse_args(argv))
-    names = {field.name for field in dataclasses.fields(TrainConfig)}
-    keys = {**RECIPE_KEYS, **{key: value for key, value in read_yaml_mapping(RECIPE).items()
-                              if key not in names and key not in RECIPE_KEYS}}
-    proto, fields, given = read_recipe(args, keys)
+    args = request_from(ScriptRequest, keys_as_options(parser().parse_args(argv)))
+    proto, fields, given = read_recipe(args, recipe_keys())
+    check_focus(args, proto, fields)
     if proto["threads"]:
         torch.set_num_threads(int(proto["threads"]))
     out, progress = Path(args.out or fields.get("out_dir", "runs/dslr")), fields.get(
@@ -260,20 +415,28 @@ def _main(argv: list[str] | None) -> int:
         "focus_distance": 0.0 if fields.get("side", "both") == "both" else focus, **fields,
         "out_dir": out}, given, train, first)
     scored = "validation" if proto["eval_split"] is None else f"{proto['eval_split']} split"
+    if train.focus == "synthesized":
+        what = f"focused images rendered with {describe_camera(camera_record(first['camera']))}"
+    else:
+        what = f"camera {json.loads(Path(camera).read_text())}"
     print(f"DSLR: {len(train)} training scenes, {len(val)} {scored} scenes "
-          f"({val.ids[0]} to {val.ids[-1]}), camera {json.loads(Path(camera).read_text())}")
+          f"({val.ids[0]} to {val.ids[-1]}), {what}")
     depth_range = (config.depth_min, config.depth_max)
     rows = network_rows(config, proto, train, augmented, val)
-    if config.side != "both":
-        rows.update(side_bound_row(val, depth_range, config.side))
-    rows.update(label_free_rows(lens, depth_range, proto["predict_pixels"],
-                                proto["predict_side"]))
-    constant = next(row for name, row in rows.items() if name.startswith("best constant"))
-    print(f"\nDSLR {scored} ({len(val)} scenes, never used to fit or train; order: the rank "
-          "correlation of a network's depth with the true depth, mean over the scenes):")
-    print(format_table(rows, metrics=(*METRIC_NAMES, "depth_order")))
+    rows.update({name: table_row(metrics, NO_INPUT, "none", config.seed)
+                 for name, metrics in bound_rows(val, depth_range, config.side).items()})
+    rows.update({name: table_row(metrics, "aif+focused", "none", config.seed)
+                 for name, metrics in label_free_rows(lens, depth_range, proto["predict_pixels"],
+                                                      proto["predict_side"]).items()})
+    metrics = {name: row["metrics"] for name, row in rows.items()}
+    constant = next(row for name, row in metrics.items() if name.startswith("best constant"))
+    print(f"\nDSLR {scored} ({len(val)} scenes, never used to fit or train; {train.focus} "
+          f"focus; seed {config.seed}; order: the rank correlation of a network's depth with the "
+          "true depth, mean over the scenes):")
+    print(format_table(metrics, metrics=(*METRIC_NAMES, "depth_order")))
     for name, row in rows.items():
-        print(f"  {name}: abs rel {row['abs_rel'] / constant['abs_rel']:.2f}x the constant's")
+        print(f"  {name} (input {row['input']}, supervision {row['supervision']}): abs rel "
+              f"{row['metrics']['abs_rel'] / constant['abs_rel']:.2f}x the constant's")
     if plan is not None:
         write_json(plan, Path(proto["json"]), rows)
         print(f"table -> {proto['json']}")
