@@ -173,13 +173,15 @@ REAL_DSLR = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "re
 
 
 def _check_dslr_table(out: str, scenes: int) -> None:
-    assert f"DSLR validation ({scenes} scenes, never used to fit or train; order:" in out
+    assert f"DSLR validation ({scenes} scenes, never used to fit or train; real focus; seed 0;" \
+        in out
     assert "order ↑ |" in out  # the networks' depth order beside the paper's metrics
     for row in ("[self-supervised", "[depth-supervised]", "label-free predict",
-                "the paper's setting", "best constant depth",
+                "[self-supervised, f/8 photo alone (the paper's setting)",
+                "[depth-supervised, f/8 photo alone (the paper's setting)]", "best constant depth",
                 "bound: the true depth through one focus plane, side beyond"):
         assert row in out
-    assert out.count("x the constant's") == 6
+    assert out.count("x the constant's") == 7  # four networks, the constant, bound, predict
 
 
 def test_dslr_example_help(monkeypatch, capsys):
@@ -236,16 +238,73 @@ def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypat
     out = capsys.readouterr().out
     assert not (tmp_path / "run" / "camera_loss.json").exists()
     assert "camera fitted on 5 training scenes" in out
-    assert "DSLR test split (2 scenes, never used to fit or train; order:" in out
+    assert "DSLR test split (2 scenes, never used to fit or train; real focus; seed 0;" in out
     rows = json.loads(table.read_text())
     names = " ".join(rows)
     for row in ("[self-supervised, side beyond]", "[depth-supervised]", "label-free predict",
-                "best constant depth"):
+                "best constant depth",
+                # what one focus plane allows on the scored (test) scenes
+                "bound: the true depth through one focus plane, side beyond"):
         assert row in names
     assert "the paper's setting" not in names
-    assert all(set(row) >= {"abs_rel", "rmse"} for row in rows.values())
-    networks = [row for name, row in rows.items() if name.startswith("ours")]
-    assert networks and all(-1 <= row["depth_order"] <= 1 for row in networks)
+    check_table_rows(rows)
+    assert {(row["input"], row["supervision"]) for row in rows.values()} == {
+        ("aif+focused", "self"), ("aif+focused", "depth"), ("aif+focused", "none"),
+        ("none", "none")}
+
+
+def check_table_rows(rows: dict) -> None:
+    """Each row of a table JSON: its metrics (the depth metrics and the depth order), what it
+    reads, how it learned, the seed."""
+    for name, row in rows.items():
+        assert set(row) == {"metrics", "input", "supervision", "seed"}, name
+        assert set(row["metrics"]) >= {"abs_rel", "rmse", "delta1", "depth_order"}, name
+        assert -1 <= row["metrics"]["depth_order"] <= 1 and row["seed"] == 0
+        assert row["input"] in ("aif", "aif+focused", "none")
+        assert row["supervision"] in ("self", "depth", "none")
+        assert (row["supervision"] in ("self", "depth")) == name.startswith("ours"), name
+
+
+@pytest.mark.slow
+def test_dslr_example_synthesized_focus_on_one_split_scores_another(tmp_path, monkeypatch,
+                                                                      capsys):
+    """--focus synthesized --eval-split test --json: the paper's way on the release layout:
+    every scene of the training split trains, the test split is scored; the two focused images
+    are rendered from the f/8 photo and the depth, nothing is calibrated."""
+    import json
+
+    from test_dslr import write_rendered_release
+
+    root = tmp_path / "data"
+    write_rendered_release(root, scenes=3, h=48, w=72)
+    write_rendered_release(root, scenes=2, h=48, w=72, split="test")
+    monkeypatch.setenv("DEFOCUS_CACHE_DIR", str(tmp_path / "cache"))
+    module = load_example("dslr", monkeypatch)
+    table = tmp_path / "table.json"
+    argv = ["--root", str(root), "--out", str(tmp_path / "run"), "--focus", "synthesized",
+            "--eval-split", "test", *QUIET_CPU, f"json={table}", "steps=1", "batch_size=2",
+            "width=4", "crop=32", "predict_pixels=4000"]
+    assert module.main(argv) == 0
+    out = capsys.readouterr().out
+    assert "DSLR: 3 training scenes, 2 test split scenes" in out
+    assert "rendered with f/2.8 focused at 2, 8 m (focal length 35 mm" in out
+    assert "camera fitted" not in out and not (tmp_path / "run" / "camera.json").exists()
+    assert "DSLR test split (2 scenes, never used to fit or train; synthesized focus" in out
+    rows = json.loads(table.read_text())
+    check_table_rows(rows)
+    assert not any(name.startswith("bound") for name in rows)  # two planes: no side prior
+    assert {(row["input"], row["supervision"]) for row in rows.values()} == {
+        ("aif+focused", "self"), ("aif+focused", "depth"), ("aif", "self"), ("aif", "depth"),
+        ("aif+focused", "none"), ("none", "none")}
+    assert "side beyond" not in " ".join(rows)
+    for folder in ("self", "depth", "self-aif", "depth-aif"):
+        assert (tmp_path / "run" / folder / "train_log.csv").is_file()
+    # the two spellings of one key, and the real photos' keys, are refused before any work
+    for extra, message in ((["eval_split=train"], "--eval-split test and --set eval_split"),
+                           (["side=beyond"], "--set side=beyond: the real f/2.8 photos'"),
+                           (["blur_match=false"], "--set blur_match=False")):
+        with pytest.raises(SystemExit, match=message):
+            module.main([*argv, *extra, "--overwrite"])
 
 
 @pytest.mark.slow
@@ -256,3 +315,22 @@ def test_dslr_example_on_five_real_scenes(tmp_path, monkeypatch, capsys):
             "max_scenes=5", "val=2", "steps=2", "calibrate_every=1"]
     assert module.main(argv) == 0
     _check_dslr_table(capsys.readouterr().out, 2)
+
+
+def test_dslr_example_bounds_each_side_without_a_prior(tmp_path, monkeypatch):
+    """The bound rows score the scenes given (the scored split's): with side both, one per
+    side; with synthesised focus (two focus planes) none."""
+    from test_datasets_fixtures import write_dslr_release
+
+    from datasets import DSLR
+
+    write_dslr_release(tmp_path)
+    module = load_example("dslr", monkeypatch)
+    scenes = DSLR(tmp_path)
+    rows = module.bound_rows(scenes, (0.5, 10.0), "both")
+    assert sorted(rows) == [f"bound: the true depth through one focus plane, side {side}"
+                            for side in ("before", "beyond")]
+    assert all(set(row) >= {"abs_rel", "depth_order"} for row in rows.values())
+    assert list(module.bound_rows(scenes, (0.5, 10.0), "beyond")) == [
+        "bound: the true depth through one focus plane, side beyond"]
+    assert module.bound_rows(DSLR(tmp_path, focus="synthesized"), (0.5, 10.0), "both") == {}
