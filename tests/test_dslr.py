@@ -302,3 +302,56 @@ def test_calibrate_dataset_takes_pairs_aligned_once(tmp_path, monkeypatch):
     assert given == calibration.calibrate_dataset(data, [0, 2], aperture="disk").settings
     with pytest.raises(ValueError, match=r"one pair per sample of indices \(2\), got 1"):
         calibration.calibrate_dataset(data, [0, 2], pairs=pairs[:1])
+
+
+def test_synthesized_focus_renders_two_planes_from_the_f8_photo(tmp_path):
+    """`focus="synthesized"`: the f/8 photo is the all-in-focus image, two focused images are
+    rendered from it and the depth at 0.2 and 0.8 of the 10 m cap with the preset's lens (the
+    full-frame pitch scaled to the photos' width); the f/2.8 photo is not read."""
+    from optics import render_focal_stack
+
+    written = write_dslr_release(tmp_path)
+    data = DSLR(tmp_path, focus="synthesized")
+    real = DSLR(tmp_path)[0]
+    wide, _, _ = data.files[0]
+    wide.write_bytes(b"not a photo any more")  # never read in this mode
+    sample = data[0]
+    camera = sample["camera"]
+    assert camera.focus_distance.tolist() == pytest.approx([2.0, 8.0])
+    assert camera.f_number.tolist() == pytest.approx([2.8, 2.8])
+    assert camera.focal_length.tolist() == pytest.approx([0.035, 0.035])
+    assert camera.pixel_pitch.tolist() == pytest.approx([4.88e-6 * 7360 / 16] * 2)
+    assert torch.equal(sample["image"], real["image"])  # the f/8 photo
+    assert torch.equal(sample["mask"], real["mask"]) and torch.equal(sample["depth"],
+                                                                     real["depth"])
+    expected = render_focal_stack(sample["image"][None], sample["depth"][None], camera)[0]
+    torch.testing.assert_close(sample["focused"], expected.clamp(0, 1))
+    assert len(written) == len(data)
+
+
+def test_synthesized_focus_takes_the_lens_of_a_camera_json(tmp_path):
+    write_dslr_release(tmp_path / "data")
+    CameraSettings(0.035, 3.2, [1.9], 6e-5).to_json(tmp_path / "cam.json", focus_floor_px=0.9)
+    camera = DSLR(tmp_path / "data", camera=tmp_path / "cam.json",
+                  focus="synthesized")[0]["camera"]
+    assert camera.f_number.tolist() == pytest.approx([3.2, 3.2])
+    assert camera.pixel_pitch.tolist() == pytest.approx([6e-5, 6e-5])
+    assert camera.focus_distance.tolist() == pytest.approx([2.0, 8.0])
+    with pytest.raises(ValueError, match="relative=True applies to the real f/2.8 photos"):
+        DSLR(tmp_path / "data", relative=True, focus="synthesized")
+    with pytest.raises(ValueError, match="focus"):
+        DSLR(tmp_path / "data", focus="rendered")
+
+
+def test_train_command_focus_option_reaches_the_loader(tmp_path):
+    """`defocus train --data dslr --focus synthesized` builds the synthesised DSLR set."""
+    from defocus.cli import build_parser
+    from defocus.options import dataset_from_options
+
+    write_dslr_release(tmp_path)
+    args = build_parser().parse_args(["train", "--data", "dslr", "--root", str(tmp_path),
+                                      "--focus", "synthesized"])
+    data = dataset_from_options(args)
+    assert data.focus == "synthesized" and data[0]["focused"].shape[0] == 2
+    args = build_parser().parse_args(["train", "--data", "dslr", "--root", str(tmp_path)])
+    assert dataset_from_options(args).focus == "real"
