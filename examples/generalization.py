@@ -49,7 +49,6 @@ GPU, three seeds::
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import math
 import statistics
 import sys
@@ -81,16 +80,14 @@ SIZES = {"default": {"scenes": 128, "test_scenes": 16, "side": 96, "max_scenes":
                    "dslr_size": (54, 81), "scale": 0.08, "minutes": 0.05, "crop": 32}}
 
 
-@dataclasses.dataclass
 class Source:
     """One data set: its training samples (whole images), its scored samples (whole), its
-    depth range (metres) and its camera (the first training sample's)."""
+    depth range (metres) and its camera (the first training sample's, once it trains)."""
 
-    name: str
-    train: Any
-    test: Any
-    depth_range: tuple[float, float]
-    camera: Any = None
+    def __init__(self, name: str, train: Any, test: Any,
+                 depth_range: tuple[float, float]) -> None:
+        self.name, self.train, self.test, self.depth_range = name, train, test, depth_range
+        self.camera: Any = None
 
 
 def parser() -> argparse.ArgumentParser:
