@@ -27,14 +27,17 @@ from defocus.options import (
 BENCHMARKS = STACK_DATASET_NAMES
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
+def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
+    """`defocus evaluate`'s options; `focus=False` leaves out `--focus` (a benchmark's focal
+    stacks are real)."""
     parser.add_argument("checkpoint", type=Path, nargs="?", default=None,
                         help="checkpoint file (.pt) written by training; optional with a benchmark's "
                              "(then a label-free method is scored)")
     add_data_arguments(parser, extra_choices=("motorcycle", *BENCHMARKS), default="motorcycle",
                        data_help="; scored with the depth metrics, or a focal-stack benchmark "
                                  f"({', '.join(BENCHMARKS)}) in its release layout under --root, "
-                                 "scored with its paper's own protocol and metrics")
+                                 "scored with its paper's own protocol and metrics",
+                       focus=focus)
     parser.set_defaults(split=None)
     parser.add_argument("--method", choices=METHOD_NAMES, default="auto",
                         help="label-free method for --data without a checkpoint (auto: the "
@@ -160,7 +163,7 @@ def benchmark_parser(dataset: str, split: str | None,
     the label-free method runs (`--device`, `--threads`)."""
     parser = argparse.ArgumentParser(description=description, allow_abbrev=False,
                                      conflict_handler="resolve")
-    add_arguments(parser)
+    add_arguments(parser, focus=False)
     parser.add_argument("--root", type=Path, required=True,
                         help="the dataset folder in its release layout (see the header)")
     parser.add_argument("--device", default="auto",
