@@ -27,53 +27,11 @@ from torch import Tensor
 
 from optics import CameraSettings, collate
 
+from .depth_from_photos.thin_lens import fold_to_side, mirror_depth  # noqa: F401  (fold_to_side: its old home)
+
 #: a self-supervised loss: `(depth (B,1,H,W), image (B,3,H,W), focused (B,F,3,H,W), settings)`
 #: -> a dict with "loss" (e.g. `models.losses.DefocusLoss`)
 Loss = Callable[..., Mapping[str, Tensor]]
-
-
-def mirror_depth(depth: Tensor, focus_distance: float, depth_range: tuple[float, float]) -> Tensor:
-    """The depth whose thin-lens blur equals that of `depth`, on the other side of the focus
-    plane: `1/d' = 2/f - 1/d`, clamped to `depth_range` (beyond infinity: the far end).
-
-    Example:
-        >>> d = torch.tensor([1.0, 2.0, 4.0])
-        >>> tuple(round(float(v), 3) for v in mirror_depth(d, 2.0, (0.5, 10.0)))
-        (10.0, 2.0, 1.333)
-    """
-    inverse = 2.0 / focus_distance - 1.0 / depth
-    far = inverse <= 1.0 / depth_range[1]
-    mirrored = 1.0 / inverse.clamp_min(1e-12)
-    return torch.where(far, torch.full_like(depth, depth_range[1]),
-                       mirrored.clamp(depth_range[0], depth_range[1]))
-
-
-def fold_to_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
-                 side: str) -> Tensor:
-    """The depth a self-supervised network finds at best with one focus plane and a side prior:
-    the true `depth` with each blur that both sides explain put on the stated `side` (the rule of
-    `models.networks.DepthHead`). With `"beyond"`, a pixel nearer than the focus plane goes to its
-    mirror unless its blur exceeds the far end's, which only a nearer depth explains; with
-    `"before"`, every pixel beyond the plane goes to its mirror (clamped to the range); with
-    `"both"` the depth is returned as is. Scored against the true depth, it is the error that
-    no training can remove under that prior.
-
-    Example:
-        >>> d = torch.tensor([0.6, 1.5, 4.0])
-        >>> tuple(round(float(v), 3) for v in fold_to_side(d, 2.0, (0.5, 10.0), "beyond"))
-        (0.6, 3.0, 4.0)
-        >>> tuple(round(float(v), 3) for v in fold_to_side(d, 2.0, (0.5, 10.0), "before"))
-        (0.6, 1.5, 1.333)
-    """
-    if side not in ("both", "beyond", "before"):
-        raise ValueError(f"side must be 'both', 'beyond' or 'before', got {side!r}")
-    if side == "both":
-        return depth
-    mirror = mirror_depth(depth, focus_distance, depth_range)
-    if side == "before":
-        return torch.where(depth > focus_distance, mirror, depth)
-    explained = 2.0 / focus_distance - 1.0 / depth >= 1.0 / depth_range[1]
-    return torch.where((depth < focus_distance) & explained, mirror, depth)
 
 
 def candidate_depths(sample: Mapping[str, Any], depth_range: tuple[float, float],

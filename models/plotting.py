@@ -38,6 +38,7 @@ def plot_prediction(
     depth_range: tuple[float, float] | None = None, confidence: Tensor | None = None,
     image_label: str = "all in focus (input)", stated_range: tuple[float, float] | None = None,
     mirrored_depths: tuple[float, float] | None = None, focused_labels: list[str] | None = None,
+    side: tuple[str, float] | None = None, off_side: Tensor | None = None,
 ) -> Path:
     """Save a figure of one prediction: all-in-focus input, focused images, predicted depth,
     its confidence, ground-truth depth and the relative error `|d - g| / g` (masked pixels
@@ -64,6 +65,10 @@ def plot_prediction(
             `MIRRORED_DEPTHS_KEY` (`figure_mirrored_depths` reads it back).
         focused_labels: the title of each focused image's panel (e.g. its file name and focus
             distance); by default "focused image 1", ...
+        side: the stated side of one focus plane, `("beyond" | "before", focus distance
+            metres)` (`estimate_depth`'s `side`): named under the depth panel, with the pixels
+            of `off_side` `(1,H,W)` bool (where the photos contradict it) hatched and counted;
+            in a PNG, stored as its text `SIDE_KEY`.
 
     Returns:
         the path written.
@@ -99,13 +104,18 @@ def plot_prediction(
                 _mark(bar, limits, stated_range)
             if name.startswith("predicted depth") and mirrored_depths is not None:
                 _hatch_mirrored(ax, bar, data, limits, mirrored_depths)
+            if name.startswith("predicted depth") and side is not None:
+                _hatch_off_side(ax, side, off_side)
         ax.set_title(name, fontsize=9)
         _hide_axes(ax)
     if title:
         fig.suptitle(title, fontsize=10)
-    metadata = None if mirrored_depths is None or path.suffix.lower() != ".png" else \
-        {MIRRORED_DEPTHS_KEY: f"{mirrored_depths[0]:.6g} {mirrored_depths[1]:.6g}"}
-    fig.savefig(path, dpi=90, metadata=metadata)
+    metadata = {} if path.suffix.lower() != ".png" else {
+        **({} if mirrored_depths is None else
+           {MIRRORED_DEPTHS_KEY: f"{mirrored_depths[0]:.6g} {mirrored_depths[1]:.6g}"}),
+        **({} if side is None else {SIDE_KEY: f"{side[0]} {side[1]:.6g} "
+                                              f"{_share(off_side):.6g}"})}
+    fig.savefig(path, dpi=90, metadata=metadata or None)
     return path
 
 
@@ -138,6 +148,9 @@ def _prediction_panels(image: Tensor, depth: Tensor, focused: Tensor | None,
 MIRRORED_DEPTHS_KEY = "Mirrored depths (m)"
 #: Hatching (pattern, colour) of the depths that may lie on the other side of the focus plane.
 _MIRROR_HATCH = ("//", "#2b8cbe")
+#: The PNG text key under which `plot_prediction` stores the stated side: "SIDE FOCUS_M SHARE",
+#: with SHARE the fraction of pixels whose blur contradicts it.
+SIDE_KEY = "Stated side"
 
 
 def figure_mirrored_depths(path: str | Path) -> tuple[float, float] | None:
@@ -181,6 +194,28 @@ def _hatch_mirrored(ax, bar, depth: Tensor, limits: tuple[float, float],
             ax.contourf(inside, levels=[0.5, 1.5], colors="none", hatches=[hatch])
     ax.set_xlabel(f"hatched: {span[0]:.2f}-{span[1]:.2f} m, may lie\nmirrored across the "
                   "focus plane", fontsize=7)
+
+
+def _share(mask: Tensor | None) -> float:
+    return 0.0 if mask is None or not mask.numel() else float(mask.float().mean())
+
+
+def _hatch_off_side(ax, side: tuple[str, float], off_side: Tensor | None) -> None:
+    """Name the stated side of the focus plane under the depth panel; hatch the pixels whose
+    blur only the other side explains (`off_side`)."""
+    import matplotlib
+
+    stated, focus = side
+    other = "before" if stated == "beyond" else "beyond"
+    share = _share(off_side)
+    if share:
+        hatch, colour = _MIRROR_HATCH
+        with matplotlib.rc_context({"hatch.color": colour, "hatch.linewidth": 0.8}):
+            ax.contourf(off_side.detach().cpu()[0].float().numpy(), levels=[0.5, 1.5],
+                        colors="none", hatches=[hatch])
+    ax.set_xlabel(f"stated: the scene lies {stated} {focus:.3g} m\n" + (
+        f"hatched ({share:.1%}): blurred as only {other} it can be" if share else
+        "no pixel contradicts it"), fontsize=7)
 
 
 def _hide_axes(ax) -> None:

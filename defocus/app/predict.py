@@ -48,6 +48,8 @@ class PredictRequest:
     camera: Path | None = None
     depth_range: tuple[float, float] | None = None
     aggregation: str = "semi-global"
+    #: where the scene lies about the shots' one focus plane: "beyond", "before" or "both"
+    side: str = "both"
     device: str = "auto"
     out: Path = Path("runs/predict")
     #: show progress bars
@@ -328,7 +330,7 @@ def predict(request: PredictRequest, report: Report = silent) -> dict[str, Any]:
         out = estimate_depth(photos.focused.to(device), settings, depth_range,
                              image=None if photos.image is None else photos.image.to(device),
                              image_settings=image_settings, method=method, model=model,
-                             options=options, progress=request.progress)
+                             options=options, progress=request.progress, side=request.side)
     if image_settings is not None:
         report(f"--image is one more shot: f/{request.image_f_number:g}, focused at "
                f"{float(image_settings.focus_distance[0]):g} m")
@@ -449,7 +451,9 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
         path, fused, depth, photos.focused if photos.infos else None,
         stated_range=tuple(out["depth_range"]), confidence=confidence,
         image_label=image_title, focused_labels=focused_titles,
-        mirrored_depths=out.get("mirrored_depths"))
+        mirrored_depths=out.get("mirrored_depths"),
+        side=None if "side" not in out else (out["side"], out["focus_plane"]),
+        off_side=out.get("off_side"))
     with plan.writing(remove_unwritten=True) as write:
         for name, writer in files.items():
             write(folder / name, writer)

@@ -67,6 +67,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "a model file); a range wider than the scene costs a second pass, "
                              "not resolution: the depth is computed again over the scene's own "
                              "range")
+    parser.add_argument("--side", choices=("beyond", "before", "both"), default="both",
+                        help="where the scene lies when every photo is focused at one distance "
+                             "(one focus plane blurs a depth and its mirror image alike): "
+                             "'beyond' the focus plane (you focused on the nearest thing), "
+                             "'before' it, or 'both' (no statement: the depths that may lie "
+                             "mirrored are hatched in figure.png); a blur only the other side "
+                             "explains stays there and is counted")
     parser.add_argument("--aggregation", default="semi-global",
                         help="without a model file: how the sweep combines neighbouring "
                              "pixels' costs, along scan lines with depth edges kept at the "
@@ -98,6 +105,13 @@ def run(args: argparse.Namespace) -> int:
     low, high = percentile_range(depth)
     doubt = "" if not out["low_confidence"] else \
         f"; {out['low_confidence']:.0%} of the pixels have low confidence (< {LOW_CONFIDENCE:g})"
+    if "side" in out:
+        side, share = out["side"], float(out["off_side"].float().mean())
+        other = "before" if side == "beyond" else "beyond"
+        doubt += (f"; stated: the scene lies {side} the focus plane at {out['focus_plane']:g} m"
+                  + (f", but {share:.1%} of the pixels are blurred more than any depth {side} "
+                     f"it allows and lie {other} it (hatched in figure.png)" if share else
+                     ", and no pixel contradicts it"))
     mirrored = out.get("mirrored_depths")
     if mirrored is not None:
         doubt += (f"; depths {mirrored[0]:.2f}-{mirrored[1]:.2f} m may lie mirrored across the "

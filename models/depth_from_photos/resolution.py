@@ -14,6 +14,7 @@ widening it where that pass shows the first one cut the scene short (`widen_cut_
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import torch
 import torch.nn.functional as F
@@ -79,6 +80,7 @@ def run_at_working_resolution(
     model: nn.Module, image: Tensor | None, focused: Tensor, settings: CameraSettings,
     near: float, far: float, max_coc_px: float | None = None, max_pixels: int = 1_500_000,
     align: bool = True, refine_range: bool = True, progress: bool = False,
+    fold: Callable[[Tensor], Tensor] | None = None,
 ) -> dict[str, Tensor | float]:
     """Depth of one scene at the photos' resolution, computed at the working resolution.
 
@@ -109,6 +111,10 @@ def run_at_working_resolution(
             widened and the depth computed again (`widen_cut_range`, at most
             `MAX_WIDENINGS` times).
         progress: count the passes over the depth range in a progress bar.
+        fold: a statement about the scene applied to the first pass's depth before the
+            scene's range is read from it (`estimate_depth`'s `side`: each blur both sides of
+            one focus plane explain put on the stated one), so that the finer pass spans the
+            scene, not its mirror image too.
 
     Returns:
         dict with `depth` and `confidence` `(1,H,W)`, `blur` `(F,h,w)` at the working
@@ -127,7 +133,7 @@ def run_at_working_resolution(
     out = _run_at(model, image, focused, settings, near, far, scale, align)
     passes.update()
     if refine_range:
-        inner = scene_range(out["depth"], near, far)
+        inner = scene_range(out["depth"] if fold is None else fold(out["depth"]), near, far)
         finer = working_scale(settings, *inner, (h, w), max_coc_px, max_pixels)
         if finer >= REFINE_GAIN * scale:
             out = _run_at(model, image, focused, settings, *inner, finer, align)

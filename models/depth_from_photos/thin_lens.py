@@ -99,6 +99,70 @@ def mirrored_depths(settings: CameraSettings, near: float, far: float
     return 1.0 / hi, 1.0 / lo
 
 
+def mirror_depth(depth: Tensor, focus_distance: float, depth_range: tuple[float, float]) -> Tensor:
+    """The depth whose thin-lens blur equals that of `depth`, on the other side of the focus
+    plane: `1/d' = 2/f - 1/d`, clamped to `depth_range` (beyond infinity: the far end).
+
+    Example:
+        >>> d = torch.tensor([1.0, 2.0, 4.0])
+        >>> tuple(round(float(v), 3) for v in mirror_depth(d, 2.0, (0.5, 10.0)))
+        (10.0, 2.0, 1.333)
+    """
+    inverse = 2.0 / focus_distance - 1.0 / depth
+    far = inverse <= 1.0 / depth_range[1]
+    mirrored = 1.0 / inverse.clamp_min(1e-12)
+    return torch.where(far, torch.full_like(depth, depth_range[1]),
+                       mirrored.clamp(depth_range[0], depth_range[1]))
+
+
+def fold_to_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
+                 side: str) -> Tensor:
+    """The depth a self-supervised network finds at best with one focus plane and a side prior:
+    the true `depth` with each blur that both sides explain put on the stated `side` (the rule of
+    `models.networks.DepthHead`). With `"beyond"`, a pixel nearer than the focus plane goes to its
+    mirror unless its blur exceeds the far end's, which only a nearer depth explains; with
+    `"before"`, every pixel beyond the plane goes to its mirror (clamped to the range); with
+    `"both"` the depth is returned as is. Scored against the true depth, it is the error that
+    no training can remove under that prior.
+
+    Example:
+        >>> d = torch.tensor([0.6, 1.5, 4.0])
+        >>> tuple(round(float(v), 3) for v in fold_to_side(d, 2.0, (0.5, 10.0), "beyond"))
+        (0.6, 3.0, 4.0)
+        >>> tuple(round(float(v), 3) for v in fold_to_side(d, 2.0, (0.5, 10.0), "before"))
+        (0.6, 1.5, 1.333)
+    """
+    if side == "both":
+        return depth
+    mirror = mirror_depth(depth, focus_distance, depth_range)
+    if side == "before":
+        return torch.where(depth > focus_distance, mirror, depth)
+    explained = 2.0 / focus_distance - 1.0 / depth >= 1.0 / depth_range[1]
+    return torch.where((depth < focus_distance) & explained, mirror, depth)
+
+
+def off_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
+             side: str) -> Tensor:
+    """Where the photos contradict a statement of the scene's `side` of one focus plane: the
+    pixels of `depth` whose blur no depth of `depth_range` on that side explains, so that they can
+    only lie on the other side (with `"beyond"`, a blur above the far end's; with `"before"`, a
+    blur above the near end's). All False for `"both"`.
+
+    Example:
+        >>> d = torch.tensor([0.6, 1.5, 4.0])  # focus 2 m, range 0.5-10 m
+        >>> off_side(d, 2.0, (0.5, 10.0), "beyond").tolist()
+        [True, False, False]
+        >>> off_side(torch.tensor([1.0, 9.0]), 1.0, (0.6, 10.0), "before").tolist()
+        [False, True]
+    """
+    mirror = 2.0 / focus_distance - 1.0 / depth  # inverse depth of the same blur across the plane
+    if side == "beyond":
+        return (depth < focus_distance) & (mirror < 1.0 / depth_range[1])
+    if side == "before":
+        return (depth > focus_distance) & (mirror > 1.0 / depth_range[0])
+    return torch.zeros_like(depth, dtype=torch.bool)
+
+
 def candidate_blurs(settings: CameraSettings, near: float, far: float, n_candidates: int,
                     like: Tensor, n_shots: int, every: int = 1) -> Tensor:
     """The blur `(B,F,K)` pixels the thin lens gives each of the `n_shots` shots of `settings`
