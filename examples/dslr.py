@@ -38,11 +38,18 @@ the other split is scored, the paper's protocol):
    best constant depth of the training scenes, prints the table (``json=PATH`` writes it). A
    row marked ``bound:`` scores the true depth of the scored scenes (the validation scenes, or
    the ``eval_split``'s) with its ambiguous blur put on ``side``
-   (`models.diagnostics.fold_to_side`): what a self-supervised network that found the loss's
+   (`models.depth_from_photos.side.fold_to_side`): what a self-supervised network that found the loss's
    best everywhere would score under that prior; no training can do better on those scenes.
    With ``side=both`` (no prior) the table shows the bound of each side: a network without a
    prior must tell near from far by other cues (the image's content) to do better than the
-   better of the two.
+   better of the two. ``predict_side`` is the side the label-free `predict` is told
+   (`defocus predict --side`);
+5. ``scored=beyond`` (or ``before``) scores only the held-out scenes that lie on that side of
+   their focus plane, chosen by the bound alone (each scene's true depth folded to that side
+   scores abs rel <= ``side_tolerance``, 0.1), as a photographer's statement would be made:
+   before any training, from where the scene is. One focus plane then tells the depth::
+
+    python examples/dslr.py --root data/dfd_indoor --set scored=beyond predict_side=beyond
 
 ``--focus synthesized`` reads the set the paper's way (Gur & Wolf 2019), as an RGB-D set: the
 f/8 photo is the all-in-focus image and the two focused images are rendered from it and the
@@ -51,7 +58,7 @@ end of the depth range (2 m and 8 m), with the DSLR camera (35 mm, the preset's 
 pitch, or those of ``camera=JSON``; `DSLR(focus="synthesized")`). Two focus planes tell near
 from far, so nothing is calibrated, matched or registered and no side prior applies (``side``
 is ``both``; setting ``side``, ``calibrate_every``, ``relative``, ``register``,
-``blur_match`` or ``predict_side`` is refused); the label-free `predict` reads the two rendered
+``blur_match``, ``predict_side`` or ``scored`` is refused); the label-free `predict` reads the two rendered
 images with the rendering camera, and there is no ``bound:`` row.
 
 Every row of the table and of the JSON file (``json=PATH``: method name -> ``metrics``,
@@ -107,7 +114,7 @@ RECIPE = Path(__file__).with_suffix(".yaml")
 #: The recipe keys of the real f/2.8 photos (calibration, registration, the side prior), which
 #: ``--focus synthesized`` does not use: setting one there is refused.
 REAL_FOCUS_KEYS = ("side", "calibrate_every", "relative", "register", "blur_match",
-                   "predict_side")
+                   "predict_side", "scored")
 #: What a method reads (a row's ``input``) where it reads no image: the constant, the bounds.
 NO_INPUT = "none"
 
@@ -145,7 +152,7 @@ def side_bound_row(val: DSLR, depth_range: tuple[float, float],
     """The error that no self-supervised training removes under the side prior: each scored
     scene's true depth with its ambiguous blur put on `side` (`fold_to_side`), averaged."""
     from models import evaluate
-    from models.diagnostics import fold_to_side
+    from models.depth_from_photos.side import fold_to_side
 
     def bound(sample: dict) -> torch.Tensor:
         focus = float(sample["camera"].focus_distance.reshape(-1)[0])
@@ -171,8 +178,8 @@ def bound_rows(val: DSLR, depth_range: tuple[float, float],
 def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int,
                     side: str = "both") -> dict[str, dict[str, float]]:
     """`estimate_depth` on each scored scene, averaged: the f/8 photo as one more shot beside
-    the real f/2.8 one, with the fitted camera (with a side prior, over the depth range on that
-    side of the fitted focus plane only); with synthesised focus, the two rendered images with
+    the real f/2.8 one, with the fitted camera (with a side stated, `estimate_depth`'s `side`:
+    what `defocus predict --side` does); with synthesised focus, the two rendered images with
     the rendering camera and the f/8 photo as the all-in-focus image."""
     from models import evaluate
     from models.depth_from_photos import estimate_depth
@@ -182,14 +189,11 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
 
     def label_free(sample: dict) -> torch.Tensor:
         settings = sample["camera"]
-        focus = float(settings.focus_distance.reshape(-1)[0])
-        span = {"beyond": (focus, depth_range[1]), "before": (depth_range[0], focus)}.get(
-            side, depth_range)
         with torch.no_grad():
-            return estimate_depth(sample["focused"], settings, span, image=sample["image"],
+            return estimate_depth(sample["focused"], settings, depth_range, image=sample["image"],
                                   image_settings=val.reference_settings(settings) if real
                                   else None, all_in_focus=False, max_pixels=max_pixels,
-                                  refine_range=side == "both")["depth"]
+                                  side=side)["depth"]
 
     samples = (val[i] for i in progress_bar(range(len(val)), desc="label-free predict"))
     prior = "" if side == "both" else f", side {side}"
@@ -197,6 +201,25 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
         "label-free predict (the two rendered images, the rendering camera)"
     return {name: evaluate(label_free, samples, "eigen", max_depth=depth_range[1],
                            also=order_of(depth_range[1]))}
+
+
+def scenes_on_side(scored: DSLR, depth_range: tuple[float, float], side: str,
+                   tolerance: float) -> list[int]:
+    """The positions of the `scored` scenes that lie on `side` of their focus plane, chosen by
+    the bound alone (each scene's `side_bound_row`: its true depth with the ambiguous blur put
+    on `side` scores abs rel <= `tolerance`), as a user's statement would be made: before any
+    training, from where the scene is, not from what a method makes of it."""
+    from models.depth_from_photos.side import fold_to_side
+
+    kept = []
+    for index in range(len(scored)):
+        sample = scored[index]
+        depth, valid = sample["depth"], sample["mask"].bool()
+        focus = float(sample["camera"].focus_distance.reshape(-1)[0])
+        folded = fold_to_side(depth, focus, depth_range, side)
+        if float(((folded - depth).abs() / depth)[valid].mean()) <= tolerance:
+            kept.append(index)
+    return kept
 
 
 def calibrate(proto: dict[str, Any], out: Path, train: DSLR, progress: bool) -> Path:
@@ -233,8 +256,8 @@ def match_loss_camera(args: ScriptRequest, proto: dict[str, Any], out: Path, cam
     return path
 
 
-def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path,
-             progress: bool) -> tuple[DSLR, DSLR, DSLR, Path | None]:
+def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path, progress: bool,
+             depth_range: tuple[float, float]) -> tuple[DSLR, DSLR, DSLR, Path | None]:
     """The training and scored scenes, the scored scenes of the label-free `predict`, and the
     camera JSON of the training (None: the preset's). Real focus: relative pairs, the lens's
     own camera for `predict`, the camera fitted on the training scenes; synthesised focus: the
@@ -267,8 +290,17 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path,
     if proto["blur_match"]:
         pair["camera"] = match_loss_camera(args, proto, out, camera, pair, fit_on)
     train = DSLR(args.root, args.split, scenes=fit_on, **pair)
-    val = DSLR(args.root, scored[0], scenes=scored[1], **pair)
     lens = DSLR(args.root, scored[0], scenes=scored[1], camera=camera, **kwargs)
+    if proto["scored"] != "all":  # the held-out scenes on the stated side, by the bound alone
+        positions = list(range(len(lens.files))) if scored[1] is None else list(scored[1])
+        on_side = scenes_on_side(lens, depth_range, proto["scored"], proto["side_tolerance"])
+        if not on_side:
+            raise SystemExit(f"scored={proto['scored']}: none of the {len(lens)} held-out "
+                             f"scenes lies {proto['scored']} its focus plane within "
+                             f"side_tolerance={proto['side_tolerance']}")
+        scored = (scored[0], [positions[i] for i in on_side])
+        lens = DSLR(args.root, scored[0], scenes=scored[1], camera=camera, **kwargs)
+    val = DSLR(args.root, scored[0], scenes=scored[1], **pair)
     return train, val, lens, camera
 
 
@@ -371,6 +403,11 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
 
     if proto["focus"] not in ("real", "synthesized"):
         raise ValueError(f"focus must be real or synthesized, got {proto['focus']!r}")
+    if proto["scored"] not in ("all", "beyond", "before") or not (
+            isinstance(proto["side_tolerance"], (int, float)) and proto["side_tolerance"] > 0):
+        raise ValueError(f"--set scored=all|beyond|before and side_tolerance=a positive abs "
+                         f"rel, got scored={proto['scored']!r}, "
+                         f"side_tolerance={proto['side_tolerance']!r}")
     if proto["focus"] != "synthesized":
         return
     given = parse_overrides(args.overrides)
@@ -402,7 +439,8 @@ def _main(argv: list[str] | None) -> int:
     plan = plan_json_option(proto["json"], args.overwrite, args.root, "table", [
         ("camera", camera), ("camera JSON of this run", out / "camera.json"),
         ("loss-matched camera JSON of this run", out / "camera_loss.json")], "--set json")
-    train, val, lens, camera = datasets(args, proto, out, progress)
+    train, val, lens, camera = datasets(args, proto, out, progress,
+                                        (fields["depth_min"], fields["depth_max"]))
     if train.register and proto["memory_cache_mb"] > 0:  # register each pair once, first
         for index in progress_bar(range(len(train)), desc="registering the training pairs",
                                   disable=not progress):

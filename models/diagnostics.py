@@ -27,7 +27,7 @@ from torch import Tensor
 
 from optics import CameraSettings, collate
 
-from .depth_from_photos.thin_lens import fold_to_side, mirror_depth  # noqa: F401  (fold_to_side: its old home)
+from .depth_from_photos.side import mirror_depth
 
 #: a self-supervised loss: `(depth (B,1,H,W), image (B,3,H,W), focused (B,F,3,H,W), settings)`
 #: -> a dict with "loss" (e.g. `models.losses.DefocusLoss`)

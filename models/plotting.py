@@ -110,12 +110,7 @@ def plot_prediction(
         _hide_axes(ax)
     if title:
         fig.suptitle(title, fontsize=10)
-    metadata = {} if path.suffix.lower() != ".png" else {
-        **({} if mirrored_depths is None else
-           {MIRRORED_DEPTHS_KEY: f"{mirrored_depths[0]:.6g} {mirrored_depths[1]:.6g}"}),
-        **({} if side is None else {SIDE_KEY: f"{side[0]} {side[1]:.6g} "
-                                              f"{_share(off_side):.6g}"})}
-    fig.savefig(path, dpi=90, metadata=metadata or None)
+    fig.savefig(path, dpi=90, metadata=_png_text(path, mirrored_depths, side, off_side))
     return path
 
 
@@ -194,6 +189,16 @@ def _hatch_mirrored(ax, bar, depth: Tensor, limits: tuple[float, float],
             ax.contourf(inside, levels=[0.5, 1.5], colors="none", hatches=[hatch])
     ax.set_xlabel(f"hatched: {span[0]:.2f}-{span[1]:.2f} m, may lie\nmirrored across the "
                   "focus plane", fontsize=7)
+
+
+def _png_text(path: Path, mirrored_depths: tuple[float, float] | None,
+              side: tuple[str, float] | None, off_side: Tensor | None) -> dict[str, str] | None:
+    """The text a PNG of `plot_prediction` stores: `MIRRORED_DEPTHS_KEY`, `SIDE_KEY`."""
+    text = {} if path.suffix.lower() != ".png" else {
+        **({} if mirrored_depths is None else
+           {MIRRORED_DEPTHS_KEY: f"{mirrored_depths[0]:.6g} {mirrored_depths[1]:.6g}"}),
+        **({} if side is None else {SIDE_KEY: f"{side[0]} {side[1]:.6g} {_share(off_side):.6g}"})}
+    return text or None
 
 
 def _share(mask: Tensor | None) -> float:

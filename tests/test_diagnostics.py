@@ -8,9 +8,9 @@ import pytest
 import torch
 
 from datasets.pairs import register_focused, relative_pair
+from models.depth_from_photos.side import fold_to_side
 from models.diagnostics import (
     blur_scale_losses,
-    fold_to_side,
     loss_at_depths,
     match_blur_scale,
     mirror_depth,

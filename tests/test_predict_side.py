@@ -7,7 +7,7 @@ from skimage import data
 
 from defocus.cli import main
 from models.depth_from_photos import estimate_depth
-from models.depth_from_photos.thin_lens import fold_to_side, off_side
+from models.depth_from_photos.side import fold_to_side, off_side
 from models.plotting import SIDE_KEY
 from optics import CameraSettings, render_focal_stack
 

@@ -7,6 +7,7 @@ it picks a method by what the photos are and runs it at a working resolution. Th
 |---|---|
 | `estimate` | `estimate_depth`, the methods by name |
 | `thin_lens` | the cost machinery every method shares: candidate depths, each shot's blur, cost aggregation and selection |
+| `side` | a stated side of one focus plane: a depth's mirror image, the fold to the stated side, the blurs that contradict it |
 | `photometry` | exposure matching between shots, the photos' noise |
 | `confidence` | texture to read, depth edges |
 | `fourier_blur` | many blurs of one photo through one Fourier transform |

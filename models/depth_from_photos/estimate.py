@@ -20,7 +20,6 @@ with at least `depth` `(B,1,H,W)` metres. Its class attributes say how to run it
 
 from __future__ import annotations
 
-import functools
 import math
 import warnings
 from collections.abc import Callable, Mapping
@@ -38,14 +37,9 @@ from .depth_from_focus import DepthFromFocus
 from .relative_blur import RelativeBlurDepth
 from .resolution import run_at_working_resolution
 from .rules import refuse_broken
+from .side import focus_planes, side_statement, state_side, swept_range
 from .sweep import SweepDepth
-from .thin_lens import (
-    candidate_inverse_depths,
-    fold_to_side,
-    mirrored_depths,
-    off_side,
-    thin_lens_blur,
-)
+from .thin_lens import candidate_inverse_depths, mirrored_depths, thin_lens_blur
 
 #: name -> the method's class, built with `progress=...`.
 METHODS: dict[str, Callable[..., nn.Module]] = {
@@ -199,33 +193,25 @@ def estimate_depth(
             may be 0 only for a network that reads the all-in-focus photo alone).
         settings: their `(F,)` settings at the photos' resolution (effective pixel pitch);
             None only where `F` is 0.
-        depth_range: `(near, far)` metres the scene lies within: the thin lens has two depths
-            for each blur, and the range picks the right one.
+        depth_range: `(near, far)` metres the scene lies within.
         image: the all-in-focus photo `(3,H,W)` (a small aperture), linear, where there is one.
         image_settings: the `(1,)` settings of `image` where it is only nearly sharp (an f/8
             shot beside f/2.8 ones): it then counts as one more shot with its own blur, first
             in the stack, and the shots are compared by their relative blur; the returned
             `blur` then holds it first.
-        method: a name of `METHODS`, or `"auto"`: the one that suits the photos
-            (`choose_method`).
+        method: a name of `METHODS`, or `"auto"` (`choose_method`).
         model: a method object to run instead of `method` (see the module docstring).
-        options: keyword arguments of the method's class (e.g. `{"aggregation": "windows"}`
-            for the sweep); not with `model`.
-        max_coc_px: the largest blur (pixels) at the working resolution; by default the
-            method's `max_coc_px`.
+        options: keyword arguments of the method's class (not with `model`).
+        max_coc_px: the largest blur (pixels) at the working resolution (the method's).
         max_pixels: the most pixels of the working resolution.
-        align: align the focused photos to the all-in-focus one first (a misalignment would
-            read as blur).
+        align: align the focused photos first (a misalignment would read as blur).
         refine_range: compute again over the scene's own narrower depth range, finer.
         progress: show progress bars on long work.
         all_in_focus: also return the all-in-focus image: `image` where it is given, else the
             shots fused by the blur each has at the depth found (`fuse_all_in_focus`).
-        side: where the scene lies, stated, when every shot is focused at one distance (one
-            focus plane blurs a depth and its mirror image alike): `"beyond"` the focus plane
-            (a photographer who focused on the nearest thing), `"before"` it, or `"both"` (no
-            statement; the mirrored depths are warned of, `warn_mirrored`). Each blur that both
-            sides explain is put on the stated side (`thin_lens.fold_to_side`); a blur that
-            only the other side explains stays there (`off_side`).
+        side: where the scene lies about the shots' one focus plane (which blurs a depth and
+            its mirror image alike): `"beyond"`, `"before"` or `"both"` (no statement:
+            `warn_mirrored`). See `models.depth_from_photos.side`.
 
     Returns:
         dict with `depth` `(1,H,W)` metres, `confidence` `(1,H,W)` in [0, 1] (None where the
@@ -234,16 +220,14 @@ def estimate_depth(
         resolution, `blur` `(F,h,w)`, `scale`, `shifts`, `zooms` and `rotations` (see
         `run_at_working_resolution`), and `mirrored_depths`: the depths `(nearest, farthest)`
         metres the shots cannot place on either side of their one focus plane
-        (`ambiguous_depths`, the span `warn_mirrored` warns of), or None; with a `side`
-        stated, `side`, `focus_plane` (metres) and `off_side` `(1,H,W)` bool: the pixels whose
-        blur contradicts the statement (they stay on the other side).
+        (`ambiguous_depths`, the span `warn_mirrored` warns of), or None; with a `side`, the
+        keys of `side.state_side`.
 
     Raises:
         ValueError: for photos of other shapes or sizes, non-finite values, a bad depth range or
             method, a method that needs an all-in-focus photo without one, fewer than two
             shots without one, or shots that cannot tell depths in the range apart
-            (`check_shots_differ`), or a `side` other than those three or stated for shots
-            focused at several distances.
+            (`check_shots_differ`), or a `side` for shots focused at several distances.
 
     Example:
         >>> import torch
@@ -258,10 +242,8 @@ def estimate_depth(
     if image_settings is not None:
         focused, settings = torch.cat([image[None], focused]), join_shots(image_settings, settings)
         image = None
-    model = _method_object(method, model, options, progress, image is not None, len(focused))
-    fold = None if side == "both" else functools.partial(
-        put_on_side, focus_distance=float(settings.focus_distance.reshape(-1)[0]),
-        depth_range=(near, far), side=side)
+    model, fold = (_method_object(method, model, options, progress, image is not None,
+                                  len(focused)), side_statement(settings, (near, far), side))
     if getattr(model, "native_resolution", False):
         out = _run_native(model, image, focused, settings, near, far, all_in_focus)
     else:
@@ -274,9 +256,7 @@ def estimate_depth(
         if all_in_focus:
             out["all_in_focus"] = image if image is not None else _fused(focused, out, align)
     if fold is not None:
-        out["side"], out["focus_plane"] = side, fold.keywords["focus_distance"]
-        out["off_side"] = off_side(out["depth"], **fold.keywords)
-        out["depth"] = fold(out["depth"])
+        state_side(out, fold)
     return out
 
 
@@ -352,60 +332,6 @@ def check_arguments(focused: Any, settings: Any, depth_range: Any, image: Any = 
          f"focused at {', '.join(f'{d:g}' for d in focus_planes(settings, image_settings))} m: "
          "give side='both' (shots focused at several distances tell near from far)")])
     return photos[0], photos[1], (near, far)
-
-
-def put_on_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
-                side: str) -> Tensor:
-    """`depth` with each blur that both sides of the focus plane explain put on the stated
-    `side` (`fold_to_side`), and the blurs that only the other side explains (`off_side`) left
-    where they are.
-
-    Example:
-        >>> d = torch.tensor([0.6, 1.5, 4.0], dtype=torch.float64)
-        >>> put_on_side(d, 2.0, (0.5, 10.0), "beyond").round(decimals=6).tolist()
-        [0.6, 3.0, 4.0]
-    """
-    off = off_side(depth, focus_distance, depth_range, side)
-    return torch.where(off, depth, fold_to_side(depth, focus_distance, depth_range, side))
-
-
-def swept_range(near: float, far: float, fold: functools.partial | None) -> tuple[float, float]:
-    """The depths (metres) to sweep for the range `(near, far)` under a stated side (`fold`, a
-    `put_on_side`): the stated side alone where every blur of the other side has a depth on it
-    (all the candidates then go where the scene is), else the whole range.
-
-    Example:
-        >>> on = functools.partial(put_on_side, focus_distance=2.0, side="beyond")
-        >>> swept_range(1.5, 8.0, functools.partial(on, depth_range=(1.5, 8.0)))
-        (2.0, 8.0)
-        >>> swept_range(0.5, 8.0, functools.partial(on, depth_range=(0.5, 8.0)))  # 0.5 m blurs more
-        (0.5, 8.0)
-    """
-    if fold is None or not near < fold.keywords["focus_distance"] < far:
-        return near, far
-    focus, side = fold.keywords["focus_distance"], fold.keywords["side"]
-    # the blur at near and at far (per unit of the blur at infinity): f/near - 1, 1 - f/far
-    if side == "beyond" and 1 / near <= 2 / focus - 1 / far:
-        return focus, far
-    if side == "before" and 2 / focus - 1 / far <= 1 / near:
-        return near, focus
-    return near, far
-
-
-def focus_planes(settings: CameraSettings | None, image_settings: CameraSettings | None = None
-                 ) -> list[float]:
-    """The distinct focus distances (metres, sorted) of the shots and of `image_settings`.
-
-    Example:
-        >>> focus_planes(CameraSettings(0.05, 2.0, [2.0, 2.0], 1e-4))
-        [2.0]
-    """
-    found: list[float] = []
-    for shots in (settings, image_settings):
-        for distance in [] if shots is None else shots.focus_distance.reshape(-1).tolist():
-            if not any(math.isclose(distance, d, rel_tol=1e-6) for d in found):
-                found.append(distance)
-    return sorted(found)
 
 
 def depth_range_problem(near: float, far: float, focal_length: float | None = None

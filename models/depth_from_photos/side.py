@@ -1,0 +1,156 @@
+"""A stated side of one focus plane: where every shot is focused at one distance, a depth and
+its mirror image across the focus plane (`1/d' = 2/f - 1/d`) blur every shot alike, and a
+statement of where the scene lies (`estimate_depth`'s `side`) picks one of the two.
+
+With `"beyond"` (a photographer who focused on the nearest thing) or `"before"`, each blur that
+both sides explain is put on the stated side (`fold_to_side`); a blur that only the other side
+explains (`off_side`: with `"beyond"`, a blur larger than the far end's) stays there and is
+counted; the depths are swept on the stated side alone where that loses nothing
+(`swept_range`)."""
+
+from __future__ import annotations
+
+import functools
+import math
+
+import torch
+from torch import Tensor
+
+from optics import CameraSettings
+
+
+def mirror_depth(depth: Tensor, focus_distance: float, depth_range: tuple[float, float]) -> Tensor:
+    """The depth whose thin-lens blur equals that of `depth`, on the other side of the focus
+    plane: `1/d' = 2/f - 1/d`, clamped to `depth_range` (beyond infinity: the far end).
+
+    Example:
+        >>> d = torch.tensor([1.0, 2.0, 4.0])
+        >>> tuple(round(float(v), 3) for v in mirror_depth(d, 2.0, (0.5, 10.0)))
+        (10.0, 2.0, 1.333)
+    """
+    inverse = 2.0 / focus_distance - 1.0 / depth
+    far = inverse <= 1.0 / depth_range[1]
+    mirrored = 1.0 / inverse.clamp_min(1e-12)
+    return torch.where(far, torch.full_like(depth, depth_range[1]),
+                       mirrored.clamp(depth_range[0], depth_range[1]))
+
+
+def fold_to_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
+                 side: str) -> Tensor:
+    """The depth a self-supervised network finds at best with one focus plane and a side prior:
+    the true `depth` with each blur that both sides explain put on the stated `side` (the rule of
+    `models.networks.DepthHead`). With `"beyond"`, a pixel nearer than the focus plane goes to its
+    mirror unless its blur exceeds the far end's, which only a nearer depth explains; with
+    `"before"`, every pixel beyond the plane goes to its mirror (clamped to the range); with
+    `"both"` the depth is returned as is. Scored against the true depth, it is the error that
+    no training can remove under that prior.
+
+    Example:
+        >>> d = torch.tensor([0.6, 1.5, 4.0])
+        >>> tuple(round(float(v), 3) for v in fold_to_side(d, 2.0, (0.5, 10.0), "beyond"))
+        (0.6, 3.0, 4.0)
+        >>> tuple(round(float(v), 3) for v in fold_to_side(d, 2.0, (0.5, 10.0), "before"))
+        (0.6, 1.5, 1.333)
+    """
+    if side == "both":
+        return depth
+    mirror = mirror_depth(depth, focus_distance, depth_range)
+    if side == "before":
+        return torch.where(depth > focus_distance, mirror, depth)
+    explained = 2.0 / focus_distance - 1.0 / depth >= 1.0 / depth_range[1]
+    return torch.where((depth < focus_distance) & explained, mirror, depth)
+
+
+def off_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
+             side: str) -> Tensor:
+    """Where the photos contradict a statement of the scene's `side` of one focus plane: the
+    pixels of `depth` whose blur no depth of `depth_range` on that side explains, so that they can
+    only lie on the other side (with `"beyond"`, a blur above the far end's; with `"before"`, a
+    blur above the near end's). All False for `"both"`.
+
+    Example:
+        >>> d = torch.tensor([0.6, 1.5, 4.0])  # focus 2 m, range 0.5-10 m
+        >>> off_side(d, 2.0, (0.5, 10.0), "beyond").tolist()
+        [True, False, False]
+        >>> off_side(torch.tensor([1.0, 9.0]), 1.0, (0.6, 10.0), "before").tolist()
+        [False, True]
+    """
+    mirror = 2.0 / focus_distance - 1.0 / depth  # inverse depth of the same blur across the plane
+    if side == "beyond":
+        return (depth < focus_distance) & (mirror < 1.0 / depth_range[1])
+    if side == "before":
+        return (depth > focus_distance) & (mirror > 1.0 / depth_range[0])
+    return torch.zeros_like(depth, dtype=torch.bool)
+
+
+def put_on_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
+                side: str) -> Tensor:
+    """`depth` with each blur that both sides of the focus plane explain put on the stated
+    `side` (`fold_to_side`), and the blurs that only the other side explains (`off_side`) left
+    where they are.
+
+    Example:
+        >>> d = torch.tensor([0.6, 1.5, 4.0], dtype=torch.float64)
+        >>> put_on_side(d, 2.0, (0.5, 10.0), "beyond").round(decimals=6).tolist()
+        [0.6, 3.0, 4.0]
+    """
+    off = off_side(depth, focus_distance, depth_range, side)
+    return torch.where(off, depth, fold_to_side(depth, focus_distance, depth_range, side))
+
+
+def swept_range(near: float, far: float, fold: functools.partial | None) -> tuple[float, float]:
+    """The depths (metres) to sweep for the range `(near, far)` under a stated side (`fold`, a
+    `put_on_side`): the stated side alone where every blur of the other side has a depth on it
+    (all the candidates then go where the scene is), else the whole range.
+
+    Example:
+        >>> on = functools.partial(put_on_side, focus_distance=2.0, side="beyond")
+        >>> swept_range(1.5, 8.0, functools.partial(on, depth_range=(1.5, 8.0)))
+        (2.0, 8.0)
+        >>> swept_range(0.5, 8.0, functools.partial(on, depth_range=(0.5, 8.0)))  # 0.5 m blurs more
+        (0.5, 8.0)
+    """
+    if fold is None or not near < fold.keywords["focus_distance"] < far:
+        return near, far
+    focus, side = fold.keywords["focus_distance"], fold.keywords["side"]
+    # the blur at near and at far (per unit of the blur at infinity): f/near - 1, 1 - f/far
+    if side == "beyond" and 1 / near <= 2 / focus - 1 / far:
+        return focus, far
+    if side == "before" and 2 / focus - 1 / far <= 1 / near:
+        return near, focus
+    return near, far
+
+
+def focus_planes(settings: CameraSettings | None, image_settings: CameraSettings | None = None
+                 ) -> list[float]:
+    """The distinct focus distances (metres, sorted) of the shots and of `image_settings`.
+
+    Example:
+        >>> focus_planes(CameraSettings(0.05, 2.0, [2.0, 2.0], 1e-4))
+        [2.0]
+    """
+    found: list[float] = []
+    for shots in (settings, image_settings):
+        for distance in [] if shots is None else shots.focus_distance.reshape(-1).tolist():
+            if not any(math.isclose(distance, d, rel_tol=1e-6) for d in found):
+                found.append(distance)
+    return sorted(found)
+
+
+def side_statement(settings: CameraSettings, depth_range: tuple[float, float], side: str
+                   ) -> functools.partial | None:
+    """`put_on_side` bound to the shots' one focus plane, `depth_range` and `side`; None for
+    `"both"` (no statement)."""
+    if side == "both":
+        return None
+    return functools.partial(put_on_side, focus_distance=float(
+        settings.focus_distance.reshape(-1)[0]), depth_range=depth_range, side=side)
+
+
+def state_side(out: dict, fold: functools.partial) -> None:
+    """Apply the statement `fold` (`side_statement`) to the result `out` of `estimate_depth`:
+    its `depth` folded, with `side`, `focus_plane` (metres) and `off_side` (the pixels that
+    contradict it) added."""
+    out["side"], out["focus_plane"] = fold.keywords["side"], fold.keywords["focus_distance"]
+    out["off_side"] = off_side(out["depth"], **fold.keywords)
+    out["depth"] = fold(out["depth"])
