@@ -118,7 +118,7 @@ def measure(args: argparse.Namespace, data, fields: dict, setting: Setting) -> d
     peak = torch.cuda.max_memory_allocated(args.device) / 2**20 if _is_cuda(args) else None
     return {"s_per_step": statistics.median(walls),
             "data_share": data_s / sum(r["data_s"] + r["compute_s"] for r in rows),
-            "workers": trainer.workers, "peak_mb": peak}
+            "workers": trainer.workers, "peak_mb": peak, "split": trainer.step_timer.split()}
 
 
 def peak_memory_mb(args: argparse.Namespace, setting: Setting) -> float:
@@ -276,8 +276,10 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
                         help="crop side, pixels (default: 128 on the CPU, 256 on a GPU)")
     parser.add_argument("--workers", default="0,-1",
                         help="comma-separated worker counts to compare (-1: automatic)")
-    parser.add_argument("--precision", type=_choices("--precision", ("float32", "bfloat16")),
-                        default=["float32"], help="float32, bfloat16, or both")
+    parser.add_argument("--precision",
+                        type=_choices("--precision", ("auto", "float32", "bfloat16")),
+                        default=["float32"], help="float32, bfloat16, auto (the training "
+                        "default: bfloat16 on a CPU with native bfloat16), or a list")
     parser.add_argument("--compile", nargs="?", const=["on"], default=["off"],
                         type=_choices("--compile", ("off", "on", "graphs")),
                         help="torch.compile the network and the loss: off, on (the flag alone), "
@@ -333,7 +335,10 @@ def main(argv: list[str] | None = None) -> int:
                      "precision": setting.precision, "compile": setting.compile,
                      "workers": measured[0]["workers"], "steps_per_s": 1 / s, "s_per_step": s,
                      "data_share": statistics.median(m["data_share"] for m in measured),
-                     "protocol_minutes": PROTOCOL_STEPS * s / 60, "peak_mb": peak})
+                     "protocol_minutes": PROTOCOL_STEPS * s / 60, "peak_mb": peak,
+                     "split_ms": {name: 1000 * statistics.median(m["split"].get(name, 0.0)
+                                                                 for m in measured)
+                                  for name in measured[0]["split"]}})
     for row in rows:
         row["ratio"] = row["steps_per_s"] / rows[0]["steps_per_s"]
     print(f"{args.dataset}, batch {args.batch_size}, {args.crop}x{args.crop} crops, "
@@ -349,6 +354,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {r['network']} | {r['precision']} | {r['compile']} | "
               f"{r['workers']} | {r['steps_per_s']:.2f} | {r['ratio']:.2f}x | "
               f"{r['data_share']:.1%} | {peak} | {r['protocol_minutes']:.0f} |")
+    print("\nA step's time, ms (the trainer's host timers; medians of the runs' means):")
+    for r in rows:
+        print(f"  {r['setting']}: " + ", ".join(f"{name} {ms:.0f}"
+                                               for name, ms in r["split_ms"].items()))
     results = {"args": {k: str(v) for k, v in vars(args).items() if k != "argv"}, "rows": rows,
                "goals": [{"goal": g, "met": met} for g, met in goals(kind, rows, args)]}
     print("\n| goal | met |\n|---|---|")

@@ -232,6 +232,8 @@ def train_and_evaluate(
     cut = f"; the time budget of {config.minutes:g} min was spent" if trainer.out_of_time else ""
     say(f"trained {trainer.step - first} steps in {format_duration(seconds)} "
         f"({seconds / max(trainer.step - first, 1):.3f} s/step){cut}; evaluating")
+    if trainer.step_timer.split():
+        say(f"a training step's time: {trainer.step_timer.summary()}")
     return _result_rows(trainer, train_set, test_set, crop, has_depth, constant_set)
 
 

@@ -259,7 +259,8 @@ class SmallDepthNet(_DepthNetwork):
                                                 align_corners=False), e2], 1))
         d1 = self.dec1(torch.cat([F.interpolate(d2, size=e1.shape[-2:], mode="bilinear",
                                                 align_corners=False), e1], 1))
-        return self.out(d1)[..., :h, :w]
+        with torch.autocast(x.device.type, enabled=False):  # the logits in float32 always
+            return self.out(d1.float())[..., :h, :w]
 
 
 class _Bottleneck(nn.Module):

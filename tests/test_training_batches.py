@@ -218,7 +218,40 @@ def test_each_step_is_split_into_data_wait_and_compute(tmp_path, scenes):
         assert row["data_s"] + row["compute_s"] <= row["seconds"] + 1e-6
     with (cfg.out_dir / "train_log.csv").open() as handle:
         rows = list(csv.DictReader(handle))
-    assert {"data_s", "compute_s"} <= set(rows[0]) and len(rows) == 4
+    phases = {"network_s", "loss_s", "backward_s", "optimizer_s"}
+    assert {"data_s", "compute_s"} | phases <= set(rows[0]) and len(rows) == 4
+    for row in history:  # the phases are timed inside the compute, one after the other
+        assert all(row[name] > 0 for name in phases)
+        assert sum(row[name] for name in phases) <= row["compute_s"] + 1e-6
+
+
+def test_step_timer_splits_the_mean_step_into_its_phases():
+    timer = StepTimer()
+    assert timer.split() == {} and timer.summary() == ""
+    timer.add(data_s=9.0, compute_s=9.0, phases={"network": 9.0})  # warm-up: left out
+    timer.add(data_s=9.0, compute_s=9.0, phases={"network": 9.0})
+    for network in (0.2, 0.3):
+        timer.add(data_s=0.01, compute_s=1.0,
+                  phases={"network": network, "loss": 0.1, "backward": 0.5, "optimizer": 0.05})
+    split = timer.split()
+    assert list(split) == ["step", "data", "network", "loss", "backward", "optimizer", "other"]
+    assert split["step"] == pytest.approx(1.01) and split["network"] == pytest.approx(0.25)
+    assert split["other"] == pytest.approx(0.1)  # 1.0 - 0.25 - 0.1 - 0.5 - 0.05
+    assert sum(v for k, v in split.items() if k != "step") == pytest.approx(split["step"])
+    assert timer.summary() == ("step 1.01 s: data 10 ms, network 250 ms, loss 100 ms, "
+                               "backward 500 ms, optimizer 50 ms, other 100 ms (mean of 2 steps)")
+
+
+def test_auto_precision_is_bfloat16_only_on_a_cpu_with_native_bfloat16(monkeypatch):
+    from models.training.forward import network_precision
+
+    cpu, gpu = torch.device("cpu"), torch.device("cuda")
+    assert network_precision("float32", cpu) == "float32"
+    assert network_precision("bfloat16", gpu) == "bfloat16"
+    assert network_precision("auto", gpu) == "float32"
+    for native, expected in ((True, "bfloat16"), (False, "float32")):
+        monkeypatch.setattr(torch.ops.mkldnn, "_is_mkldnn_bf16_supported", lambda n=native: n)
+        assert network_precision("auto", cpu) == expected
 
 
 def test_a_step_that_waits_for_its_data_warns(tmp_path, scenes, monkeypatch):
@@ -275,10 +308,11 @@ def test_compiled_network_and_loss_match_the_eager_ones(tmp_path, scenes):
     pytest.importorskip("torch._inductor")
     from torch._dynamo.utils import counters
 
-    eager = Trainer(tiny_config(tmp_path / "eager", steps=2), scenes).fit()
+    exact = {"steps": 2, "precision": "float32"}  # bfloat16 would round differently
+    eager = Trainer(tiny_config(tmp_path / "eager", **exact), scenes).fit()
     torch._dynamo.reset()
     counters.clear()
-    compiled = Trainer(tiny_config(tmp_path / "compiled", steps=2, compile=True,
+    compiled = Trainer(tiny_config(tmp_path / "compiled", **exact, compile=True,
                                    compile_mode="reduce-overhead"), scenes).fit()
     assert _losses(compiled) == pytest.approx(_losses(eager), rel=1e-4)
     assert not counters["graph_break"], dict(counters["graph_break"])

@@ -129,6 +129,8 @@ def run(args: argparse.Namespace) -> int:
     if trainer.is_main:
         last = f"; last loss {trainer.history[-1]['loss']:.4f}" if trainer.history else ""
         print(f"trained {trainer.step} steps{last}; checkpoint {trainer.checkpoints.last}")
+        if trainer.step_timer.split():
+            print(f"a training step's time: {trainer.step_timer.summary()}")
         if result.metrics is not None:
             print(format_table({"synthetic validation": result.metrics}))
         for message in result.warnings:

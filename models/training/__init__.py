@@ -15,7 +15,8 @@ gloo on CPU, NCCL on GPU): `batch_size` is per process, every process holds the 
 after each step, and only rank 0 writes files.
 
 Files under `out_dir`: `config.yaml`, `train_log.csv` (step, losses, learning rate,
-seconds, `at_depth_limits`, `data_s`, `compute_s`), `val_log.csv` (validation metrics),
+seconds, `at_depth_limits`, `data_s`, `compute_s` and the compute's phases `network_s`,
+`loss_s`, `backward_s`, `optimizer_s`), `val_log.csv` (validation metrics),
 `checkpoints/last.pt` (and the newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and
 `warnings.log` when a run ends with a warning.
 
@@ -30,9 +31,11 @@ Speed: each step's batch is prepared ahead in `TrainConfig.workers` worker proce
 (`models.training.batches.BatchStream`; the same batches as without them) and, on a GPU, moved
 to the device in a thread (`DevicePrefetch`); the network may run under bfloat16 autocast
 (`precision`), and the network and the loss through one `torch.compile` graph (`compile`,
-`compile_mode`; `models.training.forward.NetworkAndLoss`); each step waits for the device once. Every logged step's time is split into `data_s` (waiting for the batch) and
-`compute_s`, shown in the progress bar, and a `DataWaitWarning` says when the wait exceeds a
-quarter of the steps (`models.training.step_timing`).
+`compile_mode`; `models.training.forward.NetworkAndLoss`); each step waits for the device
+once. Every logged step's time is split into `data_s` (waiting for the batch) and `compute_s`
+(and that into its phases), shown in the progress bar, summed up by `StepTimer.summary`
+(`Trainer.step_timer`), and a `DataWaitWarning` says when the wait exceeds a quarter of the
+steps (`models.training.step_timing`).
 
 Failures are safe: every config field is checked when the config is built; `fit` checks the
 samples (`n_focus`, ground-truth depth > 0 where valid), saves checkpoints periodically (by

@@ -5,6 +5,7 @@ and the loss compiled into one graph when the run asks for it (`TrainConfig.comp
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -21,9 +22,28 @@ _log = logging.getLogger("models.training")
 Forward = tuple[Tensor, dict[str, Tensor]]
 
 
+def network_precision(precision: str, device: torch.device) -> str:
+    """The arithmetic of the network for `TrainConfig.precision` on `device`: "float32" or
+    "bfloat16"; "auto" is "bfloat16" on a CPU with native bfloat16 arithmetic (oneDNN's
+    AVX-512 BF16 or AMX kernels: its convolutions take about half the time of float32 ones),
+    "float32" elsewhere (a CPU without it would emulate bfloat16, slower; GPUs keep float32).
+
+    Example:
+        >>> network_precision("float32", torch.device("cpu"))
+        'float32'
+        >>> network_precision("auto", torch.device("cpu")) in ("float32", "bfloat16")
+        True
+    """
+    if precision != "auto":
+        return precision
+    native = device.type == "cpu" and torch.backends.mkldnn.is_available() \
+        and bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    return "bfloat16" if native else "float32"
+
+
 class NetworkAndLoss:
     """`(depth, terms)` of a collated batch: the network (under bfloat16 autocast when
-    `config.precision` says so; the renderer and the loss in float32), then the self-supervised
+    `config.precision` says so, `network_precision`; the renderer and the loss in float32), then the self-supervised
     `DefocusLoss` or, with `supervision="depth"`, the relative depth error on the labels.
 
     With `config.compile` both run through one `torch.compile` graph (`config.compile_mode`),
@@ -36,6 +56,9 @@ class NetworkAndLoss:
         loss: the self-supervised loss, on the training device.
         device: the training device.
 
+    Each call leaves the host seconds of its phases in `phases` ("network" and "loss", or
+    "network and loss" when compiled; `models.training.step_timing.PHASES`).
+
     Example:
         >>> from models.networks import build_network
         >>> cfg = TrainConfig(input_mode="aif", supervision="depth", width=4)
@@ -45,12 +68,18 @@ class NetworkAndLoss:
         >>> depth, terms = forward(batch)
         >>> tuple(depth.shape), sorted(terms)
         ((1, 1, 8, 8), ['loss'])
+        >>> sorted(forward.phases)
+        ['loss', 'network']
     """
 
     def __init__(self, config: TrainConfig, network: nn.Module, loss: DefocusLoss,
                  device: torch.device):
         self.config, self.network, self.loss, self.device = config, network, loss, device
         self._compiled: Callable[[Mapping[str, Any]], Forward] | None = None
+        #: the network's arithmetic, "float32" or "bfloat16" (`network_precision`)
+        self.precision = network_precision(config.precision, device)
+        #: the host seconds of the last call's phases
+        self.phases: dict[str, float] = {}
 
     def __call__(self, batch: Mapping[str, Any]) -> Forward:
         if self._compiled is None and self.config.compile:
@@ -58,21 +87,29 @@ class NetworkAndLoss:
                       "minute or two", self.config.compile_mode)
             self._compiled = torch.compile(self.eager, mode=self.config.compile_mode)
         if self._compiled is not None:
+            started = time.perf_counter()
             with record_function("network and loss"):
-                return self._compiled(batch)
+                out = self._compiled(batch)
+            self.phases = {"network and loss": time.perf_counter() - started}
+            return out
         return self.eager(batch)
 
     def eager(self, batch: Mapping[str, Any]) -> Forward:
         """The forward pass as plain PyTorch (what the compiled graph is traced from)."""
         image = batch["image"]
+        started = time.perf_counter()
         with record_function("network"), torch.autocast(
-                self.device.type, torch.bfloat16, enabled=self.config.precision == "bfloat16"):
+                self.device.type, torch.bfloat16, enabled=self.precision == "bfloat16"):
             depth = self.network(image, batch.get("focused"), batch.get("camera"))
         depth = depth.float()  # the renderer and the loss in float32
-        if self.config.supervision == "self":
-            with record_function("loss"):
-                return depth, self.loss(depth, image, batch["focused"], batch["camera"])
-        target, mask = batch["depth"], batch.get("mask")
-        if mask is not None:  # masked-out labels may be anything (inf, nan): keep them out
-            target = torch.where(mask.bool(), target, torch.ones_like(target))
-        return depth, {"loss": supervised_depth_loss(depth, target, mask)}
+        networked = time.perf_counter()
+        with record_function("loss"):
+            if self.config.supervision == "self":
+                terms = self.loss(depth, image, batch["focused"], batch["camera"])
+            else:
+                target, mask = batch["depth"], batch.get("mask")
+                if mask is not None:  # masked-out labels may be anything (inf, nan): keep out
+                    target = torch.where(mask.bool(), target, torch.ones_like(target))
+                terms = {"loss": supervised_depth_loss(depth, target, mask)}
+        self.phases = {"network": networked - started, "loss": time.perf_counter() - networked}
+        return depth, terms

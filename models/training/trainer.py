@@ -128,6 +128,8 @@ class Trainer:
         #: processes preparing batches ahead of the step (`config.workers`, resolved)
         self.workers = auto_workers(self.device) if cfg.workers < 0 else cfg.workers
         self.step_timer = StepTimer()
+        #: the host seconds of the phases of the last step (`step_timing.PHASES`)
+        self.phases: dict[str, float] = {}
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
@@ -204,8 +206,10 @@ class Trainer:
         with values_checked():  # checked on the host where prepared; the loss checked below
             depth, terms = self.forward(batch)
         self.optimizer.zero_grad(set_to_none=True)
+        backward = time.perf_counter()
         with record_function("backward"):
             terms["loss"].backward()
+        self.phases = {**self.forward.phases, "backward": time.perf_counter() - backward}
         params = [p for p in self.model.parameters() if p.grad is not None]
         if self.config.grad_clip > 0:
             norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
@@ -220,9 +224,11 @@ class Trainer:
         losses = dict(zip([*terms, "at_depth_limits"], numbers, strict=True))
         self._check_finite(losses, grad_norm)
         self.checkpointer.in_update = True  # until the step is counted: no half-step checkpoint
+        optimizing = time.perf_counter()
         with record_function("optimizer"):
             self.optimizer.step()
             self.scheduler.step()
+        self.phases["optimizer"] = time.perf_counter() - optimizing
         return losses
 
     def _check_finite(self, losses: dict[str, float], grad_norm: float) -> None:
@@ -312,12 +318,13 @@ class Trainer:
         losses = self.train_step(batch)
         compute_s = time.perf_counter() - computing
         self.step += 1
-        self.step_timer.add(data_s, compute_s)
+        self.step_timer.add(data_s, compute_s, self.phases)
         terms = {k: v for k, v in losses.items() if k != "at_depth_limits"}
         row = {"step": self.step, **terms, "lr": self.scheduler.get_last_lr()[0],
                "seconds": time.perf_counter() - started,
                "at_depth_limits": losses["at_depth_limits"], "data_s": data_s,
-               "compute_s": compute_s}
+               "compute_s": compute_s,
+               **{f"{name.replace(' ', '_')}_s": s for name, s in self.phases.items()}}
         self.history.append(row)
         self.checkpointer.in_update = False
         if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
