@@ -134,7 +134,10 @@ class CostVolumeDepth(nn.Module):
         if guide.shape[-2] * guide.shape[-1] <= (self.tile + 2 * reach) ** 2:
             return self._smoothed(pick(cost(guide, *photos), guide), guide, near, far)
         h, w = guide.shape[-2:]
-        tiles = math.ceil(h / self.tile) * math.ceil(w / self.tile)
+        # tiles of at most `tile` pixels, as few and as even as that allows (less context to
+        # compute twice than full tiles and a thin last one)
+        side = max(math.ceil(n / math.ceil(n / self.tile)) for n in (h, w))
+        tiles = math.ceil(h / side) * math.ceil(w / side)
         bar = progress_bar(total=tiles, desc=f"{desc} (tiles)", disable=not self.progress)
         semi_global = self.aggregation == "semi-global"
         if guide.shape[0] * self.n_candidates * h * w * guide.element_size() \
@@ -150,7 +153,7 @@ class CostVolumeDepth(nn.Module):
                 return out
 
             with bar:
-                depth = apply_in_tiles(volume_tile, [volume, guide], self.tile, reach)
+                depth = apply_in_tiles(volume_tile, [volume, guide], side, reach)
             del volume
             return self._smoothed(depth, guide, near, far)
         # the whole photo's cost scale, from a few candidates
@@ -163,7 +166,7 @@ class CostVolumeDepth(nn.Module):
             return out
 
         with bar:
-            depth = apply_in_tiles(tile_depth, [guide, *photos], self.tile, reach)
+            depth = apply_in_tiles(tile_depth, [guide, *photos], side, reach)
         return self._smoothed(depth, guide, near, far)
 
     def _smoothed(self, depth: Tensor, guide: Tensor, near: float, far: float) -> Tensor:
