@@ -5,8 +5,10 @@ relative blur between shots) hands `CostVolumeDepth.depth_map` a function that c
 volume `(B,K,H,W)` of a crop of its photos. `depth_map` then combines the costs of neighbouring
 pixels (semi-globally along scan lines, or over square windows), picks the cheapest candidate
 (`select_depth`), removes isolated wrong picks with a median filter and smooths the inverse depth
-edge-aware where there is little texture. Photos larger than a tile with its context are done in
-tiles, each with that context, so the cost volume's memory stays bounded.
+edge-aware where there is little texture. Photos larger than a tile with its context are
+aggregated in tiles, each with that context, so the aggregation's memory stays bounded; their cost
+volume is computed once for the whole photo where it takes at most `MAX_VOLUME_BYTES` (each
+cost computed once, not again in the context of every tile), else tile by tile as well.
 """
 
 from __future__ import annotations
