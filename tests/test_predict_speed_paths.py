@@ -63,19 +63,19 @@ def _scene(seed=0, size=(64, 160)):
 def test_the_whole_photos_volume_gives_the_depth_of_volumes_per_tile(monkeypatch):
     """The cost volume computed once for the whole photo, aggregated tile by tile, gives the
     depth of the per-tile volumes (each tile's costs computed on its crop with context): exactly
-    with window sums, at nearly every pixel semi-globally (the costs a crop's border changes lie
-    beyond the context the scan lines see)."""
+    with window sums, within 1 % at 99 % of the pixels semi-globally (its scan lines start at the
+    crop's border, where a crop's own costs are those of a mirrored photo)."""
     aif, focused, settings = _scene()
     aif, focused = aif.double(), focused.double()
     monkeypatch.setattr(cost_volume, "SEMI_GLOBAL_CONTEXT_PX", 8)  # small enough to tile
-    for aggregation, agree in (("windows", 1.0), ("semi-global", 0.99)):
+    for aggregation, tolerance in (("windows", 1e-9), ("semi-global", 0.01)):
         method = SweepDepth(n_candidates=12, tile=16, aggregation=aggregation)
         whole = method(aif, focused, settings, 1.0, 10.0)["depth"]
         with monkeypatch.context() as patch:
             patch.setattr(cost_volume, "MAX_VOLUME_BYTES", 0)  # every tile its own volume
             tiled = method(aif, focused, settings, 1.0, 10.0)["depth"]
-        close = ((whole - tiled).abs() <= 1e-6 * whole).double().mean()
-        assert float(close) >= agree, (aggregation, float(close))
+        close = ((whole - tiled).abs() <= tolerance * whole).double().mean()
+        assert float(close) >= (1.0 if aggregation == "windows" else 0.99), float(close)
     method = RelativeBlurDepth(n_candidates=12, tile=16, aggregation="windows")  # the relative blur alike
     whole = method(None, focused, settings, 1.0, 10.0)["depth"]
     with monkeypatch.context() as patch:
@@ -124,7 +124,7 @@ def _plain_paths(cost, smooth, jumps):
                     continue
                 prev = paths[:, :, py, px]  # (B,K)
                 floor = prev.amin(1, keepdim=True)
-                options = [prev, floor + jumps[:, direction, y, x, None]]
+                options = [prev, (floor + jumps[:, direction, y, x, None]).expand_as(prev)]
                 options.append(torch.cat([prev[:, :1] * 0 + float("inf"), prev[:, :-1] + smooth], 1))
                 options.append(torch.cat([prev[:, 1:] + smooth, prev[:, :1] * 0 + float("inf")], 1))
                 best = torch.stack(options).amin(0)
