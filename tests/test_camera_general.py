@@ -3,7 +3,6 @@ weights, and `defocus predict` on real-format photos (EXIF orientation, calibrat
 
 from __future__ import annotations
 
-import subprocess
 import sys
 
 import numpy as np
@@ -460,62 +459,6 @@ def test_predict_says_which_camera_value_is_missing(photos, tmp_path, capsys):
                  "--out", str(tmp_path / "c")]) == 2
     err = capsys.readouterr().err
     assert "pixel_pitch is unknown" in err and "--pixel-pitch" in err
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("model", ["network", "checkpoint", "sweep", "stack"])
-def test_predict_12_megapixels_within_3_gb(tmp_path, model):
-    """A 3000x4000 photo set runs within 3 GB resident memory on every path of `defocus
-    predict`: the camera-general network and the sweep at a working resolution (for the sweep, a
-    camera whose small blur leaves 1.5 megapixels to sweep), a `defocus train` network for one
-    camera at full resolution in tiles, and a stack of 3 focused photos without an all-in-focus
-    one (relative blur, then the all-in-focus image fused at full resolution)."""
-    weights = {"network": [f"{tmp_path}/w.pt"], "sweep": [], "stack": []}.get(model)
-    if model == "checkpoint":  # a tiny one-camera network (trained in its own process)
-        command = ["train", "--set", "steps=2", "batch_size=2", "width=8", "progress=false",
-                   "--size", "24", "24", "--scenes", "4", "--out", str(tmp_path / "run")]
-        train = subprocess.run([sys.executable, "-c", "import sys; from defocus.cli import main; "
-                                "sys.exit(main(sys.argv[1:]))", *command],
-                               capture_output=True, text=True, timeout=600)
-        assert train.returncode == 0, train.stderr[-2000:]
-        weights = [str(tmp_path / "run" / "checkpoints" / "last.pt")]
-    lens = ["--f-number", "1.8", "--focal-length", "0.035"] if model == "network" \
-        else ["--f-number", "8", "--focal-length", "0.018"]
-    shots = (["--focused", "paths[0]", "paths[1]", "paths[2]", "--focus-distance", "1.5", "4",
-              "8"] if model == "stack" else
-             ["--image", "paths[0]", "--focused", "paths[1]", "paths[2]", "--focus-distance",
-              "1.5", "4"])
-    script = f"""
-import resource, sys, numpy as np, torch
-from PIL import Image
-from defocus.cli import main
-from models.depth_from_photos import BlurNet, DepthFromDefocus
-from models.loading import save_weights
-torch.manual_seed(0)
-save_weights(DepthFromDefocus(BlurNet(width=8)), r"{tmp_path}/w.pt")
-rng = np.random.default_rng(0)
-paths = []
-for i in range(3):
-    array = (rng.random((3000, 4000, 3)) * 255).astype(np.uint8)
-    Image.fromarray(array).save(r"{tmp_path}/p%d.png" % i)
-    paths.append(r"{tmp_path}/p%d.png" % i)
-del array
-shots = [paths[int(a[6])] if a.startswith("paths[") else a for a in {shots!r}]
-code = main(["predict", *{weights!r}, *shots, *{lens!r},
-             "--pixel-pitch", "1.5e-6", "--depth-range", "0.8", "10", "--out", r"{tmp_path}/o"])
-print("peak_mib", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "code", code)
-"""
-    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
-                         timeout=900)
-    assert out.returncode == 0, out.stderr[-2000:]
-    peak = float(out.stdout.split("peak_mib")[1].split()[0])
-    print(f"12 MP predict ({model}): peak resident memory {peak:.0f} MiB")
-    assert " code 0" in out.stdout and peak < 3 * 1024
-    assert np.load(tmp_path / "o" / "depth.npy").shape == (3000, 4000)
-    if model == "sweep":
-        assert "working resolution 0.35" in out.stdout  # 1.5 megapixels swept
-    if model == "stack":
-        assert (tmp_path / "o" / "all_in_focus.png").is_file()
 
 
 def test_the_blur_net_example_trains_from_a_config_with_photo_imperfections(tmp_path, capsys):

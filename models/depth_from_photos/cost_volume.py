@@ -5,8 +5,10 @@ relative blur between shots) hands `CostVolumeDepth.depth_map` a function that c
 volume `(B,K,H,W)` of a crop of its photos. `depth_map` then combines the costs of neighbouring
 pixels (semi-globally along scan lines, or over square windows), picks the cheapest candidate
 (`select_depth`), removes isolated wrong picks with a median filter and smooths the inverse depth
-edge-aware where there is little texture. Photos larger than a tile with its context are done in
-tiles, each with that context, so the cost volume's memory stays bounded.
+edge-aware where there is little texture. Photos larger than a tile with its context are
+aggregated in tiles, each with that context, so the aggregation's memory stays bounded; their cost
+volume is computed once for the whole photo where it takes at most `MAX_VOLUME_BYTES` (each
+cost computed once, not again in the context of every tile), else tile by tile as well.
 """
 
 from __future__ import annotations
@@ -44,6 +46,9 @@ CONFIDENCE_FLOOR = 0.01
 #: Context (pixels) a tile sees beyond its centre under semi-global aggregation, whose scan lines
 #: cross the whole tile: past this distance a pixel's costs rarely change another's pick.
 SEMI_GLOBAL_CONTEXT_PX = 128
+#: The largest cost volume (bytes) `depth_map` computes for a whole photo at once; a larger one
+#: (more pixels or candidates, float64) is computed tile by tile, each tile with its context.
+MAX_VOLUME_BYTES = 768 * 2**20
 #: How the costs of neighbouring pixels are aggregated.
 AGGREGATIONS = ("semi-global", "windows")
 
@@ -78,7 +83,7 @@ class CostVolumeDepth(nn.Module):
     #: upper end the thin-lens design covers (larger blurs cost time and gain little).
     max_coc_px = 20.0
 
-    def __init__(self, n_candidates: int = 96, tile: int = 384, progress: bool = False,
+    def __init__(self, n_candidates: int = 96, tile: int = 768, progress: bool = False,
                  smoothing: float = SMOOTHING_STRENGTH, aggregation: str = "semi-global",
                  smooth_penalty: float = SMOOTH_PENALTY, jump_penalty: float = JUMP_PENALTY):
         super().__init__()
@@ -119,8 +124,7 @@ class CostVolumeDepth(nn.Module):
             reach: context (pixels) a tile needs around it (`context_px`).
             desc: the progress bar's label.
         """
-        def depth_of(guide: Tensor, *photos: Tensor, scale: Tensor | None = None) -> Tensor:
-            volume = cost(guide, *photos)
+        def pick(volume: Tensor, guide: Tensor, scale: Tensor | None = None) -> Tensor:
             if self.aggregation == "semi-global":
                 volume = semi_global_cost(volume, guide, self.smooth_penalty, self.jump_penalty,
                                           scale=scale)
@@ -130,21 +134,45 @@ class CostVolumeDepth(nn.Module):
 
         # a photo no larger than one tile with its context is done whole
         if guide.shape[-2] * guide.shape[-1] <= (self.tile + 2 * reach) ** 2:
-            depth = depth_of(guide, *photos)
-        else:
-            h, w = guide.shape[-2:]
-            scale = None
-            if self.aggregation == "semi-global":  # the whole photo's, from a few candidates
-                scale = cost_scale(cost(guide, *photos, every=SCALE_STRIDE), stride=1)
-            tiles = math.ceil(h / self.tile) * math.ceil(w / self.tile)
-            with progress_bar(total=tiles, desc=f"{desc} (tiles)",
-                              disable=not self.progress) as bar:
-                def tile_depth(guide: Tensor, *photos: Tensor) -> Tensor:
-                    out = depth_of(guide, *photos, scale=scale)
-                    bar.update()
-                    return out
+            return self._smoothed(pick(cost(guide, *photos), guide), guide, near, far)
+        h, w = guide.shape[-2:]
+        # tiles of at most `tile` pixels, as few and as even as that allows (less context to
+        # compute twice than full tiles and a thin last one)
+        side = max(math.ceil(n / math.ceil(n / self.tile)) for n in (h, w))
+        tiles = math.ceil(h / side) * math.ceil(w / side)
+        bar = progress_bar(total=tiles, desc=f"{desc} (tiles)", disable=not self.progress)
+        semi_global = self.aggregation == "semi-global"
+        if guide.shape[0] * self.n_candidates * h * w * guide.element_size() \
+                <= MAX_VOLUME_BYTES:
+            # the whole photo's volume at once (each cost computed once, not again in every
+            # tile's context); the aggregation then goes tile by tile over it
+            volume = cost(guide, *photos)
+            scale = cost_scale(volume) if semi_global else None
 
-                depth = apply_in_tiles(tile_depth, [guide, *photos], self.tile, reach)
+            def volume_tile(volume: Tensor, guide: Tensor) -> Tensor:
+                out = pick(volume, guide, scale)
+                bar.update()
+                return out
+
+            with bar:
+                depth = apply_in_tiles(volume_tile, [volume, guide], side, reach)
+            del volume
+            return self._smoothed(depth, guide, near, far)
+        # the whole photo's cost scale, from a few candidates
+        scale = cost_scale(cost(guide, *photos, every=SCALE_STRIDE), stride=1) \
+            if semi_global else None
+
+        def tile_depth(guide: Tensor, *photos: Tensor) -> Tensor:
+            out = pick(cost(guide, *photos), guide, scale)
+            bar.update()
+            return out
+
+        with bar:
+            depth = apply_in_tiles(tile_depth, [guide, *photos], side, reach)
+        return self._smoothed(depth, guide, near, far)
+
+    def _smoothed(self, depth: Tensor, guide: Tensor, near: float, far: float) -> Tensor:
+        """`depth` `(B,1,H,W)` after the edge-aware smoothing of its inverse (`smoothing`)."""
         if self.smoothing > 0:
             texture = texture_confidence(guide)
             weight = kornia.filters.median_blur(texture, MEDIAN_PX) + CONFIDENCE_FLOOR

@@ -71,9 +71,16 @@ class FourierBlur:
         k = kernel.shape[-1]
         if k > min(self.size):
             raise ValueError(f"a {k}-pixel kernel does not fit the padded {tuple(self.size)}")
-        grid = torch.zeros(self.size, dtype=kernel.dtype, device=kernel.device)
-        grid[:k, :k] = kernel
-        return torch.fft.rfft2(torch.roll(grid, (-(k // 2), -(k // 2)), (0, 1)))
+        # the kernel wrapped around the grid's corners (its centre at (0, 0)): what rolling a
+        # corner-placed kernel by -(k // 2) gives, without a second full-size copy
+        grid = kernel.new_zeros(self.size)
+        h = k // 2
+        grid[:k - h, :k - h] = kernel[h:, h:]
+        if h:
+            grid[:k - h, -h:] = kernel[h:, :h]
+            grid[-h:, :k - h] = kernel[:h, h:]
+            grid[-h:, -h:] = kernel[:h, :h]
+        return torch.fft.rfft2(grid)
 
     def apply(self, transfer: Tensor) -> Tensor:
         """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is."""

@@ -45,7 +45,13 @@ from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model
-from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_blurs, thin_lens_blur
+from .thin_lens import (
+    ERROR_WINDOW_PX,
+    WINDOW_CHUNK,
+    box_filter,
+    candidate_blurs,
+    thin_lens_blur,
+)
 
 #: Floor of the expected noise variance a comparison's error is divided by (noise-free photos).
 MIN_NOISE_VARIANCE = 1e-10
@@ -70,13 +76,14 @@ def _noise_variance(photo: Tensor, noise: Tensor) -> Tensor:
 
 
 def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Tensor,
-                second_px: Tensor, noise: Tensor) -> Tensor:
+                second_px: Tensor, noise: Tensor, out: Tensor | None = None) -> Tensor:
     """Local error `(1,K,H,W)` between two shots `(1,3,H,W)` (exposure-matched, aligned) for `K`
     candidate blurs `first_px`, `second_px` `(K,)` pixels: per candidate the sharper shot
     blurred by the relative PSF against the blurrier one, both through the floor Gaussian; the
     squared difference summed over channels, less the noise both sides keep (`noise`, `(1,2)`
     `noise_model` coefficients), over that expected noise, each summed over `ERROR_WINDOW_PX`
-    windows (at least `MIN_NOISE_VARIANCE`, for noise-free photos).
+    windows (at least `MIN_NOISE_VARIANCE`, for noise-free photos). With `out` (a `(1,K,H,W)`
+    volume) the errors are added into it and it is returned (no second volume in memory).
 
     Example:
         >>> from optics import Disk
@@ -98,18 +105,28 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
     first_sharper = (first_px <= second_px).tolist()
     relative = relative_blur_px(torch.minimum(first_px, second_px),
                                 torch.maximum(first_px, second_px)).tolist()
-    errors = []
-    for sharper, blur_px in zip(first_sharper, relative, strict=True):
-        s, r = (0, 1) if sharper else (1, 0)
-        kernel = with_floor(psf_kernel(aperture, blur_px, first))
-        predicted = shots[s].apply(shots[s].transfer(kernel))
-        squared = ((predicted - references[r]) ** 2).sum(1, keepdim=True)
-        expected = variances[s] * float((kernel**2).sum()) + variances[r] * floor_energy
-        errors.append((box_filter(squared, ERROR_WINDOW_PX) - expected)
-                      / expected.clamp_min(MIN_NOISE_VARIANCE))
-    if not errors:
-        return first.new_zeros(1, 0, *first.shape[-2:])
-    return torch.cat(errors, 1)
+    # each candidate's errors written (or added) straight into the volume: one copy of it; the
+    # window sums taken for `WINDOW_CHUNK` candidates at once (one call on many pixels)
+    errors = first.new_empty(1, len(relative), *first.shape[-2:]) if out is None else out
+    buffer = first.new_empty(1, min(WINDOW_CHUNK, len(relative)), *first.shape[-2:])
+    for start in range(0, len(relative), WINDOW_CHUNK):
+        stop = min(start + WINDOW_CHUNK, len(relative))
+        expected = []
+        for k in range(start, stop):
+            s, r = (0, 1) if first_sharper[k] else (1, 0)
+            kernel = with_floor(psf_kernel(aperture, relative[k], first))
+            predicted = shots[s].apply(shots[s].transfer(kernel))
+            buffer[:, k - start] = ((predicted - references[r]) ** 2).sum(1)
+            expected.append(variances[s] * float((kernel**2).sum()) + variances[r] * floor_energy)
+        windows = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX)
+        for k in range(start, stop):
+            error = ((windows[:, k - start:k - start + 1] - expected[k - start])
+                     / expected[k - start].clamp_min(MIN_NOISE_VARIANCE))
+            if out is None:
+                errors[:, k:k + 1] = error
+            else:
+                errors[:, k:k + 1] += error
+    return errors
 
 
 def relative_blur_cost(focused: Tensor, settings: CameraSettings, near: float, far: float,
@@ -143,8 +160,8 @@ def relative_blur_cost(focused: Tensor, settings: CameraSettings, near: float, f
     cost = torch.zeros(b, predicted.shape[-1], h, w, dtype=focused.dtype, device=focused.device)
     for j in range(b):
         for p, q in itertools.combinations(range(n), 2):
-            cost[j] += pair_errors(focused[j:j + 1, p], focused[j:j + 1, q], aperture,
-                                   predicted[j, p], predicted[j, q], noise[j:j + 1])[0]
+            pair_errors(focused[j:j + 1, p], focused[j:j + 1, q], aperture, predicted[j, p],
+                        predicted[j, q], noise[j:j + 1], out=cost[j:j + 1])
     return cost
 
 

@@ -38,17 +38,24 @@ from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model
-from .thin_lens import ERROR_WINDOW_PX, box_filter, candidate_blurs, thin_lens_blur
+from .thin_lens import (
+    ERROR_WINDOW_PX,
+    WINDOW_CHUNK,
+    box_filter,
+    candidate_blurs,
+    thin_lens_blur,
+)
 
 
 def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
-                noise: Tensor | None = None) -> Tensor:
+                noise: Tensor | None = None, out: Tensor | None = None) -> Tensor:
     """Local squared error `(B,G,H,W)` between the all-in-focus `image` `(B,3,H,W)` blurred by
     `aperture` at each CoC diameter of `blurs` `(G,)` pixels and one `focused` photo `(B,3,H,W)`
     (exposure-matched to `image`: `match_exposure`), less the noise the blur removes from `image` (`noise`, the
     `(B,2)` coefficients of `noise_model`; by default measured on both photos); both sides
     through a Gaussian of `FLOOR_SIGMA_PX`, summed over channels and averaged over
-    `ERROR_WINDOW_PX` windows.
+    `ERROR_WINDOW_PX` windows. With `out` (a `(B,G,H,W)` volume) the errors are added into it
+    and it is returned (no second volume in memory).
 
     Example:
         >>> from optics import Disk
@@ -69,17 +76,25 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
         noise = noise_model(torch.cat([image, focused], 1))
     variance = (noise[:, :1, None, None] + noise[:, 1:, None, None]
                 * box_filter(image, 5).clamp_min(0)).sum(1, keepdim=True)
-    errors = []
-    for blur_px in blurs.tolist():
-        kernel = with_floor(psf_kernel(aperture, blur_px, image))
-        squared = ((source.apply(source.transfer(kernel)) - reference) ** 2).sum(1, keepdim=True)
-        # the noise variance `image` loses under this kernel: variance * sum of its squares
-        errors.append(squared - variance * float((kernel**2).sum()))
-    if not errors:
-        return image.new_zeros(image.shape[0], 0, *image.shape[-2:])
-    stacked = torch.cat(errors, 1)
-    del errors  # one copy of the candidates' errors at a time
-    return box_filter(stacked, ERROR_WINDOW_PX)
+    # each candidate's window means written (or added) straight into the volume: one copy of
+    # it; the window means taken for `WINDOW_CHUNK` candidates at once (one call on many pixels)
+    errors = image.new_empty(image.shape[0], blurs.numel(), *image.shape[-2:]) if out is None \
+        else out
+    values = blurs.tolist()
+    buffer = image.new_empty(image.shape[0], min(WINDOW_CHUNK, len(values)), *image.shape[-2:])
+    for start in range(0, len(values), WINDOW_CHUNK):
+        stop = min(start + WINDOW_CHUNK, len(values))
+        for g in range(start, stop):
+            kernel = with_floor(psf_kernel(aperture, values[g], image))
+            squared = ((source.apply(source.transfer(kernel)) - reference) ** 2).sum(1)
+            # the noise variance `image` loses under this kernel: variance * sum of its squares
+            buffer[:, g - start] = squared - variance[:, 0] * float((kernel**2).sum())
+        error = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX)
+        if out is None:
+            errors[:, start:stop] = error
+        else:
+            errors[:, start:stop] += error
+    return errors
 
 
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
@@ -113,8 +128,8 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
     cost = torch.zeros(b, predicted.shape[-1], h, w, dtype=image.dtype, device=image.device)
     for j in range(b):
         for i in range(n):
-            cost[j] += blur_errors(image[j:j + 1], focused[j:j + 1, i], aperture, predicted[j, i],
-                                   noise[j:j + 1])[0]
+            blur_errors(image[j:j + 1], focused[j:j + 1, i], aperture, predicted[j, i],
+                        noise[j:j + 1], out=cost[j:j + 1])
     return cost
 
 
@@ -124,9 +139,10 @@ class SweepDepth(CostVolumeDepth):
     `estimate_depth` runs when an all-in-focus photo is given (`method="sweep"`). Called like
     every method of `estimate_depth`: `(image, focused, settings, near, far)`.
 
-    Photos larger in pixels than one tile with its context are swept in tiles (the cost volume
-    of a whole 1.5-megapixel photo would take gigabytes), each with context around it: exactly
-    the untiled result with `aggregation="windows"`; with the semi-global aggregation every tile
+    Photos larger in pixels than one tile with its context are aggregated in tiles (the
+    aggregation of a whole 1.5-megapixel photo would take gigabytes), each with context around
+    it, from one cost volume of the whole photo (`CostVolumeDepth.depth_map`): exactly the
+    untiled result with `aggregation="windows"`; with the semi-global aggregation every tile
     uses the whole photo's cost scale and at 741x500 (tile 200) 0.5 % of the pixels differ
     from the untiled depth by more than 1 % (at most 2.2 %).
 
