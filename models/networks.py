@@ -259,8 +259,8 @@ class SmallDepthNet(_DepthNetwork):
                                                 align_corners=False), e2], 1))
         d1 = self.dec1(torch.cat([F.interpolate(d2, size=e1.shape[-2:], mode="bilinear",
                                                 align_corners=False), e1], 1))
-        with torch.autocast(x.device.type, enabled=False):  # the logits in float32 always
-            return self.out(d1.float())[..., :h, :w]
+        with torch.autocast(x.device.type, enabled=False):  # the logits in the weights' dtype
+            return self.out(d1.to(self.out.weight.dtype))[..., :h, :w]
 
 
 class _Bottleneck(nn.Module):

@@ -161,7 +161,7 @@ class TrainConfig:
     #: small network's output layer, the renderer, its PSF weights and the loss stay float32), or "auto":
     #: bfloat16 on a CPU with native bfloat16 arithmetic (AVX-512 BF16, AMX; there it about
     #: halves the network's time), float32 elsewhere (`models.training.forward.network_precision`)
-    precision: str = "auto"
+    precision: str = "float32"
     #: run the network and the loss through `torch.compile`, fused into one graph (the first
     #: step compiles for a minute or two; later ones are faster on a GPU)
     compile: bool = False

@@ -92,24 +92,32 @@ class NetworkAndLoss:
                 out = self._compiled(batch)
             self.phases = {"network and loss": time.perf_counter() - started}
             return out
-        return self.eager(batch)
-
-    def eager(self, batch: Mapping[str, Any]) -> Forward:
-        """The forward pass as plain PyTorch (what the compiled graph is traced from)."""
-        image = batch["image"]
         started = time.perf_counter()
-        with record_function("network"), torch.autocast(
-                self.device.type, torch.bfloat16, enabled=self.precision == "bfloat16"):
-            depth = self.network(image, batch.get("focused"), batch.get("camera"))
-        depth = depth.float()  # the renderer and the loss in float32
+        depth = self.network_depth(batch)
         networked = time.perf_counter()
-        with record_function("loss"):
-            if self.config.supervision == "self":
-                terms = self.loss(depth, image, batch["focused"], batch["camera"])
-            else:
-                target, mask = batch["depth"], batch.get("mask")
-                if mask is not None:  # masked-out labels may be anything (inf, nan): keep out
-                    target = torch.where(mask.bool(), target, torch.ones_like(target))
-                terms = {"loss": supervised_depth_loss(depth, target, mask)}
+        terms = self.loss_terms(depth, batch)
         self.phases = {"network": networked - started, "loss": time.perf_counter() - networked}
         return depth, terms
+
+    def eager(self, batch: Mapping[str, Any]) -> Forward:
+        """The forward pass as plain PyTorch (what the compiled graph is traced from: no host
+        timing inside)."""
+        depth = self.network_depth(batch)
+        return depth, self.loss_terms(depth, batch)
+
+    def network_depth(self, batch: Mapping[str, Any]) -> Tensor:
+        """The network's depth `(B,1,H,W)` (computed in `precision`), float32."""
+        with record_function("network"), torch.autocast(
+                self.device.type, torch.bfloat16, enabled=self.precision == "bfloat16"):
+            depth = self.network(batch["image"], batch.get("focused"), batch.get("camera"))
+        return depth.float()  # the renderer and the loss in float32
+
+    def loss_terms(self, depth: Tensor, batch: Mapping[str, Any]) -> dict[str, Tensor]:
+        """The loss terms of `depth` on `batch` (self-supervised or against the labels)."""
+        with record_function("loss"):
+            if self.config.supervision == "self":
+                return self.loss(depth, batch["image"], batch["focused"], batch["camera"])
+            target, mask = batch["depth"], batch.get("mask")
+            if mask is not None:  # masked-out labels may be anything (inf, nan): keep out
+                target = torch.where(mask.bool(), target, torch.ones_like(target))
+            return {"loss": supervised_depth_loss(depth, target, mask)}
