@@ -36,8 +36,18 @@ def match_exposure(image: Tensor, focused: Tensor) -> Tensor:
         >>> torch.allclose(match_exposure(image, 0.5 * image), image)
         True
     """
-    gain = image.mean((-2, -1), keepdim=True) / focused.mean((-2, -1), keepdim=True).clamp_min(1e-6)
-    return focused * gain
+    return focused * exposure_gain(image.mean((-2, -1), keepdim=True), focused)
+
+
+def exposure_gain(means: Tensor, focused: Tensor) -> Tensor:
+    """The per-channel gain `(...,C,1,1)` that `match_exposure` scales `focused` `(...,C,H,W)` by:
+    the reference's channel `means` `(...,C,1,1)` over `focused`'s own.
+
+    Example:
+        >>> exposure_gain(torch.ones(3, 1, 1), torch.full((3, 4, 4), 0.5)).flatten().tolist()
+        [2.0, 2.0, 2.0]
+    """
+    return means / focused.mean((-2, -1), keepdim=True).clamp_min(1e-6)
 
 
 def _local_noise(image: Tensor, window: int = 7) -> tuple[Tensor, Tensor]:
