@@ -108,8 +108,8 @@ def _fast_length(n: int) -> int:
     """The smallest length >= `n` whose only prime factors are 2, 3, 5 and 7 (fast FFTs).
 
     Example:
-        >>> _fast_length(4034), _fast_length(1084)
-        (4050, 1089)
+        >>> _fast_length(4034), _fast_length(1084)  # 2 x 2017, 4 x 271
+        (4050, 1120)
     """
     best = n
     while True:
