@@ -11,7 +11,8 @@ over 4-connected neighbours `i~j`: `y` the measured map, `w` its confidence, and
 display gamma, so that dark and bright edges count alike). Confident pixels keep their value; the
 others take their similar neighbours', across no edge of the guide. The minimum solves a sparse,
 symmetric positive definite linear system, here by conjugate gradients with a Jacobi
-preconditioner (whole-image, no windows: memory grows with the pixels only).
+preconditioner (whole-image, no windows: memory grows with the pixels only), started from the
+same problem solved on a half-size grid (and so on down), which fewer iterations then refine.
 """
 
 from __future__ import annotations
