@@ -96,3 +96,23 @@ def test_smoothing_refuses_bad_arguments():
         edge_aware_smooth(values, -weight, guide)
     with pytest.raises(ValueError, match="positive somewhere"):
         edge_aware_smooth(values, torch.zeros_like(weight), guide)
+
+
+def test_smoothing_warm_start_keeps_the_minimiser(monkeypatch):
+    """A map large enough for the half-size warm start gives the minimiser of a cold start."""
+    import models.depth_from_photos.smoothing as smoothing
+
+    g = torch.Generator().manual_seed(1)
+    values = torch.rand(1, 1, 70, 90, generator=g, dtype=torch.float64)
+    weight = torch.rand(1, 1, 70, 90, generator=g, dtype=torch.float64) ** 4 + 0.01
+    guide = torch.rand(1, 3, 70, 90, generator=g, dtype=torch.float64)
+    guide[..., 40:] += 0.5
+    starts = []
+    coarse_start = smoothing._coarse_start
+    monkeypatch.setattr(smoothing, "_coarse_start",
+                        lambda *args: starts.append(args[0].shape) or coarse_start(*args))
+    warm = edge_aware_smooth(values, weight, guide, strength=10.0, tolerance=1e-10)
+    assert starts and starts[0][-2:] == (70, 90)
+    monkeypatch.setattr(smoothing, "COARSE_MIN_PX", 10**9)
+    cold = edge_aware_smooth(values, weight, guide, strength=10.0, tolerance=1e-10)
+    torch.testing.assert_close(warm, cold, atol=1e-8, rtol=0)

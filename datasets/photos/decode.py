@@ -350,6 +350,7 @@ def save_photo(path: str | Path, image: Tensor) -> Path:
     array = (encoded.permute(1, 2, 0).numpy() * 65535 + 0.5).astype(np.uint16)
     path = Path(path)
     with open(path, "wb") as handle:
-        png.Writer(array.shape[1], array.shape[0], greyscale=False, bitdepth=16).write(
+        png.Writer(array.shape[1], array.shape[0], greyscale=False, bitdepth=16,
+                   compression=1).write(
             handle, array.reshape(array.shape[0], -1))
     return path

@@ -423,7 +423,12 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
     from PIL import Image
 
     from datasets.photos import save_photo
-    from models.plotting import plot_prediction, robust_range, save_depth_preview
+    from models.plotting import (
+        PNG_COMPRESS_LEVEL,
+        plot_prediction,
+        robust_range,
+        save_depth_preview,
+    )
 
     depth = out["depth"].cpu()
     confidence = None if out["confidence"] is None else out["confidence"].cpu()
@@ -440,11 +445,13 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
     millimetres = np.clip(millimetres, 0, MAX_DEPTH_MM).astype(np.uint16)
     fused = out["all_in_focus"].cpu()
     files = {"depth.npy": lambda path: np.save(path, depth[0].numpy().astype(np.float32)),
-             "depth_mm.png": lambda path: Image.fromarray(millimetres).save(path),
+             "depth_mm.png": lambda path: Image.fromarray(millimetres).save(
+                 path, compress_level=PNG_COMPRESS_LEVEL),
              "depth.png": lambda path: save_depth_preview(path, depth[0], robust_range(depth))}
     if confidence is not None:
         files["confidence.png"] = lambda path: Image.fromarray(
-            (confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(path)
+            (confidence[0].clamp(0, 1).numpy() * 255).astype(np.uint8)).save(
+                path, compress_level=PNG_COMPRESS_LEVEL)
     files["all_in_focus.png"] = lambda path: save_photo(path, fused)
     image_title, focused_titles = panel_titles(photos, focus_distances)
     files["figure.png"] = lambda path: plot_prediction(

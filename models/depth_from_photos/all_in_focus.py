@@ -17,7 +17,7 @@ from torch import Tensor
 from optics import undo_motion
 from optics.checks import check_shape
 
-from .photometry import match_exposure
+from .photometry import exposure_gain
 from .rules import refuse_broken
 from .thin_lens import box_filter
 
@@ -68,10 +68,14 @@ def fuse_all_in_focus(shots: Tensor, blur: Tensor, motions: Tensor | None = None
     refuse_broken([(blur.shape[0] != shots.shape[0],
                     lambda: f"blur holds {blur.shape[0]} shots but shots {shots.shape[0]}")])
     weights = fusion_weights(blur.to(shots.dtype), tuple(shots.shape[-2:]))
-    fused = torch.zeros_like(shots[0])
-    for i in range(shots.shape[0]):  # one aligned copy at a time (memory)
-        shot = shots[i:i + 1] if i == 0 else match_exposure(shots[:1], shots[i:i + 1])
-        if motions is not None and i > 0:
-            shot = undo_motion(shot, motions[i].to(shots.dtype))
-        fused += weights[i] * shot[0]
+    fused = shots[0] * weights[0]
+    reference = shots[0].mean((-2, -1), keepdim=True)  # measured once
+    for i in range(1, shots.shape[0]):  # one aligned copy at a time (memory)
+        shot = shots[i]
+        if motions is not None:
+            shot = undo_motion(shot[None], motions[i].to(shots.dtype))[0]
+        # the exposure matched with the weight (a per-channel gain, measured on the shot as
+        # taken: the motion's resampling commutes with it)
+        gain = exposure_gain(reference, shots[i])
+        fused.addcmul_(shot, weights[i] * gain)
     return fused

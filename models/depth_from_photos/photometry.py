@@ -36,8 +36,18 @@ def match_exposure(image: Tensor, focused: Tensor) -> Tensor:
         >>> torch.allclose(match_exposure(image, 0.5 * image), image)
         True
     """
-    gain = image.mean((-2, -1), keepdim=True) / focused.mean((-2, -1), keepdim=True).clamp_min(1e-6)
-    return focused * gain
+    return focused * exposure_gain(image.mean((-2, -1), keepdim=True), focused)
+
+
+def exposure_gain(means: Tensor, focused: Tensor) -> Tensor:
+    """The per-channel gain `(...,C,1,1)` that `match_exposure` scales `focused` `(...,C,H,W)` by:
+    the reference's channel `means` `(...,C,1,1)` over `focused`'s own.
+
+    Example:
+        >>> exposure_gain(torch.ones(3, 1, 1), torch.full((3, 4, 4), 0.5)).flatten().tolist()
+        [2.0, 2.0, 2.0]
+    """
+    return means / focused.mean((-2, -1), keepdim=True).clamp_min(1e-6)
 
 
 def _local_noise(image: Tensor, window: int = 7) -> tuple[Tensor, Tensor]:
@@ -45,6 +55,22 @@ def _local_noise(image: Tensor, window: int = 7) -> tuple[Tensor, Tensor]:
     operator = torch.tensor(_NOISE_OPERATOR, dtype=image.dtype, device=image.device)
     response = F.conv2d(image, operator[None, None])
     return box_filter(response**2, window) / 36, box_filter(image[..., 1:-1, 1:-1], window)
+
+
+def _quantiles(ordered: Tensor, q: Tensor) -> Tensor:
+    """`torch.quantile(values, q)` (linear interpolation) of the `ordered` (sorted) values."""
+    ranks = q * (ordered.numel() - 1)
+    below = ranks.long()
+    return ordered[below].lerp(ordered[ranks.ceil().long()], ranks - below)
+
+
+def _quantile_unsorted(values: Tensor, q: float) -> Tensor:
+    """`torch.quantile(values, q)` of a flat tensor from two order statistics (no sort)."""
+    rank = q * (values.numel() - 1)
+    below, above = math.floor(rank), math.ceil(rank)
+    low = torch.kthvalue(values, below + 1).values
+    high = low if above == below else torch.kthvalue(values, above + 1).values
+    return low.lerp(high, torch.tensor(rank - below, dtype=values.dtype))
 
 
 @functools.cache
@@ -83,15 +109,20 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
         # torch.quantile takes at most 2^24 values: a regular subsample of a larger stack
         stride = math.ceil(level.numel() / 2**24)
         variance, level = variance[::stride], level[::stride]
-        edges = torch.quantile(level, torch.linspace(0, 1, bins + 1, dtype=level.dtype,
-                                                     device=level.device))
+        # the bands are runs of the intensities sorted once; their statistics are order
+        # statistics of each run (`torch.quantile`'s and `torch.median`'s values exactly)
+        ordered, order = torch.sort(level)
+        edges = _quantiles(ordered, torch.linspace(0, 1, bins + 1, dtype=level.dtype,
+                                                   device=level.device))
+        starts = torch.searchsorted(ordered, edges[:-1], right=False).tolist()
+        ends = torch.searchsorted(ordered, edges[1:], right=True).tolist()
         xs, ys = [], []
-        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
-            band = (level >= lo) & (level <= hi)
-            if int(band.sum()) < 50:
+        for start, end in zip(starts, ends, strict=True):
+            if end - start < 50:
                 continue
-            xs.append(float(level[band].median()))
-            ys.append(float(torch.quantile(variance[band], _QUANTILE)) / _quantile_of_pure_noise())
+            xs.append(float(ordered[start + (end - start - 1) // 2]))  # the lower median
+            band = variance[order[start:end]]
+            ys.append(float(_quantile_unsorted(band, _QUANTILE)) / _quantile_of_pure_noise())
         x, y = torch.tensor(xs, dtype=torch.float64), torch.tensor(ys, dtype=torch.float64)
         design = torch.stack([torch.ones_like(x), x], 1)
         a, b = torch.linalg.lstsq(design, y[:, None]).solution.flatten().tolist()

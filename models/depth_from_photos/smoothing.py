@@ -11,12 +11,14 @@ over 4-connected neighbours `i~j`: `y` the measured map, `w` its confidence, and
 display gamma, so that dark and bright edges count alike). Confident pixels keep their value; the
 others take their similar neighbours', across no edge of the guide. The minimum solves a sparse,
 symmetric positive definite linear system, here by conjugate gradients with a Jacobi
-preconditioner (whole-image, no windows: memory grows with the pixels only).
+preconditioner (whole-image, no windows: memory grows with the pixels only), started from the
+same problem solved on a half-size grid (and so on down), which fewer iterations then refine.
 """
 
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from optics.checks import check_shape, is_tracing
@@ -46,18 +48,80 @@ def guide_affinities(guide: Tensor, sigma: float) -> tuple[Tensor, Tensor]:
     return torch.exp(-vertical / (2 * sigma**2)), torch.exp(-horizontal / (2 * sigma**2))
 
 
-def _system(x: Tensor, weight: Tensor, strength: float, vertical: Tensor,
-            horizontal: Tensor) -> Tensor:
+#: Smallest side (pixels) of a map that `edge_aware_smooth` warm-starts from a half-size one.
+COARSE_MIN_PX = 64
+#: Relative residual the half-size solves of the warm start stop at: a starting point only.
+COARSE_TOLERANCE = 1e-6
+
+
+def _system(x: Tensor, diagonal: Tensor, vertical: Tensor, horizontal: Tensor) -> Tensor:
     """The system matrix applied to `x`: `w x + strength * L x`, `L` the guide's graph
-    Laplacian."""
-    dy = (x[..., 1:, :] - x[..., :-1, :]) * vertical
-    dx = (x[..., :, 1:] - x[..., :, :-1]) * horizontal
-    laplacian = torch.zeros_like(x)
-    laplacian[..., 1:, :] += dy
-    laplacian[..., :-1, :] -= dy
-    laplacian[..., :, 1:] += dx
-    laplacian[..., :, :-1] -= dx
-    return weight * x + strength * laplacian
+    Laplacian, as its `diagonal` (`w + strength * degree`) less the `strength`-scaled
+    affinities to the 4 neighbours (`vertical`, `horizontal`, already times `strength`)."""
+    out = diagonal * x
+    out[..., 1:, :].addcmul_(vertical, x[..., :-1, :], value=-1)
+    out[..., :-1, :].addcmul_(vertical, x[..., 1:, :], value=-1)
+    out[..., :, 1:].addcmul_(horizontal, x[..., :, :-1], value=-1)
+    out[..., :, :-1].addcmul_(horizontal, x[..., :, 1:], value=-1)
+    return out
+
+
+def _solve(values: Tensor, weight: Tensor, guide: Tensor, strength: float, sigma: float,
+           iterations: int, tolerance: float) -> Tensor:
+    """`edge_aware_smooth` past its checks: conjugate gradients with a Jacobi preconditioner,
+    started from the solution of the half-size problem (`_coarse_start`) on maps of at least
+    `COARSE_MIN_PX` a side. The start changes only how soon the residual reaches `tolerance`,
+    not the minimiser."""
+    vertical, horizontal = guide_affinities(guide, sigma)
+    vertical, horizontal = strength * vertical, strength * horizontal
+    # the system's diagonal: the Jacobi preconditioner
+    diagonal = weight.clone()
+    diagonal[..., 1:, :] += vertical
+    diagonal[..., :-1, :] += vertical
+    diagonal[..., :, 1:] += horizontal
+    diagonal[..., :, :-1] += horizontal
+    tiny = torch.finfo(values.dtype).tiny
+    inverse_diagonal = 1 / diagonal.clamp_min(tiny)
+
+    def dot(a: Tensor, b: Tensor) -> Tensor:  # per image, (B,1,1,1), in one pass
+        return torch.bmm(a.flatten(1)[:, None], b.flatten(1)[..., None])[..., None]
+
+    rhs = weight * values
+    x = _coarse_start(values, weight, guide, strength, sigma, iterations) \
+        if min(values.shape[-2:]) >= COARSE_MIN_PX else values
+    residual = rhs - _system(x, diagonal, vertical, horizontal)
+    z = inverse_diagonal * residual
+    direction = z
+    rz = dot(residual, z)
+    limit = tolerance**2 * dot(rhs, rhs)
+    for _ in range(iterations):
+        if bool((dot(residual, residual) <= limit).all()):
+            break
+        product = _system(direction, diagonal, vertical, horizontal)
+        step = rz / dot(direction, product).clamp_min(tiny)
+        x = torch.addcmul(x, step, direction)
+        residual = torch.addcmul(residual, step, product, value=-1)
+        z = inverse_diagonal * residual
+        rz_next = dot(residual, z)
+        direction = torch.addcmul(z, rz_next / rz.clamp_min(tiny), direction)
+        rz = rz_next
+    return x
+
+
+def _coarse_start(values: Tensor, weight: Tensor, guide: Tensor, strength: float, sigma: float,
+                  iterations: int) -> Tensor:
+    """A starting point for `_solve`: the same least squares on a half-size grid (confidence
+    averaged, the map averaged by it, the guide area-averaged, the strength a quarter: a
+    neighbour is twice as far), solved to `COARSE_TOLERANCE` and resized back (bilinear). Its
+    smooth, far-reaching part is what the fine grid's conjugate gradients are slowest at."""
+    size = [(n + 1) // 2 for n in values.shape[-2:]]
+    small_weight = F.interpolate(weight, size=size, mode="area")
+    small_values = F.interpolate(weight * values, size=size, mode="area") \
+        / small_weight.clamp_min(torch.finfo(values.dtype).tiny)
+    small_guide = F.interpolate(guide, size=size, mode="area")
+    small = _solve(small_values, small_weight, small_guide, strength / 4, sigma, iterations,
+                   COARSE_TOLERANCE)
+    return F.interpolate(small, size=values.shape[-2:], mode="bilinear", align_corners=False)
 
 
 def edge_aware_smooth(values: Tensor, weight: Tensor, guide: Tensor, strength: float = 10.0,
@@ -102,34 +166,4 @@ def edge_aware_smooth(values: Tensor, weight: Tensor, guide: Tensor, strength: f
          lambda: "weight must be >= 0 and positive somewhere in every image")])
     if strength == 0:
         return values
-    vertical, horizontal = guide_affinities(guide, sigma)
-    # Jacobi preconditioner: the system's diagonal
-    degree = torch.zeros_like(values)
-    degree[..., 1:, :] += vertical
-    degree[..., :-1, :] += vertical
-    degree[..., :, 1:] += horizontal
-    degree[..., :, :-1] += horizontal
-    inverse_diagonal = 1 / (weight + strength * degree).clamp_min(torch.finfo(values.dtype).tiny)
-
-    def dot(a: Tensor, b: Tensor) -> Tensor:
-        return (a * b).sum((1, 2, 3), keepdim=True)
-
-    rhs = weight * values
-    x = values
-    residual = rhs - _system(x, weight, strength, vertical, horizontal)
-    z = inverse_diagonal * residual
-    direction = z
-    rz = dot(residual, z)
-    limit = tolerance**2 * dot(rhs, rhs)
-    for _ in range(iterations):
-        if bool((dot(residual, residual) <= limit).all()):
-            break
-        product = _system(direction, weight, strength, vertical, horizontal)
-        step = rz / dot(direction, product).clamp_min(torch.finfo(values.dtype).tiny)
-        x = x + step * direction
-        residual = residual - step * product
-        z = inverse_diagonal * residual
-        rz_next = dot(residual, z)
-        direction = z + rz_next / rz.clamp_min(torch.finfo(values.dtype).tiny) * direction
-        rz = rz_next
-    return x
+    return _solve(values, weight, guide, strength, sigma, iterations, tolerance)
