@@ -240,7 +240,8 @@ class SynthesizedFocus(torch.utils.data.Dataset):
         >>> from datasets.synthetic import SyntheticScenes
         >>> scenes = SyntheticScenes(num_scenes=1, size=(16, 16))
         >>> camera = CameraSettings(0.035, 2.8, [2.0, 8.0, 9.0], 1e-4)
-        >>> SynthesizedFocus(scenes, camera)[0]["focused"].shape
+        >>> sample = SynthesizedFocus(scenes, camera)[0]
+        >>> sample["focused"].shape
         torch.Size([3, 3, 16, 16])
     """
 
