@@ -37,7 +37,7 @@ from .depth_from_focus import DepthFromFocus
 from .relative_blur import RelativeBlurDepth
 from .resolution import run_at_working_resolution
 from .rules import refuse_broken
-from .side import focus_planes, side_statement, state_side, swept_range
+from .side import SideStatement, focus_planes
 from .sweep import SweepDepth
 from .thin_lens import candidate_inverse_depths, mirrored_depths, thin_lens_blur
 
@@ -221,13 +221,12 @@ def estimate_depth(
         `run_at_working_resolution`), and `mirrored_depths`: the depths `(nearest, farthest)`
         metres the shots cannot place on either side of their one focus plane
         (`ambiguous_depths`, the span `warn_mirrored` warns of), or None; with a `side`, the
-        keys of `side.state_side`.
+        keys of `side.SideStatement.state`.
 
     Raises:
-        ValueError: for photos of other shapes or sizes, non-finite values, a bad depth range or
-            method, a method that needs an all-in-focus photo without one, fewer than two
-            shots without one, or shots that cannot tell depths in the range apart
-            (`check_shots_differ`), or a `side` for shots focused at several distances.
+        ValueError: for bad photos, depth range, method or `side` (`check_arguments`), a method
+            that needs an all-in-focus photo without one, too few shots, or shots that cannot
+            tell depths in the range apart (`check_shots_differ`).
 
     Example:
         >>> import torch
@@ -242,21 +241,22 @@ def estimate_depth(
     if image_settings is not None:
         focused, settings = torch.cat([image[None], focused]), join_shots(image_settings, settings)
         image = None
-    model, fold = (_method_object(method, model, options, progress, image is not None,
-                                  len(focused)), side_statement(settings, (near, far), side))
+    model, stated = (_method_object(method, model, options, progress, image is not None,
+                                    len(focused)), SideStatement.of(settings, (near, far), side))
     if getattr(model, "native_resolution", False):
         out = _run_native(model, image, focused, settings, near, far, all_in_focus)
     else:
         _refuse_unreadable(model, image, focused, settings, near, far)
         mirrored = warn_mirrored(settings, near, far) if side == "both" else None
         out = run_at_working_resolution(model, image, focused, settings,
-                                        *swept_range(near, far, fold), max_coc_px, max_pixels,
-                                        align, refine_range, progress, fold)
+                                        *(stated.swept_range() if stated else (near, far)),
+                                        max_coc_px, max_pixels, align, refine_range, progress,
+                                        stated and stated.put)
         out["mirrored_depths"] = mirrored
         if all_in_focus:
             out["all_in_focus"] = image if image is not None else _fused(focused, out, align)
-    if fold is not None:
-        state_side(out, fold)
+    if stated is not None:
+        stated.state(out)
     return out
 
 

@@ -6,11 +6,11 @@ With `"beyond"` (a photographer who focused on the nearest thing) or `"before"`,
 both sides explain is put on the stated side (`fold_to_side`); a blur that only the other side
 explains (`off_side`: with `"beyond"`, a blur larger than the far end's) stays there and is
 counted; the depths are swept on the stated side alone where that loses nothing
-(`swept_range`)."""
+(`SideStatement`)."""
 
 from __future__ import annotations
 
-import functools
+import dataclasses
 import math
 
 import torch
@@ -83,42 +83,64 @@ def off_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, flo
     return torch.zeros_like(depth, dtype=torch.bool)
 
 
-def put_on_side(depth: Tensor, focus_distance: float, depth_range: tuple[float, float],
-                side: str) -> Tensor:
-    """`depth` with each blur that both sides of the focus plane explain put on the stated
-    `side` (`fold_to_side`), and the blurs that only the other side explains (`off_side`) left
-    where they are.
+@dataclasses.dataclass(frozen=True)
+class SideStatement:
+    """Where the scene lies about one focus plane: `side` (`"beyond"` or `"before"`) of
+    `focus_distance` metres, within `depth_range` `(near, far)` metres (`estimate_depth`'s
+    `side`).
 
     Example:
+        >>> stated = SideStatement("beyond", 2.0, (0.5, 10.0))
         >>> d = torch.tensor([0.6, 1.5, 4.0], dtype=torch.float64)
-        >>> put_on_side(d, 2.0, (0.5, 10.0), "beyond").round(decimals=6).tolist()
-        [0.6, 3.0, 4.0]
-    """
-    off = off_side(depth, focus_distance, depth_range, side)
-    return torch.where(off, depth, fold_to_side(depth, focus_distance, depth_range, side))
-
-
-def swept_range(near: float, far: float, fold: functools.partial | None) -> tuple[float, float]:
-    """The depths (metres) to sweep for the range `(near, far)` under a stated side (`fold`, a
-    `put_on_side`): the stated side alone where every blur of the other side has a depth on it
-    (all the candidates then go where the scene is), else the whole range.
-
-    Example:
-        >>> on = functools.partial(put_on_side, focus_distance=2.0, side="beyond")
-        >>> swept_range(1.5, 8.0, functools.partial(on, depth_range=(1.5, 8.0)))
+        >>> stated.put(d).round(decimals=6).tolist(), stated.swept_range()
+        ([0.6, 3.0, 4.0], (0.5, 10.0))
+        >>> SideStatement("beyond", 2.0, (1.5, 8.0)).swept_range()  # 1.5 m blurs less than 8 m
         (2.0, 8.0)
-        >>> swept_range(0.5, 8.0, functools.partial(on, depth_range=(0.5, 8.0)))  # 0.5 m blurs more
-        (0.5, 8.0)
     """
-    if fold is None or not near < fold.keywords["focus_distance"] < far:
+
+    side: str
+    focus_distance: float
+    depth_range: tuple[float, float]
+
+    @classmethod
+    def of(cls, settings: CameraSettings, depth_range: tuple[float, float], side: str
+           ) -> SideStatement | None:
+        """The statement about the shots' one focus plane; None for `"both"` (none)."""
+        if side == "both":
+            return None
+        return cls(side, float(settings.focus_distance.reshape(-1)[0]), depth_range)
+
+    def off_side(self, depth: Tensor) -> Tensor:
+        """The pixels of `depth` whose blur contradicts the statement (`off_side`)."""
+        return off_side(depth, self.focus_distance, self.depth_range, self.side)
+
+    def put(self, depth: Tensor) -> Tensor:
+        """`depth` with each blur that both sides explain put on the stated side
+        (`fold_to_side`), the blurs that only the other side explains left where they are."""
+        return torch.where(self.off_side(depth), depth, fold_to_side(
+            depth, self.focus_distance, self.depth_range, self.side))
+
+    def swept_range(self) -> tuple[float, float]:
+        """The depths (metres) to sweep: the stated side alone where every blur of the other
+        side has a depth on it (all the candidates then go where the scene is), else the whole
+        range."""
+        (near, far), focus = self.depth_range, self.focus_distance
+        if not near < focus < far:
+            return near, far
+        # the blur at near and at far (per unit of the blur at infinity): f/near - 1, 1 - f/far
+        if self.side == "beyond" and 1 / near <= 2 / focus - 1 / far:
+            return focus, far
+        if self.side == "before" and 2 / focus - 1 / far <= 1 / near:
+            return near, focus
         return near, far
-    focus, side = fold.keywords["focus_distance"], fold.keywords["side"]
-    # the blur at near and at far (per unit of the blur at infinity): f/near - 1, 1 - f/far
-    if side == "beyond" and 1 / near <= 2 / focus - 1 / far:
-        return focus, far
-    if side == "before" and 2 / focus - 1 / far <= 1 / near:
-        return near, focus
-    return near, far
+
+    def state(self, out: dict) -> None:
+        """Apply the statement to the result `out` of `estimate_depth`: its `depth` put on the
+        side, with `side`, `focus_plane` (metres) and `off_side` (the pixels that contradict
+        it) added."""
+        out["side"], out["focus_plane"] = self.side, self.focus_distance
+        out["off_side"] = self.off_side(out["depth"])
+        out["depth"] = self.put(out["depth"])
 
 
 def focus_planes(settings: CameraSettings | None, image_settings: CameraSettings | None = None
@@ -135,22 +157,3 @@ def focus_planes(settings: CameraSettings | None, image_settings: CameraSettings
             if not any(math.isclose(distance, d, rel_tol=1e-6) for d in found):
                 found.append(distance)
     return sorted(found)
-
-
-def side_statement(settings: CameraSettings, depth_range: tuple[float, float], side: str
-                   ) -> functools.partial | None:
-    """`put_on_side` bound to the shots' one focus plane, `depth_range` and `side`; None for
-    `"both"` (no statement)."""
-    if side == "both":
-        return None
-    return functools.partial(put_on_side, focus_distance=float(
-        settings.focus_distance.reshape(-1)[0]), depth_range=depth_range, side=side)
-
-
-def state_side(out: dict, fold: functools.partial) -> None:
-    """Apply the statement `fold` (`side_statement`) to the result `out` of `estimate_depth`:
-    its `depth` folded, with `side`, `focus_plane` (metres) and `off_side` (the pixels that
-    contradict it) added."""
-    out["side"], out["focus_plane"] = fold.keywords["side"], fold.keywords["focus_distance"]
-    out["off_side"] = off_side(out["depth"], **fold.keywords)
-    out["depth"] = fold(out["depth"])

@@ -11,7 +11,6 @@ cheapest candidate, refined to a fraction of a candidate (`select_depth`).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 
 import kornia
@@ -21,6 +20,7 @@ from torch import Tensor
 from optics import CameraSettings
 
 from .rules import refuse_broken
+from .side import focus_planes
 
 #: Side (pixels) of the window local errors between photos are first summed over.
 ERROR_WINDOW_PX = 5
@@ -91,10 +91,10 @@ def mirrored_depths(settings: CameraSettings, near: float, far: float
         >>> mirrored_depths(CameraSettings(0.05, 2.0, [1.5, 4.0], 1e-4), 1.0, 8.0) is None
         True
     """
-    focus = settings.focus_distance.reshape(-1).tolist()
-    if any(not math.isclose(d, focus[0], rel_tol=1e-6) for d in focus):
+    planes = focus_planes(settings)
+    if len(planes) != 1:
         return None
-    x0 = 1.0 / focus[0]
+    x0 = 1.0 / planes[0]
     lo = max(1.0 / far, 2 * x0 - 1.0 / near)
     hi = min(1.0 / near, 2 * x0 - 1.0 / far)
     if not hi > lo:
