@@ -72,15 +72,20 @@ class FourierBlur:
         if k > min(self.size):
             raise ValueError(f"a {k}-pixel kernel does not fit the padded {tuple(self.size)}")
         # the kernel wrapped around the grid's corners (its centre at (0, 0)): what rolling a
-        # corner-placed kernel by -(k // 2) gives, without a second full-size copy
-        grid = kernel.new_zeros(self.size)
-        h = k // 2
-        grid[:k - h, :k - h] = kernel[h:, h:]
+        # corner-placed kernel by -(k // 2) gives. Only its k rows are transformed along the
+        # width (the others are zero), then every column along the height: the 2-D transform
+        # without the work on zero rows
+        h, width = k // 2, self.size[1]
+        rows = kernel.new_zeros(k, width)
+        rows[:, :k - h] = kernel[:, h:]
         if h:
-            grid[:k - h, -h:] = kernel[h:, :h]
-            grid[-h:, :k - h] = kernel[:h, h:]
-            grid[-h:, -h:] = kernel[:h, :h]
-        return torch.fft.rfft2(grid)
+            rows[:, -h:] = kernel[:, :h]
+        spectra = torch.fft.rfft(rows)
+        grid = spectra.new_zeros(self.size[0], spectra.shape[-1])
+        grid[:k - h] = spectra[h:]
+        if h:
+            grid[-h:] = spectra[:h]
+        return torch.fft.fft(grid, dim=0)
 
     def apply(self, transfer: Tensor) -> Tensor:
         """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is."""

@@ -111,21 +111,24 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
     buffer = first.new_empty(1, min(WINDOW_CHUNK, len(relative)), *first.shape[-2:])
     for start in range(0, len(relative), WINDOW_CHUNK):
         stop = min(start + WINDOW_CHUNK, len(relative))
-        expected = []
+        # the noise each side keeps, per candidate: its window sum times the energy of the
+        # kernel it went through (the floor alone for the blurrier shot)
+        energies = first.new_zeros(2, stop - start)
         for k in range(start, stop):
             s, r = (0, 1) if first_sharper[k] else (1, 0)
             kernel = with_floor(psf_kernel(aperture, relative[k], first))
             predicted = shots[s].apply(shots[s].transfer(kernel))
-            buffer[:, k - start] = ((predicted - references[r]) ** 2).sum(1)
-            expected.append(variances[s] * float((kernel**2).sum()) + variances[r] * floor_energy)
-        windows = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX)
-        for k in range(start, stop):
-            error = ((windows[:, k - start:k - start + 1] - expected[k - start])
-                     / expected[k - start].clamp_min(MIN_NOISE_VARIANCE))
-            if out is None:
-                errors[:, k:k + 1] = error
-            else:
-                errors[:, k:k + 1] += error
+            buffer[:, k - start] = torch.sub(predicted, references[r]).square_().sum(1)
+            energies[s, k - start] += float((kernel**2).sum())
+            energies[r, k - start] += floor_energy
+        expected = (energies[0, :, None, None] * variances[0]).addcmul_(
+            energies[1, :, None, None], variances[1])
+        error = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX).sub_(expected).div_(
+            expected.clamp_min_(MIN_NOISE_VARIANCE))
+        if out is None:
+            errors[:, start:stop] = error
+        else:
+            errors[:, start:stop] += error
     return errors
 
 
