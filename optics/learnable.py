@@ -33,8 +33,9 @@ from .focal_stack import render_focal_stack
 #: What a `LearnableCamera` may learn (the names of `TrainConfig.learn_optics` and
 #: `defocus train --learn-optics`).
 LEARNABLE = ("focus", "f-number", "mask")
-#: The f-numbers a lens reaches, by default (a fast prime to a small aperture).
-F_NUMBER_RANGE = (1.4, 22.0)
+#: The f-numbers a lens reaches, by default (a fast f/1 prime to a small aperture; open ends:
+#: the f-numbers stay strictly inside, so a fixed camera at f/1.4 can start learning).
+F_NUMBER_RANGE = (1.0, 22.0)
 #: The side of the learned mask's grid, by default.
 MASK_SIZE = 16
 #: The initial mask's values inside and outside the disk are `OPEN` and `1 - OPEN`: a
@@ -95,6 +96,7 @@ class LearnableMask(Aperture):
     """
 
     light: Tensor
+    initial: Tensor
 
     def __init__(self, initial: Tensor | None = None):
         super().__init__()
@@ -109,6 +111,8 @@ class LearnableMask(Aperture):
                              f"values in [0, 1], not all 0, got {got}")
         start = (1 - OPEN) + (2 * OPEN - 1) * initial
         self.logits = nn.Parameter(torch.logit(start))
+        #: the starting values (the initial mask as stored)
+        self.register_buffer("initial", start)
         self.register_buffer("light", start.sum())
         self._offset: tuple[tuple, Tensor] | None = None
 
@@ -245,12 +249,19 @@ class LearnableCamera(nn.Module):
         if "f-number" in self.learn:
             share = torch.log(numbers / low) / math.log(high / low)
             self.f_number_logits = nn.Parameter(torch.logit(share))
+        #: the learned mask, or None
         self.mask: LearnableMask | None = None
+        #: the PSF where the mask is not learned, or None
+        self.fixed_aperture: Aperture | None = None
         if "mask" in self.learn:
             self.mask = LearnableMask(disk_mask(mask_size))
-        #: the PSF the focal stack is rendered with: the learned mask, else the fixed one
-        self.aperture: Aperture = self.mask if self.mask is not None else \
-            parse_aperture(self.spec if aperture is None else aperture)
+        else:
+            self.fixed_aperture = parse_aperture(self.spec if aperture is None else aperture)
+
+    @property
+    def aperture(self) -> Aperture:
+        """The PSF the focal stack is rendered with: the learned mask, else the fixed one."""
+        return self.mask if self.mask is not None else self.fixed_aperture
 
     @property
     def n_shots(self) -> int:

@@ -27,6 +27,7 @@ from ..checkpoints import (
     to_plain,
 )
 from ..depth_from_photos.tiling import run_network
+from ..depth_from_photos.trained_network import camera_record
 from ..devices import select_device
 from ..evaluation import evaluate_network
 from ..losses import DefocusLoss
@@ -37,6 +38,15 @@ from .checkpointing import Checkpointer
 from .config import TrainConfig
 from .forward import NetworkAndLoss
 from .interruption import SignalGuard, TrainingInterrupted
+from .learned_camera import (
+    OPTICS_KEY,
+    build_learned_camera,
+    checkpoint_entries,
+    log_columns,
+    plot_optics,
+    rendered_samples,
+    write_camera,
+)
 from .run_folder import RunFolder
 from .run_log import RunLog
 from .run_warnings import (
@@ -130,17 +140,28 @@ class Trainer:
         self.step_timer = StepTimer()
         #: the host seconds of the phases of the last step (`step_timing.PHASES`)
         self.phases: dict[str, float] = {}
+        #: the camera learned with the network (`config.learn_optics`), None when it is fixed
+        self.camera = build_learned_camera(cfg, self.sample_checks.camera)
+        params: Any = self.model.parameters()
+        if self.camera is not None:  # the optics in a param group of their own
+            self.camera.to(self.device)
+            params = [{"params": list(params)},
+                      {"params": list(self.camera.parameters()), "lr": cfg.optics_lr,
+                       "weight_decay": 0.0}]
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
-            self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
+            params, lr=cfg.lr, weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
         self.progress = Progress(cfg.steps, cfg.minutes)  # what the learning rate follows
         self.scheduler = build_scheduler(self.optimizer, cfg, self.progress)
+        aperture = self.camera.aperture if self.camera is not None else \
+            parse_aperture(cfg.aperture)  # a learned mask: the loss renders with it too
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
-                                   cfg.ssim_window, parse_aperture(cfg.aperture),
+                                   cfg.ssim_window, aperture,
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size
                                    ).to(self.device)  # its aperture too: no CPU tensor in a step
         #: the step's network and loss (one compiled graph when `config.compile`)
-        self.forward = NetworkAndLoss(cfg, self.ddp_model, self.loss_fn, self.device)
+        self.forward = NetworkAndLoss(cfg, self.ddp_model, self.loss_fn, self.device,
+                                      self.camera)
         self.checkpoints = CheckpointStore(cfg.out_dir / "checkpoints", keep=cfg.keep_checkpoints)
         self.log = RunLog(cfg.out_dir)
         self.checkpointer = Checkpointer(self.checkpoints, self.is_main)
@@ -215,6 +236,17 @@ class Trainer:
             norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
         else:
             norm = torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in params]))
+        if self.camera is not None:  # clipped on their own: the network's norm is no scale
+            optics = [p for p in self.camera.parameters() if p.grad is not None]
+            if self.world_size > 1:  # outside DDP: averaged over the processes here
+                for p in optics:
+                    dist.all_reduce(p.grad)
+                    p.grad /= self.world_size
+            if optics:
+                optics_norm = nn.utils.clip_grad_norm_(optics, self.config.grad_clip) \
+                    if self.config.grad_clip > 0 else \
+                    torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in optics]))
+                norm = torch.linalg.vector_norm(torch.stack([norm, optics_norm.to(norm)]))
         values = torch.stack([v.detach().float() for v in terms.values()]
                              + [self.at_depth_limits(depth), norm.detach().float()])
         if self.world_size > 1:
@@ -274,7 +306,8 @@ class Trainer:
         self.out_of_time = False
         self.checkpointer.restart_clock()
         self.step_timer = StepTimer()
-        check = self.sample_checks.check_depth if cfg.supervision == "depth" else None
+        check = self.sample_checks.check_depth \
+            if cfg.supervision == "depth" or cfg.learn_optics else None
         batches = BatchStream(self.sampler, self.step, until, self.device, self.workers,
                               check=check)
         try:
@@ -324,7 +357,8 @@ class Trainer:
                "seconds": time.perf_counter() - started,
                "at_depth_limits": losses["at_depth_limits"], "data_s": data_s,
                "compute_s": compute_s,
-               **{f"{name.replace(' ', '_')}_s": s for name, s in self.phases.items()}}
+               **{f"{name.replace(' ', '_')}_s": s for name, s in self.phases.items()},
+               **({} if self.camera is None else log_columns(self.camera))}
         self.history.append(row)
         self.checkpointer.in_update = False
         if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
@@ -400,6 +434,8 @@ class Trainer:
             the mean metrics, and `at_depth_limits`: the share of predicted pixels at
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
+        if self.camera is not None:  # the network reads what the learned camera sees
+            test_set = rendered_samples(self.camera, test_set, self.config)
         return evaluate_network(self.model, self.config, test_set, checker, self.device,
                                 min_depth=min_depth, max_depth=depth_cap, crop=crop,
                                 median_scaling=median_scaling)
@@ -421,7 +457,11 @@ class Trainer:
         """Plot the prediction on the first validation (else training) sample (rank 0 only)."""
         if not self.is_main:
             return None
+        if self.camera is not None:
+            self.save_camera()
         sample = self._figure_sample()
+        if self.camera is not None:
+            sample = next(iter(rendered_samples(self.camera, [sample], self.config)))
         batch = collate([sample])
         depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
         path = path or self.config.out_dir / "figures" / f"step_{self.step:06d}.png"
@@ -430,22 +470,41 @@ class Trainer:
                                title=figure_title(sample.get("id"), self.step),
                                depth_range=(self.config.depth_min, self.config.depth_max))
 
+    def save_camera(self) -> list[Path]:
+        """Write the learned camera into the run folder: `camera.json`, `mask.png` (a learned
+        mask) and the figure `optics.png` of its values over the logged steps (rank 0 only;
+        nothing without a learned camera). Returns the paths written."""
+        if not self.is_main or self.camera is None:
+            return []
+        out_dir = self.config.out_dir
+        written = write_camera(self.camera, out_dir, self.step)
+        return [*written, plot_optics(out_dir / "optics.png", self.log.train.rows(), self.camera)]
+
     # -- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Everything exact resume needs, as tensors and plain data only (see
-        `models.checkpoints`)."""
+        `models.checkpoints`); `camera` is the camera the network was trained for: the
+        learned one (`camera_record` of its settings, and its parameters and mask,
+        `learned_camera.checkpoint_entries`) where the run learns it."""
+        camera = self.sample_checks.camera
+        learned: dict[str, Any] = {}
+        if self.camera is not None:
+            with torch.no_grad():
+                camera = camera_record(self.camera.settings())
+            learned = checkpoint_entries(self.camera)
         return {"format": CHECKPOINT_FORMAT, "model": self.model.state_dict(),
                 "optimizer": self.optimizer.state_dict(),
                 "scheduler": self.scheduler.state_dict(), "step": self.step,
                 "config": to_plain(self.config.to_dict(), "config"),
                 "history": [dict(row) for row in self.history], "rng": rng_state(),
-                **({} if self.sample_checks.camera is None else
-                   {"camera": self.sample_checks.camera})}
+                **({} if camera is None else {"camera": camera}), **learned}
 
     def load_state_dict(self, state: Mapping[str, Any], source: str | Path = "checkpoint") -> None:
         """Restore what `state_dict` returned (also older checkpoints without `rng`) from
         `source` (as named in errors)."""
         restore_weights(self.model, state["model"], source)
+        if self.camera is not None and OPTICS_KEY in state:
+            self.camera.load_state_dict(state[OPTICS_KEY])
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
