@@ -44,9 +44,11 @@ def config_fields_help() -> str:
 
 
 def training_config(config: Path | None = None, overrides: Sequence[str] = (),
-                    out: Path | None = None, resume: bool = False, overwrite: bool = False):
+                    out: Path | None = None, resume: bool = False, overwrite: bool = False,
+                    learn_optics: str | None = None, optics_lr: float | None = None):
     """The `TrainConfig` of a YAML file (or the defaults) with `KEY=VALUE` overrides; `out`
-    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated.
+    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated,
+    `learn_optics` and `optics_lr` (`--learn-optics`, `--optics-lr`) the fields of those names.
 
     Raises:
         FileNotFoundError: `config` is not a file.
@@ -70,13 +72,39 @@ def training_config(config: Path | None = None, overrides: Sequence[str] = (),
             (out and "out_dir" in keys, lambda: f"--set {keys['out_dir']} and --out {out} both "
              "name the output folder: give only --out"),
             ((resume or overwrite) and "resume" in keys, lambda: f"--set {keys['resume']} and "
-             f"{flag} both say what to do with an earlier run: give only {flag}")):
+             f"{flag} both say what to do with an earlier run: give only {flag}"),
+            *(((value is not None and key in keys, lambda key=key, option=option: f"--set "
+                f"{keys[key]} and {option} both set {key}: give only {option}")
+               for key, option, value in (("learn_optics", "--learn-optics", learn_optics),
+                                          ("optics_lr", "--optics-lr", optics_lr))))):
         if refused:
             raise ValueError(message())
     overrides = list(overrides) + ([f"out_dir={out}"] if out else [])
+    overrides += [f"learn_optics={learn_optics}"] if learn_optics is not None else []
+    overrides += [f"optics_lr={optics_lr!r}"] if optics_lr is not None else []
     if resume or overwrite:
         overrides.append(f"resume={'resume' if resume else 'overwrite'}")
     return TrainConfig.load(config, overrides)
+
+
+def check_learned_optics(learn_optics: str, data: str, focus: str | None) -> None:
+    """Refuse learning the camera (`learn_optics`, `--learn-optics`) on a dataset `data` whose
+    focused images are real photos (`focus`, `--focus`; None: the dataset's own,
+    `datasets.registry.focus_of`): they cannot be rendered again through another camera.
+
+    Example:
+        >>> check_learned_optics("focus", "dslr", "real")
+        Traceback (most recent call last):
+        ...
+        ValueError: --learn-optics focus: the dslr data's focused images are real photos, which cannot be rendered through a learned camera; learn the optics on synthesised focus (--focus synthesized) or procedural scenes (--data synthetic)
+    """
+    from datasets.registry import focus_of
+
+    if learn_optics and focus_of(data, focus) == "real":
+        raise ValueError(f"--learn-optics {learn_optics}: the {data} data's focused images are "
+                         "real photos, which cannot be rendered through a learned camera; learn "
+                         "the optics on synthesised focus (--focus synthesized) or procedural "
+                         "scenes (--data synthetic)")
 
 
 def check_out_dir(out_dir: Path, root: Path | None = None, config: Path | None = None,
