@@ -6,8 +6,8 @@ construction, so no projection or clamping follows an optimiser step:
 
 | value | parametrisation | kept |
 |---|---|---|
-| focus distances | `1/D_i = 1/near - (1/near - 1/far) * cumsum(softmax(g))_i`: `F + 1` positive gaps in inverse depth that fill the range | inside `(near, far)`, strictly in order |
-| f-numbers | `N = N_min (N_max / N_min)^sigmoid(t)` (per shot) | inside `(N_min, N_max)` |
+| focus distances | `1/D_i = 1/far + (1/near - 1/far) * sum_{j > i} softmax(g)_j`: `F + 1` positive gaps in inverse depth that fill the range | inside `[near, far]`, in order (strictly but for rounding) |
+| f-numbers | `N = N_min (N_max / N_min)^sigmoid(t)` (per shot) | inside `[N_min, N_max]` |
 | mask | `m = sigmoid(l + b)` on an `h x w` grid, `b` solved so that `sum m` is the initial mask's | in `(0, 1)`, passing the light of the initial open disk (equal exposure) |
 
 Every value starts at the fixed camera it is built from (`LearnableCamera(settings, ...)`),
@@ -63,10 +63,9 @@ def disk_mask(size: int = MASK_SIZE, dtype: torch.dtype = torch.float64) -> Tens
 def _equal_light_offset(logits: Tensor, light: Tensor) -> Tensor:
     """The offset `b` with `sum(sigmoid(logits + b)) = light`, found without gradients by
     bisection (a 0-d tensor; the sum increases with `b`)."""
-    with torch.no_grad():
-        low = torch.full((), -60.0, dtype=logits.dtype, device=logits.device)
-        high = -low
-        for _ in range(60):  # 2^-60 of the bracket: below rounding
+    with torch.no_grad():  # at low every value is below 1e-17 of its cell, at high above
+        low, high = -logits.max() - 40.0, -logits.min() + 40.0
+        for _ in range(100):  # 2^-100 of the bracket: below rounding
             mid = (low + high) / 2
             above = torch.sigmoid(logits + mid).sum() > light
             low, high = torch.where(above, low, mid), torch.where(above, mid, high)
@@ -133,7 +132,7 @@ class LearnableMask(Aperture):
             self._offset = (key, _equal_light_offset(logits.detach(), self.light.to(logits)))
         offset = self._offset[1]
         values = torch.sigmoid(logits + offset)
-        slope = (values * (1 - values)).sum()
+        slope = (values * (1 - values)).sum().clamp_min(torch.finfo(values.dtype).tiny)
         return torch.sigmoid(logits + offset - (values.sum() - self.light) / slope)
 
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
@@ -272,8 +271,10 @@ class LearnableCamera(nn.Module):
         if "focus" not in self.learn:
             return self.fixed_focus
         near, far = self.depth_range
-        gaps = torch.softmax(self.focus_logits, 0) * (1 / near - 1 / far)
-        ordered = 1 / (1 / near - gaps.cumsum(0)[:-1])  # increasing
+        shares = torch.softmax(self.focus_logits, 0)  # of the inverse-depth span, one per gap
+        beyond = shares.flip(0).cumsum(0).flip(0)[1:]  # the gaps beyond each focus plane
+        # a sum of non-negative shares: ordered in floating point too; the clamp only rounds
+        ordered = (1 / (1 / far + (1 / near - 1 / far) * beyond)).clamp(near, far)
         return ordered[torch.argsort(self.order)]
 
     def f_number(self) -> Tensor:
@@ -281,7 +282,7 @@ class LearnableCamera(nn.Module):
         if "f-number" not in self.learn:
             return self.fixed_f_number
         low, high = self.f_number_range
-        return low * (high / low) ** torch.sigmoid(self.f_number_logits)
+        return (low * (high / low) ** torch.sigmoid(self.f_number_logits)).clamp(low, high)
 
     def settings(self) -> CameraSettings:
         """The current `(F,)` `CameraSettings` (differentiable in the learned values); their
