@@ -270,7 +270,7 @@ def test_training_learns_the_camera(tmp_path, scenes):
     assert {"f_number_1", "mask_open", "mask_asymmetry"} <= set(rows[0])
     state = load_checkpoint(run / "checkpoints" / "last.pt")  # weights_only=True
     assert state["camera"]["focus_distance"] == pytest.approx(end["focus_distance"])
-    torch.testing.assert_close(state["camera_mask"].double(), torch.tensor(end["mask"]))
+    torch.testing.assert_close(state["camera_mask"].double(), torch.tensor(end["mask"]).double())
     assert "focus_logits" in state["optics"]
 
 
