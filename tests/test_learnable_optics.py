@@ -227,10 +227,9 @@ def test_fixed_camera_path_is_unchanged(tmp_path, scenes):
 
 def test_first_render_reproduces_the_data(tmp_path, scenes):
     """At the start the learned camera renders the procedural scenes' own focused images."""
-    from optics import collate
-
     from models.training import Trainer
     from models.training.learned_camera import render_batch
+    from optics import collate
 
     cfg = _config(tmp_path, learn_optics="focus,f-number")
     trainer = Trainer(cfg, scenes)

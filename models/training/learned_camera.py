@@ -11,12 +11,14 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from torch import Tensor
+from torch import Tensor, nn
 
 from optics import CameraSettings, LearnableCamera, Mask
 from optics.camera import SETTING_FIELDS
 
+from ..depth_from_photos.trained_network import camera_record
 from .config import TrainConfig
+from .run_log import CsvLog
 
 #: checkpoint key of the learned camera's parameters (`LearnableCamera.state_dict`)
 OPTICS_KEY = "optics"
@@ -27,12 +29,12 @@ MIN_RENDER_DEPTH = 1e-3
 
 
 def build_learned_camera(config: TrainConfig, camera: Mapping[str, Sequence[float]] | None,
-                         ) -> LearnableCamera | None:
+                         device: torch.device | str = "cpu") -> LearnableCamera | None:
     """The `LearnableCamera` of a run (None when `config.learn_optics` is empty): it starts at
     `camera`, the training samples' (`camera_record` of the first sample), learns what
     `learn_optics` names, keeps the focus distances inside the config's depth range and the
     f-numbers within `f_number_min`, `f_number_max`, and renders with the config's PSF
-    (`aperture`) unless it learns the mask.
+    (`aperture`) unless it learns the mask; on `device`.
 
     Raises:
         ValueError: the samples have no camera, or its values lie outside those limits (named).
@@ -54,11 +56,42 @@ def build_learned_camera(config: TrainConfig, camera: Mapping[str, Sequence[floa
     try:
         return LearnableCamera(settings, (config.depth_min, config.depth_max),
                                config.learn_optics.split(","),
-                               (config.f_number_min, config.f_number_max), config.mask_size)
+                               (config.f_number_min, config.f_number_max), config.mask_size
+                               ).to(device)
     except ValueError as error:
         raise ValueError(f"learn_optics={config.learn_optics!r}: {error} (depth_range is "
                          "depth_min, depth_max; f_number_range f_number_min, f_number_max)"
                          ) from None
+
+
+def param_groups(network: nn.Module, camera: LearnableCamera | None,
+                 config: TrainConfig) -> Any:
+    """What the optimiser optimises: the network's parameters, and the learned camera's in a
+    param group of their own (learning rate `optics_lr`, no weight decay)."""
+    if camera is None:
+        return network.parameters()
+    return [{"params": list(network.parameters())},
+            {"params": list(camera.parameters()), "lr": config.optics_lr, "weight_decay": 0.0}]
+
+
+def optics_gradients(camera: LearnableCamera | None, grad_clip: float,
+                     world_size: int = 1) -> Tensor | None:
+    """Prepare the learned camera's gradients for the optimiser step: averaged over the
+    `world_size` processes (the camera is outside DDP), clipped to the norm `grad_clip` on
+    their own (0: not clipped; the network's norm is no scale for them). Returns their norm
+    before clipping, float32 (None without a camera or gradients)."""
+    optics = [] if camera is None else [p for p in camera.parameters() if p.grad is not None]
+    if not optics:
+        return None
+    if world_size > 1:
+        import torch.distributed as dist
+
+        for p in optics:
+            dist.all_reduce(p.grad)
+            p.grad /= world_size
+    norm = nn.utils.clip_grad_norm_(optics, grad_clip) if grad_clip > 0 else \
+        torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in optics]))
+    return norm.float()
 
 
 def render_batch(camera: LearnableCamera, batch: Mapping[str, Any],
@@ -112,10 +145,12 @@ def log_columns(camera: LearnableCamera) -> dict[str, float]:
 
 
 def checkpoint_entries(camera: LearnableCamera) -> dict[str, Any]:
-    """What a checkpoint keeps of the learned camera: its parameters (`OPTICS_KEY`, to
-    resume) and the mask's values (`MASK_KEY`, to render with it; learned masks only)."""
-    entries: dict[str, Any] = {OPTICS_KEY: {k: v.detach().cpu().clone()
-                                            for k, v in camera.state_dict().items()}}
+    """What a checkpoint keeps of the learned camera: its settings as the camera the network
+    was trained for (`camera`, a `camera_record`), its parameters (`OPTICS_KEY`, to resume)
+    and the mask's values (`MASK_KEY`, to render with it; learned masks only)."""
+    with torch.no_grad():
+        entries: dict[str, Any] = {"camera": camera_record(camera.settings()), OPTICS_KEY: {
+            k: v.detach().cpu().clone() for k, v in camera.state_dict().items()}}
     if camera.mask is not None:
         entries[MASK_KEY] = camera.mask.values().detach().cpu().clone()
     return entries
@@ -148,6 +183,14 @@ def write_camera(camera: LearnableCamera, out_dir: str | Path, step: int) -> lis
         written.append(out_dir / "mask.png")
         Image.fromarray(pixels, mode="L").save(written[-1])
     return written
+
+
+def save_camera(camera: LearnableCamera, out_dir: str | Path, step: int,
+                log: CsvLog) -> list[Path]:
+    """`write_camera`, and the figure `optics.png` of the camera's values over the steps of
+    the run's `train_log.csv` (`log`). Returns the paths written."""
+    return [*write_camera(camera, out_dir, step),
+            plot_optics(Path(out_dir) / "optics.png", log.rows(), camera)]
 
 
 def plot_optics(path: str | Path, rows: Sequence[Mapping[str, Any]],
@@ -199,5 +242,5 @@ def plot_optics(path: str | Path, rows: Sequence[Mapping[str, Any]],
 
 
 __all__ = ["MASK_KEY", "OPTICS_KEY", "build_learned_camera", "checkpoint_aperture",
-           "checkpoint_entries", "log_columns", "plot_optics", "render_batch",
-           "rendered_samples", "write_camera"]
+           "checkpoint_entries", "log_columns", "optics_gradients", "param_groups", "plot_optics",
+           "render_batch", "rendered_samples", "save_camera", "write_camera"]

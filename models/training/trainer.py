@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
@@ -27,32 +26,25 @@ from ..checkpoints import (
     to_plain,
 )
 from ..depth_from_photos.tiling import run_network
-from ..depth_from_photos.trained_network import camera_record
 from ..devices import select_device
 from ..evaluation import evaluate_network
 from ..losses import DefocusLoss
+from ..metrics import at_depth_limits
 from ..networks import build_network
 from ..plotting import figure_title, plot_prediction
+from . import learned_camera as learned
 from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
 from .config import TrainConfig
 from .forward import NetworkAndLoss
 from .interruption import SignalGuard, TrainingInterrupted
-from .learned_camera import (
-    OPTICS_KEY,
-    build_learned_camera,
-    checkpoint_entries,
-    log_columns,
-    plot_optics,
-    rendered_samples,
-    write_camera,
-)
 from .run_folder import RunFolder
 from .run_log import RunLog
 from .run_warnings import (
     LIMIT_TOLERANCE,
     DepthCollapseWarning,
     RunWarnings,
+    check_finite_step,
     collapse_message,
 )
 from .sample_checks import EMPTY, SampleChecker, TestSampleChecker
@@ -141,22 +133,16 @@ class Trainer:
         #: the host seconds of the phases of the last step (`step_timing.PHASES`)
         self.phases: dict[str, float] = {}
         #: the camera learned with the network (`config.learn_optics`), None when it is fixed
-        self.camera = build_learned_camera(cfg, self.sample_checks.camera)
-        params: Any = self.model.parameters()
-        if self.camera is not None:  # the optics in a param group of their own
-            self.camera.to(self.device)
-            params = [{"params": list(params)},
-                      {"params": list(self.camera.parameters()), "lr": cfg.optics_lr,
-                       "weight_decay": 0.0}]
+        self.camera = learned.build_learned_camera(cfg, self.sample_checks.camera, self.device)
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
-            params, lr=cfg.lr, weight_decay=cfg.weight_decay,
+            learned.param_groups(self.model, self.camera, cfg), lr=cfg.lr,
+            weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
         self.progress = Progress(cfg.steps, cfg.minutes)  # what the learning rate follows
         self.scheduler = build_scheduler(self.optimizer, cfg, self.progress)
-        aperture = self.camera.aperture if self.camera is not None else \
-            parse_aperture(cfg.aperture)  # a learned mask: the loss renders with it too
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
-                                   cfg.ssim_window, aperture,
+                                   cfg.ssim_window, parse_aperture(cfg.aperture) if self.camera
+                                   is None else self.camera.aperture,  # a learned mask too
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size
                                    ).to(self.device)  # its aperture too: no CPU tensor in a step
         #: the step's network and loss (one compiled graph when `config.compile`)
@@ -210,10 +196,8 @@ class Trainer:
     def at_depth_limits(self, depth: Tensor) -> Tensor:
         """The share of the pixels of `depth` at `depth_min` or `depth_max` (within
         `LIMIT_TOLERANCE` of the range), a 0-d tensor."""
-        cfg = self.config
-        tol = LIMIT_TOLERANCE * (cfg.depth_max - cfg.depth_min)
-        depth = depth.detach()
-        return ((depth <= cfg.depth_min + tol) | (depth >= cfg.depth_max - tol)).float().mean()
+        return at_depth_limits(depth, self.config.depth_min, self.config.depth_max,
+                               LIMIT_TOLERANCE)
 
     def train_step(self, batch: Mapping[str, Any]) -> dict[str, float]:
         """One optimisation step on a collated batch; returns the losses (mean over processes)
@@ -236,17 +220,8 @@ class Trainer:
             norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
         else:
             norm = torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in params]))
-        if self.camera is not None:  # clipped on their own: the network's norm is no scale
-            optics = [p for p in self.camera.parameters() if p.grad is not None]
-            if self.world_size > 1:  # outside DDP: averaged over the processes here
-                for p in optics:
-                    dist.all_reduce(p.grad)
-                    p.grad /= self.world_size
-            if optics:
-                optics_norm = nn.utils.clip_grad_norm_(optics, self.config.grad_clip) \
-                    if self.config.grad_clip > 0 else \
-                    torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in optics]))
-                norm = torch.linalg.vector_norm(torch.stack([norm, optics_norm.to(norm)]))
+        optics = learned.optics_gradients(self.camera, self.config.grad_clip, self.world_size)
+        norm = norm if optics is None else torch.linalg.vector_norm(torch.stack([norm, optics]))
         values = torch.stack([v.detach().float() for v in terms.values()]
                              + [self.at_depth_limits(depth), norm.detach().float()])
         if self.world_size > 1:
@@ -254,7 +229,7 @@ class Trainer:
             values = values / self.world_size
         *numbers, grad_norm = values.tolist()  # the step's one wait for the device
         losses = dict(zip([*terms, "at_depth_limits"], numbers, strict=True))
-        self._check_finite(losses, grad_norm)
+        check_finite_step(losses, grad_norm, self.step + 1, self.config.lr)
         self.checkpointer.in_update = True  # until the step is counted: no half-step checkpoint
         optimizing = time.perf_counter()
         with record_function("optimizer"):
@@ -262,20 +237,6 @@ class Trainer:
             self.scheduler.step()
         self.phases["optimizer"] = time.perf_counter() - optimizing
         return losses
-
-    def _check_finite(self, losses: dict[str, float], grad_norm: float) -> None:
-        """Stop before the weights change when the loss or the gradient is not finite."""
-        step = self.step + 1
-        if not math.isfinite(losses["loss"]):
-            terms = {k: v for k, v in losses.items() if k != "at_depth_limits"}
-            raise FloatingPointError(
-                f"loss is not finite at step {step}: {terms}; training stopped before changing "
-                f"the weights (lr is {self.config.lr}: try a smaller one)")
-        if not math.isfinite(grad_norm):
-            raise FloatingPointError(
-                f"gradient is not finite at step {step} (loss {losses['loss']:.4g}); training "
-                f"stopped before changing the weights (lr is {self.config.lr}: try a smaller one, "
-                "or grad_clip)")
 
     # -- loop ------------------------------------------------------------------------------
     def fit(self, until: int | None = None) -> list[dict[str, float]]:
@@ -358,7 +319,7 @@ class Trainer:
                "at_depth_limits": losses["at_depth_limits"], "data_s": data_s,
                "compute_s": compute_s,
                **{f"{name.replace(' ', '_')}_s": s for name, s in self.phases.items()},
-               **({} if self.camera is None else log_columns(self.camera))}
+               **({} if self.camera is None else learned.log_columns(self.camera))}
         self.history.append(row)
         self.checkpointer.in_update = False
         if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
@@ -435,7 +396,7 @@ class Trainer:
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
         if self.camera is not None:  # the network reads what the learned camera sees
-            test_set = rendered_samples(self.camera, test_set, self.config)
+            test_set = learned.rendered_samples(self.camera, test_set, self.config)
         return evaluate_network(self.model, self.config, test_set, checker, self.device,
                                 min_depth=min_depth, max_depth=depth_cap, crop=crop,
                                 median_scaling=median_scaling)
@@ -457,11 +418,10 @@ class Trainer:
         """Plot the prediction on the first validation (else training) sample (rank 0 only)."""
         if not self.is_main:
             return None
-        if self.camera is not None:
-            self.save_camera()
         sample = self._figure_sample()
-        if self.camera is not None:
-            sample = next(iter(rendered_samples(self.camera, [sample], self.config)))
+        if self.camera is not None:  # its files, and what the network reads through it
+            learned.save_camera(self.camera, self.config.out_dir, self.step, self.log.train)
+            sample = next(learned.rendered_samples(self.camera, [sample], self.config))
         batch = collate([sample])
         depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
         path = path or self.config.out_dir / "figures" / f"step_{self.step:06d}.png"
@@ -470,41 +430,26 @@ class Trainer:
                                title=figure_title(sample.get("id"), self.step),
                                depth_range=(self.config.depth_min, self.config.depth_max))
 
-    def save_camera(self) -> list[Path]:
-        """Write the learned camera into the run folder: `camera.json`, `mask.png` (a learned
-        mask) and the figure `optics.png` of its values over the logged steps (rank 0 only;
-        nothing without a learned camera). Returns the paths written."""
-        if not self.is_main or self.camera is None:
-            return []
-        out_dir = self.config.out_dir
-        written = write_camera(self.camera, out_dir, self.step)
-        return [*written, plot_optics(out_dir / "optics.png", self.log.train.rows(), self.camera)]
-
     # -- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Everything exact resume needs, as tensors and plain data only (see
         `models.checkpoints`); `camera` is the camera the network was trained for: the
-        learned one (`camera_record` of its settings, and its parameters and mask,
-        `learned_camera.checkpoint_entries`) where the run learns it."""
+        learned one where the run learns it (`learned_camera.checkpoint_entries`)."""
         camera = self.sample_checks.camera
-        learned: dict[str, Any] = {}
-        if self.camera is not None:
-            with torch.no_grad():
-                camera = camera_record(self.camera.settings())
-            learned = checkpoint_entries(self.camera)
         return {"format": CHECKPOINT_FORMAT, "model": self.model.state_dict(),
                 "optimizer": self.optimizer.state_dict(),
                 "scheduler": self.scheduler.state_dict(), "step": self.step,
                 "config": to_plain(self.config.to_dict(), "config"),
                 "history": [dict(row) for row in self.history], "rng": rng_state(),
-                **({} if camera is None else {"camera": camera}), **learned}
+                **({} if camera is None else {"camera": camera}),
+                **({} if self.camera is None else learned.checkpoint_entries(self.camera))}
 
     def load_state_dict(self, state: Mapping[str, Any], source: str | Path = "checkpoint") -> None:
         """Restore what `state_dict` returned (also older checkpoints without `rng`) from
         `source` (as named in errors)."""
         restore_weights(self.model, state["model"], source)
-        if self.camera is not None and OPTICS_KEY in state:
-            self.camera.load_state_dict(state[OPTICS_KEY])
+        if self.camera is not None and learned.OPTICS_KEY in state:
+            self.camera.load_state_dict(state[learned.OPTICS_KEY])
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
