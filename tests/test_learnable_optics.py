@@ -322,4 +322,4 @@ def test_cli_refuses_real_focused_photos(tmp_path, capsys):
     assert len(error.strip().splitlines()) == 1
     assert not (tmp_path / "run").exists()
     assert main(["train", "--learn-optics", "focus", "--set", "learn_optics=mask"]) == 2
-    assert "give only --learn-optics" in capsys.readouterr().err
+    assert "give only the option" in capsys.readouterr().err

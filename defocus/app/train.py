@@ -45,16 +45,17 @@ def config_fields_help() -> str:
 
 def training_config(config: Path | None = None, overrides: Sequence[str] = (),
                     out: Path | None = None, resume: bool = False, overwrite: bool = False,
-                    learn_optics: str | None = None, optics_lr: float | None = None):
+                    **fields: Any):
     """The `TrainConfig` of a YAML file (or the defaults) with `KEY=VALUE` overrides; `out`
-    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated,
-    `learn_optics` and `optics_lr` (`--learn-optics`, `--optics-lr`) the fields of those names.
+    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated, and
+    `fields` (the options `--minutes`, `--learn-optics`, `--optics-lr`: `--` and the field's
+    name with dashes) set those fields, where not None.
 
     Raises:
         FileNotFoundError: `config` is not a file.
         ValueError: an invalid config or override, a key set twice, or `--set out_dir=...`
-            with `--out` (`--set resume=...` with `--resume`/`--overwrite`): which one was
-            meant is unknown.
+            with `--out` (`--set resume=...` with `--resume`/`--overwrite`, a field with its
+            option): which one was meant is unknown.
 
     Example:
         >>> training_config(overrides=["out_dir=a"], out=Path("b"))
@@ -73,15 +74,14 @@ def training_config(config: Path | None = None, overrides: Sequence[str] = (),
              "name the output folder: give only --out"),
             ((resume or overwrite) and "resume" in keys, lambda: f"--set {keys['resume']} and "
              f"{flag} both say what to do with an earlier run: give only {flag}"),
-            *(((value is not None and key in keys, lambda key=key, option=option: f"--set "
-                f"{keys[key]} and {option} both set {key}: give only {option}")
-               for key, option, value in (("learn_optics", "--learn-optics", learn_optics),
-                                          ("optics_lr", "--optics-lr", optics_lr))))):
+            *(((value is not None and key in keys, lambda key=key: f"--set {keys[key]} and "
+                f"--{key.replace('_', '-')} both set {key}: give only the option")
+               for key, value in fields.items()))):
         if refused:
             raise ValueError(message())
     overrides = list(overrides) + ([f"out_dir={out}"] if out else [])
-    overrides += [f"learn_optics={learn_optics}"] if learn_optics is not None else []
-    overrides += [f"optics_lr={optics_lr!r}"] if optics_lr is not None else []
+    overrides += [f"{key}={value!r}" if not isinstance(value, str) else f"{key}={value}"
+                  for key, value in fields.items() if value is not None]
     if resume or overwrite:
         overrides.append(f"resume={'resume' if resume else 'overwrite'}")
     return TrainConfig.load(config, overrides)

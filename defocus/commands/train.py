@@ -80,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
         help="start over: delete the output folder's previous run (config, logs, checkpoints, "
         "figures; other files stay) when training starts (resume=overwrite)",
     )
-    if focus:  # not for an example script: its evaluation renders with the data's camera
+    if focus:  # not for an example script (its recipe says these, and it evaluates on its data)
         parser.add_argument(
             "--learn-optics", default=None, metavar="WHAT",
             help="learn the camera with the network: any of focus, f-number, mask joined by "
@@ -92,6 +92,10 @@ def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
         parser.add_argument(
             "--optics-lr", type=float, default=None, metavar="LR",
             help="learning rate of the learned optics (optics_lr; default 0.01)")
+        parser.add_argument(
+            "--minutes", type=float, default=None,
+            help="time budget of the training, minutes (minutes; default: none): it stops "
+            "after the step that spends it and saves a checkpoint, as at the end")
     add_data_arguments(parser, focus=focus)
 
 
@@ -125,7 +129,8 @@ def run(args: argparse.Namespace) -> int:
     from models.metrics import format_table
 
     cfg = training_config(args.config, args.overrides, args.out, args.resume, args.overwrite,
-                          learn_optics=args.learn_optics, optics_lr=args.optics_lr)
+                          minutes=args.minutes, learn_optics=args.learn_optics,
+                          optics_lr=args.optics_lr)
     # before any data is read: a file, the dataset folder or a link is no run folder
     check_out_dir(cfg.out_dir, args.root, args.config, args.overwrite)
     check_learned_optics(cfg.learn_optics, args.data, args.focus)
