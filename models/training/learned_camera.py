@@ -74,15 +74,15 @@ def param_groups(network: nn.Module, camera: LearnableCamera | None,
             {"params": list(camera.parameters()), "lr": config.optics_lr, "weight_decay": 0.0}]
 
 
-def optics_gradients(camera: LearnableCamera | None, grad_clip: float,
-                     world_size: int = 1) -> Tensor | None:
+def optics_gradients(camera: LearnableCamera | None, network_norm: Tensor, grad_clip: float,
+                     world_size: int = 1) -> Tensor:
     """Prepare the learned camera's gradients for the optimiser step: averaged over the
     `world_size` processes (the camera is outside DDP), clipped to the norm `grad_clip` on
-    their own (0: not clipped; the network's norm is no scale for them). Returns their norm
-    before clipping, float32 (None without a camera or gradients)."""
+    their own (0: not clipped; the network's norm is no scale for them). Returns the norm of
+    all gradients before clipping: the network's (`network_norm`) and theirs."""
     optics = [] if camera is None else [p for p in camera.parameters() if p.grad is not None]
     if not optics:
-        return None
+        return network_norm
     if world_size > 1:
         import torch.distributed as dist
 
@@ -91,7 +91,7 @@ def optics_gradients(camera: LearnableCamera | None, grad_clip: float,
             p.grad /= world_size
     norm = nn.utils.clip_grad_norm_(optics, grad_clip) if grad_clip > 0 else \
         torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in optics]))
-    return norm.float()
+    return torch.linalg.vector_norm(torch.stack([network_norm, norm.to(network_norm)]))
 
 
 def render_batch(camera: LearnableCamera, batch: Mapping[str, Any],
@@ -107,11 +107,16 @@ def render_batch(camera: LearnableCamera, batch: Mapping[str, Any],
     return {**batch, "focused": focused, "camera": settings}
 
 
-def rendered_samples(camera: LearnableCamera, samples: Iterable[Mapping[str, Any]],
-                     config: TrainConfig) -> Iterator[dict[str, Any]]:
+def rendered_samples(camera: LearnableCamera | None, samples: Iterable[Mapping[str, Any]],
+                     config: TrainConfig) -> Iterable[Mapping[str, Any]]:
     """Unbatched `samples` with their focused images rendered through the current `camera`
     from their image and depth (no gradients): what a network trained with it reads when it
-    is evaluated."""
+    is evaluated (`samples` as they are without a camera)."""
+    return samples if camera is None else _rendered(camera, samples, config)
+
+
+def _rendered(camera: LearnableCamera, samples: Iterable[Mapping[str, Any]],
+              config: TrainConfig) -> Iterator[dict[str, Any]]:
     for sample in samples:
         batch = {"image": sample["image"][None], "depth": sample["depth"][None]}
         device = next(iter(camera.buffers())).device
@@ -154,6 +159,24 @@ def checkpoint_entries(camera: LearnableCamera) -> dict[str, Any]:
     if camera.mask is not None:
         entries[MASK_KEY] = camera.mask.values().detach().cpu().clone()
     return entries
+
+
+def restore(camera: LearnableCamera | None, state: Mapping[str, Any]) -> None:
+    """Load the learned camera's parameters from a checkpoint's `state` (`OPTICS_KEY`;
+    nothing without a camera or where the checkpoint holds none)."""
+    if camera is not None and OPTICS_KEY in state:
+        camera.load_state_dict(state[OPTICS_KEY])
+
+
+def starting_camera(state: Mapping[str, Any]) -> dict[str, list[float]] | None:
+    """The camera a checkpoint's learned camera started from (the training samples', a
+    `camera_record`), from its parameters (`OPTICS_KEY`); None where it holds none."""
+    optics = state.get(OPTICS_KEY)
+    if not isinstance(optics, Mapping):
+        return None
+    names = {"focal_length": "focal_length", "f_number": "fixed_f_number",
+             "focus_distance": "fixed_focus", "pixel_pitch": "pixel_pitch"}
+    return {name: [float(v) for v in optics[key].reshape(-1)] for name, key in names.items()}
 
 
 def checkpoint_aperture(state: Mapping[str, Any]) -> Mask | None:
@@ -243,4 +266,5 @@ def plot_optics(path: str | Path, rows: Sequence[Mapping[str, Any]],
 
 __all__ = ["MASK_KEY", "OPTICS_KEY", "build_learned_camera", "checkpoint_aperture",
            "checkpoint_entries", "log_columns", "optics_gradients", "param_groups", "plot_optics",
-           "render_batch", "rendered_samples", "save_camera", "write_camera"]
+           "render_batch", "rendered_samples", "restore", "save_camera", "starting_camera",
+           "write_camera"]

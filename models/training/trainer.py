@@ -86,6 +86,7 @@ class Trainer:
         val_set: optional samples to evaluate on at `val_every` and at the end.
         step_callback: optional `f(trainer, step, losses)` called after every step (hooks,
             tests).
+        camera: the samples' `camera_record` where `train_set` has none (`from_checkpoint`).
 
     Raises:
         ValueError: `out_dir` holds another run (the message names the config keys that
@@ -107,7 +108,8 @@ class Trainer:
 
     def __init__(self, config: TrainConfig, train_set: Iterable[Mapping[str, Any]],
                  val_set: Iterable[Mapping[str, Any]] | None = None,
-                 step_callback: Callable[[Trainer, int, dict[str, float]], None] | None = None):
+                 step_callback: Callable[[Trainer, int, dict[str, float]], None] | None = None,
+                 camera: Mapping[str, Sequence[float]] | None = None):
         to_plain(config.to_dict(), "config")  # a config that a checkpoint cannot hold fails now
         self.train_set, self.val_set = train_set, val_set
         self.step_callback = step_callback
@@ -133,7 +135,8 @@ class Trainer:
         #: the host seconds of the phases of the last step (`step_timing.PHASES`)
         self.phases: dict[str, float] = {}
         #: the camera learned with the network (`config.learn_optics`), None when it is fixed
-        self.camera = learned.build_learned_camera(cfg, self.sample_checks.camera, self.device)
+        self.camera = learned.build_learned_camera(cfg, self.sample_checks.camera or camera,
+                                                   self.device)
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             learned.param_groups(self.model, self.camera, cfg), lr=cfg.lr,
             weight_decay=cfg.weight_decay,
@@ -220,8 +223,7 @@ class Trainer:
             norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
         else:
             norm = torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in params]))
-        optics = learned.optics_gradients(self.camera, self.config.grad_clip, self.world_size)
-        norm = norm if optics is None else torch.linalg.vector_norm(torch.stack([norm, optics]))
+        norm = learned.optics_gradients(self.camera, norm, self.config.grad_clip, self.world_size)
         values = torch.stack([v.detach().float() for v in terms.values()]
                              + [self.at_depth_limits(depth), norm.detach().float()])
         if self.world_size > 1:
@@ -395,8 +397,7 @@ class Trainer:
             the mean metrics, and `at_depth_limits`: the share of predicted pixels at
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
-        if self.camera is not None:  # the network reads what the learned camera sees
-            test_set = learned.rendered_samples(self.camera, test_set, self.config)
+        test_set = learned.rendered_samples(self.camera, test_set, self.config)  # if learned
         return evaluate_network(self.model, self.config, test_set, checker, self.device,
                                 min_depth=min_depth, max_depth=depth_cap, crop=crop,
                                 median_scaling=median_scaling)
@@ -433,8 +434,7 @@ class Trainer:
     # -- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Everything exact resume needs, as tensors and plain data only (see
-        `models.checkpoints`); `camera` is the camera the network was trained for: the
-        learned one where the run learns it (`learned_camera.checkpoint_entries`)."""
+        `models.checkpoints`), and a learned camera's `learned_camera.checkpoint_entries`."""
         camera = self.sample_checks.camera
         return {"format": CHECKPOINT_FORMAT, "model": self.model.state_dict(),
                 "optimizer": self.optimizer.state_dict(),
@@ -448,8 +448,7 @@ class Trainer:
         """Restore what `state_dict` returned (also older checkpoints without `rng`) from
         `source` (as named in errors)."""
         restore_weights(self.model, state["model"], source)
-        if self.camera is not None and learned.OPTICS_KEY in state:
-            self.camera.load_state_dict(state[learned.OPTICS_KEY])
+        learned.restore(self.camera, state)
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
@@ -482,7 +481,8 @@ class Trainer:
         from ..loading import read_checkpoint  # loading reads configs of this package
 
         state, cfg = read_checkpoint(path, resume="overwrite", progress=False, device=device)
-        trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
+        # "overwrite" only skips reading the run folder here:
+        trainer = cls(cfg, train_set, camera=learned.starting_camera(state))
         trainer.load_state_dict(state, path)
         trainer.run_folder.continue_at(trainer.step)  # fit() would continue it
         return trainer
