@@ -324,3 +324,28 @@ def test_cli_refuses_real_focused_photos(tmp_path, capsys):
     assert not (tmp_path / "run").exists()
     assert main(["train", "--learn-optics", "focus", "--set", "learn_optics=mask"]) == 2
     assert "give only the option" in capsys.readouterr().err
+
+
+def test_depth_supervised_twin_learns_the_camera_through_its_input(tmp_path, scenes):
+    """With depth labels the network's input (focused images and settings) comes through the
+    learned camera, so the optics get gradients from the depth error alone."""
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, supervision="depth", learn_optics="focus,f-number",
+                              steps=2), scenes)
+    start = trainer.camera.record()
+    trainer.fit()
+    assert trainer.camera.record()["focus_distance"] != start["focus_distance"]
+    assert trainer.camera.record()["f_number"] != start["f_number"]
+
+
+def test_a_learned_checkpoint_loads_as_a_depth_model(tmp_path, scenes):
+    """`defocus predict`'s loader reads the learned camera as the camera it was trained for."""
+    from models.loading import load_depth_model
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, steps=1), scenes)
+    trainer.fit()
+    model = load_depth_model(tmp_path / "run" / "checkpoints" / "last.pt")
+    assert model.camera["focus_distance"] == pytest.approx(
+        trainer.camera.record()["focus_distance"])
