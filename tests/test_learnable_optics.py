@@ -202,6 +202,8 @@ def test_config_learn_optics():
             TrainConfig(learn_optics=bad)
     with pytest.raises(ValueError, match="f_number_min < f_number_max"):
         TrainConfig(f_number_min=8.0, f_number_max=4.0)
+    with pytest.raises(ValueError, match="set compile=false"):
+        TrainConfig(learn_optics="focus", compile=True)
 
 
 def test_fixed_camera_path_is_unchanged(tmp_path, scenes):

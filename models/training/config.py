@@ -220,6 +220,9 @@ class TrainConfig:
              f"{self.focus_distance!r}"),
             (not self.f_number_min < self.f_number_max, "need f_number_min < f_number_max, "
              f"got {self.f_number_min!r} and {self.f_number_max!r}"),
+            (self.compile and bool(self.learn_optics), f"compile=true with learn_optics="
+             f"{self.learn_optics!r} is not supported yet (torch.compile fails on the gradient "
+             "that reaches the network's input from the learned camera): set compile=false"),
             (self.compile_mode != "default" and not self.compile,
              f"compile_mode={self.compile_mode!r} needs compile=true (without it nothing is "
              "compiled)")):
