@@ -235,6 +235,8 @@ class SynthesizedFocus(torch.utils.data.Dataset):
         min_depth: depths below it are rendered at it, metres.
         cache_dir: folder of cached focal stacks (`cached_focal_stack`), or None.
         keep: keep the rendered samples in memory (a small set scored several times).
+        aperture: the PSF, overriding the settings' spec (e.g. a learned mask as an
+            `optics.Mask`).
 
     Example:
         >>> from datasets.synthetic import SyntheticScenes
@@ -246,8 +248,9 @@ class SynthesizedFocus(torch.utils.data.Dataset):
     """
 
     def __init__(self, samples: Sequence[Any], settings: CameraSettings, min_depth: float = 1e-3,
-                 cache_dir: str | Path | None = None, keep: bool = False) -> None:
-        self.samples, self.settings = samples, settings
+                 cache_dir: str | Path | None = None, keep: bool = False,
+                 aperture: Aperture | None = None) -> None:
+        self.samples, self.settings, self.aperture = samples, settings, aperture
         self.min_depth, self.cache_dir = float(min_depth), cache_dir
         self._kept: dict[int, dict[str, Any]] | None = {} if keep else None
 
@@ -261,6 +264,7 @@ class SynthesizedFocus(torch.utils.data.Dataset):
         settings = self.settings.to(sample["image"].dtype)
         sample["focused"] = cached_focal_stack(
             sample["image"], sample["depth"].clamp_min(self.min_depth), settings,
+            None if self.aperture is None else self.aperture.to(sample["image"].dtype),
             cache_dir=self.cache_dir).clamp(0, 1)
         sample["camera"] = settings
         if self._kept is not None:

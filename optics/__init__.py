@@ -25,6 +25,7 @@ from .camera import Camera, CameraSettings
 from .checks import checks_disabled, set_checks
 from .collate import collate
 from .focal_stack import render_focal_stack
+from .learnable import LEARNABLE, LearnableCamera, LearnableMask, disk_mask
 from .lens import ThinLens
 from .plotting import plot_calibration, plot_depth_calibration
 from .render import DefocusRenderer, render_defocus
@@ -48,6 +49,11 @@ __all__ = [
     "Polygon",
     "aperture_spec",
     "parse_aperture",
+    # learned optics: focus distances, f-numbers and an aperture mask as parameters
+    "LEARNABLE",
+    "LearnableCamera",
+    "LearnableMask",
+    "disk_mask",
     # rendering
     "DefocusRenderer",
     "render_defocus",

@@ -257,31 +257,52 @@ class Mask(Aperture):
             raise ValueError(f"image must have shape (h, w) and be finite, >= 0 everywhere and "
                              f"not all zero, got shape {tuple(image.shape)}")
         self.register_buffer("image", image)
-        table = F.pad(image.double().cumsum(0).cumsum(1), (1, 0, 1, 0))
-        self.register_buffer("_table", table.to(image.dtype), persistent=False)
+        self.register_buffer("_table", summed_area_table(image), persistent=False)
 
     def extra_repr(self) -> str:
         return f"image shape={tuple(self.image.shape)}"
 
-    def _cumulative(self, u: Tensor, v: Tensor) -> Tensor:
-        """Mask mass in `[-1, u] x [-1, v]` (normalised coordinates), saturating outside."""
-        grid = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
-        table = self._table.to(grid)[None, None]
-        mass = F.grid_sample(table, grid, mode="bilinear", padding_mode="border", align_corners=True)
-        return mass.reshape(u.shape)
-
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
-        radius = (coc_px / 2).clamp_min(MIN_RADIUS_PX)
-        dy, dx, radius = torch.broadcast_tensors(dy, dx, radius)
-        u0, u1 = (dx - 0.5) / radius, (dx + 0.5) / radius
-        v0, v1 = (dy - 0.5) / radius, (dy + 0.5) / radius
-        mass = (
-            self._cumulative(u1, v1) - self._cumulative(u0, v1)
-            - self._cumulative(u1, v0) + self._cumulative(u0, v0)
-        )
-        h, w = self.image.shape
-        # Mean mask value over the footprint: the footprint covers (w/2R) x (h/2R) mask pixels.
-        return mass.clamp_min(0) * (4 * radius * radius / (h * w))
+        return footprint_mean(self._table, dy, dx, coc_px)
 
     def half_width(self, coc_px: float) -> int:
         return math.ceil(coc_px / 2 + 0.5 - 1e-9) if coc_px > 0 else 0
+
+
+def summed_area_table(image: Tensor) -> Tensor:
+    """The `(h + 1, w + 1)` summed-area table of a mask image `(h, w)` (a zero row and column
+    first), summed in float64 and returned in `image`'s dtype; differentiable in `image`.
+
+    Example:
+        >>> summed_area_table(torch.ones(2, 2))
+        tensor([[0., 0., 0.],
+                [0., 1., 2.],
+                [0., 2., 4.]])
+    """
+    return F.pad(image.double().cumsum(0).cumsum(1), (1, 0, 1, 0)).to(image.dtype)
+
+
+def footprint_mean(table: Tensor, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
+    """The mean value of a mask image, stretched over `[-coc/2, coc/2]^2` pixels, over the
+    footprint of the pixel at offset `(dy, dx)`: the profile of `Mask` (and of
+    `optics.LearnableMask`), from the image's `summed_area_table` `table`.
+
+    Exact box integration of the bilinearly interpolated table, so the profile is anti-aliased
+    at any size and differentiable in the CoC and in the table (the mask's values).
+    """
+    radius = (coc_px / 2).clamp_min(MIN_RADIUS_PX)
+    dy, dx, radius = torch.broadcast_tensors(dy, dx, radius)
+    u0, u1 = (dx - 0.5) / radius, (dx + 0.5) / radius
+    v0, v1 = (dy - 0.5) / radius, (dy + 0.5) / radius
+    table = table.to(radius)[None, None]
+
+    def cumulative(u: Tensor, v: Tensor) -> Tensor:  # mass in [-1, u] x [-1, v], saturating
+        grid = torch.stack([u, v], dim=-1).reshape(1, 1, -1, 2)
+        mass = F.grid_sample(table, grid, mode="bilinear", padding_mode="border",
+                             align_corners=True)
+        return mass.reshape(u.shape)
+
+    mass = cumulative(u1, v1) - cumulative(u0, v1) - cumulative(u1, v0) + cumulative(u0, v0)
+    h, w = table.shape[-2] - 1, table.shape[-1] - 1
+    # Mean mask value over the footprint: the footprint covers (w/2R) x (h/2R) mask pixels.
+    return mass.clamp_min(0) * (4 * radius * radius / (h * w))

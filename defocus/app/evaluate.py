@@ -70,24 +70,30 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path,
     """`samples` with their focused images rendered anew from their image and depth with the
     camera `checkpoint` was trained for (`datasets.SynthesizedFocus`, PSF `aperture`): the blur
     a network learned is its camera's, so a network trained on one data set is scored on
-    another with that blur. Returns (the samples, a line saying which camera rendered them, a
+    another with that blur; a camera learned with the network (`defocus train --learn-optics`)
+    is the checkpoint's camera, its learned aperture mask included. Returns (the samples, a line saying which camera rendered them, a
     warning where the checkpoint records no camera: then the samples are left as they are).
     """
     from datasets import SynthesizedFocus
     from models.checkpoints import load_checkpoint
     from models.depth_from_photos.trained_network import describe_camera
+    from models.training.learned_camera import checkpoint_aperture
     from optics import CameraSettings
     from optics.camera import SETTING_FIELDS
 
-    record = load_checkpoint(checkpoint, mmap=True).get("camera")
+    state = load_checkpoint(checkpoint, mmap=True)
+    record = state.get("camera")
     if not isinstance(record, dict) or any(name not in record for name in SETTING_FIELDS):
         return samples, None, (f"checkpoint {checkpoint} records no camera (written before "
                                 "checkpoints did): the focused images are rendered with the "
                                 "data's own camera, which may not be the one it was trained for")
     settings = CameraSettings(*(record[name] for name in SETTING_FIELDS), aperture=aperture)
-    return (SynthesizedFocus(samples, settings),
+    mask = checkpoint_aperture(state)  # a learned aperture mask, or None
+    through = "" if mask is None else \
+        f", through its learned {'x'.join(map(str, mask.image.shape))} aperture mask"
+    return (SynthesizedFocus(samples, settings, aperture=mask),
             f"focused images rendered with the camera the checkpoint was trained for: "
-            f"{describe_camera(record)}", None)
+            f"{describe_camera(record)}{through}", None)
 
 
 def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:

@@ -159,6 +159,11 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
     from models.metrics import format_table
 
     experiment, fields, given = read_recipe(args)
+    if fields.get("learn_optics") not in (None, "", []):  # its evaluation: the data's focus
+        raise ValueError(f"{args.config}: learn_optics={fields['learn_optics']!r} is not for an "
+                         "example script, which evaluates on the data's own focused images: "
+                         "train with `defocus train --learn-optics` and score the checkpoint "
+                         "with `defocus evaluate` (it renders with the learned camera)")
     if experiment["threads"]:
         torch.set_num_threads(int(experiment["threads"]))
     keep_freed_memory()

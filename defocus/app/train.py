@@ -44,15 +44,18 @@ def config_fields_help() -> str:
 
 
 def training_config(config: Path | None = None, overrides: Sequence[str] = (),
-                    out: Path | None = None, resume: bool = False, overwrite: bool = False):
+                    out: Path | None = None, resume: bool = False, overwrite: bool = False,
+                    **fields: Any):
     """The `TrainConfig` of a YAML file (or the defaults) with `KEY=VALUE` overrides; `out`
-    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated.
+    overrides `out_dir`, `resume`/`overwrite` set how an existing run folder is treated, and
+    `fields` (the options `--minutes`, `--learn-optics`, `--optics-lr`: `--` and the field's
+    name with dashes) set those fields, where not None.
 
     Raises:
         FileNotFoundError: `config` is not a file.
         ValueError: an invalid config or override, a key set twice, or `--set out_dir=...`
-            with `--out` (`--set resume=...` with `--resume`/`--overwrite`): which one was
-            meant is unknown.
+            with `--out` (`--set resume=...` with `--resume`/`--overwrite`, a field with its
+            option): which one was meant is unknown.
 
     Example:
         >>> training_config(overrides=["out_dir=a"], out=Path("b"))
@@ -70,13 +73,38 @@ def training_config(config: Path | None = None, overrides: Sequence[str] = (),
             (out and "out_dir" in keys, lambda: f"--set {keys['out_dir']} and --out {out} both "
              "name the output folder: give only --out"),
             ((resume or overwrite) and "resume" in keys, lambda: f"--set {keys['resume']} and "
-             f"{flag} both say what to do with an earlier run: give only {flag}")):
+             f"{flag} both say what to do with an earlier run: give only {flag}"),
+            *(((value is not None and key in keys, lambda key=key: f"--set {keys[key]} and "
+                f"--{key.replace('_', '-')} both set {key}: give only the option")
+               for key, value in fields.items()))):
         if refused:
             raise ValueError(message())
     overrides = list(overrides) + ([f"out_dir={out}"] if out else [])
+    overrides += [f"{key}={value!r}" if not isinstance(value, str) else f"{key}={value}"
+                  for key, value in fields.items() if value is not None]
     if resume or overwrite:
         overrides.append(f"resume={'resume' if resume else 'overwrite'}")
     return TrainConfig.load(config, overrides)
+
+
+def check_learned_optics(learn_optics: str, data: str, focus: str | None) -> None:
+    """Refuse learning the camera (`learn_optics`, `--learn-optics`) on a dataset `data` whose
+    focused images are real photos (`focus`, `--focus`; None: the dataset's own,
+    `datasets.registry.focus_of`): they cannot be rendered again through another camera.
+
+    Example:
+        >>> check_learned_optics("focus", "dslr", "real")
+        Traceback (most recent call last):
+        ...
+        ValueError: --learn-optics focus: the dslr data's focused images are real photos, which cannot be rendered through a learned camera; learn the optics on synthesised focus (--focus synthesized) or procedural scenes (--data synthetic)
+    """
+    from datasets.registry import focus_of
+
+    if learn_optics and focus_of(data, focus) == "real":
+        raise ValueError(f"--learn-optics {learn_optics}: the {data} data's focused images are "
+                         "real photos, which cannot be rendered through a learned camera; learn "
+                         "the optics on synthesised focus (--focus synthesized) or procedural "
+                         "scenes (--data synthetic)")
 
 
 def check_out_dir(out_dir: Path, root: Path | None = None, config: Path | None = None,

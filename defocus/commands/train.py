@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from defocus.app.train import check_out_dir, config_fields_help
+from defocus.app.train import check_learned_optics, check_out_dir, config_fields_help
 from defocus.options import DefaultsOnceFormatter, add_data_arguments, dataset_from_options, say
 
 
@@ -80,6 +80,22 @@ def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
         help="start over: delete the output folder's previous run (config, logs, checkpoints, "
         "figures; other files stay) when training starts (resume=overwrite)",
     )
+    if focus:  # not for an example script (its recipe says these, and it evaluates on its data)
+        parser.add_argument(
+            "--learn-optics", default=None, metavar="WHAT",
+            help="learn the camera with the network: any of focus, f-number, mask joined by "
+            "commas (learn_optics); the focused images of each batch are rendered from the "
+            "all-in-focus image and depth through the learned camera, so the data's focused "
+            "images must be synthesised (--data synthetic, --focus synthesized), not real "
+            "photos. The camera is saved in the checkpoint and as camera.json, mask.png and "
+            "optics.png in the run folder")
+        parser.add_argument(
+            "--optics-lr", type=float, default=None, metavar="LR",
+            help="learning rate of the learned optics (optics_lr; default 0.01)")
+        parser.add_argument(
+            "--minutes", type=float, default=None,
+            help="time budget of the training, minutes (minutes; default: none): it stops "
+            "after the step that spends it and saves a checkpoint, as at the end")
     add_data_arguments(parser, focus=focus)
 
 
@@ -112,9 +128,12 @@ def run(args: argparse.Namespace) -> int:
     from defocus.app.train import train, training_config
     from models.metrics import format_table
 
-    cfg = training_config(args.config, args.overrides, args.out, args.resume, args.overwrite)
+    cfg = training_config(args.config, args.overrides, args.out, args.resume, args.overwrite,
+                          minutes=args.minutes, learn_optics=args.learn_optics,
+                          optics_lr=args.optics_lr)
     # before any data is read: a file, the dataset folder or a link is no run folder
     check_out_dir(cfg.out_dir, args.root, args.config, args.overwrite)
+    check_learned_optics(cfg.learn_optics, args.data, args.focus)
     validation = None
     if args.data == "synthetic":
         def validation():

@@ -20,6 +20,12 @@ seconds, `at_depth_limits`, `data_s`, `compute_s` and the compute's phases `netw
 `checkpoints/last.pt` (and the newest `step_XXXXXX.pt`), `figures/step_XXXXXX.png`, and
 `warnings.log` when a run ends with a warning.
 
+The camera can be learned with the network (`TrainConfig.learn_optics`: focus distances,
+f-numbers, an aperture mask; `optics.LearnableCamera`): each batch's focused images are then
+rendered from its all-in-focus image and depth through it, its parameters are a param group of
+their own (`optics_lr`), and the run adds `camera.json`, `mask.png`, `optics.png` and the
+camera's values as `train_log.csv` columns (`models.training.learned_camera`).
+
 One folder holds one run. `TrainConfig.resume` says what happens when `out_dir` already holds
 one: `"auto"` (default) continues it when its config is the same and otherwise refuses with
 the keys that differ; `"resume"` continues it, also to a larger `steps`; `"overwrite"` deletes
@@ -51,7 +57,7 @@ after a failure), a `SignalGuard` (`models.training.interruption`: SIGINT and SI
 `SampleChecker` (`models.training.sample_checks`); `models.training.state` holds the rank, the
 schedule, the random states and `to_device`; `models.training.config` the `TrainConfig`,
 `models.training.sampling` the batches of each step (and flips), `models.training.run_log` the
-CSV logs. Outside the package: `models.checkpoints` (checkpoint files that open without running
+CSV logs, `models.training.learned_camera` a learned camera's part in a run. Outside the package: `models.checkpoints` (checkpoint files that open without running
 code, `CheckpointStore`), `models.loading` (a checkpoint's config and network),
 `models.devices` (device names) and `models.plotting` (figures). Checkpoints hold only
 tensors and plain data and are read with `torch.load(..., weights_only=True)`: a file holding

@@ -13,7 +13,7 @@ from typing import Any
 
 import yaml
 
-from optics import DEFAULT_APERTURE, aperture_spec
+from optics import DEFAULT_APERTURE, LEARNABLE, aperture_spec
 from optics.render import MODES as RENDER_MODES
 
 from ..devices import check_device
@@ -49,13 +49,15 @@ _CHOICES = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
 #: (fields, rule, what the rule asks) of the numeric `TrainConfig` fields
 _RULES = (
     (("steps", "batch_size", "width", "log_every"), lambda v: v >= 1, "an integer >= 1"),
+    (("mask_size",), lambda v: v >= 2, "an integer >= 2"),
     (("n_focus", "checkpoint_every", "keep_checkpoints", "val_every", "figure_every"),
      lambda v: v >= 0, "an integer >= 0"),
     (("workers",), lambda v: v >= -1, "an integer >= -1"),
     (("seed",), lambda v: 0 <= v <= MAX_SEED, f"an integer in [0, {MAX_SEED}] (2**32 - 1)"),
     (("ssim_window", "max_kernel_size"), lambda v: v >= 1 and v % 2 == 1,
      "a positive odd number of pixels"),
-    (("lr", "depth_min", "depth_max"), _finite(0, strict=True), "a finite number > 0"),
+    (("lr", "depth_min", "depth_max", "optics_lr", "f_number_min", "f_number_max"),
+     _finite(0, strict=True), "a finite number > 0"),
     (("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
       "checkpoint_minutes", "minutes"), _finite(0), "a finite number >= 0 (0: off)"),
     (("ssim_weight",), lambda v: 0 <= v <= 1, "in [0, 1]"),
@@ -168,6 +170,20 @@ class TrainConfig:
     #: `torch.compile`'s mode when `compile`: "default", "reduce-overhead" (CUDA graphs as
     #: well: on a GPU the host launches a step's kernels in one call), "max-autotune", ...
     compile_mode: str = "default"
+    #: what the camera learns jointly with the network (`optics.LearnableCamera`): "" (nothing,
+    #: the data's fixed camera) or any of "focus", "f-number", "mask" joined by commas (a list
+    #: is read too). The focused images of each batch are then rendered from its all-in-focus
+    #: image and depth through the learned camera: data whose focused images are synthesised
+    #: only (procedural scenes, synthesised focus), with depth at every pixel
+    learn_optics: str = ""
+    #: Adam learning rate of the learned optics (their free parameters, logits)
+    optics_lr: float = 0.01
+    #: smallest f-number a learned f-number may take (the lens's limit)
+    f_number_min: float = 1.0
+    #: largest f-number a learned f-number may take (the lens's limit)
+    f_number_max: float = 22.0
+    #: side of the grid of a learned aperture mask (learn_optics with "mask"), cells
+    mask_size: int = 16
     #: time budget of one `fit`, minutes (0: none): training stops after the step that spends
     #: it and saves a checkpoint, as at the end
     minutes: float = 0.0
@@ -178,6 +194,7 @@ class TrainConfig:
 
     def __post_init__(self) -> None:
         self.out_dir = Path(self.out_dir)
+        self.learn_optics = _learned_optics(self.learn_optics)
         if isinstance(self.resume, bool):
             self.resume = "auto" if self.resume else "overwrite"
         for item in dataclasses.fields(self):
@@ -201,6 +218,11 @@ class TrainConfig:
             (self.side != "both" and not self.depth_min < self.focus_distance < self.depth_max,
              f"side {self.side!r} needs a focus_distance between depth_min and depth_max, got "
              f"{self.focus_distance!r}"),
+            (not self.f_number_min < self.f_number_max, "need f_number_min < f_number_max, "
+             f"got {self.f_number_min!r} and {self.f_number_max!r}"),
+            (self.compile and bool(self.learn_optics), f"compile=true with learn_optics="
+             f"{self.learn_optics!r} is not supported yet (torch.compile fails on the gradient "
+             "that reaches the network's input from the learned camera): set compile=false"),
             (self.compile_mode != "default" and not self.compile,
              f"compile_mode={self.compile_mode!r} needs compile=true (without it nothing is "
              "compiled)")):
@@ -251,6 +273,29 @@ class TrainConfig:
     def override(self, assignments: Sequence[str]) -> TrainConfig:
         """A copy with `key=value` assignments applied (`load`)."""
         return TrainConfig.load(None, assignments, **self.to_dict())
+
+
+def _learned_optics(value: Any) -> str:
+    """`TrainConfig.learn_optics` in its canonical form: the names of `optics.LEARNABLE` it
+    holds, in that order, joined by commas ("" for none).
+
+    Example:
+        >>> _learned_optics("mask, focus"), _learned_optics(["f-number"]), _learned_optics(None)
+        ('focus,mask', 'f-number', '')
+    """
+    if value is None:
+        return ""
+    if isinstance(value, (list, tuple)) and all(isinstance(v, str) for v in value):
+        names = [v.strip() for v in value]
+    elif isinstance(value, str):
+        names = [v.strip() for v in value.split(",") if v.strip()]
+    else:
+        names = None
+    if names is None or any(name not in LEARNABLE for name in names) \
+            or len(set(names)) != len(names):
+        raise ValueError(f"learn_optics must name some of {', '.join(LEARNABLE)} (each once, "
+                         f"joined by commas; empty: none), got {value!r}")
+    return ",".join(name for name in LEARNABLE if name in names)
 
 
 def read_yaml_mapping(path: str | Path) -> dict[str, Any]:
@@ -369,6 +414,8 @@ def _coerce(cls: type, name: str, value: Any) -> Any:
     kind = kind if isinstance(kind, str) else getattr(kind, "__name__", "")
     if name == "resume" and isinstance(value, bool):
         return value  # true / false: mapped to "auto" / "overwrite"
+    if name == "learn_optics" and (value is None or isinstance(value, list)):
+        return value  # a YAML list or nothing: read by `_learned_optics`
     if kind == "int" and isinstance(value, str) and not value.strip().lstrip("+-").isdigit():
         try:
             value = float(value)  # "1e3": YAML reads an exponent without a dot as text

@@ -13,8 +13,11 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
+from optics import LearnableCamera
+
 from ..losses import DefocusLoss, supervised_depth_loss
 from .config import TrainConfig
+from .learned_camera import render_batch
 
 _log = logging.getLogger("models.training")
 
@@ -55,6 +58,10 @@ class NetworkAndLoss:
         network: the module the step runs (wrapped for distributed training where it is).
         loss: the self-supervised loss, on the training device.
         device: the training device.
+        camera: the camera learned with the network (`TrainConfig.learn_optics`), or None:
+            then each batch's focused images are first rendered through it from its
+            all-in-focus image and depth (`models.training.learned_camera.render_batch`), and
+            the network, the loss and the labels' twin all see those.
 
     Each call leaves the host seconds of its phases in `phases` ("network" and "loss", or
     "network and loss" when compiled; `models.training.step_timing.PHASES`).
@@ -73,8 +80,9 @@ class NetworkAndLoss:
     """
 
     def __init__(self, config: TrainConfig, network: nn.Module, loss: DefocusLoss,
-                 device: torch.device):
+                 device: torch.device, camera: LearnableCamera | None = None):
         self.config, self.network, self.loss, self.device = config, network, loss, device
+        self.camera = camera
         self._compiled: Callable[[Mapping[str, Any]], Forward] | None = None
         #: the network's arithmetic, "float32" or "bfloat16" (`network_precision`)
         self.precision = network_precision(config.precision, device)
@@ -93,6 +101,7 @@ class NetworkAndLoss:
             self.phases = {"network and loss": time.perf_counter() - started}
             return out
         started = time.perf_counter()
+        batch = self.rendered(batch)  # timed with the network (nothing rendered: no time)
         depth = self.network_depth(batch)
         networked = time.perf_counter()
         terms = self.loss_terms(depth, batch)
@@ -102,8 +111,17 @@ class NetworkAndLoss:
     def eager(self, batch: Mapping[str, Any]) -> Forward:
         """The forward pass as plain PyTorch (what the compiled graph is traced from: no host
         timing inside)."""
+        batch = self.rendered(batch)
         depth = self.network_depth(batch)
         return depth, self.loss_terms(depth, batch)
+
+    def rendered(self, batch: Mapping[str, Any]) -> Mapping[str, Any]:
+        """`batch` with its focused images rendered through the learned camera (the batch as
+        it is without one)."""
+        if self.camera is None:
+            return batch
+        with record_function("optics"):
+            return render_batch(self.camera, batch, self.config)
 
     def network_depth(self, batch: Mapping[str, Any]) -> Tensor:
         """The network's depth `(B,1,H,W)` (computed in `precision`), float32."""

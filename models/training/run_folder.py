@@ -26,7 +26,8 @@ _log = logging.getLogger("models.training")
 
 
 #: the files of a run in `out_dir` besides `checkpoints/*.pt` and `figures/step_*.png`
-RUN_FILES = ("config.yaml", "train_log.csv", "val_log.csv", "warnings.log")
+RUN_FILES = ("config.yaml", "train_log.csv", "val_log.csv", "warnings.log",
+             "camera.json", "mask.png", "optics.png")  # the last three: a learned camera
 
 
 def run_files(out_dir: str | Path) -> list[Path]:

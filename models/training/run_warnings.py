@@ -12,6 +12,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -24,6 +25,20 @@ COLLAPSE_FRACTION = 0.9
 class DepthCollapseWarning(UserWarning):
     """Most predicted pixels sit at `depth_min` or `depth_max`: the network collapsed to its
     depth limits (often a too large learning rate) and its metrics mean little."""
+
+
+def check_finite_step(losses: dict[str, float], grad_norm: float, step: int, lr: float) -> None:
+    """Stop training at `step` (1-based) before the weights change when the loss or the
+    gradient norm is not finite (`FloatingPointError`, naming the terms and `lr`)."""
+    if not math.isfinite(losses["loss"]):
+        terms = {k: v for k, v in losses.items() if k != "at_depth_limits"}
+        raise FloatingPointError(
+            f"loss is not finite at step {step}: {terms}; training stopped before changing "
+            f"the weights (lr is {lr}: try a smaller one)")
+    if not math.isfinite(grad_norm):
+        raise FloatingPointError(
+            f"gradient is not finite at step {step} (loss {losses['loss']:.4g}); training "
+            f"stopped before changing the weights (lr is {lr}: try a smaller one, or grad_clip)")
 
 
 def collapse_message(share: float | None, where: str, depth_range: tuple[float, float],

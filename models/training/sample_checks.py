@@ -40,7 +40,7 @@ class SampleChecker:
         keys = ["image"]
         if cfg.input_mode == "aif+focused" or cfg.supervision == "self":
             keys += ["focused", "camera"]
-        if cfg.supervision == "depth":
+        if cfg.supervision == "depth" or cfg.learn_optics:  # learn_optics: rendered from it
             keys.append("depth")
         return keys
 
@@ -77,10 +77,12 @@ class SampleChecker:
         return cfg
 
     def check_depth(self, batch: Mapping[str, Any], step: int) -> None:
-        """Refuse ground-truth depth that is not finite and > 0 where the mask says valid, in
-        the collated batch of `step` (0-based); the message names the sample."""
+        """Refuse ground-truth depth that is not finite and > 0 where the mask says valid (at
+        every pixel with `learn_optics`: the focused images are rendered from it), in the
+        collated batch of `step` (0-based); the message names the sample."""
         depth, mask = batch["depth"], batch.get("mask")
-        valid = torch.ones_like(depth, dtype=torch.bool) if mask is None else mask.bool()
+        everywhere = mask is None or bool(self.config.learn_optics)
+        valid = torch.ones_like(depth, dtype=torch.bool) if everywhere else mask.bool()
         bad = valid & ~(torch.isfinite(depth) & (depth > 0))
         if not bool(bad.any()):
             return
@@ -92,8 +94,10 @@ class SampleChecker:
         raise ValueError(
             f"sample {name!r} ({where}) has ground-truth depth that is not finite and > 0 "
             f"at {int(bad[i].sum())} of its valid pixels (e.g. {float(depth[i][bad[i]][0])!r}); "
-            "depth must be positive metres wherever its mask is valid: fix the data or "
-            "mark those pixels invalid in its mask")
+            + ("depth must be positive metres at every pixel to render focused images from it "
+               "(learn_optics): fill the data's unknown depths" if self.config.learn_optics else
+               "depth must be positive metres wherever its mask is valid: fix the data or "
+               "mark those pixels invalid in its mask"))
 
 
 class TestSampleChecker:

@@ -5,7 +5,6 @@
 from __future__ import annotations
 
 import logging
-import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
@@ -30,8 +29,10 @@ from ..depth_from_photos.tiling import run_network
 from ..devices import select_device
 from ..evaluation import evaluate_network
 from ..losses import DefocusLoss
+from ..metrics import at_depth_limits
 from ..networks import build_network
 from ..plotting import figure_title, plot_prediction
+from . import learned_camera as learned
 from .batches import BatchStream, auto_workers
 from .checkpointing import Checkpointer
 from .config import TrainConfig
@@ -43,6 +44,7 @@ from .run_warnings import (
     LIMIT_TOLERANCE,
     DepthCollapseWarning,
     RunWarnings,
+    check_finite_step,
     collapse_message,
 )
 from .sample_checks import EMPTY, SampleChecker, TestSampleChecker
@@ -84,6 +86,7 @@ class Trainer:
         val_set: optional samples to evaluate on at `val_every` and at the end.
         step_callback: optional `f(trainer, step, losses)` called after every step (hooks,
             tests).
+        camera: the samples' `camera_record` where `train_set` has none (`from_checkpoint`).
 
     Raises:
         ValueError: `out_dir` holds another run (the message names the config keys that
@@ -105,7 +108,8 @@ class Trainer:
 
     def __init__(self, config: TrainConfig, train_set: Iterable[Mapping[str, Any]],
                  val_set: Iterable[Mapping[str, Any]] | None = None,
-                 step_callback: Callable[[Trainer, int, dict[str, float]], None] | None = None):
+                 step_callback: Callable[[Trainer, int, dict[str, float]], None] | None = None,
+                 camera: Mapping[str, Sequence[float]] | None = None):
         to_plain(config.to_dict(), "config")  # a config that a checkpoint cannot hold fails now
         self.train_set, self.val_set = train_set, val_set
         self.step_callback = step_callback
@@ -130,17 +134,23 @@ class Trainer:
         self.step_timer = StepTimer()
         #: the host seconds of the phases of the last step (`step_timing.PHASES`)
         self.phases: dict[str, float] = {}
+        #: the camera learned with the network (`config.learn_optics`), None when it is fixed
+        self.camera = learned.build_learned_camera(cfg, self.sample_checks.camera or camera,
+                                                   self.device)
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
-            self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay,
+            learned.param_groups(self.model, self.camera, cfg), lr=cfg.lr,
+            weight_decay=cfg.weight_decay,
             fused=True if self.device.type == "cuda" else None)
         self.progress = Progress(cfg.steps, cfg.minutes)  # what the learning rate follows
         self.scheduler = build_scheduler(self.optimizer, cfg, self.progress)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
-                                   cfg.ssim_window, parse_aperture(cfg.aperture),
+                                   cfg.ssim_window, parse_aperture(cfg.aperture) if self.camera
+                                   is None else self.camera.aperture,  # a learned mask too
                                    mode=cfg.render_mode, max_kernel_size=cfg.max_kernel_size
                                    ).to(self.device)  # its aperture too: no CPU tensor in a step
         #: the step's network and loss (one compiled graph when `config.compile`)
-        self.forward = NetworkAndLoss(cfg, self.ddp_model, self.loss_fn, self.device)
+        self.forward = NetworkAndLoss(cfg, self.ddp_model, self.loss_fn, self.device,
+                                      self.camera)
         self.checkpoints = CheckpointStore(cfg.out_dir / "checkpoints", keep=cfg.keep_checkpoints)
         self.log = RunLog(cfg.out_dir)
         self.checkpointer = Checkpointer(self.checkpoints, self.is_main)
@@ -189,10 +199,8 @@ class Trainer:
     def at_depth_limits(self, depth: Tensor) -> Tensor:
         """The share of the pixels of `depth` at `depth_min` or `depth_max` (within
         `LIMIT_TOLERANCE` of the range), a 0-d tensor."""
-        cfg = self.config
-        tol = LIMIT_TOLERANCE * (cfg.depth_max - cfg.depth_min)
-        depth = depth.detach()
-        return ((depth <= cfg.depth_min + tol) | (depth >= cfg.depth_max - tol)).float().mean()
+        return at_depth_limits(depth, self.config.depth_min, self.config.depth_max,
+                               LIMIT_TOLERANCE)
 
     def train_step(self, batch: Mapping[str, Any]) -> dict[str, float]:
         """One optimisation step on a collated batch; returns the losses (mean over processes)
@@ -215,6 +223,7 @@ class Trainer:
             norm = nn.utils.clip_grad_norm_(params, self.config.grad_clip)
         else:
             norm = torch.linalg.vector_norm(torch.stack([p.grad.norm() for p in params]))
+        norm = learned.optics_gradients(self.camera, norm, self.config.grad_clip, self.world_size)
         values = torch.stack([v.detach().float() for v in terms.values()]
                              + [self.at_depth_limits(depth), norm.detach().float()])
         if self.world_size > 1:
@@ -222,7 +231,7 @@ class Trainer:
             values = values / self.world_size
         *numbers, grad_norm = values.tolist()  # the step's one wait for the device
         losses = dict(zip([*terms, "at_depth_limits"], numbers, strict=True))
-        self._check_finite(losses, grad_norm)
+        check_finite_step(losses, grad_norm, self.step + 1, self.config.lr)
         self.checkpointer.in_update = True  # until the step is counted: no half-step checkpoint
         optimizing = time.perf_counter()
         with record_function("optimizer"):
@@ -230,20 +239,6 @@ class Trainer:
             self.scheduler.step()
         self.phases["optimizer"] = time.perf_counter() - optimizing
         return losses
-
-    def _check_finite(self, losses: dict[str, float], grad_norm: float) -> None:
-        """Stop before the weights change when the loss or the gradient is not finite."""
-        step = self.step + 1
-        if not math.isfinite(losses["loss"]):
-            terms = {k: v for k, v in losses.items() if k != "at_depth_limits"}
-            raise FloatingPointError(
-                f"loss is not finite at step {step}: {terms}; training stopped before changing "
-                f"the weights (lr is {self.config.lr}: try a smaller one)")
-        if not math.isfinite(grad_norm):
-            raise FloatingPointError(
-                f"gradient is not finite at step {step} (loss {losses['loss']:.4g}); training "
-                f"stopped before changing the weights (lr is {self.config.lr}: try a smaller one, "
-                "or grad_clip)")
 
     # -- loop ------------------------------------------------------------------------------
     def fit(self, until: int | None = None) -> list[dict[str, float]]:
@@ -274,7 +269,8 @@ class Trainer:
         self.out_of_time = False
         self.checkpointer.restart_clock()
         self.step_timer = StepTimer()
-        check = self.sample_checks.check_depth if cfg.supervision == "depth" else None
+        check = self.sample_checks.check_depth \
+            if cfg.supervision == "depth" or cfg.learn_optics else None
         batches = BatchStream(self.sampler, self.step, until, self.device, self.workers,
                               check=check)
         try:
@@ -324,7 +320,8 @@ class Trainer:
                "seconds": time.perf_counter() - started,
                "at_depth_limits": losses["at_depth_limits"], "data_s": data_s,
                "compute_s": compute_s,
-               **{f"{name.replace(' ', '_')}_s": s for name, s in self.phases.items()}}
+               **{f"{name.replace(' ', '_')}_s": s for name, s in self.phases.items()},
+               **({} if self.camera is None else learned.log_columns(self.camera))}
         self.history.append(row)
         self.checkpointer.in_update = False
         if self.is_main and (self.step % self.config.log_every == 0 or self.step == until):
@@ -400,6 +397,7 @@ class Trainer:
             the mean metrics, and `at_depth_limits`: the share of predicted pixels at
             `depth_min` or `depth_max` (near 1: the network collapsed to its limits).
         """
+        test_set = learned.rendered_samples(self.camera, test_set, self.config)  # if learned
         return evaluate_network(self.model, self.config, test_set, checker, self.device,
                                 min_depth=min_depth, max_depth=depth_cap, crop=crop,
                                 median_scaling=median_scaling)
@@ -422,6 +420,9 @@ class Trainer:
         if not self.is_main:
             return None
         sample = self._figure_sample()
+        if self.camera is not None:  # its files, and what the network reads through it
+            learned.save_camera(self.camera, self.config.out_dir, self.step, self.log.train)
+            sample = next(learned.rendered_samples(self.camera, [sample], self.config))
         batch = collate([sample])
         depth = self.predict(batch["image"], batch.get("focused"), batch.get("camera"))
         path = path or self.config.out_dir / "figures" / f"step_{self.step:06d}.png"
@@ -433,19 +434,21 @@ class Trainer:
     # -- checkpoints -------------------------------------------------------------------------
     def state_dict(self) -> dict[str, Any]:
         """Everything exact resume needs, as tensors and plain data only (see
-        `models.checkpoints`)."""
+        `models.checkpoints`), and a learned camera's `learned_camera.checkpoint_entries`."""
+        camera = self.sample_checks.camera
         return {"format": CHECKPOINT_FORMAT, "model": self.model.state_dict(),
                 "optimizer": self.optimizer.state_dict(),
                 "scheduler": self.scheduler.state_dict(), "step": self.step,
                 "config": to_plain(self.config.to_dict(), "config"),
                 "history": [dict(row) for row in self.history], "rng": rng_state(),
-                **({} if self.sample_checks.camera is None else
-                   {"camera": self.sample_checks.camera})}
+                **({} if camera is None else {"camera": camera}),
+                **({} if self.camera is None else learned.checkpoint_entries(self.camera))}
 
     def load_state_dict(self, state: Mapping[str, Any], source: str | Path = "checkpoint") -> None:
         """Restore what `state_dict` returned (also older checkpoints without `rng`) from
         `source` (as named in errors)."""
         restore_weights(self.model, state["model"], source)
+        learned.restore(self.camera, state)
         self.optimizer.load_state_dict(state["optimizer"])
         self.scheduler.load_state_dict(state["scheduler"])
         self.step = int(state["step"])
@@ -478,7 +481,8 @@ class Trainer:
         from ..loading import read_checkpoint  # loading reads configs of this package
 
         state, cfg = read_checkpoint(path, resume="overwrite", progress=False, device=device)
-        trainer = cls(cfg, train_set)  # "overwrite" only skips reading the run folder here:
+        # "overwrite" only skips reading the run folder here:
+        trainer = cls(cfg, train_set, camera=learned.starting_camera(state))
         trainer.load_state_dict(state, path)
         trainer.run_folder.continue_at(trainer.step)  # fit() would continue it
         return trainer

@@ -1,0 +1,353 @@
+"""Learned optics: `optics.LearnableCamera` / `LearnableMask` (gradients, constraints, start at
+the fixed camera) and training with them (`TrainConfig.learn_optics`, `defocus train
+--learn-optics`): the rendering in the forward, checkpoints, run folder and evaluation."""
+
+import csv
+import math
+
+import pytest
+import torch
+
+from optics import CameraSettings, LearnableCamera, LearnableMask, Mask, disk_mask
+from optics.learnable import OPEN
+
+FIXED = CameraSettings(0.05, 2.8, [2.0, 6.0], 1.8e-4)
+RANGE = (1.0, 10.0)
+
+
+def _scene(dtype=torch.float64, size=6, seed=0):
+    gen = torch.Generator().manual_seed(seed)
+    image = torch.rand(1, 2, size, size, generator=gen, dtype=dtype)
+    depth = 1.2 + 7 * torch.rand(1, 1, size, size, generator=gen, dtype=dtype)
+    return image, depth
+
+
+def _perturbed(camera, scale=0.3, seed=1):
+    """Move every parameter off its start (a gradcheck at a generic point)."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in camera.parameters():
+            p.add_(scale * torch.randn(p.shape, generator=gen, dtype=p.dtype))
+    return camera
+
+
+# -- gradients -------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["focus_logits", "f_number_logits", "mask.logits"])
+@pytest.mark.parametrize("mode", ["scatter", "gather"])
+def test_render_gradcheck_each_learned_parameter(name, mode):
+    """float64 gradcheck of the focal stack in each learned parameter (focus distances,
+    f-numbers, mask values), through the renderer's PSF layer."""
+    settings = CameraSettings(0.05, 2.0, [1.5, 4.0], 6e-5)  # CoCs of a few pixels
+    camera = _perturbed(LearnableCamera(settings, RANGE, mask_size=4))
+    image, depth = _scene()
+    param = dict(camera.named_parameters())[name].detach().clone().requires_grad_(True)
+
+    def render(value):
+        return torch.func.functional_call(camera, {name: value}, (image, depth),
+                                          {"mode": mode})
+
+    assert render(param).abs().sum() > 0
+    assert torch.autograd.gradcheck(render, (param,), eps=1e-6, atol=1e-6, fast_mode=True)
+
+
+def test_learned_values_gradcheck_against_the_physical_values():
+    """The focus distances and f-numbers are smooth functions of their parameters (float64)."""
+    camera = _perturbed(LearnableCamera(FIXED, RANGE, learn=("focus", "f-number")))
+    for name, value in (("focus_logits", lambda c: c.focus_distance()),
+                        ("f_number_logits", lambda c: c.f_number())):
+        param = dict(camera.named_parameters())[name].detach().clone().requires_grad_(True)
+
+        def f(x, name=name, value=value):
+            with torch.nn.utils.stateless._reparametrize_module(camera, {name: x}):
+                return value(camera)
+
+        assert torch.autograd.gradcheck(f, (param,), eps=1e-7, atol=1e-7)
+
+
+def test_mask_gradient_is_that_of_the_exactly_constrained_mask():
+    """`values()`' gradient (one Newton step on a cached offset) equals the derivative of the
+    mask whose offset is solved exactly at every point (central differences, float64)."""
+    mask = LearnableMask(disk_mask(4))
+    _perturbed(mask, scale=1.0)
+    logits = mask.logits.detach().clone()
+
+    def exact(l):  # noqa: E741 - solve sum(sigmoid(l + b)) = light by bisection, no gradients
+        low, high = -60.0, 60.0
+        for _ in range(200):
+            mid = (low + high) / 2
+            low, high = (low, mid) if torch.sigmoid(l + mid).sum() > mask.light else (mid, high)
+        return torch.sigmoid(l + (low + high) / 2)
+
+    values = mask.values().reshape(-1)
+    jacobian = torch.stack([torch.autograd.grad(v, mask.logits, retain_graph=True)[0].reshape(-1)
+                            for v in values])  # (output, logit)
+    step = 1e-6
+    for i in range(logits.numel()):
+        d = torch.zeros_like(logits).reshape(-1)
+        d[i] = step
+        d = d.reshape(logits.shape)
+        numeric = (exact(logits + d) - exact(logits - d)) / (2 * step)
+        torch.testing.assert_close(jacobian[:, i].reshape(4, 4), numeric,
+                                   atol=1e-7, rtol=1e-5)
+
+
+# -- constraints and start -------------------------------------------------------------------
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_constraints_hold_after_huge_steps(seed):
+    camera = LearnableCamera(CameraSettings(0.05, [2.8, 4.0, 8.0], [6.0, 2.0, 3.0], 1.8e-4),
+                             RANGE, f_number_range=(1.4, 22.0), mask_size=8)
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for p in camera.parameters():
+            p.add_(200 * torch.randn(p.shape, generator=gen, dtype=p.dtype))
+    focus, numbers = camera.focus_distance(), camera.f_number()
+    assert torch.isfinite(focus).all() and torch.isfinite(numbers).all()
+    assert ((focus >= RANGE[0]) & (focus <= RANGE[1])).all()
+    # the shots keep their order: shot 1 nearest, then shot 2, then shot 0 (as 2 < 3 < 6 m)
+    assert focus[1] <= focus[2] <= focus[0]
+    assert ((numbers >= 1.4) & (numbers <= 22.0)).all()
+    values = camera.mask.values()
+    assert ((values >= 0) & (values <= 1)).all()
+    torch.testing.assert_close(values.sum(), camera.mask.light, rtol=1e-9, atol=1e-9)
+    camera.settings().check()  # a valid camera
+
+
+def test_constraints_hold_under_an_optimizer_that_pushes_out():
+    """Adam with a large step pushing every value out of its limits: still inside."""
+    camera = LearnableCamera(FIXED, RANGE)
+    optimizer = torch.optim.Adam(camera.parameters(), lr=5.0)
+    for _ in range(20):
+        optimizer.zero_grad()
+        mask = camera.mask.values()
+        (-camera.focus_distance().sum() - camera.f_number().sum() - (mask ** 2).sum()
+         - mask[:4].sum()).backward()
+        optimizer.step()
+        focus = camera.focus_distance().detach()
+        assert (focus >= 1.0).all() and (focus <= 10.0).all() and focus[0] <= focus[1]
+        assert (camera.f_number() <= 22.0).all()
+        values = camera.mask.values().detach()
+        assert ((values >= 0) & (values <= 1)).all()
+        torch.testing.assert_close(values.sum(), camera.mask.light, rtol=1e-9, atol=1e-9)
+
+
+def test_starts_at_the_fixed_camera_and_the_open_disk():
+    fixed = CameraSettings(0.05, [2.8, 4.0], [6.0, 2.0], 1.8e-4, aperture="disk")
+    camera = LearnableCamera(fixed, RANGE)
+    start = camera.settings()
+    for name in ("focal_length", "f_number", "focus_distance", "pixel_pitch"):
+        torch.testing.assert_close(getattr(start, name), getattr(fixed, name), rtol=1e-12, atol=0)
+    expected = (1 - OPEN) + (2 * OPEN - 1) * disk_mask(16)
+    torch.testing.assert_close(camera.mask.values(), expected, rtol=1e-9, atol=1e-9)
+    # not learned: the fixed values exactly, and the fixed PSF
+    fixed_only = LearnableCamera(fixed, RANGE, learn=("mask",))
+    assert torch.equal(fixed_only.focus_distance(), fixed.focus_distance)
+    assert torch.equal(fixed_only.f_number(), fixed.f_number)
+    assert type(LearnableCamera(fixed, RANGE, learn=("focus",)).aperture).__name__ == "Disk"
+
+
+def test_learned_mask_renders_as_the_fixed_mask_of_its_values():
+    """The learned mask's PSF is `Mask`'s of its current values (the frozen copy evaluate uses)."""
+    mask = _perturbed(LearnableMask(disk_mask(8)), scale=2.0)
+    for coc in (0.5, 3.0, 7.5):
+        torch.testing.assert_close(mask.kernel(coc).detach(), mask.frozen().kernel(coc))
+    # the open disk: close to the disk aperture's kernel at a large CoC
+    disk = Mask(disk_mask(64)).kernel(20.0)
+    assert (LearnableMask().kernel(20.0).detach() - disk).abs().sum() < 0.1
+
+
+@pytest.mark.parametrize("kwargs, words", [
+    ({"learn": ("zoom",)}, "learn must name"),
+    ({"depth_range": (3.0, 10.0)}, "strictly inside depth_range"),
+    ({"settings": CameraSettings(0.05, 2.8, [2.0, 2.0], 1.8e-4)}, "all different"),
+    ({"f_number_range": (4.0, 22.0)}, "strictly inside f_number_range"),
+    ({"f_number_range": (8.0, 4.0)}, "N_min < N_max"),
+    ({"mask_size": 1}, "mask_size"),
+])
+def test_refused_at_the_door(kwargs, words):
+    args = {"settings": FIXED, "depth_range": RANGE, **kwargs}
+    with pytest.raises(ValueError, match=words):
+        LearnableCamera(**args)
+
+
+def test_record_is_json():
+    import json
+
+    record = LearnableCamera(FIXED, RANGE, mask_size=4).record()
+    assert json.loads(json.dumps(record))["learned"] == ["focus", "f-number", "mask"]
+    assert len(record["mask"]) == 4 and record["focus_distance"] == pytest.approx([2.0, 6.0])
+
+
+# -- training ----------------------------------------------------------------------------------
+
+def _config(tmp_path, **changes):
+    from models.training import TrainConfig
+
+    fields = {"steps": 3, "batch_size": 2, "width": 4, "progress": False, "workers": 0,
+              "out_dir": tmp_path / "run", "checkpoint_minutes": 0.0,
+              "learn_optics": "focus,f-number,mask", "optics_lr": 0.05, "mask_size": 8}
+    return TrainConfig(**{**fields, **changes})
+
+
+def test_config_learn_optics():
+    from models.training import TrainConfig
+
+    assert TrainConfig().learn_optics == ""
+    assert TrainConfig(learn_optics="mask,focus").learn_optics == "focus,mask"
+    assert TrainConfig.load(None, ["learn_optics=[f-number, mask]"]).learn_optics == \
+        "f-number,mask"
+    for bad in ("lens", "focus,focus", ["focus", 3]):
+        with pytest.raises(ValueError, match="learn_optics must name"):
+            TrainConfig(learn_optics=bad)
+    with pytest.raises(ValueError, match="f_number_min < f_number_max"):
+        TrainConfig(f_number_min=8.0, f_number_max=4.0)
+    with pytest.raises(ValueError, match="set compile=false"):
+        TrainConfig(learn_optics="focus", compile=True)
+
+
+def test_fixed_camera_path_is_unchanged(tmp_path, scenes):
+    """learn_optics empty: no camera, one param group, the batch passed on as it is, the log's
+    and checkpoint's keys as before, and two runs bit-identical."""
+    from models.checkpoints import load_checkpoint
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, learn_optics=""), scenes)
+    assert trainer.camera is None and len(trainer.optimizer.param_groups) == 1
+    batch = {"image": torch.rand(1, 3, 4, 4)}
+    assert trainer.forward.rendered(batch) is batch
+    history = trainer.fit()
+    again = Trainer(_config(tmp_path, learn_optics="", out_dir=tmp_path / "again"), scenes).fit()
+    assert [row["loss"] for row in history] == [row["loss"] for row in again]
+    with open(tmp_path / "run" / "train_log.csv") as handle:
+        header = next(csv.reader(handle))
+    assert not any(k.startswith(("focus_distance", "f_number", "mask")) for k in header)
+    state = load_checkpoint(tmp_path / "run" / "checkpoints" / "last.pt")
+    assert not {"optics", "camera_mask"} & set(state)
+    assert not (tmp_path / "run" / "camera.json").exists()
+
+
+def test_first_render_reproduces_the_data(tmp_path, scenes):
+    """At the start the learned camera renders the procedural scenes' own focused images."""
+    from models.training import Trainer
+    from models.training.learned_camera import render_batch
+    from optics import collate
+
+    cfg = _config(tmp_path, learn_optics="focus,f-number")
+    trainer = Trainer(cfg, scenes)
+    batch = collate([scenes[0], scenes[1]])
+    with torch.no_grad():
+        rendered = render_batch(trainer.camera, batch, trainer.config)
+    torch.testing.assert_close(rendered["focused"], batch["focused"], atol=1e-5, rtol=0)
+    torch.testing.assert_close(rendered["camera"].focus_distance, batch["camera"].focus_distance)
+
+
+@pytest.mark.slow
+def test_training_learns_the_camera(tmp_path, scenes):
+    """A few steps on tiny procedural scenes: every learned value moves, the loss is finite,
+    and the camera is in the checkpoint, the log and the run folder."""
+    from models.checkpoints import load_checkpoint
+    from models.training import Trainer
+    from optics import CameraSettings as Settings
+
+    trainer = Trainer(_config(tmp_path), scenes)
+    start = trainer.camera.record()
+    history = trainer.fit()
+    end = trainer.camera.record()
+    assert all(math.isfinite(row["loss"]) for row in history)
+    for name in ("focus_distance", "f_number", "mask"):
+        assert end[name] != start[name], name
+    assert len(trainer.optimizer.param_groups) == 2
+    assert trainer.optimizer.param_groups[1]["initial_lr"] == 0.05  # optics_lr
+    run = tmp_path / "run"
+    for name in ("camera.json", "mask.png", "optics.png"):
+        assert (run / name).is_file(), name
+    settings, extra = Settings.read_json(run / "camera.json")
+    assert settings.focus_distance.tolist() == pytest.approx(end["focus_distance"])
+    assert extra["learned"] == ["focus", "f-number", "mask"] and extra["step"] == 3
+    with open(run / "train_log.csv") as handle:
+        rows = list(csv.DictReader(handle))
+    assert float(rows[-1]["focus_distance_2"]) == pytest.approx(end["focus_distance"][1])
+    assert {"f_number_1", "mask_open", "mask_asymmetry"} <= set(rows[0])
+    state = load_checkpoint(run / "checkpoints" / "last.pt")  # weights_only=True
+    assert state["camera"]["focus_distance"] == pytest.approx(end["focus_distance"])
+    torch.testing.assert_close(state["camera_mask"].double(), torch.tensor(end["mask"]).double())
+    assert "focus_logits" in state["optics"]
+
+
+@pytest.mark.slow
+def test_resume_restores_the_learned_camera(tmp_path, scenes):
+    """2 + 2 steps resumed from the checkpoint = 4 steps at once, optics included."""
+    from models.training import Trainer
+
+    whole = Trainer(_config(tmp_path, steps=4, out_dir=tmp_path / "whole"), scenes)
+    whole.fit()
+    first = Trainer(_config(tmp_path, steps=4, out_dir=tmp_path / "parts"), scenes)
+    first.fit(until=2)
+    first.save_checkpoint()
+    resumed = Trainer(_config(tmp_path, steps=4, out_dir=tmp_path / "parts"), scenes)
+    assert resumed.step == 2
+    resumed.fit()
+    for a, b in zip(whole.camera.state_dict().values(), resumed.camera.state_dict().values(),
+                    strict=True):
+        torch.testing.assert_close(a, b, rtol=0, atol=0)
+    for data in (scenes, ()):  # without data: the camera it started from is in the checkpoint
+        loaded = Trainer.from_checkpoint(tmp_path / "parts" / "checkpoints" / "last.pt", data)
+        assert loaded.camera.record() == resumed.camera.record()
+
+
+@pytest.mark.slow
+def test_evaluate_renders_with_the_learned_camera(tmp_path, scenes):
+    from defocus.app.evaluate import checkpoint_focus
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, steps=2), scenes)
+    trainer.fit()
+    checkpoint = tmp_path / "run" / "checkpoints" / "last.pt"
+    samples, line, warning = checkpoint_focus(scenes, checkpoint, trainer.config.aperture)
+    assert warning is None and "learned 8x8 aperture mask" in line
+    with torch.no_grad():
+        expected = trainer.camera.render(scenes[0]["image"][None].double(),
+                                         scenes[0]["depth"][None].double())[0]
+    torch.testing.assert_close(samples[0]["focused"].double(), expected.clamp(0, 1),
+                               atol=1e-5, rtol=0)
+
+
+def test_cli_refuses_real_focused_photos(tmp_path, capsys):
+    from defocus.cli import main
+
+    root = tmp_path / "dfd_indoor"
+    root.mkdir()
+    assert main(["train", "--learn-optics", "focus", "--data", "dslr", "--root",
+                 str(root), "--out", str(tmp_path / "run")]) == 2
+    error = capsys.readouterr().err
+    assert "real photos" in error and "--focus synthesized" in error
+    assert len(error.strip().splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+    assert main(["train", "--learn-optics", "focus", "--set", "learn_optics=mask"]) == 2
+    assert "give only the option" in capsys.readouterr().err
+
+
+def test_depth_supervised_twin_learns_the_camera_through_its_input(tmp_path, scenes):
+    """With depth labels the network's input (focused images and settings) comes through the
+    learned camera, so the optics get gradients from the depth error alone."""
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, supervision="depth", learn_optics="focus,f-number",
+                              steps=2), scenes)
+    start = trainer.camera.record()
+    trainer.fit()
+    assert trainer.camera.record()["focus_distance"] != start["focus_distance"]
+    assert trainer.camera.record()["f_number"] != start["f_number"]
+
+
+def test_a_learned_checkpoint_loads_as_a_depth_model(tmp_path, scenes):
+    """`defocus predict`'s loader reads the learned camera as the camera it was trained for."""
+    from models.loading import load_depth_model
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, steps=1), scenes)
+    trainer.fit()
+    model = load_depth_model(tmp_path / "run" / "checkpoints" / "last.pt")
+    assert model.camera["focus_distance"] == pytest.approx(
+        trainer.camera.record()["focus_distance"])
