@@ -20,6 +20,10 @@ from optics import Aperture
 
 #: Gaussian (sigma, pixels) applied to both sides of every comparison (`with_floor`).
 FLOOR_SIGMA_PX = 0.5
+#: A kernel within this many machine epsilons (of its peak) of its point reflection is taken as
+#: point-symmetric, its transfer function as real: sampled disks and Gaussians differ from their
+#: reflection by at most 12 (rounding), an odd polygon's by millions.
+SYMMETRY_EPS = 64
 
 
 def smooth_size(n: int) -> int:
@@ -67,7 +71,9 @@ class FourierBlur:
         self.spectrum = torch.fft.rfft2(padded)
 
     def transfer(self, kernel: Tensor) -> Tensor:
-        """Transfer function of `kernel` `(K,K)` (centred) on the padded grid."""
+        """Transfer function of `kernel` `(K,K)` (centred) on the padded grid: real where the
+        kernel is point-symmetric (a disk, a Gaussian: its imaginary part is rounding only),
+        which halves the products of `apply`."""
         k = kernel.shape[-1]
         if k > min(self.size):
             raise ValueError(f"a {k}-pixel kernel does not fit the padded {tuple(self.size)}")
@@ -85,11 +91,18 @@ class FourierBlur:
         grid[:k - h] = spectra[h:]
         if h:
             grid[-h:] = spectra[:h]
-        return torch.fft.fft(grid, dim=0)
+        transfer = torch.fft.fft(grid, dim=0)
+        asymmetry = float((kernel - kernel.flip((0, 1))).abs().max())
+        return transfer.real if asymmetry <= SYMMETRY_EPS * torch.finfo(kernel.dtype).eps \
+            * float(kernel.abs().max()) else transfer
 
     def apply(self, transfer: Tensor) -> Tensor:
         """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is."""
-        out = torch.fft.irfft2(self.spectrum * transfer, s=self.size)
+        product = self.spectrum * transfer if transfer.is_complex() else torch.view_as_complex(
+            torch.view_as_real(self.spectrum) * transfer[..., None])
+        # along the height, then back to real along the width: the values of `irfft2`, without
+        # the copy of its input it makes (a fifth faster on a CPU)
+        out = torch.fft.irfft(torch.fft.ifft(product, dim=-2), n=self.size[1], dim=-1)
         return out[..., self.pad_y:self.pad_y + self.h, self.pad_x:self.pad_x + self.w]
 
 
