@@ -100,9 +100,7 @@ class FourierBlur:
         """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is."""
         product = self.spectrum * transfer if transfer.is_complex() else torch.view_as_complex(
             torch.view_as_real(self.spectrum) * transfer[..., None])
-        # along the height, then back to real along the width: the values of `irfft2`, without
-        # the copy of its input it makes (a fifth faster on a CPU)
-        out = torch.fft.irfft(torch.fft.ifft(product, dim=-2), n=self.size[1], dim=-1)
+        out = torch.fft.irfft2(product, s=self.size)
         return out[..., self.pad_y:self.pad_y + self.h, self.pad_x:self.pad_x + self.w]
 
 
