@@ -79,3 +79,25 @@ def test_settings_for_shots_follows_the_same_rule():
     assert settings_for_shots(CameraSettings(0.05, [2.8, 2.8], 1.7, 6e-5), 1).n_shots == 1
     with pytest.raises(DataFormatError, match='camera: "f_number" holds 2 different values'):
         settings_for_shots(CameraSettings(0.05, [2.8, 2.0], 1.7, 6e-5), 1)
+
+
+def test_a_learned_camera_with_a_mask_is_refused_and_one_without_is_read(tmp_path):
+    """`defocus train --learn-optics ...` writes camera.json with the learned mask (or null):
+    a camera file's PSF is its "aperture" spec, so a mask there would be dropped silently."""
+    import torch
+
+    from optics import LearnableCamera
+
+    settings = CameraSettings(0.05, 2.0, [1.5, 4.0], 2e-5, "disk")
+    for learn, refused in ((("focus", "f-number", "mask"), True), (("focus",), False)):
+        record = LearnableCamera(settings, (0.5, 10.0), learn=learn).record()
+        path = tmp_path / f"camera_{len(learn)}.json"
+        path.write_text(json.dumps(record))
+        if refused:
+            with pytest.raises(DataFormatError, match=rf'{re.escape(str(path))}: holds a '
+                               r'learned aperture "mask".*defocus evaluate CHECKPOINT'):
+                CameraFile.read(path)
+        else:
+            camera = CameraFile.read(path)
+            assert camera.settings.focus_distance.tolist() == pytest.approx(
+                torch.tensor(record["focus_distance"]).tolist())

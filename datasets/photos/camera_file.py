@@ -156,6 +156,11 @@ class CameraFile:
         if bad is not None:
             raise DataFormatError(f'{path}: "{bad}" must {_EXTRAS[bad][0]}, got '
                                   f"{data.get(bad)!r}")
+        if data.get("mask") is not None:  # a camera learned with `--learn-optics ...mask`
+            raise DataFormatError(
+                f'{path}: holds a learned aperture "mask"; a camera file\'s PSF is the shape its '
+                f'"aperture" names ({data.get("aperture")!r}), so the mask would be left out: '
+                "score such a camera with its checkpoint (defocus evaluate CHECKPOINT)")
         photos = data.get("photos")
         if n_shots is None and photos is not None:
             n_shots, shots = len(photos), shots or f'"photos" names {len(photos)} focused photos'
