@@ -134,3 +134,21 @@ def test_semi_global_paths_match_the_plain_recurrence():
     cost = torch.rand(2, 5, 7, 9, generator=g, dtype=torch.float64)
     jumps = 0.1 + torch.rand(2, 4, 7, 9, generator=g, dtype=torch.float64)
     torch.testing.assert_close(semi_global_paths(cost, 0.1, jumps), _plain_paths(cost, 0.1, jumps))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_semi_global_cost_in_a_reused_workspace_is_the_same(dtype):
+    """Tiles of two sizes aggregated one after the other in one workspace give what fresh
+    memory gives; a workspace too small, or of another dtype, is refused."""
+    from models.depth_from_photos.semi_global import semi_global_cost
+
+    g = torch.Generator().manual_seed(5)
+    workspace = torch.empty(3 * 7 * 12 * 15, dtype=dtype)
+    for h, w in ((12, 15), (9, 11)):
+        cost = torch.rand(1, 7, h, w, generator=g, dtype=dtype)
+        image = torch.rand(1, 3, h, w, generator=g, dtype=dtype)
+        torch.testing.assert_close(semi_global_cost(cost, image, workspace=workspace),
+                                   semi_global_cost(cost, image), rtol=0, atol=0)
+    with pytest.raises(ValueError, match="workspace must be"):
+        semi_global_cost(torch.rand(1, 7, 13, 15, dtype=dtype), torch.rand(1, 3, 13, 15,
+                         dtype=dtype), workspace=workspace)

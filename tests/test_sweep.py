@@ -232,10 +232,10 @@ def test_semi_global_tiles_share_the_whole_photos_cost_scale(monkeypatch):
     aif, focused = aif.double()[None], focused.double()[None]
     received, volumes = [], []
 
-    def recording(cost, image, *penalties, scale=None):
+    def recording(cost, image, *penalties, scale=None, **options):
         received.append(scale)
         volumes.append(cost)
-        return semi_global_cost(cost, image, *penalties, scale=scale)
+        return semi_global_cost(cost, image, *penalties, scale=scale, **options)
 
     monkeypatch.setattr(cost_volume, "semi_global_cost", recording)
     SweepDepth()(aif, focused, settings, 1.0, 10.0)

@@ -123,10 +123,11 @@ class CostVolumeDepth(nn.Module):
             reach: context (pixels) a tile needs around it (`context_px`).
             desc: the progress bar's label.
         """
-        def pick(volume: Tensor, guide: Tensor, scale: Tensor | None = None) -> Tensor:
+        def pick(volume: Tensor, guide: Tensor, scale: Tensor | None = None,
+                 workspace: Tensor | None = None) -> Tensor:
             if self.aggregation == "semi-global":
                 volume = semi_global_cost(volume, guide, self.smooth_penalty, self.jump_penalty,
-                                          scale=scale)
+                                          scale=scale, workspace=workspace)
             else:
                 volume = aggregate_cost(volume)
             return median_filter(select_depth(volume, near, far), MEDIAN_PX)
@@ -141,6 +142,10 @@ class CostVolumeDepth(nn.Module):
         tiles = math.ceil(h / side) * math.ceil(w / side)
         bar = progress_bar(total=tiles, desc=f"{desc} (tiles)", disable=not self.progress)
         semi_global = self.aggregation == "semi-global"
+        # the semi-global aggregation's intermediates, for the largest tile, reused by every tile
+        largest = min(h, side + 2 * reach) * min(w, side + 2 * reach)
+        workspace = guide.new_empty(3 * guide.shape[0] * self.n_candidates * largest) \
+            if semi_global else None
         if guide.shape[0] * self.n_candidates * h * w * guide.element_size() \
                 <= MAX_VOLUME_BYTES:
             # the whole photo's volume at once (each cost computed once, not again in every
@@ -149,7 +154,7 @@ class CostVolumeDepth(nn.Module):
             scale = cost_scale(volume) if semi_global else None
 
             def volume_tile(volume: Tensor, guide: Tensor) -> Tensor:
-                out = pick(volume, guide, scale)
+                out = pick(volume, guide, scale, workspace)
                 bar.update()
                 return out
 
@@ -162,7 +167,7 @@ class CostVolumeDepth(nn.Module):
             if semi_global else None
 
         def tile_depth(guide: Tensor, *photos: Tensor) -> Tensor:
-            out = pick(cost(guide, *photos), guide, scale)
+            out = pick(cost(guide, *photos), guide, scale, workspace)
             bar.update()
             return out
 

@@ -36,7 +36,8 @@ JUMP_PENALTY = 3.0
 EDGE_CONTRAST = 0.05
 
 
-def semi_global_paths(cost: Tensor, smooth_penalty: float, jump_penalty: Tensor) -> Tensor:
+def semi_global_paths(cost: Tensor, smooth_penalty: float, jump_penalty: Tensor,
+                      workspace: Tensor | None = None) -> Tensor:
     """Sum over the four scan directions of the path costs `L_r` (module docstring).
 
     Args:
@@ -45,6 +46,9 @@ def semi_global_paths(cost: Tensor, smooth_penalty: float, jump_penalty: Tensor)
         jump_penalty: `(B,4,H,W)` `P2` per pixel and direction (left-to-right, right-to-left,
             top-to-bottom, bottom-to-top), for a larger change into that pixel from its
             predecessor along the direction; at least `smooth_penalty`.
+        workspace: memory for the two volume-sized intermediates, a flat tensor of at least
+            `2 * cost.numel()` elements of `cost`'s dtype (see `semi_global_cost`); the result
+            then lives in it.
 
     Returns:
         `(B,K,H,W)`, lower is better.
@@ -61,13 +65,19 @@ def semi_global_paths(cost: Tensor, smooth_penalty: float, jump_penalty: Tensor)
     # the scans along W (left-right, right-left) run over a transposed copy, so that each step
     # reads and writes contiguous memory (several times faster than strided columns); the sums
     # keep the order of the four directions
-    across = cost.transpose(2, 3).contiguous()  # (B,K,W,H)
-    sums = torch.zeros_like(across)
+    n, across_shape = cost.numel(), (b, k, w, h)
+    if workspace is None:
+        across = cost.transpose(2, 3).contiguous()  # (B,K,W,H)
+        sums = torch.zeros_like(across)
+    else:
+        across = workspace[:n].view(across_shape).copy_(cost.transpose(2, 3))
+        sums = workspace[n:2 * n].view(across_shape).zero_()
     for direction, reverse in ((0, False), (1, True)):
         _scan(across, jump_penalty[:, direction:direction + 1].transpose(2, 3), smooth_penalty,
               reverse, sums)
     del across
-    total = sums.transpose(2, 3).contiguous()
+    total = sums.transpose(2, 3).contiguous() if workspace is None else \
+        workspace[:n].view(cost.shape).copy_(sums.transpose(2, 3))
     del sums
     for direction, reverse in ((2, False), (3, True)):
         _scan(cost, jump_penalty[:, direction:direction + 1], smooth_penalty, reverse, total)
@@ -121,7 +131,8 @@ def cost_scale(cost: Tensor, stride: int = SCALE_STRIDE) -> Tensor:
 
 def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH_PENALTY,
                      jump_penalty: float = JUMP_PENALTY,
-                     edge_contrast: float = EDGE_CONTRAST, scale: Tensor | None = None) -> Tensor:
+                     edge_contrast: float = EDGE_CONTRAST, scale: Tensor | None = None,
+                     workspace: Tensor | None = None) -> Tensor:
     """Aggregate a cost volume `(B,K,H,W)` semi-globally, guided by the photo `image` `(B,C,H,W)`.
 
     The costs are first made scale-free: each pixel's minimum is subtracted (it shifts all its
@@ -141,6 +152,10 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
         edge_contrast: photo contrast (linear intensity) that halves the jump penalty.
         scale: `(B,)` the costs' typical spread; by default `cost_scale(cost)`. Give the whole
             photo's value when `cost` is a tile of it.
+        workspace: memory for the three volume-sized intermediates, a flat tensor of at least
+            `3 * cost.numel()` elements of `cost`'s dtype and device, reused tile after tile:
+            a fresh volume per tile is fresh pages the system zeroes (a second of a
+            12-megapixel photo's depth). The result then lives in it, until its next use.
 
     Returns:
         `(B,K,H,W)` aggregated costs, lower is better (`thin_lens.select_depth` picks from
@@ -167,10 +182,18 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
                                          ("edge_contrast", edge_contrast))),
                    (edge_contrast == 0, lambda: "edge_contrast must be > 0, got 0"),
                    (scale is not None and scale.numel() != cost.shape[0], lambda: "scale must "
-                    f"hold one value per image ({cost.shape[0]}), got {tuple(scale.shape)}")])
+                    f"hold one value per image ({cost.shape[0]}), got {tuple(scale.shape)}"),
+                   (workspace is not None and (workspace.numel() < 3 * cost.numel()
+                                               or workspace.dtype != cost.dtype
+                                               or workspace.device != cost.device),
+                    lambda: f"workspace must be a {cost.dtype} tensor on {cost.device} of at "
+                    f"least {3 * cost.numel()} elements, got {workspace.dtype} on "
+                    f"{workspace.device}, {workspace.numel()}")])
     typical = cost_scale(cost) if scale is None else scale.to(cost.dtype).flatten()
     typical = typical.clamp_min(torch.finfo(cost.dtype).tiny)
-    scaled = (cost - cost.amin(1, keepdim=True)).div_(typical.view(-1, 1, 1, 1))
+    n = cost.numel()
+    scaled = torch.sub(cost, cost.amin(1, keepdim=True), out=None if workspace is None else
+                       workspace[2 * n:3 * n].view(cost.shape)).div_(typical.view(-1, 1, 1, 1))
     grey = image.to(cost.dtype).mean(1, keepdim=True)
     # contrast into each pixel from its predecessor along each direction (none at the start)
     step_x = (grey[..., 1:] - grey[..., :-1]).abs()
@@ -179,4 +202,5 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
     contrast = torch.cat([torch.cat([zero_x, step_x], -1), torch.cat([step_x, zero_x], -1),
                           torch.cat([zero_y, step_y], -2), torch.cat([step_y, zero_y], -2)], 1)
     jumps = (jump_penalty / (1 + contrast / edge_contrast)).clamp_min(smooth_penalty)
-    return semi_global_paths(scaled, float(smooth_penalty), jumps)
+    return semi_global_paths(scaled, float(smooth_penalty), jumps,
+                             None if workspace is None else workspace[:2 * n])
