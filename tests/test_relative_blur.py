@@ -376,3 +376,23 @@ def test_no_mirror_warning_where_the_mirrored_depths_look_sharp():
         warn_mirrored(one_plane, 1.99, 2.01)
     with pytest.warns(UserWarning, match="mirror"):
         warn_mirrored(one_plane, 1.5, 3.0)
+
+
+def test_pair_errors_gradcheck():
+    """Differentiable in both shots (the noise coefficients given), and the same values without
+    gradients, where its chunk buffers are reused."""
+    from models.depth_from_photos.relative_blur import pair_errors
+
+    g = torch.Generator().manual_seed(0)
+    first, second = (torch.rand(1, 3, 12, 12, generator=g, dtype=torch.float64,
+                                requires_grad=True) for _ in range(2))
+    noise = torch.tensor([[1e-4, 1e-3]], dtype=torch.float64)
+    blurs = (torch.tensor([0.0, 1.5, 3.0], dtype=torch.float64),
+             torch.tensor([2.0, 1.0, 0.5], dtype=torch.float64))
+
+    def errors(a, b):
+        return pair_errors(a, b, Disk(), *blurs, noise)
+
+    assert torch.autograd.gradcheck(errors, (first, second))
+    torch.testing.assert_close(errors(first, second).detach(),
+                               errors(first.detach(), second.detach()), rtol=0, atol=0)

@@ -109,6 +109,10 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
     # window sums taken for `WINDOW_CHUNK` candidates at once (one call on many pixels)
     errors = first.new_empty(1, len(relative), *first.shape[-2:]) if out is None else out
     buffer = first.new_empty(1, min(WINDOW_CHUNK, len(relative)), *first.shape[-2:])
+    # one chunk's expected noise, reused: no fresh pages per chunk (fresh ones where
+    # gradients are asked for)
+    reuse = not (torch.is_grad_enabled() and (first.requires_grad or second.requires_grad))
+    expected = torch.empty_like(buffer) if reuse else None
     for start in range(0, len(relative), WINDOW_CHUNK):
         stop = min(start + WINDOW_CHUNK, len(relative))
         # the noise each side keeps, per candidate: its window sum times the energy of the
@@ -121,10 +125,11 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
             buffer[:, k - start] = torch.sub(predicted, references[r]).square_().sum(1)
             energies[s, k - start] += float((kernel**2).sum())
             energies[r, k - start] += floor_energy
-        expected = (energies[0, :, None, None] * variances[0]).addcmul_(
-            energies[1, :, None, None], variances[1])
-        error = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX).sub_(expected).div_(
-            expected.clamp_min_(MIN_NOISE_VARIANCE))
+        noise = torch.mul(energies[0, :, None, None], variances[0],
+                          out=expected[:, :stop - start] if reuse else None).addcmul_(energies[1, :, None, None],
+                                                                   variances[1])
+        error = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX).sub_(noise).div_(
+            noise.clamp_min_(MIN_NOISE_VARIANCE))
         if out is None:
             errors[:, start:stop] = error
         else:
