@@ -143,7 +143,8 @@ class CostVolumeDepth(nn.Module):
         bar = progress_bar(total=tiles, desc=f"{desc} (tiles)", disable=not self.progress)
         semi_global = self.aggregation == "semi-global"
         # the semi-global aggregation's intermediates, for the largest tile, reused by every tile
-        largest = min(h, side + 2 * reach) * min(w, side + 2 * reach)
+        largest = math.prod(max(min(start + side + reach, n) - max(start - reach, 0)
+                                for start in range(0, n, side)) for n in (h, w))
         workspace = guide.new_empty(3 * guide.shape[0] * self.n_candidates * largest) \
             if semi_global else None
         if guide.shape[0] * self.n_candidates * h * w * guide.element_size() \
