@@ -51,6 +51,7 @@ from .thin_lens import (
     box_filter,
     candidate_blurs,
     thin_lens_blur,
+    windowed_errors,
 )
 
 #: Floor of the expected noise variance a comparison's error is divided by (noise-free photos).
@@ -105,36 +106,31 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
     first_sharper = (first_px <= second_px).tolist()
     relative = relative_blur_px(torch.minimum(first_px, second_px),
                                 torch.maximum(first_px, second_px)).tolist()
-    # each candidate's errors written (or added) straight into the volume: one copy of it; the
-    # window sums taken for `WINDOW_CHUNK` candidates at once (one call on many pixels)
-    errors = first.new_empty(1, len(relative), *first.shape[-2:]) if out is None else out
-    buffer = first.new_empty(1, min(WINDOW_CHUNK, len(relative)), *first.shape[-2:])
+    # the noise each side keeps, per candidate: its window sum times the energy of the kernel
+    # it went through (the floor alone for the blurrier shot)
+    energies = first.new_zeros(2, len(relative))
+
+    def error(k: int) -> Tensor:
+        s, r = (0, 1) if first_sharper[k] else (1, 0)
+        kernel = with_floor(psf_kernel(aperture, relative[k], first))
+        energies[s, k] += float((kernel**2).sum())
+        energies[r, k] += floor_energy
+        predicted = shots[s].apply(shots[s].transfer(kernel))
+        return torch.sub(predicted, references[r]).square_().sum(1)
+
     # one chunk's expected noise, reused: no fresh pages per chunk (fresh ones where
     # gradients are asked for)
     reuse = not (torch.is_grad_enabled() and (first.requires_grad or second.requires_grad))
-    expected = torch.empty_like(buffer) if reuse else None
-    for start in range(0, len(relative), WINDOW_CHUNK):
-        stop = min(start + WINDOW_CHUNK, len(relative))
-        # the noise each side keeps, per candidate: its window sum times the energy of the
-        # kernel it went through (the floor alone for the blurrier shot)
-        energies = first.new_zeros(2, stop - start)
-        for k in range(start, stop):
-            s, r = (0, 1) if first_sharper[k] else (1, 0)
-            kernel = with_floor(psf_kernel(aperture, relative[k], first))
-            predicted = shots[s].apply(shots[s].transfer(kernel))
-            buffer[:, k - start] = torch.sub(predicted, references[r]).square_().sum(1)
-            energies[s, k - start] += float((kernel**2).sum())
-            energies[r, k - start] += floor_energy
-        noise = torch.mul(energies[0, :, None, None], variances[0],
-                          out=expected[:, :stop - start] if reuse else None).addcmul_(energies[1, :, None, None],
-                                                                   variances[1])
-        error = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX).sub_(noise).div_(
-            noise.clamp_min_(MIN_NOISE_VARIANCE))
-        if out is None:
-            errors[:, start:stop] = error
-        else:
-            errors[:, start:stop] += error
-    return errors
+    expected = first.new_empty(1, min(WINDOW_CHUNK, len(relative)), *first.shape[-2:]) \
+        if reuse else None
+
+    def normalised(means: Tensor, start: int, stop: int) -> Tensor:
+        noise = torch.mul(energies[0, start:stop, None, None], variances[0],
+                          out=None if expected is None else expected[:, :stop - start])
+        noise.addcmul_(energies[1, start:stop, None, None], variances[1])
+        return means.sub_(noise).div_(noise.clamp_min_(MIN_NOISE_VARIANCE))
+
+    return windowed_errors(error, len(relative), first, out, normalised)
 
 
 def relative_blur_cost(focused: Tensor, settings: CameraSettings, near: float, far: float,

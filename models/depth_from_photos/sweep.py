@@ -38,13 +38,7 @@ from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model
-from .thin_lens import (
-    ERROR_WINDOW_PX,
-    WINDOW_CHUNK,
-    box_filter,
-    candidate_blurs,
-    thin_lens_blur,
-)
+from .thin_lens import box_filter, candidate_blurs, thin_lens_blur, windowed_errors
 
 
 def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
@@ -76,25 +70,15 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
         noise = noise_model(torch.cat([image, focused], 1))
     variance = (noise[:, :1, None, None] + noise[:, 1:, None, None]
                 * box_filter(image, 5).clamp_min(0)).sum(1, keepdim=True)
-    # each candidate's window means written (or added) straight into the volume: one copy of
-    # it; the window means taken for `WINDOW_CHUNK` candidates at once (one call on many pixels)
-    errors = image.new_empty(image.shape[0], blurs.numel(), *image.shape[-2:]) if out is None \
-        else out
+
+    def error(g: int) -> Tensor:
+        kernel = with_floor(psf_kernel(aperture, values[g], image))
+        squared = ((source.apply(source.transfer(kernel)) - reference) ** 2).sum(1)
+        # the noise variance `image` loses under this kernel: variance * sum of its squares
+        return squared - variance[:, 0] * float((kernel**2).sum())
+
     values = blurs.tolist()
-    buffer = image.new_empty(image.shape[0], min(WINDOW_CHUNK, len(values)), *image.shape[-2:])
-    for start in range(0, len(values), WINDOW_CHUNK):
-        stop = min(start + WINDOW_CHUNK, len(values))
-        for g in range(start, stop):
-            kernel = with_floor(psf_kernel(aperture, values[g], image))
-            squared = ((source.apply(source.transfer(kernel)) - reference) ** 2).sum(1)
-            # the noise variance `image` loses under this kernel: variance * sum of its squares
-            buffer[:, g - start] = squared - variance[:, 0] * float((kernel**2).sum())
-        error = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX)
-        if out is None:
-            errors[:, start:stop] = error
-        else:
-            errors[:, start:stop] += error
-    return errors
+    return windowed_errors(error, len(values), image, out)
 
 
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,

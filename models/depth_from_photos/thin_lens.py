@@ -11,7 +11,7 @@ cheapest candidate, refined to a fraction of a candidate (`select_depth`).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 
 import kornia
@@ -53,6 +53,34 @@ def box_filter(x: Tensor, size: int) -> Tensor:
                    mode="replicate")
     kernel = x.new_full((planes, 1, size, size), 1 / size**2)
     return F.conv2d(padded, kernel, groups=planes).reshape(x.shape)
+
+
+def windowed_errors(error: Callable[[int], Tensor], count: int, like: Tensor,
+                    out: Tensor | None = None,
+                    finish: Callable[[Tensor, int, int], Tensor] | None = None) -> Tensor:
+    """The window means (`box_filter` over `ERROR_WINDOW_PX`) of `count` candidates' local
+    errors `error(k)` `(B,H,W)`, as a volume `(B,count,H,W)` (the dtype, device, batch and size
+    of `like`), `finish(means, start, stop)` applied to the means of candidates `start:stop`:
+    added into `out` (returned) where given, else into a new volume. The means are taken for
+    `WINDOW_CHUNK` candidates at once (one call on many pixels) and written straight into the
+    volume (no second copy of it): the loop of every sweep over candidate blurs.
+
+    Example:
+        >>> x = torch.rand(1, 8, 8)
+        >>> v = windowed_errors(lambda k: k * x, 3, x[None])
+        >>> v.shape, torch.allclose(v[:, 2], 2 * box_filter(x[None], ERROR_WINDOW_PX)[:, 0])
+        (torch.Size([1, 3, 8, 8]), True)
+    """
+    b, (h, w) = like.shape[0], like.shape[-2:]
+    errors = like.new_zeros(b, count, h, w) if out is None else out
+    buffer = like.new_empty(b, min(WINDOW_CHUNK, count), h, w)
+    for start in range(0, count, WINDOW_CHUNK):
+        stop = min(start + WINDOW_CHUNK, count)
+        for k in range(start, stop):
+            buffer[:, k - start] = error(k)
+        means = box_filter(buffer[:, :stop - start], ERROR_WINDOW_PX)
+        errors[:, start:stop] += means if finish is None else finish(means, start, stop)
+    return errors
 
 
 def median_filter(x: Tensor, size: int) -> Tensor:
