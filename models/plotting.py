@@ -210,8 +210,10 @@ def _hatch_off_side(ax, side: tuple[str, float], off_side: Tensor | None) -> Non
     blur only the other side explains (`off_side`)."""
     import matplotlib
 
+    from .depth_from_photos.side import OTHER_SIDE
+
     stated, focus = side
-    other = "before" if stated == "beyond" else "beyond"
+    other = OTHER_SIDE[stated]
     share = _share(off_side)
     if share:
         hatch, colour = _MIRROR_HATCH

@@ -99,6 +99,7 @@ def run(args: argparse.Namespace) -> int:
                            camera_options={name: getattr(args, name) for name in camera})
     out = predict(request, report=say(args))
     from defocus.app.predict import LOW_CONFIDENCE
+    from models.depth_from_photos.side import OTHER_SIDE
     from models.plotting import percentile_range
 
     depth = out["depth"]
@@ -107,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         f"; {out['low_confidence']:.0%} of the pixels have low confidence (< {LOW_CONFIDENCE:g})"
     if "side" in out:
         side, share = out["side"], float(out["off_side"].float().mean())
-        other = "before" if side == "beyond" else "beyond"
+        other = OTHER_SIDE[side]
         doubt += (f"; stated: the scene lies {side} the focus plane at {out['focus_plane']:g} m"
                   + (f", but {share:.1%} of the pixels are blurred more than any depth {side} "
                      f"it allows and lie {other} it (hatched in figure.png)" if share else

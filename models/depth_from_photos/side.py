@@ -18,6 +18,9 @@ from torch import Tensor
 
 from optics import CameraSettings
 
+#: The side of one focus plane opposite to each stated one.
+OTHER_SIDE = {"beyond": "before", "before": "beyond"}
+
 
 def mirror_depth(depth: Tensor, focus_distance: float, depth_range: tuple[float, float]) -> Tensor:
     """The depth whose thin-lens blur equals that of `depth`, on the other side of the focus
