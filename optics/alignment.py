@@ -104,17 +104,18 @@ def _translate(image: Tensor, shift: Tensor) -> Tensor:
     return out[..., pad_y:pad_y + h, pad_x:pad_x + w].to(image.dtype)
 
 
-def _fast_length(n: int) -> int:
-    """The smallest length >= `n` whose only prime factors are 2, 3, 5 and 7 (fast FFTs).
+def fast_length(n: int, primes: tuple[int, ...] = (2, 3, 5, 7)) -> int:
+    """The smallest length >= `n` whose only prime factors are `primes`: a length the FFT is
+    fast at (a prime length such as 2017 takes it many times longer).
 
     Example:
-        >>> _fast_length(4034), _fast_length(1084)  # 2 x 2017, 4 x 271
-        (4050, 1120)
+        >>> fast_length(4034), fast_length(1084), fast_length(97, (2, 3, 5))  # 2 x 2017, 4 x 271
+        (4050, 1120, 100)
     """
     best = n
     while True:
         m = best
-        for p in (2, 3, 5, 7):
+        for p in primes:
             while m % p == 0:
                 m //= p
         if m == 1:
@@ -123,9 +124,9 @@ def _fast_length(n: int) -> int:
 
 
 def _pad_after(n: int, pad: int) -> int:
-    """Padding after `n` pixels with `pad` before: up to a `_fast_length` (a mirror reaches at
+    """Padding after `n` pixels with `pad` before: up to a `fast_length` (a mirror reaches at
     most `n - 1` pixels: a small image keeps its even padding)."""
-    after = _fast_length(n + 2 * pad) - n - pad
+    after = fast_length(n + 2 * pad) - n - pad
     return after if pad and after < n else pad
 
 

@@ -17,6 +17,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from optics import Aperture
+from optics.alignment import fast_length
 
 #: Gaussian (sigma, pixels) applied to both sides of every comparison (`with_floor`).
 FLOOR_SIGMA_PX = 0.5
@@ -24,23 +25,8 @@ FLOOR_SIGMA_PX = 0.5
 #: point-symmetric, its transfer function as real: sampled disks and Gaussians differ from their
 #: reflection by at most 12 (rounding), an odd polygon's by millions.
 SYMMETRY_EPS = 64
-
-
-def smooth_size(n: int) -> int:
-    """The smallest integer >= `n` with no prime factor above 5.
-
-    Example:
-        >>> smooth_size(97)
-        100
-    """
-    while True:
-        m = n
-        for p in (2, 3, 5):
-            while m % p == 0:
-                m //= p
-        if m == 1:
-            return n
-        n += 1
+#: The prime factors of the padded sizes of `FourierBlur` (`optics.alignment.fast_length`).
+FFT_PRIMES = (2, 3, 5)
 
 
 class FourierBlur:
@@ -63,8 +49,8 @@ class FourierBlur:
         padded = F.pad(image, (mx, mx, my, my), mode="reflect")
         # then the edge repeated: beyond what a small image can mirror, and on to a size whose
         # only prime factors are 2, 3 and 5 (several times faster transforms)
-        extra_y = smooth_size(self.h + 2 * pad) - self.h - 2 * pad
-        extra_x = smooth_size(self.w + 2 * pad) - self.w - 2 * pad
+        extra_y = fast_length(self.h + 2 * pad, FFT_PRIMES) - self.h - 2 * pad
+        extra_x = fast_length(self.w + 2 * pad, FFT_PRIMES) - self.w - 2 * pad
         padded = F.pad(padded, (pad - mx, pad - mx + extra_x, pad - my, pad - my + extra_y),
                        mode="replicate")
         self.size = padded.shape[-2:]
