@@ -47,8 +47,8 @@ def semi_global_paths(cost: Tensor, smooth_penalty: float, jump_penalty: Tensor,
             top-to-bottom, bottom-to-top), for a larger change into that pixel from its
             predecessor along the direction; at least `smooth_penalty`.
         workspace: memory for the two volume-sized intermediates, a flat tensor of at least
-            `2 * cost.numel()` elements of `cost`'s dtype (see `semi_global_cost`); the result
-            then lives in it.
+            `2 * cost.numel()` elements of `cost`'s dtype (see `semi_global_cost`; by default
+            new); the result lives in it.
 
     Returns:
         `(B,K,H,W)`, lower is better.
@@ -65,20 +65,14 @@ def semi_global_paths(cost: Tensor, smooth_penalty: float, jump_penalty: Tensor,
     # the scans along W (left-right, right-left) run over a transposed copy, so that each step
     # reads and writes contiguous memory (several times faster than strided columns); the sums
     # keep the order of the four directions
-    n, across_shape = cost.numel(), (b, k, w, h)
-    if workspace is None:
-        across = cost.transpose(2, 3).contiguous()  # (B,K,W,H)
-        sums = torch.zeros_like(across)
-    else:
-        across = workspace[:n].view(across_shape).copy_(cost.transpose(2, 3))
-        sums = workspace[n:2 * n].view(across_shape).zero_()
+    n = cost.numel()
+    workspace = cost.new_empty(2 * n) if workspace is None else workspace
+    across = workspace[:n].view(b, k, w, h).copy_(cost.transpose(2, 3))
+    sums = workspace[n:2 * n].view(b, k, w, h).zero_()
     for direction, reverse in ((0, False), (1, True)):
         _scan(across, jump_penalty[:, direction:direction + 1].transpose(2, 3), smooth_penalty,
               reverse, sums)
-    del across
-    total = sums.transpose(2, 3).contiguous() if workspace is None else \
-        workspace[:n].view(cost.shape).copy_(sums.transpose(2, 3))
-    del sums
+    total = workspace[:n].view(cost.shape).copy_(sums.transpose(2, 3))  # over `across`
     for direction, reverse in ((2, False), (3, True)):
         _scan(cost, jump_penalty[:, direction:direction + 1], smooth_penalty, reverse, total)
     return total
@@ -153,9 +147,10 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
         scale: `(B,)` the costs' typical spread; by default `cost_scale(cost)`. Give the whole
             photo's value when `cost` is a tile of it.
         workspace: memory for the three volume-sized intermediates, a flat tensor of at least
-            `3 * cost.numel()` elements of `cost`'s dtype and device, reused tile after tile:
-            a fresh volume per tile is fresh pages the system zeroes (a second of a
-            12-megapixel photo's depth). The result then lives in it, until its next use.
+            `3 * cost.numel()` elements of `cost`'s dtype and device (by default new), to reuse
+            tile after tile: a fresh volume per tile is fresh pages the system zeroes (a
+            second of a 12-megapixel photo's depth). The result lives in it, until its next
+            use.
 
     Returns:
         `(B,K,H,W)` aggregated costs, lower is better (`thin_lens.select_depth` picks from
@@ -192,8 +187,9 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
     typical = cost_scale(cost) if scale is None else scale.to(cost.dtype).flatten()
     typical = typical.clamp_min(torch.finfo(cost.dtype).tiny)
     n = cost.numel()
-    scaled = torch.sub(cost, cost.amin(1, keepdim=True), out=None if workspace is None else
-                       workspace[2 * n:3 * n].view(cost.shape)).div_(typical.view(-1, 1, 1, 1))
+    workspace = cost.new_empty(3 * n) if workspace is None else workspace
+    scaled = torch.sub(cost, cost.amin(1, keepdim=True), out=workspace[2 * n:3 * n].view(
+        cost.shape)).div_(typical.view(-1, 1, 1, 1))
     grey = image.to(cost.dtype).mean(1, keepdim=True)
     # contrast into each pixel from its predecessor along each direction (none at the start)
     step_x = (grey[..., 1:] - grey[..., :-1]).abs()
@@ -202,5 +198,4 @@ def semi_global_cost(cost: Tensor, image: Tensor, smooth_penalty: float = SMOOTH
     contrast = torch.cat([torch.cat([zero_x, step_x], -1), torch.cat([step_x, zero_x], -1),
                           torch.cat([zero_y, step_y], -2), torch.cat([step_y, zero_y], -2)], 1)
     jumps = (jump_penalty / (1 + contrast / edge_contrast)).clamp_min(smooth_penalty)
-    return semi_global_paths(scaled, float(smooth_penalty), jumps,
-                             None if workspace is None else workspace[:2 * n])
+    return semi_global_paths(scaled, float(smooth_penalty), jumps, workspace[:2 * n])
