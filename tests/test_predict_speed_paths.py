@@ -6,6 +6,7 @@ in `benchmarks/predict.py`."""
 
 from __future__ import annotations
 
+import kornia
 import numpy as np
 import pytest
 import torch
@@ -16,7 +17,7 @@ from models.depth_from_photos import SweepDepth, cost_volume, estimate_depth
 from models.depth_from_photos.relative_blur import RelativeBlurDepth, pair_errors
 from models.depth_from_photos.semi_global import semi_global_paths
 from models.depth_from_photos.sweep import blur_errors
-from models.depth_from_photos.thin_lens import WINDOW_CHUNK
+from models.depth_from_photos.thin_lens import WINDOW_CHUNK, box_filter, median_filter
 from optics import CameraSettings, Disk
 
 
@@ -101,6 +102,24 @@ def test_blur_errors_in_chunks_are_each_candidates_own():
     alone = torch.cat([pair_errors(image, focused, Disk(), first[i:i + 1], second[i:i + 1],
                                    noise) for i in range(21)], 1)
     torch.testing.assert_close(together, alone, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("shape,size", [((1, 16, 40, 50), 5), ((2, 1, 31, 23), 9),
+                                        ((1, 3, 12, 9), 49), ((1, 2, 40, 50), 17)])
+def test_scipy_filters_are_kornias(dtype, shape, size):
+    """On a CPU without gradients the window means and medians are scipy's, in bands of rows
+    over threads: kornia's values (the medians bit for bit), on many planes, one plane in bands
+    and windows larger than the photo; with gradients they are kornia's own."""
+    x = torch.rand(shape, generator=torch.Generator().manual_seed(size), dtype=dtype)
+    tol = 1e-6 if dtype == torch.float32 else 1e-13
+    expected = kornia.filters.box_blur(x, (size, size), border_type="replicate")
+    torch.testing.assert_close(box_filter(x, size), expected, rtol=0, atol=tol)
+    if size <= min(shape[-2:]):  # kornia's median mirrors, which needs the window inside
+        assert torch.equal(median_filter(x, size), kornia.filters.median_blur(x, size))
+    graded = x.clone().requires_grad_()
+    assert box_filter(graded, size).grad_fn is not None
+    torch.testing.assert_close(box_filter(graded, size).detach(), expected, rtol=0, atol=tol)
 
 
 def _plain_paths(cost, smooth, jumps):

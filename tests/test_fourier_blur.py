@@ -1,0 +1,48 @@
+"""`FourierBlur`: whole-image convolutions through one transform of the photo."""
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from models.depth_from_photos.fourier_blur import FourierBlur, psf_kernel, with_floor
+from optics import Disk
+
+
+def _direct(image: torch.Tensor, kernel: torch.Tensor) -> torch.Tensor:
+    """The convolution (not correlation) of `image` with `kernel`, borders mirrored: an
+    independent computation."""
+    half = kernel.shape[-1] // 2
+    padded = F.pad(image, (half,) * 4, mode="reflect")
+    weight = kernel.flip((0, 1)).expand(image.shape[1], 1, *kernel.shape)
+    return F.conv2d(padded, weight, groups=image.shape[1])
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+@pytest.mark.parametrize("grad", [False, True])
+@pytest.mark.parametrize("symmetric", [True, False])
+def test_apply_is_the_mirrored_convolution(dtype, grad, symmetric):
+    """Both transforms (scipy's without gradients, torch's with them) give the direct
+    convolution, for a point-symmetric disk (real transfer) and a lopsided kernel (complex)."""
+    g = torch.Generator().manual_seed(1)
+    image = torch.rand(2, 3, 23, 31, generator=g, dtype=dtype).requires_grad_(grad)
+    kernel = with_floor(psf_kernel(Disk(), 3.5, image))
+    if not symmetric:
+        kernel = kernel * torch.linspace(0.2, 1.8, kernel.shape[-1], dtype=dtype)
+        kernel = kernel / kernel.sum()
+    blur = FourierBlur(image, pad=kernel.shape[-1] // 2 + 2)
+    transfer = blur.transfer(kernel)
+    assert transfer.is_complex() != symmetric
+    out = blur.apply(transfer)
+    assert out.shape == image.shape and out.dtype == dtype and out.requires_grad == grad
+    tol = 1e-5 if dtype == torch.float32 else 1e-12
+    torch.testing.assert_close(out, _direct(image, kernel), rtol=0, atol=tol)
+
+
+def test_apply_gradcheck():
+    """Differentiable in the image and in the kernel (through its transfer function)."""
+    g = torch.Generator().manual_seed(2)
+    image = torch.rand(1, 2, 9, 11, generator=g, dtype=torch.float64, requires_grad=True)
+    kernel = torch.rand(3, 3, generator=g, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(
+        lambda x, k: FourierBlur(x, pad=3).apply(FourierBlur(x, pad=3).transfer(k)),
+        (image, kernel))
