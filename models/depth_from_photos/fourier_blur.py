@@ -104,6 +104,12 @@ class FourierBlur:
             torch.view_as_real(self.spectrum) * transfer[..., None])
         return torch.fft.irfft2(product, s=self.size)[..., rows, cols]
 
+    def squared_error(self, kernel: Tensor, reference: Tensor) -> Tensor:
+        """`(B,H,W)`: the image convolved with `kernel` `(K,K)` against `reference`
+        `(B,C,H,W)`, squared and summed over the channels (in place of the blurred image: no
+        further copy)."""
+        return self.apply(self.transfer(kernel)).sub_(reference).square_().sum(1)
+
 
 def with_floor(kernel: Tensor) -> Tensor:
     """`kernel` `(K,K)` convolved with the sampled Gaussian of `FLOOR_SIGMA_PX` (spatially, so

@@ -142,3 +142,15 @@ def noise_model(image: Tensor, bins: int = 12) -> Tensor:
             a, b = 0.0, float((x * y).sum() / (x * x).sum().clamp_min(1e-30))
         out.append([a, b])
     return torch.tensor(out, dtype=image.dtype, device=image.device)
+
+
+def noise_variance(photo: Tensor, noise: Tensor) -> Tensor:
+    """Per-pixel noise variance `(B,1,H,W)` of `photo` `(B,C,H,W)` summed over its channels, for
+    the `noise_model` coefficients `noise` `(B,2)`, at the photo's local mean (5x5 pixels).
+
+    Example:
+        >>> noise_variance(torch.full((1, 3, 8, 8), 0.5), torch.tensor([[1e-4, 1e-3]]))[0, 0, 0, 0]
+        tensor(0.0018)
+    """
+    return (noise[:, :1, None, None] + noise[:, 1:, None, None]
+            * box_filter(photo, 5).clamp_min(0)).sum(1, keepdim=True)

@@ -44,7 +44,7 @@ from optics.checks import check_finite, check_shape
 from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
-from .photometry import match_exposure, noise_model
+from .photometry import match_exposure, noise_model, noise_variance
 from .thin_lens import (
     ERROR_WINDOW_PX,
     WINDOW_CHUNK,
@@ -67,13 +67,6 @@ def relative_blur_px(sharper_px: Tensor, blurrier_px: Tensor) -> Tensor:
         tensor([4., 0.])
     """
     return (blurrier_px**2 - sharper_px**2).clamp_min(0).sqrt()
-
-
-def _noise_variance(photo: Tensor, noise: Tensor) -> Tensor:
-    """Per-pixel noise variance `(1,1,H,W)` of `photo` `(1,3,H,W)` summed over its channels, for
-    `noise_model` coefficients `(1,2)`."""
-    return (noise[:, :1, None, None] + noise[:, 1:, None, None]
-            * box_filter(photo, 5).clamp_min(0)).sum(1, keepdim=True)
 
 
 def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Tensor,
@@ -101,7 +94,7 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
     floor_energy = float((floor**2).sum())
     references = [shot.apply(shot.transfer(floor)) for shot in shots]
     # the noise variances summed over the error windows, once (a window sum is linear)
-    variances = [box_filter(_noise_variance(photo, noise), ERROR_WINDOW_PX)
+    variances = [box_filter(noise_variance(photo, noise), ERROR_WINDOW_PX)
                  for photo in (first, second)]
     first_sharper = (first_px <= second_px).tolist()
     relative = relative_blur_px(torch.minimum(first_px, second_px),
@@ -115,8 +108,7 @@ def pair_errors(first: Tensor, second: Tensor, aperture: Aperture, first_px: Ten
         kernel = with_floor(psf_kernel(aperture, relative[k], first))
         energies[s, k] += float((kernel**2).sum())
         energies[r, k] += floor_energy
-        predicted = shots[s].apply(shots[s].transfer(kernel))
-        return torch.sub(predicted, references[r]).square_().sum(1)
+        return shots[s].squared_error(kernel, references[r])
 
     # one chunk's expected noise, reused: no fresh pages per chunk (fresh ones where
     # gradients are asked for)

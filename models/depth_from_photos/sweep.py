@@ -37,8 +37,8 @@ from optics.checks import check_finite, check_shape
 from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
-from .photometry import match_exposure, noise_model
-from .thin_lens import box_filter, candidate_blurs, thin_lens_blur, windowed_errors
+from .photometry import match_exposure, noise_model, noise_variance
+from .thin_lens import candidate_blurs, thin_lens_blur, windowed_errors
 
 
 def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
@@ -68,14 +68,13 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
     reference = target.apply(target.transfer(floor))
     if noise is None:
         noise = noise_model(torch.cat([image, focused], 1))
-    variance = (noise[:, :1, None, None] + noise[:, 1:, None, None]
-                * box_filter(image, 5).clamp_min(0)).sum(1, keepdim=True)
+    variance = noise_variance(image, noise)
 
     def error(g: int) -> Tensor:
         kernel = with_floor(psf_kernel(aperture, values[g], image))
-        squared = ((source.apply(source.transfer(kernel)) - reference) ** 2).sum(1)
-        # the noise variance `image` loses under this kernel: variance * sum of its squares
-        return squared - variance[:, 0] * float((kernel**2).sum())
+        # less the noise variance `image` loses under this kernel: variance * its squares' sum
+        return source.squared_error(kernel, reference).sub_(variance[:, 0],
+                                                            alpha=float((kernel**2).sum()))
 
     values = blurs.tolist()
     return windowed_errors(error, len(values), image, out)
