@@ -88,10 +88,11 @@ def training_set(args: argparse.Namespace) -> tuple[torch.utils.data.Dataset, di
     return data.with_augment(augment), fields
 
 
-def config(args: argparse.Namespace, fields: dict, setting: Setting, steps: int,
-           out: Path) -> TrainConfig:
+def config(args: argparse.Namespace, fields: dict, setting: Setting, steps: int) -> TrainConfig:
+    """A run of `steps` steps of `setting`, its folder a new one under `args.scratch` (removed
+    when the benchmark ends)."""
     return TrainConfig(steps=steps, batch_size=args.batch_size, network=setting.network,
-                       out_dir=out, progress=False, device=args.device, workers=setting.workers,
+                       out_dir=Path(tempfile.mkdtemp(dir=args.scratch)), progress=False, device=args.device, workers=setting.workers,
                        checkpoint_minutes=0, precision=setting.precision,
                        compile=setting.compile != "off", resume="overwrite",
                        compile_mode="reduce-overhead" if setting.compile == "graphs" else "default",
@@ -105,8 +106,7 @@ def _is_cuda(args: argparse.Namespace) -> bool:
 def measure(args: argparse.Namespace, data, fields: dict, setting: Setting) -> dict:
     """Median step seconds, the data-wait share and (CUDA) the allocator's peak of one run of
     `--steps` timed steps."""
-    cfg = config(args, fields, setting, args.warmup + args.steps,
-                 Path(tempfile.mkdtemp(prefix="defocus-bench-")))
+    cfg = config(args, fields, setting, args.warmup + args.steps)
     if _is_cuda(args):
         torch.cuda.reset_peak_memory_stats(args.device)
     trainer = Trainer(cfg, data)
@@ -134,8 +134,7 @@ def peak_memory_mb(args: argparse.Namespace, setting: Setting) -> float:
 def memory_of(args: argparse.Namespace) -> None:
     data, fields = training_set(args)
     setting = Setting(args.network[-1], args.precision[-1], args.compile[-1], args.memory_of)
-    cfg = config(args, fields, setting, args.warmup + 3,
-                 Path(tempfile.mkdtemp(prefix="defocus-bench-")))
+    cfg = config(args, fields, setting, args.warmup + 3)
     Trainer(cfg, data).fit()
     own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     workers = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
@@ -175,8 +174,7 @@ def profile(args: argparse.Namespace, data, fields: dict, setting: Setting) -> d
     from torch.profiler import profile as torch_profile
 
     steps = 3
-    cfg = config(args, fields, setting, args.warmup + steps,
-                 Path(tempfile.mkdtemp(prefix="defocus-bench-")))
+    cfg = config(args, fields, setting, args.warmup + steps)
     activities = [ProfilerActivity.CPU]
     if _is_cuda(args):
         activities.append(ProfilerActivity.CUDA)
@@ -311,6 +309,11 @@ def parse(argv: list[str] | None) -> argparse.Namespace:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse(argv)
+    with tempfile.TemporaryDirectory(prefix="defocus-bench-") as args.scratch:
+        return run(args)
+
+
+def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     torch.backends.cudnn.benchmark = args.cudnn_benchmark
     if args.memory_of is not None:
@@ -358,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         print(f"  {r['setting']}: " + ", ".join(f"{name} {ms:.0f}"
                                                for name, ms in r["split_ms"].items()))
-    results = {"args": {k: str(v) for k, v in vars(args).items() if k != "argv"}, "rows": rows,
+    results = {"args": {k: str(v) for k, v in vars(args).items() if k not in ("argv", "scratch")}, "rows": rows,
                "goals": [{"goal": g, "met": met} for g, met in goals(kind, rows, args)]}
     print("\n| goal | met |\n|---|---|")
     for goal in results["goals"]:
