@@ -30,6 +30,7 @@ from .lens import ThinLens
 from .plotting import plot_calibration, plot_depth_calibration
 from .render import DefocusRenderer, render_defocus
 from .sensor import Sensor
+from .tolerance import ROBUSTNESS, CameraTolerance
 
 __all__ = [
     # the camera: lens, sensor, aperture, settings of a scene's shots
@@ -54,6 +55,9 @@ __all__ = [
     "LearnableCamera",
     "LearnableMask",
     "disk_mask",
+    # a camera as built: its focus, f-number and mask off their design by a tolerance
+    "CameraTolerance",
+    "ROBUSTNESS",
     # rendering
     "DefocusRenderer",
     "render_defocus",

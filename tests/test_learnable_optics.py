@@ -3,6 +3,7 @@ the fixed camera) and training with them (`TrainConfig.learn_optics`, `defocus t
 --learn-optics`): the rendering in the forward, checkpoints, run folder and evaluation."""
 
 import csv
+import json
 import math
 
 import pytest
@@ -351,3 +352,83 @@ def test_a_learned_checkpoint_loads_as_a_depth_model(tmp_path, scenes):
     model = load_depth_model(tmp_path / "run" / "checkpoints" / "last.pt")
     assert model.camera["focus_distance"] == pytest.approx(
         trainer.camera.record()["focus_distance"])
+
+
+# -- a camera as built: tolerances --------------------------------------------------------------
+
+def test_tolerance_moves_focus_and_f_number_by_their_closed_forms():
+    from optics import CameraTolerance
+
+    built = CameraTolerance(focus=-0.02, f_stops=-1 / 3).settings(FIXED)
+    torch.testing.assert_close(built.focus_distance, FIXED.focus_distance * 0.98)
+    # a third of a stop: the aperture's area (1 / N^2) times 2^(1/3)
+    torch.testing.assert_close((FIXED.f_number / built.f_number) ** 2,
+                               torch.full_like(FIXED.f_number, 2 ** (1 / 3)))
+    assert built.focal_length.equal(FIXED.focal_length) and built.aperture == FIXED.aperture
+    assert CameraTolerance().settings(FIXED).focus_distance.equal(FIXED.focus_distance)
+
+
+def test_tolerance_mask_noise_is_seeded_and_physical():
+    from optics import CameraTolerance
+
+    mask = Mask(disk_mask(8))
+    noisy = CameraTolerance(mask_noise=0.1, seed=3).mask(mask)
+    again = CameraTolerance(mask_noise=0.1, seed=3).mask(mask)
+    other = CameraTolerance(mask_noise=0.1, seed=4).mask(mask)
+    assert noisy.image.equal(again.image) and not noisy.image.equal(other.image)
+    assert float(noisy.image.min()) >= 0 and float(noisy.image.max()) <= float(mask.image.max())
+    spread = float((noisy.image - mask.image).std())
+    assert 0.05 < spread < 0.12  # about the noise asked for, less what the clipping takes
+    assert CameraTolerance(focus=0.02).mask(mask) is mask
+    assert CameraTolerance(mask_noise=0.1).mask(None) is None
+
+
+@pytest.mark.parametrize("kwargs", [{"focus": -1.0}, {"mask_noise": -0.1},
+                                    {"f_stops": float("nan")}, {"focus": "2 %"}])
+def test_tolerance_refused_at_the_door(kwargs):
+    from optics import CameraTolerance
+
+    with pytest.raises(ValueError, match=next(iter(kwargs))):
+        CameraTolerance(**kwargs)
+
+
+def test_robustness_scores_the_design_and_each_tolerance(tmp_path, scenes, capsys):
+    """`defocus evaluate --robustness`: the design's row is the plain evaluation's, each
+    tolerance renders with the camera as built (a focus 2 % off changes the focused images),
+    the mask's row only for a learned mask; refusals name the options."""
+    from defocus.app.evaluate import EvaluateRequest, checkpoint_focus, evaluate_checkpoint, \
+        robustness
+    from defocus.cli import main
+    from models.training import Trainer
+    from optics import ROBUSTNESS, CameraTolerance
+
+    trainer = Trainer(_config(tmp_path, steps=2), scenes)
+    trainer.fit()
+    checkpoint = tmp_path / "run" / "checkpoints" / "last.pt"
+    test = [scenes[i] for i in range(3)]
+    rows = robustness(EvaluateRequest(test, checkpoint, synthesize=True))
+    assert list(rows) == [t.describe() for t in ROBUSTNESS]
+    plain = evaluate_checkpoint(EvaluateRequest(test, checkpoint, synthesize=True))
+    assert rows["as designed"].metrics == plain.metrics
+    assert rows["focus +2 %"].metrics["abs_rel"] != plain.metrics["abs_rel"]
+    designed, _, _ = checkpoint_focus(test, checkpoint, trainer.config.aperture)
+    built, line, _ = checkpoint_focus(test, checkpoint, trainer.config.aperture,
+                                      CameraTolerance(focus=0.02))
+    assert "as built: focus +2 %" in line
+    assert not torch.allclose(designed[0]["focused"], built[0]["focused"])
+    fixed = tmp_path / "fixed"
+    Trainer(_config(fixed, steps=2, learn_optics="focus"), scenes).fit()
+    fixed_rows = robustness(EvaluateRequest(test, fixed / "run" / "checkpoints" / "last.pt",
+                                            synthesize=True))
+    assert len(fixed_rows) == len(ROBUSTNESS) - 1 and not any("mask" in n for n in fixed_rows)
+    for argv, words in ((["--perturb-focus", "-1"], "focus > -1"),
+                        (["--perturb-focus", "0.02", "--robustness"], "without --perturb"),
+                        (["--perturb-focus", "0.02", "--focus", "real"], "--focus synthesized")):
+        assert main(["evaluate", str(checkpoint), "--data", "synthetic", *argv]) == 2
+        assert words in capsys.readouterr().err
+    table = tmp_path / "robustness.json"
+    assert main(["evaluate", str(checkpoint), "--data", "synthetic", "--scenes", "3", "--size",
+                 "16", "16", "--robustness", "--json", str(table)]) == 0
+    out = capsys.readouterr().out
+    assert "as designed: abs rel 1.00x the design's" in out and "f-number -0.33 stop" in out
+    assert set(json.loads(table.read_text())) == set(rows)

@@ -41,6 +41,9 @@ class EvaluateRequest:
     #: the samples' focused images are synthesised from their image and depth: they are
     #: rendered anew with the camera the checkpoint was trained for (`checkpoint_focus`)
     synthesize: bool = False
+    #: the camera as built (`optics.CameraTolerance`): its focus, f-number and mask off the
+    #: checkpoint's design where the focused images are rendered (with `synthesize`)
+    tolerance: Any = None
     #: called with each progress line
     report: Report = silent
 
@@ -65,14 +68,16 @@ def run_evaluation(request: EvaluateRequest) -> EvaluateResult:
     return evaluate_checkpoint(request)
 
 
-def checkpoint_focus(samples: Sequence[Any], checkpoint: Path,
-                     aperture: str) -> tuple[Sequence[Any], str | None, str | None]:
+def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
+                     tolerance: Any = None) -> tuple[Sequence[Any], str | None, str | None]:
     """`samples` with their focused images rendered anew from their image and depth with the
     camera `checkpoint` was trained for (`datasets.SynthesizedFocus`, PSF `aperture`): the blur
     a network learned is its camera's, so a network trained on one data set is scored on
     another with that blur; a camera learned with the network (`defocus train --learn-optics`)
-    is the checkpoint's camera, its learned aperture mask included. Returns (the samples, a line saying which camera rendered them, a
-    warning where the checkpoint records no camera: then the samples are left as they are).
+    is the checkpoint's camera, its learned aperture mask included; with `tolerance` (an
+    `optics.CameraTolerance`), that camera as built. Returns (the samples, a line saying which
+    camera rendered them, a warning where the checkpoint records no camera: then the samples are
+    left as they are).
     """
     from datasets import SynthesizedFocus
     from models.checkpoints import load_checkpoint
@@ -91,6 +96,9 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path,
     mask = checkpoint_aperture(state)  # a learned aperture mask, or None
     through = "" if mask is None else \
         f", through its learned {'x'.join(map(str, mask.image.shape))} aperture mask"
+    if tolerance is not None:
+        settings, mask = tolerance.settings(settings), tolerance.mask(mask)
+        through += f"; as built: {tolerance.describe()}"
     return (SynthesizedFocus(samples, settings, aperture=mask),
             f"focused images rendered with the camera the checkpoint was trained for: "
             f"{describe_camera(record)}{through}", None)
@@ -118,8 +126,15 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
     network, config = load_model(checkpoint, select_device("auto"))
     checker = TestSampleChecker(config, f"checkpoint {checkpoint}")
     samples, warnings = request.samples, []
+    if request.tolerance is not None and not (request.synthesize
+                                              and config.input_mode == "aif+focused"):
+        raise ValueError(f"a camera tolerance ({request.tolerance.describe()}) changes only "
+                         "focused images rendered with the checkpoint's camera: it needs "
+                         "synthesised focus and a network that reads focused images "
+                         f"(checkpoint {checkpoint} reads {config.input_mode!r})")
     if request.synthesize and config.input_mode == "aif+focused":
-        samples, rendered, warning = checkpoint_focus(samples, checkpoint, config.aperture)
+        samples, rendered, warning = checkpoint_focus(samples, checkpoint, config.aperture,
+                                                      request.tolerance)
         warnings.append(warning)
         if rendered is not None:
             request.report(rendered)
@@ -133,6 +148,25 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
     warnings.append(checker.range_message())  # None where the ground truth fits the range
     return EvaluateResult(checkpoint.parent.parent.name or "model", metrics,
                           "; ".join(w for w in warnings if w) or None)
+
+
+def robustness(request: EvaluateRequest) -> dict[str, EvaluateResult]:
+    """The checkpoint of `request` scored with its camera as designed and as built with each
+    tolerance of `optics.ROBUSTNESS` (the mask's only where it learned one), keyed by the
+    tolerance in words: how much of a designed camera's gain survives a real lens.
+
+    Example:
+        >>> rows = robustness(EvaluateRequest(samples, Path("run/checkpoints/last.pt"),
+        ...                                   synthesize=True))  # doctest: +SKIP
+    """
+    from models.checkpoints import load_checkpoint
+    from models.training.learned_camera import checkpoint_aperture
+    from optics import ROBUSTNESS
+
+    learned_mask = checkpoint_aperture(load_checkpoint(request.checkpoint, mmap=True))
+    return {tolerance.describe(): evaluate_checkpoint(
+                dataclasses.replace(request, tolerance=tolerance))
+            for tolerance in ROBUSTNESS if not tolerance.mask_noise or learned_mask is not None}
 
 
 def evaluate_on_benchmark(request: EvaluateRequest) -> EvaluateResult:

@@ -57,6 +57,19 @@ def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
                         help="KITTI evaluation crop")
     parser.add_argument("--median-scaling", action="store_true",
                         help="scale predictions by median(gt)/median(pred) (reported in the table)")
+    tolerance = parser.add_argument_group(
+        "a camera as built (synthesised focus: the checkpoint's camera off its design)")
+    tolerance.add_argument("--perturb-focus", type=float, default=0.0, metavar="FRACTION",
+                           help="every focus distance off by this share (0.02: 2 %% farther)")
+    tolerance.add_argument("--perturb-f-stops", type=float, default=0.0, metavar="STOPS",
+                           help="the f-number off by this many stops (0.333: a third smaller "
+                                "iris)")
+    tolerance.add_argument("--perturb-mask", type=float, default=0.0, metavar="SIGMA",
+                           help="noise in a learned aperture mask's transmission (share of "
+                                "its peak)")
+    tolerance.add_argument("--robustness", action="store_true",
+                           help="score the camera as designed and as built with focus +-2 %%, "
+                                "f-number +-1/3 stop and (a learned mask) 5 %% mask noise")
     parser.add_argument("--json", type=Path, default=None, help="also write the metrics here")
     add_overwrite_argument(parser)
 
@@ -104,6 +117,11 @@ def request_of(args: argparse.Namespace):
 
         focus = focus_of(args.data, focus)
     common = {"checkpoint": args.checkpoint, "report": say(args)}
+    tolerance = tolerance_of(args)
+    if (tolerance is not None or args.robustness) and (benchmark or focus != "synthesized"):
+        raise CommandError("--perturb-* and --robustness change focused images rendered with "
+                           "the checkpoint's camera: they need a checkpoint and --focus "
+                           f"synthesized, got --data {args.data} with {focus} focus")
     if benchmark:
         from datasets.registry import build_stack_dataset
         from models.protocols import PROTOCOLS
@@ -125,7 +143,24 @@ def request_of(args: argparse.Namespace):
         samples = dataset_from_options(args, split=args.split or "test", seed_offset=1_000)
     return EvaluateRequest(samples, depth_cap=args.depth_cap, crop=args.crop,
                            median_scaling=args.median_scaling, min_depth=args.min_depth,
-                           synthesize=focus == "synthesized", **common)
+                           synthesize=focus == "synthesized", tolerance=tolerance, **common)
+
+
+def tolerance_of(args: argparse.Namespace):
+    """The `optics.CameraTolerance` of `--perturb-*` (None where none is given)."""
+    from optics import CameraTolerance
+
+    values = (args.perturb_focus, args.perturb_f_stops, args.perturb_mask)
+    if not any(values):
+        return None
+    if args.robustness:
+        raise CommandError("--robustness scores its own set of tolerances: give it without "
+                           "--perturb-*")
+    try:
+        return CameraTolerance(*values)
+    except ValueError as error:
+        raise CommandError(f"--perturb-focus/--perturb-f-stops/--perturb-mask: {error}") \
+            from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -137,6 +172,8 @@ def run(args: argparse.Namespace) -> int:
     request = request_of(args)
     if request is None:
         return 0
+    if args.robustness:
+        return print_robustness(request, plan, args.json)
     result = run_evaluation(request)
     if request.protocol is None:
         print(format_table({result.name: result.metrics}))
@@ -152,6 +189,23 @@ def run(args: argparse.Namespace) -> int:
         extra = {"protocol": request.protocol}
     if plan is not None:
         write_json(plan, args.json, {**extra, **result.metrics})
+    return 0
+
+
+def print_robustness(request, plan, json_path: Path | None) -> int:
+    """`defocus evaluate --robustness`: the table of `defocus.app.evaluate.robustness`, each
+    row's abs rel against the design's, and the warnings; the rows to `--json`."""
+    from defocus.app.evaluate import robustness
+    from models.metrics import format_table
+
+    rows = robustness(request)
+    print(format_table({name: result.metrics for name, result in rows.items()}))
+    design = next(iter(rows.values())).metrics["abs_rel"]
+    for name, result in rows.items():
+        print(f"  {name}: abs rel {result.metrics['abs_rel'] / design:.2f}x the design's"
+              + (f" (warning: {result.warning})" if result.warning else ""))
+    if plan is not None:
+        write_json(plan, json_path, {name: result.metrics for name, result in rows.items()})
     return 0
 
 
