@@ -396,8 +396,12 @@ def test_robustness_scores_the_design_and_each_tolerance(tmp_path, scenes, capsy
     """`defocus evaluate --robustness`: the design's row is the plain evaluation's, each
     tolerance renders with the camera as built (a focus 2 % off changes the focused images),
     the mask's row only for a learned mask; refusals name the options."""
-    from defocus.app.evaluate import EvaluateRequest, checkpoint_focus, evaluate_checkpoint, \
-        robustness
+    from defocus.app.evaluate import (
+        EvaluateRequest,
+        checkpoint_focus,
+        evaluate_checkpoint,
+        robustness,
+    )
     from defocus.cli import main
     from models.training import Trainer
     from optics import ROBUSTNESS, CameraTolerance
