@@ -58,6 +58,11 @@ class CameraTolerance:
             raise ValueError(f"need focus > -1 (a relative error) and mask_noise >= 0, got "
                              f"focus={self.focus!r}, mask_noise={self.mask_noise!r}")
 
+    @property
+    def exact(self) -> bool:
+        """Whether the camera is built exactly to its design (no departure at all)."""
+        return not (self.focus or self.f_stops or self.mask_noise)
+
     def settings(self, settings: CameraSettings) -> CameraSettings:
         """The shots of `settings` as this camera takes them: focus distances and f-numbers
         off by the tolerance (focal length, pixel pitch and aperture as designed)."""
@@ -87,7 +92,7 @@ class CameraTolerance:
             + ([f"f-number {self.f_stops:+.2f} stop"] if self.f_stops else []) \
             + ([f"mask noise {100 * self.mask_noise:g} % (seed {self.seed})"]
                if self.mask_noise else [])
-        return ", ".join(parts) or "as designed"
+        return ", ".join(parts) if parts else "as designed"
 
 
 #: The tolerances of `defocus evaluate --robustness`: a focus ring 2 % off either way, an iris a

@@ -366,6 +366,7 @@ def test_tolerance_moves_focus_and_f_number_by_their_closed_forms():
                                torch.full_like(FIXED.f_number, 2 ** (1 / 3)))
     assert built.focal_length.equal(FIXED.focal_length) and built.aperture == FIXED.aperture
     assert CameraTolerance().settings(FIXED).focus_distance.equal(FIXED.focus_distance)
+    assert CameraTolerance().exact and not CameraTolerance(f_stops=0.1).exact
 
 
 def test_tolerance_mask_noise_is_seeded_and_physical():

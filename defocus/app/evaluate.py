@@ -96,7 +96,7 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
     mask = checkpoint_aperture(state)  # a learned aperture mask, or None
     through = "" if mask is None else \
         f", through its learned {'x'.join(map(str, mask.image.shape))} aperture mask"
-    if tolerance is not None:
+    if tolerance is not None and not tolerance.exact:
         settings, mask = tolerance.settings(settings), tolerance.mask(mask)
         through += f"; as built: {tolerance.describe()}"
     return (SynthesizedFocus(samples, settings, aperture=mask),
