@@ -23,6 +23,7 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from .checks import check_finite, check_shape, check_tensor, is_real_number
+from .fourier import fast_length, irfft2, rfft2
 
 #: Gaussian smoothing (pixels) of the images whose motion is estimated, by default.
 _SIGMA_PX = 1.5
@@ -100,27 +101,8 @@ def _translate(image: Tensor, shift: Tensor) -> Tensor:
     fx = torch.fft.rfftfreq(wp, device=work.device, dtype=work.dtype)[None, :]
     angle = -2 * math.pi * (fy * shift[:, 0, None, None] + fx * shift[:, 1, None, None])
     ramp = torch.polar(torch.ones_like(angle), angle)[:, None]
-    out = torch.fft.irfft2(torch.fft.rfft2(padded) * ramp, s=(hp, wp))
-    return out[..., pad_y:pad_y + h, pad_x:pad_x + w].to(image.dtype)
-
-
-def fast_length(n: int, primes: tuple[int, ...] = (2, 3, 5, 7)) -> int:
-    """The smallest length >= `n` whose only prime factors are `primes`: a length the FFT is
-    fast at (a prime length such as 2017 takes it many times longer).
-
-    Example:
-        >>> fast_length(4034), fast_length(1084), fast_length(97, (2, 3, 5))  # 2 x 2017, 4 x 271
-        (4050, 1120, 100)
-    """
-    best = n
-    while True:
-        m = best
-        for p in primes:
-            while m % p == 0:
-                m //= p
-        if m == 1:
-            return best
-        best += 1
+    out = irfft2(rfft2(padded) * ramp, (hp, wp), slice(pad_y, pad_y + h))
+    return out[..., pad_x:pad_x + w].to(image.dtype)
 
 
 def _pad_after(n: int, pad: int) -> int:

@@ -46,3 +46,28 @@ def test_apply_gradcheck():
     assert torch.autograd.gradcheck(
         lambda x, k: FourierBlur(x, pad=3).apply(FourierBlur(x, pad=3).transfer(k)),
         (image, kernel))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_scipy_transforms_are_torchs(dtype):
+    """`optics.fourier.rfft2`/`irfft2` on a CPU without gradients (scipy's, in place) give
+    `torch.fft`'s values; a reused buffer leaves earlier results alone; with gradients they are
+    torch's own."""
+    from optics.fourier import irfft2, rfft2
+
+    g = torch.Generator().manual_seed(3)
+    x = torch.rand(2, 3, 30, 45, generator=g, dtype=dtype)
+    tol = 1e-5 if dtype == torch.float32 else 1e-12
+    spectrum = rfft2(x)
+    torch.testing.assert_close(spectrum, torch.fft.rfft2(x), rtol=0, atol=tol * 100)
+    buffer = torch.empty_like(spectrum).numpy()
+    first = irfft2(spectrum, (30, 45), slice(4, 20), buffer=buffer)
+    kept = first.clone()
+    second = irfft2(spectrum * 2, (30, 45), buffer=buffer)
+    assert torch.equal(first, kept)
+    torch.testing.assert_close(first, x[..., 4:20, :], rtol=0, atol=tol)
+    torch.testing.assert_close(second, 2 * x, rtol=0, atol=2 * tol)
+    graded = x.clone().requires_grad_()
+    out = irfft2(rfft2(graded), (30, 45), slice(1, 5))
+    assert out.grad_fn is not None
+    torch.testing.assert_close(out.detach(), x[..., 1:5, :], rtol=0, atol=tol)

@@ -12,14 +12,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
-import scipy.fft
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
 from optics import Aperture
-from optics.alignment import fast_length
+from optics.fourier import fast_length, irfft2, rfft2, runs_in_scipy
 
 #: Gaussian (sigma, pixels) applied to both sides of every comparison (`with_floor`).
 FLOOR_SIGMA_PX = 0.5
@@ -27,7 +25,7 @@ FLOOR_SIGMA_PX = 0.5
 #: point-symmetric, its transfer function as real: sampled disks and Gaussians differ from their
 #: reflection by at most 12 (rounding), an odd polygon's by millions.
 SYMMETRY_EPS = 64
-#: The prime factors of the padded sizes of `FourierBlur` (`optics.alignment.fast_length`).
+#: The prime factors of the padded sizes of `FourierBlur` (`optics.fourier.fast_length`).
 FFT_PRIMES = (2, 3, 5)
 
 
@@ -56,8 +54,8 @@ class FourierBlur:
         padded = F.pad(padded, (pad - mx, pad - mx + extra_x, pad - my, pad - my + extra_y),
                        mode="replicate")
         self.size = padded.shape[-2:]
-        self.spectrum = torch.fft.rfft2(padded)
-        self._product: np.ndarray | None = None  # the CPU path's buffer, reused by every apply
+        self.spectrum = rfft2(padded)
+        self._product: Tensor | None = None  # the CPU's product buffer, reused by every apply
 
     def transfer(self, kernel: Tensor) -> Tensor:
         """Transfer function of `kernel` `(K,K)` (centred) on the padded grid: real where the
@@ -86,23 +84,23 @@ class FourierBlur:
             * float(kernel.abs().max()) else transfer
 
     def apply(self, transfer: Tensor) -> Tensor:
-        """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is. On a CPU
-        without gradients the inverse transform is scipy's, in place and in
-        `torch.get_num_threads()` workers, of the rows kept only: about 2.5x faster than
-        `torch.fft.irfft2` on 1.5-megapixel photos, whose fresh buffers every call page-fault."""
-        rows, cols = slice(self.pad_y, self.pad_y + self.h), slice(self.pad_x, self.pad_x + self.w)
-        if self.spectrum.device.type == "cpu" and not (torch.is_grad_enabled() and (
-                self.spectrum.requires_grad or transfer.requires_grad)):
+        """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is (the inverse
+        transform `optics.fourier.irfft2`'s, of the rows kept only, its column transforms in one
+        buffer reused call after call on a CPU)."""
+        if transfer.is_complex():
+            product = self.spectrum * transfer
+        elif runs_in_scipy(self.spectrum, transfer):
             if self._product is None:
-                self._product = np.empty_like(self.spectrum.numpy())
-            workers = torch.get_num_threads()
-            product = np.multiply(self.spectrum.numpy(), transfer.numpy(), out=self._product)
-            product = scipy.fft.ifft(product, axis=-2, workers=workers, overwrite_x=True)
-            out = scipy.fft.irfft(product[..., rows, :], n=self.size[1], workers=workers)
-            return torch.from_numpy(out[..., cols])
-        product = self.spectrum * transfer if transfer.is_complex() else torch.view_as_complex(
-            torch.view_as_real(self.spectrum) * transfer[..., None])
-        return torch.fft.irfft2(product, s=self.size)[..., rows, cols]
+                self._product = torch.empty_like(self.spectrum)
+            product = torch.view_as_complex(torch.mul(torch.view_as_real(self.spectrum),
+                                                      transfer[..., None],
+                                                      out=torch.view_as_real(self._product)))
+        else:
+            product = torch.view_as_complex(torch.view_as_real(self.spectrum)
+                                            * transfer[..., None])
+        out = irfft2(product, self.size, slice(self.pad_y, self.pad_y + self.h),
+                     buffer=product.detach().numpy() if product is self._product else None)
+        return out[..., self.pad_x:self.pad_x + self.w]
 
     def squared_error(self, kernel: Tensor, reference: Tensor) -> Tensor:
         """`(B,H,W)`: the image convolved with `kernel` `(K,K)` against `reference`

@@ -21,6 +21,7 @@ from scipy import ndimage
 from torch import Tensor
 
 from optics import CameraSettings
+from optics.fourier import runs_in_scipy
 
 from .rules import refuse_broken
 from .side import focus_planes
@@ -98,8 +99,7 @@ def median_filter(x: Tensor, size: int) -> Tensor:
 def _on_cpu(x: Tensor) -> bool:
     """Whether the filters here run scipy's on `x`: a float32/64 CPU tensor that no gradient is
     asked of."""
-    return x.device.type == "cpu" and x.dtype in (torch.float32, torch.float64) \
-        and not (torch.is_grad_enabled() and x.requires_grad)
+    return x.dtype in (torch.float32, torch.float64) and runs_in_scipy(x)
 
 
 def _filter_planes(x: Tensor, size: int, filter_rows: Callable[[np.ndarray], np.ndarray]
