@@ -92,7 +92,8 @@ def config(args: argparse.Namespace, fields: dict, setting: Setting, steps: int)
     """A run of `steps` steps of `setting`, its folder a new one under `args.scratch` (removed
     when the benchmark ends)."""
     return TrainConfig(steps=steps, batch_size=args.batch_size, network=setting.network,
-                       out_dir=Path(tempfile.mkdtemp(dir=args.scratch)), progress=False, device=args.device, workers=setting.workers,
+                       out_dir=Path(tempfile.mkdtemp(dir=args.scratch)), progress=False,
+                       device=args.device, workers=setting.workers,
                        checkpoint_minutes=0, precision=setting.precision,
                        compile=setting.compile != "off", resume="overwrite",
                        compile_mode="reduce-overhead" if setting.compile == "graphs" else "default",
@@ -361,7 +362,8 @@ def run(args: argparse.Namespace) -> int:
     for r in rows:
         print(f"  {r['setting']}: " + ", ".join(f"{name} {ms:.0f}"
                                                for name, ms in r["split_ms"].items()))
-    results = {"args": {k: str(v) for k, v in vars(args).items() if k not in ("argv", "scratch")}, "rows": rows,
+    results = {"args": {k: str(v) for k, v in vars(args).items()
+                        if k not in ("argv", "scratch")}, "rows": rows,
                "goals": [{"goal": g, "met": met} for g, met in goals(kind, rows, args)]}
     print("\n| goal | met |\n|---|---|")
     for goal in results["goals"]:

@@ -8,7 +8,6 @@ the many blurs of one photo of `models.depth_from_photos.fourier_blur` run throu
 
 from __future__ import annotations
 
-import numpy as np
 import scipy.fft
 import torch
 from torch import Tensor
@@ -60,11 +59,11 @@ def rfft2(image: Tensor) -> Tensor:
 
 
 def irfft2(spectrum: Tensor, size: tuple[int, int], rows: slice | None = None,
-           buffer: np.ndarray | None = None) -> Tensor:
+           overwrite: bool = False) -> Tensor:
     """`torch.fft.irfft2(spectrum, s=size)[..., rows, :]`: the inverse of `rfft2` for an image of
-    `size` `(H, W)`, of the rows `rows` only (all by default). On scipy's path, `buffer` (an
-    array of the spectrum's shape and dtype, e.g. the spectrum's own, or one reused call after
-    call) takes the column transforms in place of a new array.
+    `size` `(H, W)`, of the rows `rows` only (all by default). With `overwrite` the spectrum
+    may be overwritten: scipy's path then takes the column transforms in its memory instead of
+    a new array's.
 
     Example:
         >>> x = torch.rand(2, 6, 8)
@@ -75,9 +74,6 @@ def irfft2(spectrum: Tensor, size: tuple[int, int], rows: slice | None = None,
     if not runs_in_scipy(spectrum):
         return torch.fft.irfft2(spectrum, s=size)[..., rows, :]
     workers = torch.get_num_threads()
-    values = spectrum.detach().numpy()
-    if buffer is not None and buffer is not values:
-        np.copyto(buffer, values)
-        values = buffer
-    columns = scipy.fft.ifft(values, axis=-2, workers=workers, overwrite_x=buffer is not None)
+    columns = scipy.fft.ifft(spectrum.detach().numpy(), axis=-2, workers=workers,
+                             overwrite_x=overwrite)
     return torch.from_numpy(scipy.fft.irfft(columns[..., rows, :], n=size[1], workers=workers))

@@ -199,13 +199,14 @@ def print_robustness(request, plan, json_path: Path | None) -> int:
     from models.metrics import format_table
 
     rows = robustness(request)
-    print(format_table({name: result.metrics for name, result in rows.items()}))
+    metrics = {name: result.metrics for name, result in rows.items()}
+    print(format_table(metrics))
     design = next(iter(rows.values())).metrics["abs_rel"]
     for name, result in rows.items():
         print(f"  {name}: abs rel {result.metrics['abs_rel'] / design:.2f}x the design's"
               + (f" (warning: {result.warning})" if result.warning else ""))
     if plan is not None:
-        write_json(plan, json_path, {name: result.metrics for name, result in rows.items()})
+        write_json(plan, json_path, metrics)
     return 0
 
 

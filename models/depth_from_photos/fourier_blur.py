@@ -84,23 +84,22 @@ class FourierBlur:
             * float(kernel.abs().max()) else transfer
 
     def apply(self, transfer: Tensor) -> Tensor:
-        """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is (the inverse
-        transform `optics.fourier.irfft2`'s, of the rows kept only, its column transforms in one
-        buffer reused call after call on a CPU)."""
+        """The image `(B,C,H,W)` convolved with the kernel whose `transfer` this is: the
+        product with the spectrum, and its inverse transform (`optics.fourier.irfft2`) of the
+        rows kept only. On scipy's path both take place in one buffer, reused call after call."""
+        scipy = runs_in_scipy(self.spectrum, transfer)
+        if scipy and self._product is None:
+            self._product = torch.empty_like(self.spectrum)
+        out = self._product if scipy else None
         if transfer.is_complex():
-            product = self.spectrum * transfer
-        elif runs_in_scipy(self.spectrum, transfer):
-            if self._product is None:
-                self._product = torch.empty_like(self.spectrum)
-            product = torch.view_as_complex(torch.mul(torch.view_as_real(self.spectrum),
-                                                      transfer[..., None],
-                                                      out=torch.view_as_real(self._product)))
-        else:
-            product = torch.view_as_complex(torch.view_as_real(self.spectrum)
-                                            * transfer[..., None])
-        out = irfft2(product, self.size, slice(self.pad_y, self.pad_y + self.h),
-                     buffer=product.detach().numpy() if product is self._product else None)
-        return out[..., self.pad_x:self.pad_x + self.w]
+            product = torch.mul(self.spectrum, transfer, out=out)
+        else:  # a real transfer scales the real and imaginary parts alike
+            product = torch.view_as_complex(torch.mul(
+                torch.view_as_real(self.spectrum), transfer[..., None],
+                out=None if out is None else torch.view_as_real(out)))
+        blurred = irfft2(product, self.size, slice(self.pad_y, self.pad_y + self.h),
+                         overwrite=scipy)
+        return blurred[..., self.pad_x:self.pad_x + self.w]
 
     def squared_error(self, kernel: Tensor, reference: Tensor) -> Tensor:
         """`(B,H,W)`: the image convolved with `kernel` `(K,K)` against `reference`
