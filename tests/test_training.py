@@ -138,6 +138,7 @@ DDP_SCRIPT = textwrap.dedent("""
     result = {"world": trainer.world_size, "max_diff": max_diff,
               "indices": trainer.sampler.indices(0), "losses": [r["loss"] for r in history]}
     (base / f"result{rank}.json").write_text(json.dumps(result))
+    dist.barrier()  # neither rank tears its connections down while the other still uses them
     dist.destroy_process_group()
 """)
 
