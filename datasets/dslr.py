@@ -39,7 +39,7 @@ from optics import CameraSettings
 
 from .base import DepthDataset
 from .depth import fill_unknown, require_valid_depth, valid_depth_mask
-from .focus import CameraPreset, paper_focus
+from .focus import PAPER_FOCUS_FRACTIONS, CameraPreset, paper_focus
 from .io import read_depth_png, require_args, require_one_size, require_root
 from .pairs import register_focused, relative_pair
 from .photos import CameraFile, read_photo, settings_for_shots
@@ -171,6 +171,9 @@ class DSLR(DepthDataset):
             (module docstring) with the camera's focal length, f-number and pixel pitch (of
             the preset or `camera`; its focus distance, floor and exposure gain are not used).
             The f/2.8 photo is then not read; `relative` and `register` do not apply.
+        focus_fractions: with `focus="synthesized"`, where the focused images are focused:
+            fractions of the preset's depth cap, one per image (the paper's 0.2 and 0.8 by
+            default; one fraction gives the real pairs' situation, one focus plane).
         **kwargs: `size`, `crop`, `augment`, `cache_dir`, `dtype`, `memory_cache_mb` of
             `DepthDataset`.
 
@@ -197,6 +200,8 @@ class DSLR(DepthDataset):
         >>> rendered = DSLR(root, focus="synthesized")[0]
         >>> rendered["focused"].shape, rendered["camera"].focus_distance.tolist()
         (torch.Size([2, 3, 8, 8]), [2.0, 8.0])
+        >>> DSLR(root, focus="synthesized", focus_fractions=[0.2])[0]["focused"].shape
+        torch.Size([1, 3, 8, 8])
     """
 
     name = "dslr"
@@ -217,19 +222,26 @@ class DSLR(DepthDataset):
         relative: bool = False,
         register: bool | None = None,
         focus: str = "real",
+        focus_fractions: tuple[float, ...] | list[float] = PAPER_FOCUS_FRACTIONS,
         **kwargs: Any,
     ):
         super().__init__(preset, **kwargs)
+        fractions = tuple(focus_fractions) if isinstance(focus_fractions, (list, tuple)) else ()
         require_args(*((name, value, value > 0, f"> 0 {unit}") for name, value, unit in (
             ("depth_scale", depth_scale, "metres per unit"), ("max_gap_s", max_gap_s, "seconds"),
             ("sensor_width_px", sensor_width_px, "pixels"))),
-            ("focus", focus, focus in FOCUS_MODES, f"one of {', '.join(FOCUS_MODES)}"))
+            ("focus", focus, focus in FOCUS_MODES, f"one of {', '.join(FOCUS_MODES)}"),
+            ("focus_fractions", focus_fractions, bool(fractions) and all(
+                isinstance(f, (int, float)) and 0 < f <= 1 for f in fractions),
+             "a list of fractions of the depth cap in (0, 1], one per focused image"))
         if focus == "synthesized" and (relative or register):
             raise ValueError(f"DSLR: {'relative' if relative else 'register'}=True applies to "
                              "the real f/2.8 photos; focus='synthesized' renders the focused "
                              "images from the f/8 photo and the depth")
         #: `"real"` (the f/2.8 photo) or `"synthesized"` (rendered from the f/8 photo and depth)
         self.focus = focus
+        #: where the synthesised focused images are focused: fractions of the depth cap
+        self.focus_fractions = tuple(float(f) for f in fractions)
         self.root = require_root(root, "DSLR", LAYOUT)
         self.depth_scale = float(depth_scale)
         self.sensor_width_px = int(sensor_width_px)
@@ -293,7 +305,8 @@ class DSLR(DepthDataset):
         if self.focus == "synthesized":  # the focused images are rendered by `DepthDataset`
             require_one_size((ref_path, image), (depth_path, depth))
             require_valid_depth(mask, repr(str(depth_path)))
-            camera = paper_focus(self.lens_settings(image.shape[-1]), self.preset.depth_cap)
+            camera = paper_focus(self.lens_settings(image.shape[-1]), self.preset.depth_cap,
+                                 self.focus_fractions)
             return {"image": image, "camera": camera, "depth": fill_unknown(depth, mask),
                     "mask": mask}
         focused = read_photo(wide_path, dtype=self.dtype)[0]

@@ -279,6 +279,7 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path, progress: bo
     if proto["focus"] == "synthesized":
         camera = Path(proto["camera"]) if proto["camera"] else None
         rendered = {"focus": "synthesized", "camera": camera,
+                    "focus_fractions": proto["focus_fractions"],
                     "cache_dir": "auto" if proto["cache"] else None, **kwargs}
         train = DSLR(args.root, args.split, scenes=fit_on, **rendered)
         val = DSLR(args.root, scored[0], scenes=scored[1], **rendered)
@@ -408,9 +409,13 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
         raise ValueError(f"--set scored=all|beyond|before and side_tolerance=a positive abs "
                          f"rel, got scored={proto['scored']!r}, "
                          f"side_tolerance={proto['side_tolerance']!r}")
-    if proto["focus"] != "synthesized":
-        return
     given = parse_overrides(args.overrides)
+    if proto["focus"] != "synthesized":
+        if "focus_fractions" in given:
+            raise ValueError(f"--set focus_fractions={given['focus_fractions']}: where the "
+                             "synthesised focused images are focused; it takes --focus "
+                             "synthesized (the real photos are focused where they were taken)")
+        return
     refused = [f"{key}={given[key]}" for key in REAL_FOCUS_KEYS if key in given
                and not (key in ("side", "predict_side") and given[key] == "both")]
     if refused:

@@ -23,6 +23,7 @@ from .direct import fit_depth_direct
 from .evaluation import TILE_PIXELS, evaluate, network_method
 from .metrics import best_constant_depth, depth_metrics, depth_order
 from .training import TrainConfig, Trainer
+from .training.learned_camera import rendered_samples
 
 
 def keep_freed_memory() -> bool:
@@ -71,7 +72,8 @@ def evaluate_whole_images(
     """Mean metrics of the network and of a constant depth over whole test images, one pass
     of `models.evaluate` (`"eigen"`).
 
-    Each sample is read once (its focal stack synthesised or loaded once) and predicted whole,
+    Each sample is read once (its focal stack synthesised or loaded once, or rendered through
+    the camera the trainer learned, `learned_camera.rendered_samples`) and predicted whole,
     tiled above `max_pixels` (`models.evaluation.network_method`). The network's metrics
     include `depth_order` (`models.metrics.depth_order`: whether it orders each scene's depths,
     which abs rel alone does not show).
@@ -89,6 +91,7 @@ def evaluate_whole_images(
         return values
 
     method = network_method(trainer.model, trainer.device, max_pixels=max_pixels)
+    test_set = rendered_samples(trainer.camera, test_set, trainer.config)  # a learned camera's
     metrics = evaluate(method, test_set, "eigen", also=also, max_depth=depth_cap, crop=crop)
     del metrics["images"], metrics["skipped"]
     ours = {key: value for key, value in metrics.items() if not key.startswith("constant ")}

@@ -6,6 +6,12 @@ broadcasts, so the renderer evaluates it for a whole CoC map at one offset at a 
 `Aperture.kernel` evaluates it on a grid of offsets for one CoC per batch item. Profiles are
 differentiable in the CoC (the disk and polygon have an anti-aliased edge one pixel wide for this).
 
+An `oriented` aperture (`Mask`, `optics.LearnableMask`: any code that is not point-symmetric)
+takes the *signed* CoC: a point beyond the focus plane (CoC > 0) sees the mask as given, a
+nearer one (CoC < 0) sees it point-reflected, as a thin lens images the aperture on either side
+of focus. So a depth and its mirror across the focus plane blur alike only through a symmetric
+aperture; `Camera.render` hands an oriented aperture the signed CoC.
+
 =============  ===========================================  =================================
 aperture       profile at distance `r` (pixels)          window half-width (pixels)
 =============  ===========================================  =================================
@@ -41,7 +47,8 @@ MIN_SIGMA_PX = 1e-2
 MIN_RADIUS_PX = 1e-6
 
 
-def _as_coc_tensor(coc_px: float | Tensor, like: Tensor | None = None) -> Tensor:
+def _as_coc_tensor(coc_px: float | Tensor, like: Tensor | None = None,
+                   signed: bool = False) -> Tensor:
     if isinstance(coc_px, Tensor):
         coc = coc_px
     else:
@@ -50,13 +57,17 @@ def _as_coc_tensor(coc_px: float | Tensor, like: Tensor | None = None) -> Tensor
             coc = coc.to(like)
     if not coc.is_floating_point():
         coc = coc.to(torch.get_default_dtype())
-    require("coc_px", coc, "nonnegative", "pixels")  # a few values, given by the caller
+    require("coc_px", coc, "signed coc" if signed else "nonnegative", "pixels")  # a few values
     return coc
 
 
 class Aperture(nn.Module, abc.ABC):
     """Base class of PSF shapes. Subclasses implement `profile` and `half_width` (a subclass
     without them cannot be built)."""
+
+    #: Whether `profile` takes the signed CoC and point-reflects the PSF for a negative one
+    #: (nearer than the focus plane); False: the CoC is a diameter, >= 0.
+    oriented = False
 
     @abc.abstractmethod
     def profile(self, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
@@ -71,14 +82,15 @@ class Aperture(nn.Module, abc.ABC):
 
     def kernel_size(self, max_coc_px: float | Tensor) -> int:
         """Odd window width (pixels) that holds the PSF of the largest CoC `max_coc_px`."""
-        coc = float(_as_coc_tensor(max_coc_px).detach().max())
+        coc = float(_as_coc_tensor(max_coc_px, signed=self.oriented).detach().abs().max())
         return 2 * max(self.half_width(coc), 0) + 1
 
     def kernel(self, coc_px: float | Tensor, kernel_size: int | None = None) -> Tensor:
         """Normalised PSF kernels on a pixel grid.
 
         Args:
-            coc_px: CoC diameter(s) in pixels: a float, a 0-d or a `(B,)` tensor, >= 0.
+            coc_px: CoC diameter(s) in pixels: a float, a 0-d or a `(B,)` tensor, >= 0
+                (signed for an `oriented` aperture: negative gives the point-reflected PSF).
             kernel_size: odd window width in pixels; by default `kernel_size` of the
                 largest CoC.
 
@@ -91,7 +103,7 @@ class Aperture(nn.Module, abc.ABC):
             >>> k.shape, round(k.sum().item(), 6)
             (torch.Size([1, 5, 5]), 1.0)
         """
-        coc = _as_coc_tensor(coc_px).reshape(-1)
+        coc = _as_coc_tensor(coc_px, signed=self.oriented).reshape(-1)
         size = self.kernel_size(coc.detach()) if kernel_size is None else int(kernel_size)
         if size < 1 or size % 2 == 0:
             raise ValueError(f"kernel_size must be a positive odd integer, got {kernel_size!r}")
@@ -227,7 +239,9 @@ class Polygon(Disk):
 
 
 class Mask(Aperture):
-    """A user-supplied PSF image (e.g. a measured one), stretched so its width is the CoC diameter.
+    """A user-supplied PSF image (e.g. a measured one), stretched so its width is the CoC diameter:
+    the PSF of a point beyond the focus plane, point-reflected for a nearer one (`oriented`: the
+    CoC is signed, negative nearer than the focus plane).
 
     Each kernel pixel gets the mask's mean over the pixel's footprint (exact box integration of
     the bilinearly interpolated summed-area table), so the kernel is anti-aliased at any size and
@@ -241,8 +255,12 @@ class Mask(Aperture):
         >>> ring = Mask(((xx**2 + yy**2) < 1).float())
         >>> round(ring.kernel(8.0).sum().item(), 6)
         1.0
+        >>> corner = Mask(torch.tensor([[1.0, 0.0], [0.0, 0.0]]))  # the upper left quarter
+        >>> torch.allclose(corner.kernel(-4.0), corner.kernel(4.0).flip(-2, -1), atol=1e-6)  # nearer
+        True
     """
 
+    oriented = True
     image: Tensor
     _table: Tensor
 
@@ -285,12 +303,14 @@ def summed_area_table(image: Tensor) -> Tensor:
 def footprint_mean(table: Tensor, dy: Tensor, dx: Tensor, coc_px: Tensor) -> Tensor:
     """The mean value of a mask image, stretched over `[-coc/2, coc/2]^2` pixels, over the
     footprint of the pixel at offset `(dy, dx)`: the profile of `Mask` (and of
-    `optics.LearnableMask`), from the image's `summed_area_table` `table`.
+    `optics.LearnableMask`), from the image's `summed_area_table` `table`. A negative `coc_px`
+    stretches the image by a negative factor: its point reflection.
 
     Exact box integration of the bilinearly interpolated table, so the profile is anti-aliased
     at any size and differentiable in the CoC and in the table (the mask's values).
     """
-    radius = (coc_px / 2).clamp_min(MIN_RADIUS_PX)
+    half = coc_px / 2
+    radius = torch.where(half < 0, half.clamp_max(-MIN_RADIUS_PX), half.clamp_min(MIN_RADIUS_PX))
     dy, dx, radius = torch.broadcast_tensors(dy, dx, radius)
     u0, u1 = (dx - 0.5) / radius, (dx + 0.5) / radius
     v0, v1 = (dy - 0.5) / radius, (dy + 0.5) / radius

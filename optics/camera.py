@@ -136,7 +136,8 @@ class Camera(nn.Module):
         depth_map = per_pixel_map("depth", depth, image)  # named as given, before it is a CoC map
         for part in (self.lens, self.sensor):
             check_param_batch(part, "image", image.shape)
-        coc = self.coc_px(depth).to(image.dtype).expand_as(depth_map)  # checks depth's values
+        coc_px = self.signed_coc_px if self.aperture.oriented else self.coc_px  # a Mask: signed
+        coc = coc_px(depth).to(image.dtype).expand_as(depth_map)  # checks depth's values
         return render_trusted(image, coc, self.aperture, depth=depth_map, depth_checked=True,
                               **kwargs)
 

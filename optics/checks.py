@@ -193,6 +193,7 @@ VALUE_RULES: dict[str, tuple[Callable[[Tensor], Tensor], str, str]] = {
     "depth": (lambda t: ~torch.isnan(t) & (t > 0), "> 0 metres and not NaN everywhere",
               "; mask invalid pixels or fill them before rendering"),
     "coc": (lambda t: torch.isfinite(t) & (t >= 0), "finite and >= 0", ""),
+    "signed coc": (torch.isfinite, "finite (signed: negative nearer than the focus plane)", ""),
     "nonnegative": (lambda t: t >= 0, ">= 0 and not NaN", ""),  # NaN fails; inf allowed
 }
 

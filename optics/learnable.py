@@ -94,6 +94,7 @@ class LearnableMask(Aperture):
         True
     """
 
+    oriented = True  # a learned code need not be point-symmetric: the signed CoC (`Mask`)
     light: Tensor
     initial: Tensor
 

@@ -343,6 +343,23 @@ def test_synthesized_focus_takes_the_lens_of_a_camera_json(tmp_path):
         DSLR(tmp_path / "data", focus="rendered")
 
 
+def test_synthesized_focus_at_one_plane(tmp_path):
+    """`focus_fractions`: one focus plane (the real pairs' situation) at 0.3 of the 10 m cap,
+    rendered through that camera; fractions outside (0, 1] or none are refused at the door."""
+    from datasets.io import ArgumentError
+    from optics import render_focal_stack
+
+    write_dslr_release(tmp_path)
+    sample = DSLR(tmp_path, focus="synthesized", focus_fractions=[0.3])[0]
+    assert sample["camera"].focus_distance.tolist() == pytest.approx([3.0])
+    expected = render_focal_stack(sample["image"][None], sample["depth"][None],
+                                  sample["camera"])[0]
+    torch.testing.assert_close(sample["focused"], expected.clamp(0, 1))
+    for bad in ([], [0.0], [0.2, 1.5], "0.2"):
+        with pytest.raises(ArgumentError, match="focus_fractions must be a list of fractions"):
+            DSLR(tmp_path, focus="synthesized", focus_fractions=bad)
+
+
 def test_train_command_focus_option_reaches_the_loader(tmp_path):
     """`defocus train --data dslr --focus synthesized` builds the synthesised DSLR set."""
     from defocus.cli import build_parser

@@ -307,6 +307,19 @@ def test_dslr_example_synthesized_focus_on_one_split_scores_another(tmp_path, mo
             module.main([*argv, *extra, "--overwrite"])
 
 
+def test_dslr_example_refuses_focus_fractions_of_real_photos(tmp_path, monkeypatch):
+    """The focus planes of synthesised focus are refused with the real photos, before any
+    work (the real pairs are focused where they were taken)."""
+    from test_dslr import write_rendered_release
+
+    write_rendered_release(tmp_path / "data", scenes=3, h=48, w=72)
+    module = load_example("dslr", monkeypatch)
+    with pytest.raises(SystemExit, match="focus_fractions=.0.2.: where the synthesised"):
+        module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
+                     "--set", "focus_fractions=[0.2]"])
+    assert not (tmp_path / "run").exists()
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not REAL_DSLR.is_dir(), reason="../shared/data/real/dfd_indoor is absent")
 def test_dslr_example_on_five_real_scenes(tmp_path, monkeypatch, capsys):

@@ -437,3 +437,84 @@ def test_robustness_scores_the_design_and_each_tolerance(tmp_path, scenes, capsy
     out = capsys.readouterr().out
     assert "as designed: abs rel 1.00x the design's" in out and "f-number -0.33 stop" in out
     assert set(json.loads(table.read_text())) == set(rows)
+
+
+# -- an oriented aperture: the signed CoC ----------------------------------------------------
+
+CODE = torch.tensor([[1.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.3]])  # no point symmetry
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_mask_kernel_of_a_negative_coc_is_the_point_reflection(dtype):
+    """A CoC of -c is the mask point-reflected: the kernel of the flipped mask, an independent
+    computation (rounding of the bilinear table aside)."""
+    mask = Mask(CODE.to(dtype))
+    for coc in (3.0, 6.5, 11.0):
+        near = mask.kernel(-coc)
+        torch.testing.assert_close(near, Mask(CODE.flip(0, 1).to(dtype)).kernel(coc),
+                                   atol=1e-6, rtol=0)
+        torch.testing.assert_close(near, mask.kernel(coc).flip(-2, -1), atol=1e-6, rtol=0)
+        assert (near - mask.kernel(coc)).abs().max() > 0.01  # the code is seen the other way
+
+
+@pytest.mark.parametrize("aperture", ["code", "disk"])
+def test_a_depth_and_its_mirror_blur_alike_only_through_a_symmetric_aperture(aperture):
+    """One focus plane, a point at 3 m and at its mirror 1.5 m (the same |CoC|): through an
+    oriented code the two images are each other's point reflection and differ; through the
+    disk (symmetric, the unsigned CoC) they are the same."""
+    from optics import Disk
+
+    psf = Mask(CODE.double()) if aperture == "code" else Disk()
+    camera = CameraSettings(0.05, 2.0, [2.0], 20e-6).shot(0, psf)
+    point = torch.zeros(1, 1, 25, 25, dtype=torch.float64)
+    point[..., 12, 12] = 1.0
+    far, near = (camera.render(point, torch.full_like(point, d)) for d in (3.0, 1.5))
+    assert float(camera.signed_coc_px(torch.tensor(1.5))) == \
+        pytest.approx(-float(camera.signed_coc_px(torch.tensor(3.0))))
+    torch.testing.assert_close(near, far.flip(-2, -1), atol=1e-7, rtol=0)
+    differ = float((near - far).abs().max())
+    assert differ > 0.01 if aperture == "code" else differ < 1e-12
+
+
+def test_signed_coc_gradcheck_through_a_learned_code():
+    """float64 gradcheck of the render in a signed CoC map that crosses zero, through an
+    oriented learned code (its values' gradients, with depths on both sides of the focus
+    planes: `test_render_gradcheck_each_learned_parameter`)."""
+    from optics import render_defocus
+
+    gen = torch.Generator().manual_seed(0)
+    mask = _perturbed(LearnableMask(torch.rand(4, 4, generator=gen, dtype=torch.float64)))
+    image = torch.rand(1, 2, 6, 6, generator=gen, dtype=torch.float64)
+    coc = (6 * torch.rand(1, 1, 6, 6, generator=gen, dtype=torch.float64) - 3)
+    assert bool((coc < 0).any() and (coc > 0).any())
+    assert torch.autograd.gradcheck(lambda c: render_defocus(image, c, mask),
+                                    (coc.requires_grad_(),), eps=1e-6, atol=1e-6)
+
+
+def test_signed_coc_is_refused_where_the_aperture_is_symmetric():
+    from optics import Disk, render_defocus
+
+    image = torch.rand(1, 1, 5, 5)
+    with pytest.raises(ValueError, match="coc_px must be finite and >= 0"):
+        render_defocus(image, torch.full((1, 1, 5, 5), -2.0), Disk())
+    with pytest.raises(ValueError, match="coc_px must be finite .signed"):
+        render_defocus(image, torch.full((1, 1, 5, 5), float("nan")), Mask(CODE))
+    assert torch.isfinite(render_defocus(image, torch.full((1, 1, 5, 5), -2.0), Mask(CODE))).all()
+
+
+def test_whole_image_evaluation_reads_through_the_learned_camera(tmp_path, scenes):
+    """`models.experiment.evaluate_whole_images` (the examples' tables) scores a network that
+    learned its camera on the test scenes rendered through that camera, as `Trainer.evaluate`
+    does: the same metrics as the scenes rendered first, and not those of the data's own."""
+    from models.experiment import evaluate_whole_images
+    from models.training import Trainer
+    from models.training.learned_camera import rendered_samples
+
+    trainer = Trainer(_config(tmp_path), scenes)
+    _perturbed(trainer.camera, scale=2.0)
+    test = [scenes[i] for i in range(3)]
+    learned, _ = evaluate_whole_images(trainer, test)
+    rendered = list(rendered_samples(trainer.camera, test, trainer.config))
+    trainer.camera = None
+    assert evaluate_whole_images(trainer, rendered)[0] == learned
+    assert evaluate_whole_images(trainer, test)[0]["abs_rel"] != learned["abs_rel"]

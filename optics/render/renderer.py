@@ -72,7 +72,9 @@ def render_defocus(
     Args:
         image: `(B, C, H, W)` image, linear intensity.
         coc_px: `(B, 1, H, W)` (or `(1, 1, H, W)`) CoC *diameter* in pixels, finite, >= 0. For the
-            Gaussian, `sigma_px = psf.scale * coc_px` (0.5 by default: sigma = CoC radius).
+            Gaussian, `sigma_px = psf.scale * coc_px` (0.5 by default: sigma = CoC radius). For
+            an `oriented` aperture (a `Mask`) the signed CoC, negative nearer than the focus
+            plane, where the PSF is the mask point-reflected (`Camera.render` passes it).
         psf: aperture shape (`Gaussian`, `Disk`, `Polygon`, `Mask`, ...); `Gaussian()` by default.
         mode: `"scatter"` (default, the paper's), `"gather"` or `"layered"` (see the module
             table).
@@ -131,7 +133,7 @@ def render_trusted(image: Tensor, coc_px: Tensor, psf: Aperture | None = None,
     psf = Gaussian() if psf is None else psf
     on_device = preset is None and _window_on_device(psf, image)
     largest_coc = _read_checked(image, coc_px, None if depth_checked else depth,
-                                need_largest=not on_device)
+                                need_largest=not on_device, signed=psf.oriented)
     if preset is not None:
         return _render_paper(image, coc_px)
     half = _window_half(psf, coc_px, max_kernel_size, largest_coc, on_device)
@@ -250,16 +252,18 @@ def per_pixel_map(name: str, values: Tensor, image: Tensor) -> Tensor:
 
 
 def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
-                  need_largest: bool = True) -> float | None:
-    """The largest CoC in pixels, once the image is checked finite, the CoC finite and >= 0 and
+                  need_largest: bool = True, signed: bool = False) -> float | None:
+    """The largest CoC in pixels, once the image is checked finite, the CoC finite and >= 0
+    (`signed`, an oriented aperture's: finite, the largest of its magnitude) and
     `depth` (layered mode) > 0 metres and not NaN: one read from the device for all (on a GPU
     each read waits for every queued kernel). Under `torch.compile`: None, the checks asserted
     in the graph; under `values_checked`: the largest CoC alone, or nothing (None) unless
     `need_largest`."""
     coc_message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
+    valid = _all_finite if signed else _all_valid_coc
     depth_message = "depth must be > 0 metres and not NaN everywhere"
     if _compiling():
-        torch._assert_async(_all_valid_coc(coc_px), coc_message)
+        torch._assert_async(valid(coc_px), coc_message)
         if depth is not None:
             torch._assert_async(_all_valid_depth(depth), depth_message)
         return None
@@ -267,11 +271,11 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     if not (checking or need_largest):
         return None
     coc = coc_px.detach()
-    largest = coc.amax() if coc.numel() else coc.new_zeros(())
+    largest = (coc.abs() if signed else coc).amax() if coc.numel() else coc.new_zeros(())
     if not checking:
         return float(largest)
     # a NaN or an infinity in the image makes its sum not finite (see `check_finite`)
-    read = [largest, _all_valid_coc(coc),
+    read = [largest, valid(coc),
             image.detach().sum(dtype=torch.promote_types(image.dtype, torch.float32))]
     if depth is not None:
         read.append(_all_valid_depth(depth))
@@ -280,7 +284,7 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     if not math.isfinite(image_sum):
         check_finite("image", image)  # names the bad values (a sum that overflowed passes)
     if not coc_valid:
-        require("coc_px", coc, "coc", "pixels")  # raises, describing the values
+        require("coc_px", coc, "signed coc" if signed else "coc", "pixels")  # raises, describing
     if depth_valid and not depth_valid[0]:
         check_tensor("depth", depth, values="depth")  # raises, describing the values
     return largest
@@ -289,6 +293,11 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
 def _all_valid_coc(coc: Tensor) -> Tensor:
     """True (a 0-d tensor) where every CoC is finite and >= 0 pixels."""
     return torch.all(torch.isfinite(coc) & (coc >= 0))
+
+
+def _all_finite(coc: Tensor) -> Tensor:
+    """True (a 0-d tensor) where every signed CoC is finite."""
+    return torch.all(torch.isfinite(coc))
 
 
 def _all_valid_depth(depth: Tensor) -> Tensor:
