@@ -14,8 +14,9 @@ the weights, so the extra memory is a few `(B,C,H,W)` maps whatever `K` is.
   aperture's distance function tabulated once per call on the window (it does not depend on the
   CoC). This is exactly `Disk.profile`; the gradient reaches the CoC and the aperture's
   parameters through `rho` with ordinary autograd.
-- `ProfileFilter`: any other `Aperture` (e.g. `Mask`) through its `profile`, evaluated per
-  window offset in PyTorch; not a custom operator, so `torch.compile` breaks the graph there.
+- `ProfileFilter`: any other `Aperture` (e.g. `Mask`) through its `profile`, tabulated once per
+  call in the CoC and interpolated per pixel, window offset by window offset in PyTorch
+  (`optics.render.profile`); not a custom operator, so `torch.compile` breaks the graph there.
 
 The Gaussian and clamped-distance filters are `torch.library` custom operators in the `defocus`
 namespace, with fake (meta) implementations and registered autograd, so `torch.compile` traces

@@ -25,8 +25,9 @@ kernel when a compiler is available (`optics.render.cpp`), on CUDA by Triton ker
 default scatter mode (`optics.render.triton_kernels`, where Triton is installed), and by PyTorch
 loops elsewhere; `optics.render.backends` registers them and says which runs where.
 `torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and backward
-without graph breaks. Other apertures (`Mask`, user subclasses with their own `profile`)
-evaluate their `profile` per window offset in PyTorch.
+without graph breaks. Other apertures (`Mask`, user subclasses with their own `profile`) run in
+PyTorch, their `profile` tabulated once per call in the CoC (64 knots a pixel) and interpolated
+per pixel (`optics.render.profile`).
 """
 
 from __future__ import annotations
