@@ -20,7 +20,7 @@ def device(request):
 def _brute_force_render(image, coc, psf, scatter):
     """Independent double loop over output and source pixels, from `psf.kernel` (float64)."""
     _, c, h, w = image.shape
-    half = psf.half_width(float(coc.max()))
+    half = psf.half_width(float(coc.abs().max()))  # a signed CoC (a Mask): its magnitude
     out = torch.zeros_like(image)
     for py in range(h):
         for px in range(w):
