@@ -166,8 +166,9 @@ def side_bound_row(val: DSLR, depth_range: tuple[float, float],
 def bound_rows(val: DSLR, depth_range: tuple[float, float],
                side: str) -> dict[str, dict[str, float]]:
     """The `side_bound_row` of the scored scenes under the prior `side`; with ``"both"`` (no
-    prior) that of each side. None with synthesised focus (two focus planes tell the sides)."""
-    if val.focus == "synthesized":
+    prior) that of each side. None with synthesised focus at two planes or more (they tell the
+    sides)."""
+    if val.focus == "synthesized" and len(val.focus_fractions) > 1:
         return {}
     rows: dict[str, dict[str, float]] = {}
     for each in (("beyond", "before") if side == "both" else (side,)):
@@ -179,7 +180,7 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
                     side: str = "both") -> dict[str, dict[str, float]]:
     """`estimate_depth` on each scored scene, averaged: the f/8 photo as one more shot beside
     the real f/2.8 one, with the fitted camera (with a side stated, `estimate_depth`'s `side`:
-    what `defocus predict --side` does); with synthesised focus, the two rendered images with
+    what `defocus predict --side` does); with synthesised focus, the rendered images with
     the rendering camera and the f/8 photo as the all-in-focus image."""
     from models import evaluate
     from models.depth_from_photos import estimate_depth
@@ -198,7 +199,7 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
     samples = (val[i] for i in progress_bar(range(len(val)), desc="label-free predict"))
     prior = "" if side == "both" else f", side {side}"
     name = f"label-free predict (f/8 as a shot, fitted camera{prior})" if real else \
-        "label-free predict (the two rendered images, the rendering camera)"
+        "label-free predict (the rendered images, the rendering camera)"
     return {name: evaluate(label_free, samples, "eigen", max_depth=depth_range[1],
                            also=order_of(depth_range[1]))}
 
