@@ -399,8 +399,10 @@ def recipe_keys() -> dict[str, Any]:
 
 
 def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, Any]) -> None:
-    """Refuse an unknown ``focus``; with ``synthesized``, a key of the real photos that the
-    user set (`REAL_FOCUS_KEYS`, ``side`` other than both), and make ``side`` both."""
+    """Refuse an unknown ``focus``, learned optics or ``focus_fractions`` with the real photos;
+    with ``synthesized``, a key of the real photos that the user set (`REAL_FOCUS_KEYS`,
+    ``side`` other than both), and make ``side`` both."""
+    from defocus.app.train import check_learned_optics
     from models.training.config import parse_overrides
 
     if proto["focus"] not in ("real", "synthesized"):
@@ -410,6 +412,7 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
         raise ValueError(f"--set scored=all|beyond|before and side_tolerance=a positive abs "
                          f"rel, got scored={proto['scored']!r}, "
                          f"side_tolerance={proto['side_tolerance']!r}")
+    check_learned_optics(fields.get("learn_optics") or "", "dslr", proto["focus"])
     given = parse_overrides(args.overrides)
     if proto["focus"] != "synthesized":
         if "focus_fractions" in given:

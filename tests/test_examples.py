@@ -113,6 +113,29 @@ def test_example_passes_the_smoothness_weight_to_the_run(tmp_path, monkeypatch, 
     assert "smoothness_weight: 0.05" in (tmp_path / "run" / "config.yaml").read_text()
 
 
+def test_example_learns_optics_where_focus_is_synthesised(tmp_path, monkeypatch, capsys):
+    """`--set learn_optics=...` on synthesised focus trains the camera with the network (its
+    camera.json in the run folder); on real focused photos it is refused before any work."""
+    root = tmp_path / "data"
+    write_middlebury(root, h=12, w=16)
+    module = load_example("middlebury", monkeypatch)
+    argv = ["--root", str(root), "--out", str(tmp_path / "run"), *QUIET_CPU, "cache=false",
+            "steps=1", "batch_size=1", "width=4", "learn_optics=focus"]
+    assert module.main(argv) == 0
+    assert "ours (small, aif+focused, 1 steps)" in capsys.readouterr().out
+    assert "learn_optics: focus" in (tmp_path / "run" / "config.yaml").read_text()
+    write_lightfield_splits(tmp_path / "lf")
+    with pytest.raises(SystemExit, match="--learn-optics focus: the lightfield data's focused"):
+        load_example("lightfield", monkeypatch).main(
+            ["--root", str(tmp_path / "lf"), "--out", str(tmp_path / "lf_run"), *QUIET_CPU,
+             "learn_optics=focus"])
+    dslr = load_example("dslr", monkeypatch)
+    with pytest.raises(SystemExit, match="--learn-optics mask: the dslr data's focused"):
+        dslr.main(["--root", str(root), "--out", str(tmp_path / "d_run"),
+                   "--set", "learn_optics=mask"])
+    assert not (tmp_path / "lf_run").exists() and not (tmp_path / "d_run").exists()
+
+
 def test_example_rejects_bad_crop(monkeypatch, tmp_path):
     monkeypatch.setenv("DEFOCUS_CACHE_DIR", str(tmp_path / "cache"))
     module = load_example("middlebury", monkeypatch)

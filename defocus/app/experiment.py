@@ -155,15 +155,13 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
     the table's rows. Training takes random crops (flips and gains) of the whole training
     samples, which also choose the best constant depth."""
     from datasets import JointAugment
+    from defocus.app.train import check_learned_optics
     from models.experiment import keep_freed_memory, train_and_evaluate
     from models.metrics import format_table
 
     experiment, fields, given = read_recipe(args)
-    if fields.get("learn_optics") not in (None, "", []):  # its evaluation: the data's focus
-        raise ValueError(f"{args.config}: learn_optics={fields['learn_optics']!r} is not for an "
-                         "example script, which evaluates on the data's own focused images: "
-                         "train with `defocus train --learn-optics` and score the checkpoint "
-                         "with `defocus evaluate` (it renders with the learned camera)")
+    check_learned_optics(fields.get("learn_optics") or "", experiment["data"],
+                         experiment["dataset"].get("focus"))
     if experiment["threads"]:
         torch.set_num_threads(int(experiment["threads"]))
     keep_freed_memory()
