@@ -518,3 +518,25 @@ def test_whole_image_evaluation_reads_through_the_learned_camera(tmp_path, scene
     trainer.camera = None
     assert evaluate_whole_images(trainer, rendered)[0] == learned
     assert evaluate_whole_images(trainer, test)[0]["abs_rel"] != learned["abs_rel"]
+
+
+def test_mask_start_noise_breaks_the_symmetry_at_the_disks_light(tmp_path, scenes):
+    """`mask_start_noise`: the learned mask starts off the open disk, without point symmetry,
+    seeded, passing the disk's light; 0 starts at the disk itself."""
+    from models.training.learned_camera import build_learned_camera
+
+    record = {"focal_length": [0.05], "f_number": [2.8], "focus_distance": [2.0],
+              "pixel_pitch": [1.8e-4]}
+
+    def start(noise, seed=0):
+        config = _config(tmp_path, learn_optics="mask", mask_start_noise=noise, seed=seed)
+        return build_learned_camera(config, record).mask.values().detach()
+
+    disk, coded = start(0.0), start(1.0)
+    torch.testing.assert_close(disk, LearnableMask(disk_mask(8)).values().detach())
+    torch.testing.assert_close(coded.sum(), disk.sum())
+    assert float((coded - coded.flip(0, 1)).abs().mean()) > 0.05
+    assert float((disk - disk.flip(0, 1)).abs().max()) < 1e-6
+    assert torch.equal(start(1.0), coded) and not torch.equal(start(1.0, seed=1), coded)
+    with pytest.raises(ValueError, match="mask_start_noise"):
+        _config(tmp_path, mask_start_noise=-1.0)

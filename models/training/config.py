@@ -59,7 +59,8 @@ _RULES = (
     (("lr", "depth_min", "depth_max", "optics_lr", "f_number_min", "f_number_max"),
      _finite(0, strict=True), "a finite number > 0"),
     (("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
-      "checkpoint_minutes", "minutes"), _finite(0), "a finite number >= 0 (0: off)"),
+      "checkpoint_minutes", "minutes", "mask_start_noise"), _finite(0),
+     "a finite number >= 0 (0: off)"),
     (("ssim_weight",), lambda v: 0 <= v <= 1, "in [0, 1]"),
     (("focus_distance",), _finite(0), "a finite number of metres >= 0 (0: none)"),
 )
@@ -184,6 +185,11 @@ class TrainConfig:
     f_number_max: float = 22.0
     #: side of the grid of a learned aperture mask (learn_optics with "mask"), cells
     mask_size: int = 16
+    #: seeded noise (standard deviation) on the learned mask's logits at the start, at the open
+    #: disk's light: 0 starts at the disk itself. With one focus plane, a point-symmetric mask
+    #: blurs a depth and its mirror alike and learning leaves it only slowly; a start without
+    #: point symmetry lets the code learn to tell near from far
+    mask_start_noise: float = 0.0
     #: time budget of one `fit`, minutes (0: none): training stops after the step that spends
     #: it and saves a checkpoint, as at the end
     minutes: float = 0.0

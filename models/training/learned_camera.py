@@ -34,7 +34,8 @@ def build_learned_camera(config: TrainConfig, camera: Mapping[str, Sequence[floa
     `camera`, the training samples' (`camera_record` of the first sample), learns what
     `learn_optics` names, keeps the focus distances inside the config's depth range and the
     f-numbers within `f_number_min`, `f_number_max`, and renders with the config's PSF
-    (`aperture`) unless it learns the mask; on `device`.
+    (`aperture`) unless it learns the mask, which starts at the open disk with seeded noise of
+    `mask_start_noise` on its logits (the disk's light all the same); on `device`.
 
     Raises:
         ValueError: the samples have no camera, or its values lie outside those limits (named).
@@ -54,14 +55,19 @@ def build_learned_camera(config: TrainConfig, camera: Mapping[str, Sequence[floa
     settings = CameraSettings(*(camera[name] for name in SETTING_FIELDS),
                               aperture=config.aperture)
     try:
-        return LearnableCamera(settings, (config.depth_min, config.depth_max),
-                               config.learn_optics.split(","),
-                               (config.f_number_min, config.f_number_max), config.mask_size
-                               ).to(device)
+        camera = LearnableCamera(settings, (config.depth_min, config.depth_max),
+                                 config.learn_optics.split(","),
+                                 (config.f_number_min, config.f_number_max), config.mask_size)
     except ValueError as error:
         raise ValueError(f"learn_optics={config.learn_optics!r}: {error} (depth_range is "
                          "depth_min, depth_max; f_number_range f_number_min, f_number_max)"
                          ) from None
+    if camera.mask is not None and config.mask_start_noise > 0:  # the light stays the disk's
+        noise = torch.randn(camera.mask.logits.shape, dtype=camera.mask.logits.dtype,
+                            generator=torch.Generator().manual_seed(config.seed))
+        with torch.no_grad():
+            camera.mask.logits.add_(config.mask_start_noise * noise)
+    return camera.to(device)
 
 
 def param_groups(network: nn.Module, camera: LearnableCamera | None,
