@@ -89,41 +89,41 @@ def test_example_trains_and_evaluates(name, tmp_path, monkeypatch, capsys):
         assert list((tmp_path / "cache" / "focal_stacks").glob("*.pt"))
 
 
+def run_middlebury(tmp_path, monkeypatch, size, *settings):
+    """The Middlebury example on a fixture of `size` (h, w) with `--set` `settings`, quiet, on
+    the CPU, into `tmp_path / "run"`; returns the fixture's folder."""
+    root = tmp_path / "data"
+    write_middlebury(root, h=size[0], w=size[1])
+    module = load_example("middlebury", monkeypatch)
+    assert module.main(["--root", str(root), "--out", str(tmp_path / "run"), *QUIET_CPU,
+                        "cache=false", *settings]) == 0
+    return root
+
+
 @pytest.mark.slow
 def test_example_trains_on_crops(tmp_path, monkeypatch, capsys):
     """`--crop` smaller than the images: training sees crops, evaluation whole images."""
-    root = tmp_path / "data"
-    write_middlebury(root, h=20, w=30)
-    module = load_example("middlebury", monkeypatch)
-    argv = ["--root", str(root), "--out", str(tmp_path / "run"), *QUIET_CPU, "cache=false",
-            "steps=3", "batch_size=2", "width=8", "crop=[8,12]"]
-    assert module.main(argv) == 0
+    run_middlebury(tmp_path, monkeypatch, (20, 30), "steps=3", "batch_size=2", "width=8",
+                   "crop=[8,12]")
     out = capsys.readouterr().out
     assert "random (8, 12) crops of (20, 30) pixels" in out
     assert "plan: 3 steps" in out and "ours (small, aif+focused, 3 steps)" in out
 
 
 def test_example_passes_the_smoothness_weight_to_the_run(tmp_path, monkeypatch, capsys):
-    root = tmp_path / "data"
-    write_middlebury(root, h=12, w=16)
-    module = load_example("middlebury", monkeypatch)
-    argv = ["--root", str(root), "--out", str(tmp_path / "run"), *QUIET_CPU, "cache=false",
-            "steps=1", "batch_size=1", "width=4", "smoothness_weight=0.05"]
-    assert module.main(argv) == 0
+    run_middlebury(tmp_path, monkeypatch, (12, 16), "steps=1", "batch_size=1", "width=4",
+                   "smoothness_weight=0.05")
     assert "smoothness_weight: 0.05" in (tmp_path / "run" / "config.yaml").read_text()
 
 
 def test_example_learns_optics_where_focus_is_synthesised(tmp_path, monkeypatch, capsys):
     """`--set learn_optics=...` on synthesised focus trains the camera with the network (its
     camera.json in the run folder); on real focused photos it is refused before any work."""
-    root = tmp_path / "data"
-    write_middlebury(root, h=12, w=16)
-    module = load_example("middlebury", monkeypatch)
-    argv = ["--root", str(root), "--out", str(tmp_path / "run"), *QUIET_CPU, "cache=false",
-            "steps=1", "batch_size=1", "width=4", "learn_optics=focus"]
-    assert module.main(argv) == 0
+    root = run_middlebury(tmp_path, monkeypatch, (12, 16), "steps=1", "batch_size=1",
+                          "width=4", "learn_optics=focus")
     assert "ours (small, aif+focused, 1 steps)" in capsys.readouterr().out
     assert "learn_optics: focus" in (tmp_path / "run" / "config.yaml").read_text()
+    assert (tmp_path / "run" / "camera.json").is_file()
     write_lightfield_splits(tmp_path / "lf")
     with pytest.raises(SystemExit, match="--learn-optics focus: the lightfield data's focused"):
         load_example("lightfield", monkeypatch).main(
