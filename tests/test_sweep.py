@@ -472,3 +472,21 @@ def test_sweep_confidence_ranks_its_errors_on_held_out_scenes():
     assert float(np.median(ranked)) < float(np.median(texture_only)) - 0.1, (ranked, texture_only)
     assert all(a <= b + 0.02 for a, b in zip(ranked, texture_only, strict=True)), (ranked,
                                                                                   texture_only)
+
+
+def test_blur_errors_tell_the_side_through_an_oriented_code():
+    """One focus plane: a textured image blurred through a code without point symmetry at a
+    signed CoC of +c (beyond) or -c (nearer) is matched best by its own sign
+    (`Aperture.oriented`)."""
+    from optics import Mask, render_defocus
+
+    gen = torch.Generator().manual_seed(0)
+    code = Mask(torch.rand(6, 6, generator=gen, dtype=torch.float64))
+    image = torch.rand(1, 3, 40, 40, generator=gen, dtype=torch.float64)
+    blurs = torch.tensor([5.0, -5.0], dtype=torch.float64)
+    for sign in (1.0, -1.0):
+        focused = render_defocus(image, torch.full((1, 1, 40, 40), 5.0 * sign,
+                                                   dtype=torch.float64), code)
+        errors = blur_errors(image, focused, code, blurs)[0, :, 10:-10, 10:-10].mean((1, 2))
+        right, wrong = (errors[0], errors[1]) if sign > 0 else (errors[1], errors[0])
+        assert float(right) < 0.2 * float(wrong)

@@ -134,6 +134,6 @@ def psf_kernel(aperture: Aperture, blur_px: float, like: Tensor) -> Tensor:
         >>> psf_kernel(Disk(), 0.01, torch.zeros(1)).shape
         torch.Size([1, 1])
     """
-    if blur_px < 0.05:
+    if abs(blur_px) < 0.05:  # signed for an oriented aperture
         return torch.ones(1, 1, dtype=like.dtype, device=like.device)
     return aperture.kernel(torch.tensor(blur_px, dtype=like.dtype, device=like.device))[0]

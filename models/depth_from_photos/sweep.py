@@ -44,7 +44,8 @@ from .thin_lens import candidate_blurs, thin_lens_blur, windowed_errors
 def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
                 noise: Tensor | None = None, out: Tensor | None = None) -> Tensor:
     """Local squared error `(B,G,H,W)` between the all-in-focus `image` `(B,3,H,W)` blurred by
-    `aperture` at each CoC diameter of `blurs` `(G,)` pixels and one `focused` photo `(B,3,H,W)`
+    `aperture` at each CoC diameter of `blurs` `(G,)` pixels (signed for an `oriented` aperture,
+    negative nearer than the focus plane) and one `focused` photo `(B,3,H,W)`
     (exposure-matched to `image`: `match_exposure`), less the noise the blur removes from `image` (`noise`, the
     `(B,2)` coefficients of `noise_model`; by default measured on both photos); both sides
     through a Gaussian of `FLOOR_SIGMA_PX`, summed over channels and averaged over
@@ -60,7 +61,7 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
     """
     check_shape("image", image, ["B", "3", "H", "W"])
     check_shape("focused", focused, ["B", "3", "H", "W"])
-    largest = float(blurs.max()) if blurs.numel() else 0.0
+    largest = float(blurs.abs().max()) if blurs.numel() else 0.0
     half = aperture.kernel_size(largest) // 2
     source = FourierBlur(image, half + math.ceil(4 * FLOOR_SIGMA_PX) + 2)
     target = FourierBlur(focused, source.pad_y)
