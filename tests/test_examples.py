@@ -343,6 +343,25 @@ def test_dslr_example_refuses_focus_fractions_of_real_photos(tmp_path, monkeypat
     assert not (tmp_path / "run").exists()
 
 
+def test_code_side_example_tells_the_sides_through_a_code_only(tmp_path, monkeypatch, capsys):
+    """One focus plane on a release in its layout: the disk scores chance exactly, a random
+    code well above it; a checkpoint without a learned mask and a bad --val are refused."""
+    import re
+
+    from test_dslr import write_rendered_release
+
+    write_rendered_release(tmp_path / "data", scenes=3)  # 144 pixels wide: blurs of 1-2 px
+    module = load_example("code_side", monkeypatch)
+    assert module.main(["--root", str(tmp_path / "data"), "--val", "2", "--quiet",
+                        "--focus-fraction", "0.6"]) == 0
+    out = capsys.readouterr().out
+    assert "one focus plane at 6 m, 2 scenes of train" in out
+    assert "open disk: 0.500 of" in out
+    assert float(re.search(r"random code \(seed 0\): ([0-9.]+)", out).group(1)) > 0.7
+    with pytest.raises(SystemExit, match="--val must be in 1..3"):
+        module.main(["--root", str(tmp_path / "data"), "--val", "0"])
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not REAL_DSLR.is_dir(), reason="../shared/data/real/dfd_indoor is absent")
 def test_dslr_example_on_five_real_scenes(tmp_path, monkeypatch, capsys):
