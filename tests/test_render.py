@@ -112,7 +112,7 @@ def test_spatially_varying_matches_brute_force(name, mode, brute_force_render):
 def test_mask_with_a_signed_coc_matches_brute_force(mode, brute_force_render):
     """A code without point symmetry and CoCs on both sides of the focus plane: the tabulated
     profile (`optics.render.profile`) against the exact kernels of every pixel, to the
-    interpolation's error (64 knots a pixel)."""
+    interpolation's error (256 knots a pixel)."""
     gen = torch.Generator().manual_seed(4)
     psf = Mask(torch.rand(5, 5, generator=gen, dtype=torch.float64))
     image = torch.rand(1, 2, 9, 8, generator=gen, dtype=torch.float64)

@@ -2,12 +2,13 @@
 per-pixel weights in pure PyTorch (`ProfileFilter`).
 
 The profile is tabulated once per call: for every window offset `u`, its value at `N` CoC knots
-evenly spaced over the map's range (`KNOTS_PER_PX` a pixel, at most `MAX_KNOTS`), and each
+evenly spaced over the map's range (`KNOTS_PER_PX` a pixel, at most `MAX_TABLE` entries), and each
 pixel's weight is the linear interpolation of its offset's row at its CoC. One profile call
 builds the table (one backward through it reaches the aperture's parameters), where evaluating
 the profile on the whole map per offset took `K^2` calls each way (a learned mask's render was
-about 6x slower than the disk's). The interpolation is exact at the knots and follows a smooth
-profile to `O(spacing^2)`; the renderer's derivatives are those of the interpolant.
+about 6x slower than the disk's). The interpolation is exact at the knots; between them a
+binary ring mask's render (1x3x512x512, CoCs up to 14 px) stays within 2e-4 of the exact one,
+and a learned 16x16 code's within 1e-4. The renderer's derivatives are those of the interpolant.
 """
 
 from __future__ import annotations
@@ -21,9 +22,10 @@ from torch.autograd.function import once_differentiable
 from .taps import window_taps
 
 #: CoC knots of the profile's table per pixel of the map's CoC range.
-KNOTS_PER_PX = 64
-#: The most knots of a table (a wide CoC range is sampled more coarsely).
-MAX_KNOTS = 4096
+KNOTS_PER_PX = 256
+#: The most entries of a table, offsets times knots (a wide window or CoC range is sampled more
+#: coarsely: 16 MB in float32).
+MAX_TABLE = 1 << 22
 
 
 class _Table:
@@ -35,8 +37,9 @@ class _Table:
         low, high = (float(v) for v in torch.aminmax(coc.detach()))
         # knots on a fixed lattice (multiples of the step), so that a pixel's weight does not
         # move with the map's extremes: the interpolant is one function of the CoC
+        most = max(64, MAX_TABLE // (2 * half + 1) ** 2)
         self.step = 2.0 ** max(0, math.ceil(math.log2(max(
-            (high - low) * KNOTS_PER_PX / (MAX_KNOTS - 2), 1e-300)))) / KNOTS_PER_PX
+            (high - low) * KNOTS_PER_PX / (most - 2), 1e-300)))) / KNOTS_PER_PX
         low = math.floor(low / self.step) * self.step
         n = max(2, math.floor((high - low) / self.step) + 2)
         self.knots = low + self.step * torch.arange(n, device=coc.device, dtype=coc.dtype)

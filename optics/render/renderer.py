@@ -26,7 +26,7 @@ default scatter mode (`optics.render.triton_kernels`, where Triton is installed)
 loops elsewhere; `optics.render.backends` registers them and says which runs where.
 `torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and backward
 without graph breaks. Other apertures (`Mask`, user subclasses with their own `profile`) run in
-PyTorch, their `profile` tabulated once per call in the CoC (64 knots a pixel) and interpolated
+PyTorch, their `profile` tabulated once per call in the CoC (256 knots a pixel) and interpolated
 per pixel (`optics.render.profile`).
 """
 
