@@ -6,7 +6,7 @@ code without point symmetry they do not: a thin lens images the aperture turned 
 on one side of the plane (`optics.Aperture.oriented`). For each scored scene (the f/8 photo and
 its depth, the last ``--val`` scenes of ``--split``) the focused image is rendered at one focus
 plane (``--focus-fraction`` of the 10 m depth cap) through each aperture, and
-`models.depth_from_photos.side.side_told` asks, pixel by pixel, whether the blur at the true
+`models.diagnostics.side_told` asks, pixel by pixel, whether the blur at the true
 side matches better than at the mirrored one, given the blur's size: 0.5 is chance (a tie
 counts half), 1 tells every pixel.
 
@@ -28,7 +28,7 @@ import torch
 
 from datasets import DSLR
 from models.checkpoints import load_checkpoint
-from models.depth_from_photos.side import side_told
+from models.diagnostics import side_told
 from models.training.learned_camera import checkpoint_aperture
 from optics import Aperture, Disk, Mask, disk_mask, render_focal_stack
 from optics.progress import progress_bar

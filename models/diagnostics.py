@@ -14,20 +14,26 @@ paper's loss (SSIM, L1, sharpness) may prefer a larger or smaller blur at the tr
 `match_blur_scale` picks the scale the loss prefers on the training scenes (by dividing the
 camera's effective pixel pitch by it; `write_blur_matched_camera` writes the camera JSON so
 scaled), so that the true depth scores best under the loss that trains the network.
+
+With one focus plane the blur itself can hold the side of the plane only through an aperture
+without point symmetry (`optics.Aperture.oriented`): `side_told` measures how well it does.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from os import PathLike
 from typing import Any
 
+import kornia
 import torch
 from torch import Tensor
 
-from optics import CameraSettings, collate
+from optics import Aperture, CameraSettings, collate
 
 from .depth_from_photos.side import mirror_depth
+from .depth_from_photos.sweep import blur_errors
 
 #: a self-supervised loss: `(depth (B,1,H,W), image (B,3,H,W), focused (B,F,3,H,W), settings)`
 #: -> a dict with "loss" (e.g. `models.losses.DefocusLoss`)
@@ -202,3 +208,41 @@ def true_depth_wins(row: Mapping[str, Any], tolerance: float = 0.02) -> bool:
     """
     constants = [v for k, v in row.items() if k not in ("id", "true", "mirror")]
     return not constants or row["true"] <= (1 + tolerance) * min(constants)
+
+
+def side_told(image: Tensor, focused: Tensor, aperture: Aperture, signed_coc_px: Tensor,
+              mask: Tensor | None = None, window: int = 15, levels: int = 12,
+              min_blur_px: float = 1.0) -> tuple[float, int]:
+    """How well one focused photo's blur tells the side of the focus plane, given its size:
+    per pixel, whether the all-in-focus `image` `(1,3,H,W)` blurred through `aperture` at the
+    pixel's true signed CoC (`signed_coc_px` `(1,1,H,W)`, positive beyond the plane) matches
+    `focused` `(1,3,H,W)` better than at the mirrored one (`blur_errors` averaged over
+    `window`-pixel squares, the magnitude rounded to one of `levels` between 0.5 px and the
+    largest). A point-symmetric aperture blurs both alike: a tie counts half, so it scores 0.5.
+
+    Returns:
+        (the share of the counted pixels whose side is told right, how many were counted: those
+        of `mask` blurred by more than `min_blur_px`).
+
+    Example:
+        >>> from optics import Disk
+        >>> image = torch.rand(1, 3, 24, 24, dtype=torch.float64)
+        >>> coc = torch.full((1, 1, 24, 24), 3.0, dtype=torch.float64)
+        >>> side_told(image, image, Disk(), coc)
+        (0.5, 576)
+    """
+    magnitude = signed_coc_px[0, 0].abs()
+    steps = torch.linspace(0.5, max(float(magnitude.max()), 0.5), levels, dtype=image.dtype,
+                           device=image.device)
+    blurs = torch.cat([steps, -steps]) if aperture.oriented else torch.cat([steps, steps])
+    errors = kornia.filters.box_blur(blur_errors(image, focused, aperture, blurs),
+                                     (window, window))[0]
+    level = (magnitude[None] - steps[:, None, None]).abs().argmin(0)[None]
+    beyond, before = errors[:levels].gather(0, level)[0], errors[levels:].gather(0, level)[0]
+    right = torch.where(beyond < before, signed_coc_px[0, 0] > 0, signed_coc_px[0, 0] < 0)
+    told = torch.where(beyond == before, 0.5, right.to(image.dtype))
+    counted = magnitude > min_blur_px
+    if mask is not None:
+        counted &= mask.reshape(magnitude.shape).bool()
+    count = int(counted.sum())
+    return (float(told[counted].mean()) if count else math.nan), count

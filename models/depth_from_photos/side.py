@@ -7,7 +7,8 @@ both sides explain is put on the stated side (`fold_to_side`); a blur that only 
 explains (`off_side`: with `"beyond"`, a blur larger than the far end's) stays there and is
 counted; the depths are swept on the stated side alone where that loses nothing
 (`SideStatement`). Through an aperture without point symmetry (`optics.Aperture.oriented`) the
-two sides blur differently; `side_told` measures how well one photo's blur then tells them."""
+two sides blur differently; `models.diagnostics.side_told` measures how well one photo's blur
+then tells them."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ import math
 import torch
 from torch import Tensor
 
-from optics import Aperture, CameraSettings
+from optics import CameraSettings
 
 #: The side of one focus plane opposite to each stated one.
 OTHER_SIDE = {"beyond": "before", "before": "beyond"}
@@ -161,45 +162,3 @@ def focus_planes(settings: CameraSettings | None, image_settings: CameraSettings
             if not any(math.isclose(distance, d, rel_tol=1e-6) for d in found):
                 found.append(distance)
     return sorted(found)
-
-
-def side_told(image: Tensor, focused: Tensor, aperture: Aperture, signed_coc_px: Tensor,
-              mask: Tensor | None = None, window: int = 15, levels: int = 12,
-              min_blur_px: float = 1.0) -> tuple[float, int]:
-    """How well one focused photo's blur tells the side of the focus plane, given its size:
-    per pixel, whether the all-in-focus `image` `(1,3,H,W)` blurred through `aperture` at the
-    pixel's true signed CoC (`signed_coc_px` `(1,1,H,W)`, positive beyond the plane) matches
-    `focused` `(1,3,H,W)` better than at the mirrored one (`blur_errors` averaged over
-    `window`-pixel squares, the magnitude rounded to one of `levels` between 0.5 px and the
-    largest). A point-symmetric aperture blurs both alike: a tie counts half, so it scores 0.5.
-
-    Returns:
-        (the share of the counted pixels whose side is told right, how many were counted: those
-        of `mask` blurred by more than `min_blur_px`).
-
-    Example:
-        >>> from optics import Disk
-        >>> image = torch.rand(1, 3, 24, 24, dtype=torch.float64)
-        >>> coc = torch.full((1, 1, 24, 24), 3.0, dtype=torch.float64)
-        >>> side_told(image, image, Disk(), coc)
-        (0.5, 576)
-    """
-    import kornia
-
-    from .sweep import blur_errors  # sweep's modules import this one
-
-    magnitude = signed_coc_px[0, 0].abs()
-    steps = torch.linspace(0.5, max(float(magnitude.max()), 0.5), levels, dtype=image.dtype,
-                           device=image.device)
-    blurs = torch.cat([steps, -steps]) if aperture.oriented else torch.cat([steps, steps])
-    errors = kornia.filters.box_blur(blur_errors(image, focused, aperture, blurs),
-                                     (window, window))[0]
-    level = (magnitude[None] - steps[:, None, None]).abs().argmin(0)[None]
-    beyond, before = errors[:levels].gather(0, level)[0], errors[levels:].gather(0, level)[0]
-    right = torch.where(beyond < before, signed_coc_px[0, 0] > 0, signed_coc_px[0, 0] < 0)
-    told = torch.where(beyond == before, 0.5, right.to(image.dtype))
-    counted = magnitude > min_blur_px
-    if mask is not None:
-        counted &= mask.reshape(magnitude.shape).bool()
-    count = int(counted.sum())
-    return (float(told[counted].mean()) if count else math.nan), count

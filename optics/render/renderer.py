@@ -26,8 +26,7 @@ default scatter mode (`optics.render.triton_kernels`, where Triton is installed)
 loops elsewhere; `optics.render.backends` registers them and says which runs where.
 `torch.compile(render_defocus, fullgraph=True)` traces those apertures forward and backward
 without graph breaks. Other apertures (`Mask`, user subclasses with their own `profile`) run in
-PyTorch, their `profile` tabulated once per call in the CoC (256 knots a pixel) and interpolated
-per pixel (`optics.render.profile`).
+PyTorch, their `profile` tabulated in the CoC and interpolated (`optics.render.profile`).
 """
 
 from __future__ import annotations
@@ -261,10 +260,9 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     in the graph; under `values_checked`: the largest CoC alone, or nothing (None) unless
     `need_largest`."""
     coc_message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
-    valid = _all_finite if signed else _all_valid_coc
     depth_message = "depth must be > 0 metres and not NaN everywhere"
     if _compiling():
-        torch._assert_async(valid(coc_px), coc_message)
+        torch._assert_async(_all_valid_coc(coc_px, signed), coc_message)
         if depth is not None:
             torch._assert_async(_all_valid_depth(depth), depth_message)
         return None
@@ -276,7 +274,7 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     if not checking:
         return float(largest)
     # a NaN or an infinity in the image makes its sum not finite (see `check_finite`)
-    read = [largest, valid(coc),
+    read = [largest, _all_valid_coc(coc, signed),
             image.detach().sum(dtype=torch.promote_types(image.dtype, torch.float32))]
     if depth is not None:
         read.append(_all_valid_depth(depth))
@@ -291,14 +289,10 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     return largest
 
 
-def _all_valid_coc(coc: Tensor) -> Tensor:
-    """True (a 0-d tensor) where every CoC is finite and >= 0 pixels."""
-    return torch.all(torch.isfinite(coc) & (coc >= 0))
-
-
-def _all_finite(coc: Tensor) -> Tensor:
-    """True (a 0-d tensor) where every signed CoC is finite."""
-    return torch.all(torch.isfinite(coc))
+def _all_valid_coc(coc: Tensor, signed: bool = False) -> Tensor:
+    """True (a 0-d tensor) where every CoC is finite and >= 0 pixels (`signed`: finite)."""
+    finite = torch.isfinite(coc)
+    return torch.all(finite if signed else finite & (coc >= 0))
 
 
 def _all_valid_depth(depth: Tensor) -> Tensor:
