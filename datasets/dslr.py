@@ -200,7 +200,8 @@ class DSLR(DepthDataset):
         >>> rendered = DSLR(root, focus="synthesized")[0]
         >>> rendered["focused"].shape, rendered["camera"].focus_distance.tolist()
         (torch.Size([2, 3, 8, 8]), [2.0, 8.0])
-        >>> DSLR(root, focus="synthesized", focus_fractions=[0.2])[0]["focused"].shape
+        >>> one_plane = DSLR(root, focus="synthesized", focus_fractions=[0.2])[0]
+        >>> one_plane["focused"].shape
         torch.Size([1, 3, 8, 8])
     """
 
