@@ -84,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
         found = apertures(args.seed, args.checkpoint)
     except (ValueError, FileNotFoundError) as error:
         raise SystemExit(f"code_side: {error}") from None
-    focus = float(scenes[0]["camera"].focus_distance.reshape(-1)[0])
+    focus = float(scenes.load(0)["camera"].focus_distance.reshape(-1)[0])  # nothing rendered
     print(f"one focus plane at {focus:g} m, {len(scenes)} scenes of {args.split}: the share of "
           "the pixels blurred over 1 px whose side the blur tells (0.5: chance)")
     for name, aperture in found.items():

@@ -234,11 +234,12 @@ def side_told(image: Tensor, focused: Tensor, aperture: Aperture, signed_coc_px:
     magnitude = signed_coc_px[0, 0].abs()
     steps = torch.linspace(0.5, max(float(magnitude.max()), 0.5), levels, dtype=image.dtype,
                            device=image.device)
-    blurs = torch.cat([steps, -steps]) if aperture.oriented else torch.cat([steps, steps])
+    blurs = torch.cat([steps, -steps]) if aperture.oriented else steps  # symmetric: one side
     errors = kornia.filters.box_blur(blur_errors(image, focused, aperture, blurs),
                                      (window, window))[0]
     level = (magnitude[None] - steps[:, None, None]).abs().argmin(0)[None]
-    beyond, before = errors[:levels].gather(0, level)[0], errors[levels:].gather(0, level)[0]
+    beyond = errors[:levels].gather(0, level)[0]
+    before = errors[levels:].gather(0, level)[0] if aperture.oriented else beyond
     right = torch.where(beyond < before, signed_coc_px[0, 0] > 0, signed_coc_px[0, 0] < 0)
     told = torch.where(beyond == before, 0.5, right.to(image.dtype))
     counted = magnitude > min_blur_px

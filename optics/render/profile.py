@@ -96,7 +96,7 @@ class ProfileFilter(torch.autograd.Function):
         _, _, h, w = x.shape
         table = _Table(psf, coc, half)
         out = torch.zeros_like(x)
-        norm = table.weight(table.rows.sum(0), (...,)) if scatter else None
+        norm = table.weight(table.rows.sum(0)) if scatter else None
         xs = x / norm if scatter else x
         for dy, dx, src, dst in window_taps(half, h, w):
             row = table.rows[table.offset(dy, dx)]
