@@ -12,6 +12,7 @@ key             shape / type        meaning
                                     images; `sample["camera"].shot(i)` is shot i's `Camera`
 `depth`       `(1,H,W)` float   metres, > 0 everywhere (unknown pixels filled, see mask)
 `mask`        `(1,H,W)` bool    where `depth` is a real measurement
+`hint`        `(1,H,W)` float   (`with_hints` only) a depth found without labels, metres
 `dataset`     str                 dataset name, e.g. `"nyu"`
 `id`          str                 sample id within the dataset
 ==============  ==================  ==========================================================
@@ -135,6 +136,8 @@ class DepthDataset(Dataset):
         self.render_kwargs = dict(render_kwargs or {})
         self.dtype = dtype
         self.ids: list[str] = []
+        #: the depth hint of each sample (`with_hints`), None: none
+        self.hints: list[torch.Tensor] | None = None
 
     def __len__(self) -> int:
         return len(self.ids)
@@ -160,8 +163,11 @@ class DepthDataset(Dataset):
         sample = self._memory.get(index)
         if sample is None:
             sample = self._prepare(index)
+        if self.hints is not None:  # before the augmentation: cropped and flipped alike
+            sample = {**sample, "hint": self.hints[index]}
         kept = {v.untyped_storage().data_ptr() for v in sample.values()
-                if isinstance(v, torch.Tensor)} if self._memory.limit > 0 else set()
+                if isinstance(v, torch.Tensor)} if self._memory.limit > 0 or \
+            self.hints is not None else set()
         if self.augment is not None:
             sample = self.augment(sample)
         for key, value in sample.items():  # the caller gets its own tensors, never the cache's
@@ -210,6 +216,33 @@ class DepthDataset(Dataset):
         view.augment = augment
         return view
 
+    def with_hints(self, hints: Sequence[torch.Tensor]) -> DepthDataset:
+        """A view of this dataset whose samples also carry `hint`: a depth `(1, H, W)` metres
+        of each sample found without labels (e.g. `models.training.hints.label_free_hints`),
+        cropped and flipped with the sample (`TrainConfig.hint_weight`: depth hints).
+
+        Raises:
+            ValueError: not one hint per sample, a hint not finite and > 0 metres, or not of
+                its sample's `(1, H, W)` (the latter when that sample is read).
+
+        Example:
+            >>> from datasets import Middlebury
+            >>> whole = Middlebury(None, size=(50, 74))
+            >>> hinted = whole.with_hints([torch.full((1, 50, 74), 2.0)])
+            >>> crops = hinted.with_augment(JointAugment(crop_size=(16, 24)))
+            >>> tuple(crops[0]["hint"].shape), "hint" in whole[0]
+            ((1, 16, 24), False)
+        """
+        bad = next((h for h in hints if not bool(torch.isfinite(h).all() and (h > 0).all())),
+                   None)
+        require_args(("len(hints)", len(hints), len(hints) == len(self),
+                      f"{len(self)} (one hint per sample)"),
+                     ("hints", "a NaN, an infinity or a depth <= 0", bad is None,
+                      "finite depths > 0"))
+        view = copy.copy(self)
+        view.hints = list(hints)
+        return view
+
     def _finish(self, sample: dict[str, Any]) -> dict[str, Any]:
         out = {
             "image": sample["image"].to(self.dtype).contiguous(),
@@ -220,11 +253,14 @@ class DepthDataset(Dataset):
             "dataset": sample["dataset"],
             "id": sample["id"],
         }
+        if "hint" in sample:
+            out["hint"] = sample["hint"].to(self.dtype).contiguous()
         h, w = out["image"].shape[-2:]
         n = out["camera"].n_shots
         wrong = [f"{key} has shape {tuple(out[key].shape)}, expected {shape}"
                  for key, shape in (("focused", (n, 3, h, w)), ("depth", (1, h, w)),
-                                    ("mask", (1, h, w))) if tuple(out[key].shape) != shape]
+                                    ("mask", (1, h, w)), ("hint", (1, h, w)))
+                 if key in out and tuple(out[key].shape) != shape]
         if not bool(torch.isfinite(out["depth"]).all() and (out["depth"] > 0).all()):
             wrong.append("depth must be finite and > 0")
         if wrong:

@@ -24,7 +24,7 @@ import torch.nn.functional as F
 from .io import is_size, require_args
 
 #: Sample entries laid out as images `(..., H, W)`.
-SPATIAL_KEYS = ("image", "focused", "depth", "mask")
+SPATIAL_KEYS = ("image", "focused", "depth", "mask", "hint")
 
 
 def crop_sample(sample: dict[str, Any], top: int, left: int, height: int, width: int) -> dict:

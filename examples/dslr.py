@@ -183,18 +183,14 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
     what `defocus predict --side` does); with synthesised focus, the rendered images with
     the rendering camera and the f/8 photo as the all-in-focus image."""
     from models import evaluate
-    from models.depth_from_photos import estimate_depth
+    from models.training.hints import label_free_depth
     from optics.progress import progress_bar
 
     real = val.focus == "real"
 
     def label_free(sample: dict) -> torch.Tensor:
-        settings = sample["camera"]
-        with torch.no_grad():
-            return estimate_depth(sample["focused"], settings, depth_range, image=sample["image"],
-                                  image_settings=val.reference_settings(settings) if real
-                                  else None, all_in_focus=False, max_pixels=max_pixels,
-                                  side=side)["depth"]
+        return label_free_depth(sample, depth_range, max_pixels,
+                                val.reference_settings if real else None, side)
 
     samples = (val[i] for i in progress_bar(range(len(val)), desc="label-free predict"))
     prior = "" if side == "both" else f", side {side}"
@@ -339,6 +335,7 @@ def network_rows(config: Any, proto: dict[str, Any], train: DSLR, augmented: Any
                                    report_every=None if run.progress else 0, report=print)
         print(format_table(found))
         prior = f", side {config.side}" if sided and config.side != "both" else ""
+        prior += ", depth hints" if supervision == "self" and config.hint_weight > 0 else ""
         for name, metrics in found.items():
             if name.startswith("best constant"):  # a constant map orders nothing: 0
                 rows[name] = table_row({**metrics, "depth_order": 0.0}, NO_INPUT, "none",
@@ -414,6 +411,10 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
                          f"side_tolerance={proto['side_tolerance']!r}")
     check_learned_optics(fields.get("learn_optics") or "", "dslr", proto["focus"])
     given = parse_overrides(args.overrides)
+    if proto["focus"] != "synthesized" and fields.get("hint_weight", 0):
+        raise ValueError(f"--set hint_weight={fields['hint_weight']}: depth hints take --focus "
+                         "synthesized (the real pairs train registered and relative to the f/8 "
+                         "photo, which the label-free estimator does not model)")
     if proto["focus"] != "synthesized":
         if "focus_fractions" in given:
             raise ValueError(f"--set focus_fractions={given['focus_fractions']}: where the "
@@ -433,6 +434,7 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
 def _main(argv: list[str] | None) -> int:
     from models.depth_from_photos.trained_network import camera_record, describe_camera
     from models.metrics import METRIC_NAMES, format_table
+    from models.training.hints import attach_hints
     from optics.progress import progress_bar
 
     args = request_from(ScriptRequest, keys_as_options(parser().parse_args(argv)))
@@ -469,6 +471,7 @@ def _main(argv: list[str] | None) -> int:
     print(f"DSLR: {len(train)} training scenes, {len(val)} {scored} scenes "
           f"({val.ids[0]} to {val.ids[-1]}), {what}")
     depth_range = (config.depth_min, config.depth_max)
+    augmented = attach_hints(augmented, config, progress, proto["predict_pixels"])
     rows = network_rows(config, proto, train, augmented, val)
     rows.update({name: table_row(metrics, NO_INPUT, "none", config.seed)
                  for name, metrics in bound_rows(val, depth_range, config.side).items()})

@@ -33,6 +33,9 @@ Each row (printed and in the JSON) names its ``source``, ``target``, ``method``,
 (``input``: ``aif``, ``aif+focused``, or ``none`` for the constant), how it learned
 (``supervision``: ``self``, ``depth`` or ``none``), its ``seed`` (`TrainConfig.seed`) and its
 ``metrics``. The matrices show the mean over the seeds (and the spread with several).
+``--set hint_weight=1`` trains the self-supervised networks with depth hints (the label-free
+depth of each training scene, found once per source, `models.training.hints.attach_hints`);
+their method names say so.
 
 CPU (2 minutes per network: 8 networks, about 20 minutes on 2 cores; ``--quick``: small sets
 and a few seconds per network, to see it run)::
@@ -212,6 +215,7 @@ def run_source(args: argparse.Namespace, source: Source, targets: dict[str, Sour
     from models.depth_from_photos.trained_network import camera_record, describe_camera
     from models.experiment import constant_from_training, train_and_evaluate
     from models.training.config import parse_overrides
+    from models.training.hints import attach_hints
 
     source.camera = source.train[0]["camera"]
     print(f"\n== source {source.name} ({DATASETS[source.name][1]}): {len(source.train)} training "
@@ -226,6 +230,8 @@ def run_source(args: argparse.Namespace, source: Source, targets: dict[str, Sour
         if hasattr(whole, "with_augment") else whole
     constant = constant_from_training(whole)
     scored = constant_rows(constant, samples)
+    # the depth hints (--set hint_weight=W) of the source's scenes, found once for every network
+    crops = attach_hints(crops, training_config(args, source, size, 0, "self", "aif", crops[0]))
     rows = []
     for seed in args.seeds:
         rows += [{"source": source.name, "target": name,
@@ -235,6 +241,8 @@ def run_source(args: argparse.Namespace, source: Source, targets: dict[str, Sour
         for method, supervision, input_mode in NETWORKS:
             config = training_config(args, source, size, seed, supervision, input_mode,
                                      crops[0])
+            if supervision == "self" and config.hint_weight > 0:
+                method = method.replace("self-supervised", "self-supervised with depth hints")
             print(f"-- {source.name}, seed {seed}: {method} ({config.out_dir})")
             own = train_and_evaluate(config, crops, source.test, constant_set=whole,
                                      report_every=0, report=print)

@@ -8,7 +8,13 @@ into a synthetic focused image that is compared with the real one:
 - sharpness: L1 between the sharpness maps (Sobel gradient magnitude) of the rendered and the real
   focused images (paper weight 0.1);
 - smoothness: edge-aware first-order smoothness of the mean-normalised depth, down-weighted at
-  image edges (paper weight 0.001).
+  image edges (paper weight 0.001);
+- depth hints (optional; Watson et al., "Self-Supervised Monocular Depth Hints", ICCV 2019): a
+  depth found without labels (the label-free estimator's, `models.depth_from_photos`) pulls
+  the network's depth, in log depth, at the pixels where it renders the focused images better
+  than the network's depth does. The photometric error stays the judge, so a wrong hint is
+  ignored where the network does better; the hint only helps the network out of the loss's
+  local minima (a blur that grows slowly with depth, flat regions).
 """
 
 from __future__ import annotations
@@ -96,6 +102,22 @@ def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85
         >>> round(float(photometric_loss(x, x)), 6)
         0.0
     """
+    return photometric_error_map(rendered, target, ssim_weight, window_size).mean()
+
+
+def photometric_error_map(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85,
+                          window_size: int = 7) -> Tensor:
+    """The photometric error of each pixel, `(..., 1, H, W)`: `photometric_loss`'s terms
+    averaged over the channels (their mean over pixels and images is `photometric_loss`).
+    Arguments and refusals as `photometric_loss`'s.
+
+    Example:
+        >>> x = torch.rand(2, 3, 16, 16)
+        >>> y = x.clone(); y[..., :8] = 0
+        >>> error = photometric_error_map(x[None], y[None])
+        >>> tuple(error.shape), bool(error[..., 11:].max() < 1e-6)  # beyond the window's reach
+        ((1, 2, 1, 16, 16), True)
+    """
     if rendered.shape != target.shape:
         raise ValueError(f"rendered and target must have the same shape, got "
                          f"{tuple(rendered.shape)} and {tuple(target.shape)}")
@@ -104,8 +126,9 @@ def photometric_loss(rendered: Tensor, target: Tensor, ssim_weight: float = 0.85
     _check_window_fits("rendered and target", rendered, window_size)
     r = rendered.reshape(-1, *rendered.shape[-3:])
     t = target.reshape(-1, *target.shape[-3:])
-    ssim = ((1 - ssim_map(r, t, window_size)) / 2).clamp(0, 1).mean()
-    return ssim_weight * ssim + (1 - ssim_weight) * (r - t).abs().mean()
+    ssim = ((1 - ssim_map(r, t, window_size)) / 2).clamp(0, 1)
+    error = (ssim_weight * ssim + (1 - ssim_weight) * (r - t).abs()).mean(-3, keepdim=True)
+    return error.reshape(*rendered.shape[:-3], 1, *rendered.shape[-2:])
 
 
 def ssim_map(x: Tensor, y: Tensor, window_size: int = 7, max_val: float = 1.0) -> Tensor:
@@ -224,6 +247,8 @@ class DefocusLoss(nn.Module):
         smoothness_weight: weight of the edge-aware depth smoothness, finite and >= 0
             (paper: 0.001).
         window_size: odd SSIM window width in pixels.
+        hint_weight: weight of the depth-hint term, finite and >= 0 (0: off; used where
+            `forward` gets a `hint`).
         aperture: PSF shape used to render, overriding the settings' aperture (None: use the
             aperture of the `CameraSettings` passed to `forward`).
         **render_kwargs: passed to `optics.render_defocus`: `RENDER_KEYWORDS` (`mode`,
@@ -244,7 +269,8 @@ class DefocusLoss(nn.Module):
 
     def __init__(self, ssim_weight: float = 0.85, sharpness_weight: float = 0.1,
                  smoothness_weight: float = 0.001, window_size: int = 7,
-                 aperture: Aperture | None = None, **render_kwargs: Any):
+                 aperture: Aperture | None = None, hint_weight: float = 0.0,
+                 **render_kwargs: Any):
         super().__init__()
         unknown = sorted(set(render_kwargs) - set(RENDER_KEYWORDS))
         if unknown:
@@ -254,31 +280,62 @@ class DefocusLoss(nn.Module):
         self.ssim_weight = _check_weight("ssim_weight", ssim_weight, 1.0)
         self.sharpness_weight = _check_weight("sharpness_weight", sharpness_weight)
         self.smoothness_weight = _check_weight("smoothness_weight", smoothness_weight)
+        self.hint_weight = _check_weight("hint_weight", hint_weight)
         self.window_size = int(window_size)
         self.aperture = aperture
         self.render_kwargs = render_kwargs
 
     def forward(self, depth: Tensor, image: Tensor, focused: Tensor,
-                settings: CameraSettings) -> dict[str, Tensor]:
+                settings: CameraSettings, hint: Tensor | None = None) -> dict[str, Tensor]:
         """Loss terms for predicted `depth` `(B,1,H,W)` metres, all-in-focus `image`
-        `(B,3,H,W)`, real `focused` images `(B,F,3,H,W)` and their `(B,F)` settings.
+        `(B,3,H,W)`, real `focused` images `(B,F,3,H,W)` and their `(B,F)` settings; `hint`
+        `(B,1,H,W)` metres > 0, a depth found without labels (used when `hint_weight` > 0).
 
         Returns:
-            dict with `loss` (the weighted total), `photometric`, `sharpness`, `smoothness`.
+            dict with `loss` (the weighted total), `photometric`, `sharpness`, `smoothness`,
+            and with a hint `hint` (the mean log-depth L1 to the hint over all pixels, 0 where
+            the network's depth renders better) and `hint_share` (the share of pixels where
+            the hint renders better).
+
+        Example:
+            >>> settings = CameraSettings(0.05, 2.0, [[2.0, 6.0]], 180e-6)
+            >>> image, depth = torch.rand(1, 3, 16, 16), torch.full((1, 1, 16, 16), 3.0)
+            >>> focused = render_focal_stack(image, depth, settings)
+            >>> terms = DefocusLoss(hint_weight=1.0)(depth * 2, image, focused, settings, depth)
+            >>> round(float(terms["hint"]), 4), float(terms["hint_share"])  # log 2
+            (0.6931, 1.0)
         """
         check_shape("focused", focused, ["B", "F", "C", "H", "W"])
         rendered = render_focal_stack(image, depth, settings, self.aperture, **self.render_kwargs)
-        photometric = photometric_loss(rendered, focused, self.ssim_weight, self.window_size)
+        error = photometric_error_map(rendered, focused, self.ssim_weight, self.window_size)
+        photometric = error.mean()
         sharpness = sharpness_loss(rendered, focused)
         smoothness = edge_aware_smoothness(depth, image)
+        terms = {"photometric": photometric, "sharpness": sharpness, "smoothness": smoothness}
         total = (photometric + self.sharpness_weight * sharpness
                  + self.smoothness_weight * smoothness)
-        return {"loss": total, "photometric": photometric, "sharpness": sharpness,
-                "smoothness": smoothness}
+        if hint is not None and self.hint_weight > 0:
+            terms.update(self._hint_terms(depth, hint, error.mean(1), image, focused, settings))
+            total = total + self.hint_weight * terms["hint"]
+        return {"loss": total, **terms}
+
+    def _hint_terms(self, depth: Tensor, hint: Tensor, error: Tensor, image: Tensor,
+                    focused: Tensor, settings: CameraSettings) -> dict[str, Tensor]:
+        """The depth-hint terms: `error` `(B,1,H,W)` is the network depth's photometric error
+        per pixel, over the focus settings."""
+        with torch.no_grad():
+            hinted = render_focal_stack(image, hint, settings, self.aperture,
+                                        **self.render_kwargs)
+            better = photometric_error_map(hinted, focused, self.ssim_weight,
+                                           self.window_size).mean(1) < error
+        pull = (depth.log() - hint.log()).abs()
+        return {"hint": torch.where(better, pull, torch.zeros_like(pull)).mean(),
+                "hint_share": better.float().mean()}
 
     def extra_repr(self) -> str:
         return (f"ssim_weight={self.ssim_weight}, sharpness_weight={self.sharpness_weight}, "
-                f"smoothness_weight={self.smoothness_weight}, window_size={self.window_size}")
+                f"smoothness_weight={self.smoothness_weight}, window_size={self.window_size}, "
+                f"hint_weight={self.hint_weight}")
 
 
 def supervised_depth_loss(depth: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:

@@ -306,9 +306,13 @@ def test_dslr_example_synthesized_focus_on_one_split_scores_another(tmp_path, mo
     table = tmp_path / "table.json"
     argv = ["--root", str(root), "--out", str(tmp_path / "run"), "--focus", "synthesized",
             "--eval-split", "test", *QUIET_CPU, f"json={table}", "steps=1", "batch_size=2",
-            "width=4", "crop=32", "predict_pixels=4000"]
+            "width=4", "crop=32", "predict_pixels=4000", "hint_weight=1"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
+    # the self-supervised networks train with depth hints, their twins without
+    assert "[self-supervised, depth hints]" in out and "[depth-supervised]" in out
+    assert "hint,hint_share" in (tmp_path / "run" / "self" / "train_log.csv").read_text()
+    assert "hint" not in (tmp_path / "run" / "depth" / "train_log.csv").read_text()
     assert "DSLR: 3 training scenes, 2 test split scenes" in out
     assert "rendered with f/2.8 focused at 2, 8 m (focal length 35 mm" in out
     assert "camera fitted" not in out and not (tmp_path / "run" / "camera.json").exists()
@@ -330,9 +334,9 @@ def test_dslr_example_synthesized_focus_on_one_split_scores_another(tmp_path, mo
             module.main([*argv, *extra, "--overwrite"])
 
 
-def test_dslr_example_refuses_focus_fractions_of_real_photos(tmp_path, monkeypatch):
-    """The focus planes of synthesised focus are refused with the real photos, before any
-    work (the real pairs are focused where they were taken)."""
+def test_dslr_example_refuses_synthesized_keys_with_real_photos(tmp_path, monkeypatch):
+    """The focus planes of synthesised focus (the real pairs are focused where they were
+    taken) and depth hints are refused with the real photos, before any work."""
     from test_dslr import write_rendered_release
 
     write_rendered_release(tmp_path / "data", scenes=3, h=48, w=72)
@@ -340,6 +344,9 @@ def test_dslr_example_refuses_focus_fractions_of_real_photos(tmp_path, monkeypat
     with pytest.raises(SystemExit, match="focus_fractions=.0.2.: where the synthesised"):
         module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
                      "--set", "focus_fractions=[0.2]"])
+    with pytest.raises(SystemExit, match="hint_weight=1: depth hints take --focus synthesized"):
+        module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
+                     "--set", "hint_weight=1"])
     assert not (tmp_path / "run").exists()
 
 

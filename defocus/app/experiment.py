@@ -158,6 +158,7 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
     from defocus.app.train import check_learned_optics
     from models.experiment import keep_freed_memory, train_and_evaluate
     from models.metrics import format_table
+    from models.training.hints import attach_hints
 
     experiment, fields, given = read_recipe(args)
     check_learned_optics(fields.get("learn_optics") or "", experiment["data"],
@@ -168,13 +169,14 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
     truncation_warning_once()
     whole = _dataset(experiment, args, experiment["splits"][0])
     crop = recipe_crop(experiment, fields, whole, report)
-    train_set = limit(whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1)),
-                      experiment["max_train"])
+    crops = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
+    train_set = limit(crops, experiment["max_train"])
     test_set = whole if experiment["splits"][1] == experiment["splits"][0] else \
         _dataset(experiment, args, experiment["splits"][1])
     test_set = limit(test_set, experiment["max_test"])
     first = train_set[0]
     config = recipe_config(args, experiment, fields, given, whole, first)
+    train_set = limit(attach_hints(crops, config, config.progress), experiment["max_train"])
     kind = device_kind(config.device)
     crop_text = (f"random {tuple(first['image'].shape[-2:])} crops of" if crop else "whole")
     report(f"{experiment['name']}: {len(train_set)} training samples ({crop_text} "

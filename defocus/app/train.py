@@ -147,17 +147,19 @@ class TrainResult:
 
 def train(cfg, train_set, validation: Callable[[], Any] | None = None,
           report: Callable[[str], None] = lambda text: None) -> TrainResult:
-    """Train on `train_set` with `cfg`; then, on the main process, evaluate on `validation()`
-    when given.
+    """Train on `train_set` with `cfg` (its depth hints found first where `cfg.hint_weight`
+    asks for them, `models.training.hints.attach_hints`); then, on the main process, evaluate
+    on `validation()` when given.
 
     Example:
         >>> result = train(training_config(overrides=["steps=2"]), scenes)  # doctest: +SKIP
     """
     from models.training import COLLAPSE_FRACTION, DataWaitWarning, DepthCollapseWarning, Trainer
+    from models.training.hints import attach_hints
 
     for category in (DepthCollapseWarning, DataWaitWarning):  # in the result's warnings instead
         warnings.simplefilter("ignore", category)
-    trainer = Trainer(cfg, train_set)
+    trainer = Trainer(cfg, attach_hints(train_set, cfg, cfg.progress))
     if trainer.is_main and trainer.resumed_from is not None:
         report(f"continuing the run in {cfg.out_dir} from step {trainer.step} of {cfg.steps}")
     trainer.fit()

@@ -59,7 +59,7 @@ _RULES = (
     (("lr", "depth_min", "depth_max", "optics_lr", "f_number_min", "f_number_max"),
      _finite(0, strict=True), "a finite number > 0"),
     (("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
-      "checkpoint_minutes", "minutes", "mask_start_noise"), _finite(0),
+      "checkpoint_minutes", "minutes", "mask_start_noise", "hint_weight"), _finite(0),
      "a finite number >= 0 (0: off)"),
     (("ssim_weight",), lambda v: 0 <= v <= 1, "in [0, 1]"),
     (("focus_distance",), _finite(0), "a finite number of metres >= 0 (0: none)"),
@@ -123,6 +123,10 @@ class TrainConfig:
     sharpness_weight: float = 0.1
     #: weight of the edge-aware depth smoothness
     smoothness_weight: float = 0.001
+    #: weight of the depth hints (0: off; `models.losses.DefocusLoss`, after Watson et al.):
+    #: self-supervised runs only, on samples that carry a `hint` (a depth found without labels,
+    #: `DepthDataset.with_hints`; `models.training.hints.label_free_hints` finds them)
+    hint_weight: float = 0.0
     #: SSIM window width, pixels
     ssim_window: int = 7
     #: PSF used to render in the loss, a spec of optics.aperture_spec: "gaussian" (sigma = CoC/2),
@@ -226,6 +230,9 @@ class TrainConfig:
              f"{self.focus_distance!r}"),
             (not self.f_number_min < self.f_number_max, "need f_number_min < f_number_max, "
              f"got {self.f_number_min!r} and {self.f_number_max!r}"),
+            (self.hint_weight > 0 and bool(self.learn_optics), f"hint_weight="
+             f"{self.hint_weight!r} with learn_optics={self.learn_optics!r}: the hints were "
+             "found with the data's camera, not the one being learned; set hint_weight=0"),
             (self.compile and bool(self.learn_optics), f"compile=true with learn_optics="
              f"{self.learn_optics!r} is not supported yet (torch.compile fails on the gradient "
              "that reaches the network's input from the learned camera): set compile=false"),

@@ -134,7 +134,8 @@ class NetworkAndLoss:
         """The loss terms of `depth` on `batch` (self-supervised or against the labels)."""
         with record_function("loss"):
             if self.config.supervision == "self":
-                return self.loss(depth, batch["image"], batch["focused"], batch["camera"])
+                return self.loss(depth, batch["image"], batch["focused"], batch["camera"],
+                                 batch.get("hint"))
             target, mask = batch["depth"], batch.get("mask")
             if mask is not None:  # masked-out labels may be anything (inf, nan): keep out
                 target = torch.where(mask.bool(), target, torch.ones_like(target))

@@ -42,6 +42,8 @@ class SampleChecker:
             keys += ["focused", "camera"]
         if cfg.supervision == "depth" or cfg.learn_optics:  # learn_optics: rendered from it
             keys.append("depth")
+        if cfg.supervision == "self" and cfg.hint_weight > 0:
+            keys.append("hint")
         return keys
 
     def fit_first_sample(self) -> TrainConfig:
@@ -67,8 +69,10 @@ class SampleChecker:
             (missing is None, f"train_set[0] must be a sample mapping (image, focused, camera, "
              f"depth, mask), got a {type(sample).__name__}"),
             (bool(missing), f"sample {name} has no {missing}, which input_mode="
-             f"{cfg.input_mode!r} with supervision={cfg.supervision!r} needs; it has "
-             f"{sorted(sample) if isinstance(sample, Mapping) else ''}"),
+             f"{cfg.input_mode!r} with supervision={cfg.supervision!r}"
+             + (f" and hint_weight={cfg.hint_weight!r} (their depth hints: "
+                "models.training.hints.attach_hints)" if missing and "hint" in missing else "")
+             + f" needs; it has {sorted(sample) if isinstance(sample, Mapping) else ''}"),
             (n != cfg.n_focus, f"n_focus is {cfg.n_focus} but sample {name} holds focused images "
              f"of shape {tuple(getattr(focused, 'shape', ()))} (F, 3, H, W); set n_focus to its "
              "number of focused images")):
