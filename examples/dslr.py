@@ -51,6 +51,11 @@ the other split is scored, the paper's protocol):
 
     python examples/dslr.py --root data/dfd_indoor --set scored=beyond predict_side=beyond
 
+``hint_weight=W`` trains the self-supervised networks with depth hints (`TrainConfig.hint_weight`):
+each training scene's label-free depth, found once as `predict` finds it (the photos as taken,
+the lens's camera, ``predict_side``), pulls the network's depth where it renders the training
+photos better than the network's depth does. No depth label is read.
+
 ``--focus synthesized`` reads the set the paper's way (Gur & Wolf 2019), as an RGB-D set: the
 f/8 photo is the all-in-focus image and the two focused images are rendered from it and the
 registered depth through the PSF layer at the paper's focus settings, 0.2 and 0.8 of the far
@@ -254,9 +259,10 @@ def match_loss_camera(args: ScriptRequest, proto: dict[str, Any], out: Path, cam
 
 
 def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path, progress: bool,
-             depth_range: tuple[float, float]) -> tuple[DSLR, DSLR, DSLR, Path | None]:
-    """The training and scored scenes, the scored scenes of the label-free `predict`, and the
-    camera JSON of the training (None: the preset's). Real focus: relative pairs, the lens's
+             depth_range: tuple[float, float]) -> tuple[DSLR, DSLR, DSLR, Path | None, DSLR]:
+    """The training and scored scenes, the scored scenes of the label-free `predict`, the
+    camera JSON of the training (None: the preset's) and the training scenes as `predict`
+    reads them (their depth hints', ``hint_weight``). Real focus: relative pairs, the lens's
     own camera for `predict`, the camera fitted on the training scenes; synthesised focus: the
     scenes rendered with the preset's or ``camera``'s lens, for training and `predict` alike."""
     count = len(DSLR(args.root, args.split).files)
@@ -280,7 +286,7 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path, progress: bo
                     "cache_dir": "auto" if proto["cache"] else None, **kwargs}
         train = DSLR(args.root, args.split, scenes=fit_on, **rendered)
         val = DSLR(args.root, scored[0], scenes=scored[1], **rendered)
-        return train, val, val, camera
+        return train, val, val, camera, train
     train = DSLR(args.root, args.split, scenes=fit_on, **kwargs)
     camera = Path(proto["camera"]) if proto["camera"] else calibrate(proto, out, train, progress)
     pair = {"camera": camera, "relative": proto["relative"],
@@ -299,7 +305,8 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path, progress: bo
         scored = (scored[0], [positions[i] for i in on_side])
         lens = DSLR(args.root, scored[0], scenes=scored[1], camera=camera, **kwargs)
     val = DSLR(args.root, scored[0], scenes=scored[1], **pair)
-    return train, val, lens, camera
+    return train, val, lens, camera, DSLR(args.root, args.split, scenes=fit_on, camera=camera,
+                                          **kwargs)
 
 
 #: the networks of the table: (label, supervision, input mode, whether the side prior applies)
@@ -411,10 +418,6 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
                          f"side_tolerance={proto['side_tolerance']!r}")
     check_learned_optics(fields.get("learn_optics") or "", "dslr", proto["focus"])
     given = parse_overrides(args.overrides)
-    if proto["focus"] != "synthesized" and fields.get("hint_weight", 0):
-        raise ValueError(f"--set hint_weight={fields['hint_weight']}: depth hints take --focus "
-                         "synthesized (the real pairs train registered and relative to the f/8 "
-                         "photo, which the label-free estimator does not model)")
     if proto["focus"] != "synthesized":
         if "focus_fractions" in given:
             raise ValueError(f"--set focus_fractions={given['focus_fractions']}: where the "
@@ -450,8 +453,8 @@ def _main(argv: list[str] | None) -> int:
     plan = plan_json_option(proto["json"], args.overwrite, args.root, "table", [
         ("camera", camera), ("camera JSON of this run", out / "camera.json"),
         ("loss-matched camera JSON of this run", out / "camera_loss.json")], "--set json")
-    train, val, lens, camera = datasets(args, proto, out, progress,
-                                        (fields["depth_min"], fields["depth_max"]))
+    train, val, lens, camera, hint_source = datasets(args, proto, out, progress,
+                                                     (fields["depth_min"], fields["depth_max"]))
     if train.register and proto["memory_cache_mb"] > 0:  # register each pair once, first
         for index in progress_bar(range(len(train)), desc="registering the training pairs",
                                   disable=not progress):
@@ -471,7 +474,10 @@ def _main(argv: list[str] | None) -> int:
     print(f"DSLR: {len(train)} training scenes, {len(val)} {scored} scenes "
           f"({val.ids[0]} to {val.ids[-1]}), {what}")
     depth_range = (config.depth_min, config.depth_max)
-    augmented = attach_hints(augmented, config, progress, proto["predict_pixels"])
+    augmented = attach_hints(  # real pairs: the photos as `predict` reads them, on `side`
+        augmented, config, progress, hint_source, max_pixels=proto["predict_pixels"],
+        image_settings=None if train.focus == "synthesized" else hint_source.reference_settings,
+        side=proto["predict_side"])
     rows = network_rows(config, proto, train, augmented, val)
     rows.update({name: table_row(metrics, NO_INPUT, "none", config.seed)
                  for name, metrics in bound_rows(val, depth_range, config.side).items()})

@@ -226,10 +226,13 @@ def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
     module = load_example("dslr", monkeypatch)
     argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--set",
             *QUIET_CPU[1:], "val=2", "steps=2", "batch_size=2", "width=8", "calibrate_every=1",
-            "crop=48"]
+            "crop=48", "hint_weight=1", "predict_side=beyond", "predict_pixels=4000"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
     _check_dslr_table(out, 2)
+    # depth hints of the real pairs: the label-free depth of the photos as taken, side beyond
+    assert "[self-supervised, side beyond, depth hints]" in out
+    assert "hint,hint_share" in (tmp_path / "run" / "self" / "train_log.csv").read_text()
     assert "camera fitted on 5 training scenes" in out
     assert (tmp_path / "run" / "camera.json").is_file()
     # rendered with the thin lens it was fitted to: the loss agrees with the fitted blur
@@ -334,9 +337,9 @@ def test_dslr_example_synthesized_focus_on_one_split_scores_another(tmp_path, mo
             module.main([*argv, *extra, "--overwrite"])
 
 
-def test_dslr_example_refuses_synthesized_keys_with_real_photos(tmp_path, monkeypatch):
-    """The focus planes of synthesised focus (the real pairs are focused where they were
-    taken) and depth hints are refused with the real photos, before any work."""
+def test_dslr_example_refuses_focus_fractions_of_real_photos(tmp_path, monkeypatch):
+    """The focus planes of synthesised focus are refused with the real photos, before any
+    work (the real pairs are focused where they were taken)."""
     from test_dslr import write_rendered_release
 
     write_rendered_release(tmp_path / "data", scenes=3, h=48, w=72)
@@ -344,9 +347,6 @@ def test_dslr_example_refuses_synthesized_keys_with_real_photos(tmp_path, monkey
     with pytest.raises(SystemExit, match="focus_fractions=.0.2.: where the synthesised"):
         module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
                      "--set", "focus_fractions=[0.2]"])
-    with pytest.raises(SystemExit, match="hint_weight=1: depth hints take --focus synthesized"):
-        module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
-                     "--set", "hint_weight=1"])
     assert not (tmp_path / "run").exists()
 
 

@@ -7,7 +7,6 @@ network's depth.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -69,11 +68,14 @@ def label_free_hints(samples: Sequence[Mapping[str, Any]], depth_range: tuple[fl
 
 
 def attach_hints(dataset: Any, config: TrainConfig, progress: bool = True,
-                 max_pixels: int = 300_000) -> Any:
+                 source: Sequence[Mapping[str, Any]] | None = None, **options: Any) -> Any:
     """`dataset` with the depth hints `config.hint_weight` asks for (`dataset` itself when it
-    is 0): `label_free_hints` of its whole samples in `config`'s depth range, attached with
-    `DepthDataset.with_hints` (kept through its augmentation), or to each sample of a dataset
-    that holds the same samples at every read (`HintedSamples`).
+    is 0): `label_free_hints` (with `options`: `label_free_depth`'s `max_pixels`,
+    `image_settings`, `side`) in `config`'s depth range of its whole samples, or of `source`'s
+    (the same scenes as the estimator reads them, e.g. real photos as taken where training
+    reads them registered), attached with `DepthDataset.with_hints` (kept through its
+    augmentation), or to each sample of a dataset that holds the same samples at every read
+    (`HintedSamples`).
 
     Raises:
         ValueError: hints are asked for a dataset that cannot carry them: no length (an
@@ -91,16 +93,17 @@ def attach_hints(dataset: Any, config: TrainConfig, progress: bool = True,
     """
     if config.hint_weight == 0:
         return dataset
-    found = functools.partial(label_free_hints, depth_range=(config.depth_min, config.depth_max),
-                              progress=progress, max_pixels=max_pixels)
-    if hasattr(dataset, "with_hints"):
-        return dataset.with_hints(found(dataset.with_augment(None)))
-    if not hasattr(dataset, "__len__") or getattr(dataset, "augment", None) is not None:
+    whole = dataset.with_augment(None) if hasattr(dataset, "with_hints") else dataset
+    if not hasattr(dataset, "with_hints") and (
+            not hasattr(dataset, "__len__") or getattr(dataset, "augment", None) is not None):
         raise ValueError(f"hint_weight={config.hint_weight!r} needs a dataset that holds the "
                          f"same samples at every read, to find their hints once (a "
                          f"datasets.DepthDataset, procedural scenes, a list), got a "
                          f"{type(dataset).__name__}; set hint_weight=0")
-    return HintedSamples(dataset, found(dataset))
+    hints = label_free_hints(whole if source is None else source,
+                             (config.depth_min, config.depth_max), progress, **options)
+    return dataset.with_hints(hints) if hasattr(dataset, "with_hints") \
+        else HintedSamples(dataset, hints)
 
 
 class HintedSamples(Dataset):
