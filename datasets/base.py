@@ -230,7 +230,8 @@ class DepthDataset(Dataset):
             >>> whole = Middlebury(None, size=(50, 74))
             >>> hinted = whole.with_hints([torch.full((1, 50, 74), 2.0)])
             >>> crops = hinted.with_augment(JointAugment(crop_size=(16, 24)))
-            >>> tuple(crops[0]["hint"].shape), "hint" in whole[0]
+            >>> crop = crops[0]
+            >>> tuple(crop["hint"].shape), "hint" in whole[0]
             ((1, 16, 24), False)
         """
         bad = next((h for h in hints if not bool(torch.isfinite(h).all() and (h > 0).all())),

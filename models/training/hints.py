@@ -87,23 +87,23 @@ def attach_hints(dataset: Any, config: TrainConfig, progress: bool = True,
         >>> whole = Middlebury(None, size=(40, 60))
         >>> attach_hints(whole, TrainConfig()) is whole
         True
-        >>> hinted = attach_hints(whole, TrainConfig(hint_weight=1.0), progress=False)
-        >>> tuple(hinted[0]["hint"].shape)
+        >>> sample = attach_hints(whole, TrainConfig(hint_weight=1.0), progress=False)[0]
+        >>> tuple(sample["hint"].shape)
         (1, 40, 60)
     """
     if config.hint_weight == 0:
         return dataset
-    whole = dataset.with_augment(None) if hasattr(dataset, "with_hints") else dataset
-    if not hasattr(dataset, "with_hints") and (
-            not hasattr(dataset, "__len__") or getattr(dataset, "augment", None) is not None):
+    carries = hasattr(dataset, "with_hints")  # a DepthDataset: crops its hints with it
+    if not carries and (not hasattr(dataset, "__len__")
+                        or getattr(dataset, "augment", None) is not None):
         raise ValueError(f"hint_weight={config.hint_weight!r} needs a dataset that holds the "
                          f"same samples at every read, to find their hints once (a "
                          f"datasets.DepthDataset, procedural scenes, a list), got a "
                          f"{type(dataset).__name__}; set hint_weight=0")
+    whole = dataset.with_augment(None) if carries else dataset
     hints = label_free_hints(whole if source is None else source,
                              (config.depth_min, config.depth_max), progress, **options)
-    return dataset.with_hints(hints) if hasattr(dataset, "with_hints") \
-        else HintedSamples(dataset, hints)
+    return dataset.with_hints(hints) if carries else HintedSamples(dataset, hints)
 
 
 class HintedSamples(Dataset):
