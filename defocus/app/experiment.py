@@ -170,11 +170,10 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
     whole = _dataset(experiment, args, experiment["splits"][0])
     crop = recipe_crop(experiment, fields, whole, report)
     crops = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
-    train_set = limit(crops, experiment["max_train"])
     test_set = whole if experiment["splits"][1] == experiment["splits"][0] else \
         _dataset(experiment, args, experiment["splits"][1])
     test_set = limit(test_set, experiment["max_test"])
-    first = train_set[0]
+    first = crops[0]
     config = recipe_config(args, experiment, fields, given, whole, first)
     train_set = limit(attach_hints(crops, config, config.progress), experiment["max_train"])
     kind = device_kind(config.device)
