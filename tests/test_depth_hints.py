@@ -131,6 +131,8 @@ def test_attach_hints_to_fixed_samples_only(scenes):
     assert isinstance(hinted, HintedSamples) and len(hinted) == 2
     assert hinted[1]["hint"].shape == scenes[1]["depth"].shape
     assert hinted[1]["image"] is scenes[1]["image"]
+    with pytest.raises(ValueError, match="one hint per sample: 2 samples, got 1 hints"):
+        attach_hints(subset, cfg, progress=False, source=subset[:1], max_pixels=4000)
 
     class Stream(IterableDataset):
         def __iter__(self):

@@ -34,7 +34,8 @@ def label_free_depth(sample: Mapping[str, Any], depth_range: tuple[float, float]
     Example:
         >>> from optics import render_focal_stack
         >>> camera = CameraSettings(0.05, 2.0, [1.5, 4.0], 180e-6)
-        >>> image, depth = torch.rand(3, 32, 32), torch.full((1, 32, 32), 2.5)
+        >>> g = torch.Generator().manual_seed(0)
+        >>> image, depth = torch.rand(3, 32, 32, generator=g), torch.full((1, 32, 32), 2.5)
         >>> focused = render_focal_stack(image[None], depth[None], camera)[0]
         >>> found = label_free_depth({"image": image, "focused": focused, "camera": camera},
         ...                          (1.0, 10.0))
@@ -117,6 +118,9 @@ class HintedSamples(Dataset):
     """
 
     def __init__(self, samples: Sequence[Mapping[str, Any]], hints: Sequence[Tensor]) -> None:
+        if len(hints) != len(samples):
+            raise ValueError(f"HintedSamples needs one hint per sample: {len(samples)} samples, "
+                             f"got {len(hints)} hints")
         self.samples, self.hints = samples, list(hints)
 
     def __len__(self) -> int:

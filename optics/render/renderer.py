@@ -259,7 +259,7 @@ def _read_checked(image: Tensor, coc_px: Tensor, depth: Tensor | None,
     each read waits for every queued kernel). Under `torch.compile`: None, the checks asserted
     in the graph; under `values_checked`: the largest CoC alone, or nothing (None) unless
     `need_largest`."""
-    coc_message = "coc_px must be finite and >= 0 pixels everywhere (no NaN or inf)"
+    coc_message = f"coc_px must be finite{'' if signed else ' and >= 0 px'} everywhere (no NaN/inf)"
     depth_message = "depth must be > 0 metres and not NaN everywhere"
     if _compiling():
         torch._assert_async(_all_valid_coc(coc_px, signed), coc_message)
