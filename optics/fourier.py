@@ -1,13 +1,21 @@
 """Real 2-D Fourier transforms of images, fast on a CPU: the transform lengths they are fast at
 (`fast_length`), and the forward and inverse transforms (`rfft2`, `irfft2`), scipy's on a CPU
-where no gradient is asked for (in `torch.get_num_threads()` workers, in place, the inverse of
+where no gradient is asked for (in `torch.get_num_threads()` threads, in place, the inverse of
 the rows kept only: about 2.5x faster on megapixel images than `torch.fft`, whose fresh buffers
-page-fault on every call), `torch.fft`'s elsewhere. The translations of `optics.alignment` and
+page-fault on every call), `torch.fft`'s elsewhere.
+
+The threads are this module's own, one single-threaded scipy transform each, and they end with
+the call. scipy's `workers` would keep a thread pool alive whose fork handler can hang the next
+`fork()` of the process (a `DataLoader` starting its workers after a depth was estimated). The translations of `optics.alignment` and
 the many blurs of one photo of `models.depth_from_photos.fourier_blur` run through them.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
 import scipy.fft
 import torch
 from torch import Tensor
@@ -54,8 +62,10 @@ def rfft2(image: Tensor) -> Tensor:
     """
     if not runs_in_scipy(image):
         return torch.fft.rfft2(image)
-    return torch.from_numpy(scipy.fft.rfft2(image.detach().numpy(),
-                                            workers=torch.get_num_threads()))
+    x = image.detach().numpy()
+    shape = (*x.shape[:-1], x.shape[-1] // 2 + 1)
+    return torch.from_numpy(_by_planes(scipy.fft.rfft2, x, shape,
+                                       np.result_type(x.dtype, np.complex64)))
 
 
 def irfft2(spectrum: Tensor, size: tuple[int, int], rows: slice | None = None,
@@ -73,7 +83,32 @@ def irfft2(spectrum: Tensor, size: tuple[int, int], rows: slice | None = None,
     rows = slice(None) if rows is None else rows
     if not runs_in_scipy(spectrum):
         return torch.fft.irfft2(spectrum, s=size)[..., rows, :]
-    workers = torch.get_num_threads()
-    columns = scipy.fft.ifft(spectrum.detach().numpy(), axis=-2, workers=workers,
-                             overwrite_x=overwrite)
-    return torch.from_numpy(scipy.fft.irfft(columns[..., rows, :], n=size[1], workers=workers))
+    spectrum = spectrum.detach().numpy()
+    kept = len(range(size[0])[rows])
+
+    def inverse(part: np.ndarray) -> np.ndarray:
+        columns = scipy.fft.ifft(part, axis=-2, overwrite_x=overwrite)
+        return scipy.fft.irfft(columns[..., rows, :], n=size[1])
+
+    return torch.from_numpy(_by_planes(inverse, spectrum, (*spectrum.shape[:-2], kept, size[1]),
+                                       np.finfo(spectrum.dtype).dtype))
+
+
+def _by_planes(transform: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
+               shape: tuple[int, ...], dtype: np.dtype) -> np.ndarray:
+    """`transform(x)` of `shape` and `dtype`, for `x` `(..., H, W)` and a `transform` of each
+    plane `(H, W)` alone: the planes are shared among `torch.get_num_threads()` threads (scipy
+    releases the GIL), each writing its part of the result."""
+    planes = x.reshape(-1, *x.shape[-2:])
+    threads = min(torch.get_num_threads(), len(planes))
+    if threads <= 1:
+        return transform(x)
+    out = np.empty((len(planes), *shape[-2:]), dtype)
+    bounds = np.linspace(0, len(planes), threads + 1).round().astype(int)
+
+    def part(start: int, stop: int) -> None:
+        out[start:stop] = transform(planes[start:stop])
+
+    with ThreadPoolExecutor(threads) as pool:
+        list(pool.map(part, bounds[:-1], bounds[1:]))
+    return out.reshape(shape)

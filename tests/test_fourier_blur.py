@@ -1,5 +1,10 @@
 """`FourierBlur`: whole-image convolutions through one transform of the photo."""
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import pytest
 import torch
 import torch.nn.functional as F
@@ -48,11 +53,21 @@ def test_apply_gradcheck():
         (image, kernel))
 
 
+@pytest.fixture
+def threads(request):
+    """`torch.set_num_threads(request.param)` for the test, restored after it."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(request.param)
+    yield request.param
+    torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("threads", [1, 4], indirect=True)
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-def test_scipy_transforms_are_torchs(dtype):
-    """`optics.fourier.rfft2`/`irfft2` on a CPU without gradients (scipy's, in place) give
-    `torch.fft`'s values; a spectrum overwritten in place leaves earlier results alone; with
-    gradients they are torch's own."""
+def test_scipy_transforms_are_torchs(dtype, threads):
+    """`optics.fourier.rfft2`/`irfft2` on a CPU without gradients (scipy's, in place; the six
+    planes shared among 4 threads unevenly) give `torch.fft`'s values; a spectrum overwritten in
+    place leaves earlier results alone; with gradients they are torch's own."""
     from optics.fourier import irfft2, rfft2
 
     g = torch.Generator().manual_seed(3)
@@ -71,3 +86,28 @@ def test_scipy_transforms_are_torchs(dtype):
     out = irfft2(rfft2(graded), (30, 45), slice(1, 5))
     assert out.grad_fn is not None
     torch.testing.assert_close(out.detach(), x[..., 1:5, :], rtol=0, atol=tol)
+
+
+LEFT_THREADS = """
+import os, time, torch
+from optics.fourier import irfft2, rfft2
+torch.set_num_threads(2)
+before = len(os.listdir("/proc/self/task"))
+irfft2(rfft2(torch.rand(4, 64, 96)), (64, 96))
+for _ in range(40):  # a joined thread's OS thread may take a moment to leave /proc
+    if len(os.listdir("/proc/self/task")) <= before:
+        break
+    time.sleep(0.05)
+print(len(os.listdir("/proc/self/task")) - before)
+"""
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="counts threads in /proc")
+def test_scipy_transforms_leave_no_thread_behind():
+    """The transforms' threads end with the call (counted in a fresh process): a thread pool
+    left alive (scipy's `workers`) makes a later `fork()` (a DataLoader's workers) hang now and
+    then in its fork handler."""
+    root = Path(__file__).resolve().parents[1]
+    out = subprocess.run([sys.executable, "-c", LEFT_THREADS], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=str(root)), timeout=120, check=True)
+    assert out.stdout.split()[-1] == "0"
