@@ -43,7 +43,8 @@ the other split is scored, the paper's protocol):
    With ``side=both`` (no prior) the table shows the bound of each side: a network without a
    prior must tell near from far by other cues (the image's content) to do better than the
    better of the two. ``predict_side`` is the side the label-free `predict` is told
-   (`defocus predict --side`);
+   (`defocus predict --side`), ``predict_pixels`` its working resolution and
+   ``predict_smoothing`` the strength of its edge-aware smoothing (the method's ``smoothing``);
 5. ``scored=beyond`` (or ``before``) scores only the held-out scenes that lie on that side of
    their focus plane, chosen by the bound alone (each scene's true depth folded to that side
    scores abs rel <= ``side_tolerance``, 0.1), as a photographer's statement would be made:
@@ -53,8 +54,9 @@ the other split is scored, the paper's protocol):
 
 ``hint_weight=W`` trains the self-supervised networks with depth hints (`TrainConfig.hint_weight`):
 each training scene's label-free depth, found once as `predict` finds it (the photos as taken,
-the lens's camera, ``predict_side``), pulls the network's depth where it renders the training
-photos better than the network's depth does. No depth label is read.
+the lens's camera, ``predict_side``, ``predict_pixels``, ``predict_smoothing``), pulls the
+network's depth where it renders the training photos better than the network's depth does. No
+depth label is read.
 
 ``--focus synthesized`` reads the set the paper's way (Gur & Wolf 2019), as an RGB-D set: the
 f/8 photo is the all-in-focus image and the two focused images are rendered from it and the
@@ -182,11 +184,13 @@ def bound_rows(val: DSLR, depth_range: tuple[float, float],
 
 
 def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int,
-                    side: str = "both") -> dict[str, dict[str, float]]:
+                    side: str = "both", options: dict[str, Any] | None = None,
+                    ) -> dict[str, dict[str, float]]:
     """`estimate_depth` on each scored scene, averaged: the f/8 photo as one more shot beside
     the real f/2.8 one, with the fitted camera (with a side stated, `estimate_depth`'s `side`:
     what `defocus predict --side` does); with synthesised focus, the rendered images with
-    the rendering camera and the f/8 photo as the all-in-focus image."""
+    the rendering camera and the f/8 photo as the all-in-focus image. `options`: the method's
+    (`estimate_depth`'s `options`)."""
     from models import evaluate
     from models.training.hints import label_free_depth
     from optics.progress import progress_bar
@@ -195,7 +199,7 @@ def label_free_rows(val: DSLR, depth_range: tuple[float, float], max_pixels: int
 
     def label_free(sample: dict) -> torch.Tensor:
         return label_free_depth(sample, depth_range, max_pixels,
-                                val.reference_settings if real else None, side)
+                                val.reference_settings if real else None, side, options)
 
     samples = (val[i] for i in progress_bar(range(len(val)), desc="label-free predict"))
     prior = "" if side == "both" else f", side {side}"
@@ -416,6 +420,11 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
         raise ValueError(f"--set scored=all|beyond|before and side_tolerance=a positive abs "
                          f"rel, got scored={proto['scored']!r}, "
                          f"side_tolerance={proto['side_tolerance']!r}")
+    smoothing = proto["predict_smoothing"]
+    if isinstance(smoothing, bool) or not isinstance(smoothing, (int, float)) \
+            or not 0 <= smoothing < float("inf"):
+        raise ValueError(f"--set predict_smoothing must be a finite number >= 0, got "
+                         f"{smoothing!r}")
     check_learned_optics(fields.get("learn_optics") or "", "dslr", proto["focus"])
     given = parse_overrides(args.overrides)
     if proto["focus"] != "synthesized":
@@ -474,16 +483,18 @@ def _main(argv: list[str] | None) -> int:
     print(f"DSLR: {len(train)} training scenes, {len(val)} {scored} scenes "
           f"({val.ids[0]} to {val.ids[-1]}), {what}")
     depth_range = (config.depth_min, config.depth_max)
+    predict_options = {"smoothing": proto["predict_smoothing"]}
     augmented = attach_hints(  # real pairs: the photos as `predict` reads them, on `side`
         augmented, config, progress, hint_source, max_pixels=proto["predict_pixels"],
         image_settings=None if train.focus == "synthesized" else hint_source.reference_settings,
-        side=proto["predict_side"])
+        side=proto["predict_side"], options=predict_options)
     rows = network_rows(config, proto, train, augmented, val)
     rows.update({name: table_row(metrics, NO_INPUT, "none", config.seed)
                  for name, metrics in bound_rows(val, depth_range, config.side).items()})
     rows.update({name: table_row(metrics, "aif+focused", "none", config.seed)
                  for name, metrics in label_free_rows(lens, depth_range, proto["predict_pixels"],
-                                                      proto["predict_side"]).items()})
+                                                      proto["predict_side"],
+                                                      predict_options).items()})
     metrics = {name: row["metrics"] for name, row in rows.items()}
     constant = next(row for name, row in metrics.items() if name.startswith("best constant"))
     print(f"\nDSLR {scored} ({len(val)} scenes, never used to fit or train; {train.focus} "

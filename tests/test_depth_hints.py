@@ -95,6 +95,10 @@ def test_label_free_hints_find_the_depth_of_rendered_scenes():
     (hint,) = label_free_hints([sample], (1.0, 10.0), progress=False, max_pixels=6000)
     truth, mask = whole[0]["depth"], whole[0]["mask"]
     assert float(((hint - truth).abs() / truth)[mask].median()) < 0.1
+    # the method's options reach it
+    with pytest.raises(ValueError, match="n_candidates must be >= 3, got 2"):
+        label_free_hints([sample], (1.0, 10.0), progress=False, max_pixels=6000,
+                         options={"n_candidates": 2})
 
 
 def test_config_and_trainer_refusals(tmp_path, scenes):

@@ -226,7 +226,8 @@ def test_dslr_example_on_a_rendered_release(tmp_path, monkeypatch, capsys):
     module = load_example("dslr", monkeypatch)
     argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), "--set",
             *QUIET_CPU[1:], "val=2", "steps=2", "batch_size=2", "width=8", "calibrate_every=1",
-            "crop=48", "hint_weight=1", "predict_side=beyond", "predict_pixels=4000"]
+            "crop=48", "hint_weight=1", "predict_side=beyond", "predict_pixels=4000",
+            "predict_smoothing=300"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
     _check_dslr_table(out, 2)
@@ -347,6 +348,11 @@ def test_dslr_example_refuses_focus_fractions_of_real_photos(tmp_path, monkeypat
     with pytest.raises(SystemExit, match="focus_fractions=.0.2.: where the synthesised"):
         module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
                      "--set", "focus_fractions=[0.2]"])
+    for bad in ("-1", "x", "inf"):
+        with pytest.raises(SystemExit, match=f"predict_smoothing must be a finite number >= 0, "
+                                             f"got {bad if bad == '-1' else '.*'}"):
+            module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
+                         "--set", f"predict_smoothing={bad}"])
     assert not (tmp_path / "run").exists()
 
 

@@ -24,12 +24,12 @@ from .config import TrainConfig
 def label_free_depth(sample: Mapping[str, Any], depth_range: tuple[float, float],
                      max_pixels: int = 300_000,
                      image_settings: Callable[[CameraSettings], CameraSettings] | None = None,
-                     side: str = "both") -> Tensor:
+                     side: str = "both", options: Mapping[str, Any] | None = None) -> Tensor:
     """The label-free depth `(1, H, W)` metres of a sample: `estimate_depth` of its `focused`
     photos with its `camera`, its `image` as the sharp photo (`image_settings(camera)`: that
     photo's own settings where it is only nearly sharp, e.g. an f/8 photo; None: all in focus),
-    at `max_pixels` working pixels, a blur both sides explain put on `side`. Its `depth` is
-    not read.
+    at `max_pixels` working pixels, a blur both sides explain put on `side`, with the method's
+    `options` (e.g. `{"smoothing": 300.0}`). Its `depth` is not read.
 
     Example:
         >>> from optics import render_focal_stack
@@ -47,7 +47,7 @@ def label_free_depth(sample: Mapping[str, Any], depth_range: tuple[float, float]
         return estimate_depth(sample["focused"], camera, depth_range, image=sample["image"],
                               image_settings=None if image_settings is None
                               else image_settings(camera), all_in_focus=False,
-                              max_pixels=max_pixels, side=side)["depth"]
+                              max_pixels=max_pixels, side=side, options=options)["depth"]
 
 
 def label_free_hints(samples: Sequence[Mapping[str, Any]], depth_range: tuple[float, float],
