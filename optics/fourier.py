@@ -1,13 +1,15 @@
 """Real 2-D Fourier transforms of images, fast on a CPU: the transform lengths they are fast at
 (`fast_length`), and the forward and inverse transforms (`rfft2`, `irfft2`), scipy's on a CPU
-where no gradient is asked for (in `torch.get_num_threads()` threads, in place, the inverse of
-the rows kept only: about 2.5x faster on megapixel images than `torch.fft`, whose fresh buffers
-page-fault on every call), `torch.fft`'s elsewhere.
+where no gradient is asked for (the planes shared among `torch.get_num_threads()` threads, in
+place, the inverse of the rows kept only: about 2.5x faster on megapixel images than
+`torch.fft`, whose fresh buffers page-fault on every call), `torch.fft`'s elsewhere. The
+translations of `optics.alignment` and the many blurs of one photo of
+`models.depth_from_photos.fourier_blur` run through them.
 
-The threads are this module's own, one single-threaded scipy transform each, and they end with
-the call. scipy's `workers` would keep a thread pool alive whose fork handler can hang the next
-`fork()` of the process (a `DataLoader` starting its workers after a depth was estimated). The translations of `optics.alignment` and
-the many blurs of one photo of `models.depth_from_photos.fourier_blur` run through them.
+The threads are this module's own, each running a single-threaded scipy transform, and they end
+with the call: scipy's `workers` would keep a thread pool alive whose fork handler now and then
+hangs the next `fork()` of the process (a `DataLoader` starting its workers after a depth was
+estimated).
 """
 
 from __future__ import annotations
