@@ -483,18 +483,17 @@ def _main(argv: list[str] | None) -> int:
     print(f"DSLR: {len(train)} training scenes, {len(val)} {scored} scenes "
           f"({val.ids[0]} to {val.ids[-1]}), {what}")
     depth_range = (config.depth_min, config.depth_max)
-    predict_options = {"smoothing": proto["predict_smoothing"]}
+    # the label-free `predict` of the table's row and of the depth hints
+    predict = {"max_pixels": proto["predict_pixels"], "side": proto["predict_side"],
+               "options": {"smoothing": proto["predict_smoothing"]}}
     augmented = attach_hints(  # real pairs: the photos as `predict` reads them, on `side`
-        augmented, config, progress, hint_source, max_pixels=proto["predict_pixels"],
-        image_settings=None if train.focus == "synthesized" else hint_source.reference_settings,
-        side=proto["predict_side"], options=predict_options)
+        augmented, config, progress, hint_source, **predict,
+        image_settings=None if train.focus == "synthesized" else hint_source.reference_settings)
     rows = network_rows(config, proto, train, augmented, val)
     rows.update({name: table_row(metrics, NO_INPUT, "none", config.seed)
                  for name, metrics in bound_rows(val, depth_range, config.side).items()})
     rows.update({name: table_row(metrics, "aif+focused", "none", config.seed)
-                 for name, metrics in label_free_rows(lens, depth_range, proto["predict_pixels"],
-                                                      proto["predict_side"],
-                                                      predict_options).items()})
+                 for name, metrics in label_free_rows(lens, depth_range, **predict).items()})
     metrics = {name: row["metrics"] for name, row in rows.items()}
     constant = next(row for name, row in metrics.items() if name.startswith("best constant"))
     print(f"\nDSLR {scored} ({len(val)} scenes, never used to fit or train; {train.focus} "
