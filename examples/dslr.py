@@ -25,7 +25,8 @@ the other split is scored, the paper's protocol):
    f/8 photo rendered through the PSF layer at the predicted depth must reproduce the real f/2.8
    photo; no depth in the loss), its depth-supervised twin, and the paper's own setting (the
    network sees the f/8 photo alone, ``input_mode=aif``), trained through the PSF layer and
-   with depth labels (``paper_setting=false`` leaves these two out). The render models the
+   with depth labels (``inputs=[aif+focused]`` leaves these two out, ``inputs=[aif]`` the first
+   two). The render models the
    pair as calibrated (`DSLR(relative=True)`): the f/2.8 photo registered onto the f/8 one
    (`datasets.pairs.register_focused`), the f/8 photo's own blur, the floor and the exposure
    gain;
@@ -331,7 +332,7 @@ def network_rows(config: Any, proto: dict[str, Any], train: DSLR, augmented: Any
     train_set, test_set = limit(augmented, proto["max_train"]), limit(val, proto["max_test"])
     rows: dict[str, Row] = {}
     for label, supervision, input_mode, sided in NETWORKS:
-        if input_mode == "aif" and not proto["paper_setting"]:
+        if input_mode not in proto["inputs"]:
             continue
         folder = supervision if input_mode == config.input_mode else f"{supervision}-{input_mode}"
         side = config.side if sided else "both"
@@ -420,6 +421,10 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
         raise ValueError(f"--set scored=all|beyond|before and side_tolerance=a positive abs "
                          f"rel, got scored={proto['scored']!r}, "
                          f"side_tolerance={proto['side_tolerance']!r}")
+    inputs = proto["inputs"]
+    if not (isinstance(inputs, list) and inputs and set(inputs) <= {"aif+focused", "aif"}):
+        raise ValueError(f"--set inputs must list aif+focused, aif or both (each network's "
+                         f"input), got {inputs!r}")
     smoothing = proto["predict_smoothing"]
     if isinstance(smoothing, bool) or not isinstance(smoothing, (int, float)) \
             or not 0 <= smoothing < float("inf"):

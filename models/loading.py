@@ -27,7 +27,6 @@ from torch import nn
 from .checkpoints import WEIGHTS_KIND, CheckpointError, load_checkpoint, restore_weights
 from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
 from .depth_from_photos.trained_network import TrainedNetwork
-from .networks import build_network
 from .training.config import TrainConfig
 
 
@@ -150,8 +149,7 @@ def _network(state: Mapping[str, Any], path: str | Path,
              device: str | torch.device) -> tuple[nn.Module, TrainConfig]:
     """The trained network (in eval mode, on `device`) and config of a loaded checkpoint."""
     cfg = config_from_state(state, path, device="auto")
-    model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min, cfg.depth_max,
-                          cfg.width, cfg.depth_spacing, cfg.side, cfg.focus_distance or None)
+    model = cfg.build_network()
     restore_weights(model, state["model"], path)
     return model.to(device).eval(), cfg
 

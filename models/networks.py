@@ -215,20 +215,30 @@ def _conv_block(cin: int, cout: int, stride: int = 1) -> nn.Sequential:
 
 
 class SmallDepthNet(_DepthNetwork):
-    """A small encoder-decoder (U-Net style, three scales) that trains in minutes on a CPU.
+    """A small encoder-decoder (U-Net style) that trains in minutes on a CPU.
 
-    Works on any image size (inputs are padded to a multiple of 4 internally).
+    Each scale halves the resolution; the channels double from `width` up to `4 * width`. Three
+    scales see about 40 pixels around each pixel; each further scale adds little work (its
+    pixels are a quarter of the last's) and doubles that reach, which a network needs where depth
+    comes from the scene's layout (the all-in-focus image alone) or must cross textureless
+    regions. Works on any image size (inputs are padded to a multiple of `2 ** (scales - 1)`
+    internally).
 
     Args:
         input_mode: `"aif"` or `"aif+focused"`.
         n_focus: number of focused images `F` in `"aif+focused"` mode.
         depth_min: nearest depth the head can output, metres.
         depth_max: farthest depth the head can output, metres.
-        width: channels of the first scale (doubled at each of the next two).
+        width: channels of the first scale.
         depth_spacing: `"depth"` or `"inverse"`: how the head spaces its output (`DepthHead`).
+        scales: resolutions of the encoder, >= 2 (the full one included).
+        position: also input each pixel's row in the image (-1 at the top, 1 at the bottom), so
+            the network can learn where in a photo things tend to be near (a floor at the
+            bottom). Rows of the network's input: train on whole images, not crops.
 
     Example:
-        >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8)
+        >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8, scales=5,
+        ...                     position=True)
         >>> depth = net(torch.rand(2, 3, 30, 40))
         >>> depth.shape, bool(depth.min() > 1.0), bool(depth.max() < 10.0)
         (torch.Size([2, 1, 30, 40]), True, True)
@@ -237,30 +247,45 @@ class SmallDepthNet(_DepthNetwork):
     def __init__(self, input_mode: str = "aif+focused", n_focus: int = 2,
                  depth_min: float = 1.0, depth_max: float = 10.0, width: int = 32,
                  depth_spacing: str = "depth", side: str = "both",
-                 focus_distance: float | None = None):
+                 focus_distance: float | None = None, scales: int = 3, position: bool = False):
         super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
                          focus_distance)
-        w = int(width)
-        self.enc1 = _conv_block(self.in_channels, w)
-        self.enc2 = _conv_block(w, 2 * w, stride=2)
-        self.enc3 = _conv_block(2 * w, 4 * w, stride=2)
-        self.dec2 = _conv_block(4 * w + 2 * w, 2 * w)
-        self.dec1 = _conv_block(2 * w + w, w)
-        self.out = nn.Conv2d(w, 1, 3, padding=1)
+        self.scales, self.position = int(scales), bool(position)
+        channels = [self.in_channels] + [int(width) * min(2 ** i, 4) for i in range(scales)]
+        # named enc1.., then ..dec1: the names (and order) of the three-scale network's weights
+        for i in range(1, scales + 1):
+            self.add_module(f"enc{i}", _conv_block(channels[i - 1], channels[i], 1 + (i > 1)))
+        for i in range(scales - 1, 0, -1):
+            self.add_module(f"dec{i}", _conv_block(channels[i + 1] + channels[i], channels[i]))
+        self.out = nn.Conv2d(channels[1], 1, 3, padding=1)
+
+    @property
+    def in_channels(self) -> int:
+        return super().in_channels + int(self.position)
+
+    def assemble_input(self, image: Tensor, focused: Tensor | None = None,
+                       settings: CameraSettings | None = None) -> Tensor:
+        x = super().assemble_input(image, focused, settings)
+        if not self.position:
+            return x
+        b, _, h, w = x.shape
+        rows = torch.linspace(-1.0, 1.0, h, device=x.device, dtype=x.dtype)
+        return torch.cat([x, rows.view(1, 1, h, 1).expand(b, 1, h, w)], 1)
 
     def _logits(self, x: Tensor) -> Tensor:
         h, w = x.shape[-2:]
-        pad_h, pad_w = (-h) % 4, (-w) % 4
-        x = F.pad(x, (0, pad_w, 0, pad_h), mode="replicate")
-        e1 = self.enc1(x)
-        e2 = self.enc2(e1)
-        e3 = self.enc3(e2)
-        d2 = self.dec2(torch.cat([F.interpolate(e3, size=e2.shape[-2:], mode="bilinear",
-                                                align_corners=False), e2], 1))
-        d1 = self.dec1(torch.cat([F.interpolate(d2, size=e1.shape[-2:], mode="bilinear",
-                                                align_corners=False), e1], 1))
+        multiple = 2 ** (self.scales - 1)
+        x = F.pad(x, (0, (-w) % multiple, 0, (-h) % multiple), mode="replicate")
+        skips = [self.get_submodule("enc1")(x)]
+        for i in range(2, self.scales + 1):
+            skips.append(self.get_submodule(f"enc{i}")(skips[-1]))
+        d = skips.pop()
+        for i in range(self.scales - 1, 0, -1):
+            skip = skips.pop()
+            up = F.interpolate(d, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            d = self.get_submodule(f"dec{i}")(torch.cat([up, skip], 1))
         with torch.autocast(x.device.type, enabled=False):  # the logits in the weights' dtype
-            return self.out(d1.to(self.out.weight.dtype))[..., :h, :w]
+            return self.out(d.to(self.out.weight.dtype))[..., :h, :w]
 
 
 class _Bottleneck(nn.Module):
@@ -407,7 +432,8 @@ NETWORKS = {"small": SmallDepthNet, "paper": PaperDepthNet}
 
 def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
                   width: int = 32, depth_spacing: str = "depth", side: str = "both",
-                  focus_distance: float | None = None) -> _DepthNetwork:
+                  focus_distance: float | None = None, scales: int = 3,
+                  position: bool = False) -> _DepthNetwork:
     """Build a depth network by name (`"small"` or `"paper"`), its output spaced evenly in
     depth or in inverse depth, or on a stated side of the focus plane (`DepthHead`).
 
@@ -419,6 +445,6 @@ def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, de
         raise ValueError(f"network must be one of {sorted(NETWORKS)}, got {name!r}")
     if name == "small":
         return SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width, depth_spacing,
-                             side, focus_distance)
+                             side, focus_distance, scales, position)
     return PaperDepthNet(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
                          focus_distance)

@@ -260,7 +260,7 @@ def test_dslr_example_trains_on_one_split_and_scores_another(tmp_path, monkeypat
     table = tmp_path / "out" / "table.json"
     argv = ["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"), *QUIET_CPU,
             "eval_split=test", f"json={table}", "steps=2", "batch_size=2", "width=8",
-            "calibrate_every=1", "crop=48", "paper_setting=false", "blur_match=false"]
+            "calibrate_every=1", "crop=48", "inputs=[aif+focused]", "blur_match=false"]
     assert module.main(argv) == 0
     out = capsys.readouterr().out
     assert not (tmp_path / "run" / "camera_loss.json").exists()
@@ -353,6 +353,10 @@ def test_dslr_example_refuses_focus_fractions_of_real_photos(tmp_path, monkeypat
                                              f"got {bad if bad == '-1' else '.*'}"):
             module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
                          "--set", f"predict_smoothing={bad}"])
+    for bad in ("[]", "[stereo]", "aif"):
+        with pytest.raises(SystemExit, match="inputs must list aif.focused, aif or both"):
+            module.main(["--root", str(tmp_path / "data"), "--out", str(tmp_path / "run"),
+                         "--set", f"inputs={bad}"])
     assert not (tmp_path / "run").exists()
 
 

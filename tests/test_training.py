@@ -64,6 +64,18 @@ def test_fit_writes_logs_checkpoints_figures(tmp_path, scenes):
     assert set(METRIC_NAMES) <= set(metrics)
 
 
+def test_deeper_network_with_rows_loads_as_trained(tmp_path, scenes):
+    """`scales` and `position` reach the network and come back from its checkpoint."""
+    cfg = _tiny(tmp_path / "run", scales=4, position=True)
+    trainer = Trainer(cfg, scenes)
+    trainer.fit()
+    model, loaded = load_model(cfg.out_dir / "checkpoints" / "last.pt")
+    assert (model.scales, model.position, loaded.scales, loaded.position) == (4, True, 4, True)
+    image, batch = scenes[0]["image"][None], scenes[0]["camera"].batched(1)
+    torch.testing.assert_close(model(image, scenes[0]["focused"][None], batch),
+                               trainer.predict(image, scenes[0]["focused"][None], batch))
+
+
 def test_learning_rate_follows_the_steps_or_the_time_budget(tmp_path, scenes):
     """Cosine decay over `steps`; with a time budget over max(step / steps, elapsed / budget),
     so a budgeted run with a huge `steps` still ends at the schedule's end value."""

@@ -12,12 +12,13 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from torch import nn
 
 from optics import DEFAULT_APERTURE, LEARNABLE, aperture_spec
 from optics.render import MODES as RENDER_MODES
 
 from ..devices import check_device
-from ..networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS, SIDES
+from ..networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS, SIDES, build_network
 
 #: values of `TrainConfig.supervision`: through the renderer (no depth labels) or on depth
 SUPERVISIONS = ("self", "depth")
@@ -49,7 +50,7 @@ _CHOICES = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
 #: (fields, rule, what the rule asks) of the numeric `TrainConfig` fields
 _RULES = (
     (("steps", "batch_size", "width", "log_every"), lambda v: v >= 1, "an integer >= 1"),
-    (("mask_size",), lambda v: v >= 2, "an integer >= 2"),
+    (("mask_size", "scales"), lambda v: v >= 2, "an integer >= 2"),
     (("n_focus", "checkpoint_every", "keep_checkpoints", "val_every", "figure_every"),
      lambda v: v >= 0, "an integer >= 0"),
     (("workers",), lambda v: v >= -1, "an integer >= -1"),
@@ -111,6 +112,13 @@ class TrainConfig:
     n_focus: int = 0
     #: first-scale channels of the small network
     width: int = 32
+    #: resolutions of the small network's encoder (`models.networks.SmallDepthNet`): 3 see about
+    #: 40 pixels around each pixel, 5 about 160 (scene layout for input_mode "aif")
+    scales: int = 3
+    #: the small network also sees each pixel's row in its input (`SmallDepthNet`): where in a
+    #: photo things tend to be near. Train it on whole images (crop 0): a crop's rows are not
+    #: the photo's
+    position: bool = False
     #: AdamW weight decay
     weight_decay: float = 0.0
     #: "cosine" (decay to 0 over steps) or "constant"
@@ -242,6 +250,17 @@ class TrainConfig:
             if refused:
                 raise ValueError(message)
         check_device(self.device)
+
+    def build_network(self) -> nn.Module:
+        """The untrained network of this config (`models.networks.build_network`).
+
+        Example:
+            >>> TrainConfig(width=8, scales=4, n_focus=2).build_network().scales
+            4
+        """
+        return build_network(self.network, self.input_mode, self.n_focus, self.depth_min,
+                             self.depth_max, self.width, self.depth_spacing, self.side,
+                             self.focus_distance or None, self.scales, self.position)
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)

@@ -30,7 +30,6 @@ from ..devices import select_device
 from ..evaluation import evaluate_network
 from ..losses import DefocusLoss
 from ..metrics import at_depth_limits
-from ..networks import build_network
 from ..plotting import figure_title, plot_prediction
 from . import learned_camera as learned
 from .batches import BatchStream, auto_workers
@@ -122,9 +121,7 @@ class Trainer:
         self.config = cfg = self.sample_checks.fit_first_sample()
         self.device = select_device(cfg.device)
         torch.manual_seed(cfg.seed)
-        self.model = build_network(cfg.network, cfg.input_mode, cfg.n_focus, cfg.depth_min,
-                                   cfg.depth_max, cfg.width, cfg.depth_spacing, cfg.side,
-                                   cfg.focus_distance or None).to(self.device)
+        self.model = cfg.build_network().to(self.device)
         self.ddp_model: nn.Module = self.model
         if self.world_size > 1:
             ids = [self.device.index] if self.device.type == "cuda" else None
