@@ -7,7 +7,8 @@ camera settings, and end in a sigmoid head that maps to depth in metres between 
 ============  ==================================================================  ==========
 network       architecture                                                        parameters
 ============  ==================================================================  ==========
-`small`     U-Net-style encoder-decoder, 3 scales, plain convolutions            ~0.5 M
+`small`     U-Net-style encoder-decoder, 3 scales (`scales`)                   ~0.5 M
+              (5 scales: ~1.9 M), optionally each pixel's row as an input
 `paper`     ResNet-50 at output stride 16, dense ASPP, self-attention,           ~40 M
               DeepLabV3+ decoder (Gur & Wolf 2019; no pretrained weights)
 ============  ==================================================================  ==========
