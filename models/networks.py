@@ -235,7 +235,8 @@ class SmallDepthNet(_DepthNetwork):
         scales: resolutions of the encoder, >= 2 (the full one included).
         position: also input each pixel's row in the image (-1 at the top, 1 at the bottom), so
             the network can learn where in a photo things tend to be near (a floor at the
-            bottom). Rows of the network's input: train on whole images, not crops.
+            bottom). Rows of the network's input: train on whole images, not crops, and predict
+            on whole images (a tile of `run_network` above its `max_pixels` has its own rows).
 
     Example:
         >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8, scales=5,
