@@ -407,11 +407,13 @@ def recipe_keys() -> dict[str, Any]:
                               if key not in names and key not in RECIPE_KEYS}}
 
 
-def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, Any]) -> None:
-    """Refuse an unknown ``focus``, learned optics or ``focus_fractions`` with the real photos;
-    with ``synthesized``, a key of the real photos that the user set (`REAL_FOCUS_KEYS`,
-    ``side`` other than both), and make ``side`` both."""
+def check_recipe(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, Any]) -> None:
+    """Refuse, before any work, an unknown ``focus``, ``scored`` or ``inputs``, a bad
+    ``side_tolerance`` or ``predict_smoothing``, learned optics or ``focus_fractions`` with the
+    real photos; with ``synthesized``, a key of the real photos that the user set
+    (`REAL_FOCUS_KEYS`, ``side`` other than both), and make ``side`` both."""
     from defocus.app.train import check_learned_optics
+    from models.networks import INPUT_MODES
     from models.training.config import parse_overrides
 
     if proto["focus"] not in ("real", "synthesized"):
@@ -422,7 +424,7 @@ def check_focus(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, An
                          f"rel, got scored={proto['scored']!r}, "
                          f"side_tolerance={proto['side_tolerance']!r}")
     inputs = proto["inputs"]
-    if not (isinstance(inputs, list) and inputs and set(inputs) <= {"aif+focused", "aif"}):
+    if not (isinstance(inputs, list) and inputs and set(inputs) <= set(INPUT_MODES)):
         raise ValueError(f"--set inputs must list aif+focused, aif or both (each network's "
                          f"input), got {inputs!r}")
     smoothing = proto["predict_smoothing"]
@@ -456,7 +458,7 @@ def _main(argv: list[str] | None) -> int:
 
     args = request_from(ScriptRequest, keys_as_options(parser().parse_args(argv)))
     proto, fields, given = read_recipe(args, recipe_keys())
-    check_focus(args, proto, fields)
+    check_recipe(args, proto, fields)
     if proto["threads"]:
         torch.set_num_threads(int(proto["threads"]))
     out, progress = Path(args.out or fields.get("out_dir", "runs/dslr")), fields.get(
