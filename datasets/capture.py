@@ -26,7 +26,7 @@ import torch
 from kornia.color import linear_rgb_to_rgb, rgb_to_linear_rgb
 from torch import Tensor
 
-from optics import CameraSettings, render_focal_stack
+from optics import CameraSettings, noise_std, render_focal_stack
 from optics.alignment import translate
 
 from .io import require_args
@@ -187,7 +187,7 @@ def take_photos(
             dy, dx = noise.shift_px * generator.uniform(-1, 1, size=2)
             shot = _shift(shot, float(dy), float(dx))
         if noise.read or noise.shot:
-            sigma = torch.sqrt(noise.read**2 + noise.shot * shot.clamp_min(0))
+            sigma = noise_std(shot, noise.read, noise.shot)
             gaussian = torch.from_numpy(generator.standard_normal(shot.shape)).to(shot.dtype)
             shot = shot + sigma * gaussian
         out.append(_srgb_quantise(shot, noise.bits, noise.jpeg_quality))

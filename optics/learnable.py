@@ -285,6 +285,17 @@ class LearnableCamera(nn.Module):
         low, high = self.f_number_range
         return (low * (high / low) ** torch.sigmoid(self.f_number_logits)).clamp(low, high)
 
+    def light(self) -> Tensor:
+        """The `(F,)` light each shot gathers, relative to the starting camera's at the same
+        exposure time: `(N_start / N)**2` (a learned mask passes the open disk's light).
+
+        Example:
+            >>> camera = LearnableCamera(CameraSettings(0.05, 2.8, [2.0, 6.0], 1.8e-4), (1.0, 10.0))
+            >>> [round(v, 6) for v in camera.light().tolist()]  # at the start
+            [1.0, 1.0]
+        """
+        return (self.fixed_f_number / self.f_number()) ** 2
+
     def settings(self) -> CameraSettings:
         """The current `(F,)` `CameraSettings` (differentiable in the learned values); their
         aperture spec is the fixed camera's: render with `aperture` (the learned mask)."""

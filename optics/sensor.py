@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import torch
 from torch import Tensor, nn
 
 from .checks import (
@@ -103,3 +104,22 @@ class Sensor(nn.Module):
         if length_px.ndim and length_px.shape[0] != 1:  # batch 1 broadcasts against (B,) values
             check_param_batch(self, "length_px", length_px.shape)
         return length_px * broadcast_to_batch(self.effective_pixel_pitch, length_px)
+
+
+def noise_std(intensity: Tensor, read: float, shot: float, light: Tensor | float = 1.0) -> Tensor:
+    """Standard deviation of a sensor's noise at linear `intensity` (full scale 1): read noise
+    `read` and shot noise `sqrt(shot * intensity)` at a reference exposure, for a photo that
+    gathered `light` times that exposure's light and was scaled back to the same brightness
+    (the read noise divided by `light`, the shot noise by `sqrt(light)`). Stopping down one
+    stop (`light` 1/2) doubles the read noise and raises the shot noise by `sqrt(2)`.
+    Differentiable in `intensity` and `light`.
+
+    Example:
+        >>> noise_std(torch.tensor([0.0, 1.0]), read=0.004, shot=0.0004)
+        tensor([0.0040, 0.0204])
+        >>> noise_std(torch.tensor([1.0]), read=0.0, shot=0.0004, light=0.25)  # two stops down
+        tensor([0.0400])
+    """
+    variance = read**2 / light**2 + shot * intensity.clamp_min(0) / light
+    # no infinite slope where the variance is 0 (no read noise, black pixel)
+    return torch.sqrt(torch.as_tensor(variance).clamp_min(torch.finfo(intensity.dtype).tiny))

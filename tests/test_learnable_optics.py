@@ -234,13 +234,54 @@ def test_first_render_reproduces_the_data(tmp_path, scenes):
     from models.training.learned_camera import render_batch
     from optics import collate
 
-    cfg = _config(tmp_path, learn_optics="focus,f-number")
+    cfg = _config(tmp_path, learn_optics="focus,f-number", read_noise=0.0, shot_noise=0.0)
     trainer = Trainer(cfg, scenes)
     batch = collate([scenes[0], scenes[1]])
     with torch.no_grad():
         rendered = render_batch(trainer.camera, batch, trainer.config)
     torch.testing.assert_close(rendered["focused"], batch["focused"], atol=1e-5, rtol=0)
     torch.testing.assert_close(rendered["camera"].focus_distance, batch["camera"].focus_distance)
+
+
+def test_rendered_noise_follows_the_light(tmp_path, scenes):
+    """The focused images rendered through a learned camera carry the sensor's noise at the
+    light each shot gathers: at the start the `CaptureNoise` model's, one stop down (f-number
+    x sqrt 2) twice the read noise; scoring draws the same noise every time."""
+    from models.training import Trainer
+    from models.training.learned_camera import render_batch, rendered_samples
+    from optics import collate, noise_std
+
+    quiet = Trainer(_config(tmp_path, learn_optics="f-number", read_noise=0.0, shot_noise=0.0),
+                    scenes)
+    noisy = Trainer(_config(tmp_path, learn_optics="f-number", out_dir=tmp_path / "noisy"),
+                    scenes)
+    batch = collate([scenes[i] for i in range(4)])
+    with torch.no_grad():
+        for light in (1.0, 0.5):
+            for trainer in (quiet, noisy):  # the same f-numbers: light x the start's
+                logits = torch.logit(torch.log(trainer.camera.fixed_f_number / light**0.5)
+                                     / math.log(22.0))
+                trainer.camera.f_number_logits.copy_(logits)
+            clean = render_batch(quiet.camera, batch, quiet.config)["focused"]
+            drawn = render_batch(noisy.camera, batch, noisy.config,
+                                 torch.Generator().manual_seed(0))["focused"]
+            torch.testing.assert_close(noisy.camera.light(), torch.full((2,), light,
+                                       dtype=torch.float64))
+            ratio = ((drawn - clean) / noise_std(clean, 0.004, 0.0004, light)).std()
+            assert 0.97 < float(ratio) < 1.03, (light, float(ratio))
+    again = [list(rendered_samples(noisy.camera, [scenes[0], scenes[1]], noisy.config)) for _ in range(2)]
+    assert all(torch.equal(a["focused"], b["focused"]) for a, b in zip(*again, strict=True))
+
+
+def test_optics_lr_zero_renders_the_fixed_camera(tmp_path, scenes):
+    """`optics_lr=0`: every batch rendered through the starting camera, which stays as it is:
+    the baseline of a learned camera under the same noise."""
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, optics_lr=0.0), scenes)
+    start = trainer.camera.record()
+    trainer.fit()
+    assert trainer.camera.record() == start
 
 
 @pytest.mark.slow

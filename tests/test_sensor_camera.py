@@ -119,3 +119,30 @@ def test_camera_render_names_the_depth_it_was_given():
     with pytest.raises(ValueError, match=r"^depth must have shape \(1, 1, 8, 8\) to match image "
                                          r"\(1, 3, 8, 8\), got \(2, 1, 8, 8\)"):
         camera.render(torch.rand(1, 3, 8, 8), torch.full((2, 1, 8, 8), 3.0))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_noise_std_closed_form(dtype):
+    """Read noise over the light, shot noise over its square root, at the reference exposure
+    the `CaptureNoise` model (read 0.004, shot 0.0004)."""
+    from optics import noise_std
+
+    x = torch.tensor([0.0, 0.25, 1.0], dtype=dtype)
+    expected = torch.tensor([0.004, (0.004**2 + 0.0001) ** 0.5, (0.004**2 + 0.0004) ** 0.5],
+                            dtype=dtype)
+    torch.testing.assert_close(noise_std(x, 0.004, 0.0004), expected)
+    one_stop_down = torch.tensor([0.008, (0.008**2 + 0.0002) ** 0.5], dtype=dtype)
+    torch.testing.assert_close(noise_std(x[:2], 0.004, 0.0004, torch.tensor(0.5, dtype=dtype)),
+                               one_stop_down)
+    assert noise_std(x, 0.0, 0.0).dtype == dtype
+
+
+def test_noise_std_gradcheck_and_finite_at_zero():
+    from optics import noise_std
+
+    x = torch.tensor([0.1, 0.5, 0.9], dtype=torch.float64, requires_grad=True)
+    light = torch.tensor([0.3, 1.0, 2.0], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda a, b: noise_std(a, 0.004, 0.0004, b), (x, light))
+    black = torch.zeros(2, dtype=torch.float64, requires_grad=True)
+    noise_std(black, 0.0, 0.0004).sum().backward()
+    assert torch.isfinite(black.grad).all()

@@ -57,10 +57,11 @@ _RULES = (
     (("seed",), lambda v: 0 <= v <= MAX_SEED, f"an integer in [0, {MAX_SEED}] (2**32 - 1)"),
     (("ssim_window", "max_kernel_size"), lambda v: v >= 1 and v % 2 == 1,
      "a positive odd number of pixels"),
-    (("lr", "depth_min", "depth_max", "optics_lr", "f_number_min", "f_number_max"),
+    (("lr", "depth_min", "depth_max", "f_number_min", "f_number_max"),
      _finite(0, strict=True), "a finite number > 0"),
-    (("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight",
-      "checkpoint_minutes", "minutes", "mask_start_noise", "hint_weight"), _finite(0),
+    (("weight_decay", "grad_clip", "sharpness_weight", "smoothness_weight", "optics_lr",
+      "checkpoint_minutes", "minutes", "mask_start_noise", "hint_weight", "read_noise",
+      "shot_noise"), _finite(0),
      "a finite number >= 0 (0: off)"),
     (("ssim_weight",), lambda v: 0 <= v <= 1, "in [0, 1]"),
     (("focus_distance",), _finite(0), "a finite number of metres >= 0 (0: none)"),
@@ -189,8 +190,17 @@ class TrainConfig:
     #: image and depth through the learned camera: data whose focused images are synthesised
     #: only (procedural scenes, synthesised focus), with depth at every pixel
     learn_optics: str = ""
-    #: Adam learning rate of the learned optics (their free parameters, logits)
+    #: Adam learning rate of the learned optics (their free parameters, logits); 0 renders
+    #: every batch through the starting camera, unlearned: the fixed camera under the same
+    #: noise, the baseline a learned camera is compared with
     optics_lr: float = 0.01
+    #: noise of the focused images rendered through a learned camera, at the starting
+    #: camera's exposure (`optics.noise_std`, as `datasets.capture.CaptureNoise`): the read
+    #: noise's standard deviation and the shot noise `sqrt(shot_noise * intensity)`. A camera
+    #: that gathers less light (a larger f-number) has more, as on a real sensor: stopping
+    #: down is not free
+    read_noise: float = 0.004
+    shot_noise: float = 0.0004
     #: smallest f-number a learned f-number may take (the lens's limit)
     f_number_min: float = 1.0
     #: largest f-number a learned f-number may take (the lens's limit)

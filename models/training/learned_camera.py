@@ -13,7 +13,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from optics import CameraSettings, LearnableCamera, Mask
+from optics import CameraSettings, LearnableCamera, Mask, noise_std
 from optics.camera import SETTING_FIELDS
 
 from ..depth_from_photos.trained_network import camera_record
@@ -100,15 +100,23 @@ def optics_gradients(camera: LearnableCamera | None, network_norm: Tensor, grad_
     return torch.linalg.vector_norm(torch.stack([network_norm, norm.to(network_norm)]))
 
 
-def render_batch(camera: LearnableCamera, batch: Mapping[str, Any],
-                 config: TrainConfig) -> dict[str, Any]:
+def render_batch(camera: LearnableCamera, batch: Mapping[str, Any], config: TrainConfig,
+                 generator: torch.Generator | None = None) -> dict[str, Any]:
     """`batch` with its `focused` images `(B, F, 3, H, W)` rendered from its `image` and
     `depth` through `camera` (differentiable in the learned values, with the config's render
-    mode and window) and its `camera` entry the learned `(B, F)` settings."""
+    mode and window) with the sensor's noise at the light each shot gathers (`read_noise`,
+    `shot_noise`, `LearnableCamera.light`; drawn from `generator`, else the global one), and
+    its `camera` entry the learned `(B, F)` settings."""
     image = batch["image"]
     depth = batch["depth"].clamp_min(MIN_RENDER_DEPTH)
     focused = camera.render(image, depth, mode=config.render_mode,
                             max_kernel_size=config.max_kernel_size)
+    if config.read_noise or config.shot_noise:
+        light = camera.light().to(focused).view(1, -1, 1, 1, 1)
+        draw = torch.randn(focused.shape, generator=generator, dtype=focused.dtype,
+                           device="cpu" if generator is None else generator.device)
+        focused = focused + noise_std(focused, config.read_noise, config.shot_noise,
+                                      light) * draw.to(focused.device)
     settings = camera.settings().to(image.dtype).batched(image.shape[0])
     return {**batch, "focused": focused, "camera": settings}
 
@@ -116,18 +124,20 @@ def render_batch(camera: LearnableCamera, batch: Mapping[str, Any],
 def rendered_samples(camera: LearnableCamera | None, samples: Iterable[Mapping[str, Any]],
                      config: TrainConfig) -> Iterable[Mapping[str, Any]]:
     """Unbatched `samples` with their focused images rendered through the current `camera`
-    from their image and depth (no gradients): what a network trained with it reads when it
+    from their image and depth (no gradients), the noise of the `i`-th drawn with seed `i`
+    (every network scored on the same draws): what a network trained with it reads when it
     is evaluated (`samples` as they are without a camera)."""
     return samples if camera is None else _rendered(camera, samples, config)
 
 
 def _rendered(camera: LearnableCamera, samples: Iterable[Mapping[str, Any]],
               config: TrainConfig) -> Iterator[dict[str, Any]]:
-    for sample in samples:
+    for index, sample in enumerate(samples):
         batch = {"image": sample["image"][None], "depth": sample["depth"][None]}
         device = next(iter(camera.buffers())).device
         with torch.no_grad():
-            batch = render_batch(camera, {k: v.to(device) for k, v in batch.items()}, config)
+            batch = render_batch(camera, {k: v.to(device) for k, v in batch.items()}, config,
+                                 torch.Generator().manual_seed(index))
         yield {**sample, "focused": batch["focused"][0].to(sample["image"].device),
                "camera": batch["camera"][0].to(sample["image"].device)}
 
