@@ -11,7 +11,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from optics import DEFAULT_APERTURE, Aperture, CameraSettings, render_focal_stack
+from optics import DEFAULT_APERTURE, Aperture, CameraSettings, noise_std, render_focal_stack
 from optics.checks import check_depth_bounds
 
 
@@ -237,6 +237,11 @@ class SynthesizedFocus(torch.utils.data.Dataset):
         keep: keep the rendered samples in memory (a small set scored several times).
         aperture: the PSF, overriding the settings' spec (e.g. a learned mask as an
             `optics.Mask`).
+        read_noise: the sensor's read noise on the rendered images (`optics.noise_std`),
+            drawn with the sample's index as seed: the same draws every time; 0: none.
+        shot_noise: its shot noise, the same way.
+        light: the light each shot gathers relative to the exposure of that noise, a number or
+            `(F,)` (a camera stopped down from the one a network learned gathers less).
 
     Example:
         >>> from datasets.synthetic import SyntheticScenes
@@ -249,8 +254,10 @@ class SynthesizedFocus(torch.utils.data.Dataset):
 
     def __init__(self, samples: Sequence[Any], settings: CameraSettings, min_depth: float = 1e-3,
                  cache_dir: str | Path | None = None, keep: bool = False,
-                 aperture: Aperture | None = None) -> None:
+                 aperture: Aperture | None = None, read_noise: float = 0.0,
+                 shot_noise: float = 0.0, light: float | Tensor = 1.0) -> None:
         self.samples, self.settings, self.aperture = samples, settings, aperture
+        self.noise = (float(read_noise), float(shot_noise), torch.as_tensor(light).reshape(-1))
         self.min_depth, self.cache_dir = float(min_depth), cache_dir
         self._kept: dict[int, dict[str, Any]] | None = {} if keep else None
 
@@ -262,10 +269,16 @@ class SynthesizedFocus(torch.utils.data.Dataset):
             return dict(self._kept[index])
         sample = dict(self.samples[index])
         settings = self.settings.to(sample["image"].dtype)
-        sample["focused"] = cached_focal_stack(
+        stack = cached_focal_stack(
             sample["image"], sample["depth"].clamp_min(self.min_depth), settings,
             None if self.aperture is None else self.aperture.to(sample["image"].dtype),
-            cache_dir=self.cache_dir).clamp(0, 1)
+            cache_dir=self.cache_dir)
+        read, shot, light = self.noise
+        if read or shot:
+            draw = torch.randn(stack.shape, generator=torch.Generator().manual_seed(index),
+                               dtype=stack.dtype)
+            stack = stack + noise_std(stack, read, shot, light.to(stack).view(-1, 1, 1, 1)) * draw
+        sample["focused"] = stack.clamp(0, 1)
         sample["camera"] = settings
         if self._kept is not None:
             self._kept[index] = dict(sample)

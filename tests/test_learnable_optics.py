@@ -353,6 +353,16 @@ def test_evaluate_renders_with_the_learned_camera(tmp_path, scenes):
                                          scenes[0]["depth"][None].double())[0]
     torch.testing.assert_close(samples[0]["focused"].double(), expected.clamp(0, 1),
                                atol=1e-5, rtol=0)
+    # with the run's sensor noise: the draws and the light of the scoring during training
+    from models.training.learned_camera import rendered_samples
+
+    noise = (trainer.config.read_noise, trainer.config.shot_noise)
+    noisy, _, _ = checkpoint_focus(scenes, checkpoint, trainer.config.aperture, noise=noise)
+    trained = next(iter(rendered_samples(trainer.camera, [scenes[0]], trainer.config)))
+    assert float(trainer.camera.light().detach().min()) != 1.0  # the learned f-numbers moved
+    torch.testing.assert_close(noisy[0]["focused"], trained["focused"].clamp(0, 1),
+                               atol=1e-5, rtol=0)
+    assert not torch.allclose(noisy[0]["focused"], samples[0]["focused"], atol=1e-3)
 
 
 def test_cli_refuses_real_focused_photos(tmp_path, capsys):

@@ -69,20 +69,24 @@ def run_evaluation(request: EvaluateRequest) -> EvaluateResult:
 
 
 def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
-                     tolerance: Any = None) -> tuple[Sequence[Any], str | None, str | None]:
+                     tolerance: Any = None, noise: tuple[float, float] = (0.0, 0.0),
+                     ) -> tuple[Sequence[Any], str | None, str | None]:
     """`samples` with their focused images rendered anew from their image and depth with the
     camera `checkpoint` was trained for (`datasets.SynthesizedFocus`, PSF `aperture`): the blur
     a network learned is its camera's, so a network trained on one data set is scored on
     another with that blur; a camera learned with the network (`defocus train --learn-optics`)
     is the checkpoint's camera, its learned aperture mask included; with `tolerance` (an
-    `optics.CameraTolerance`), that camera as built. Returns (the samples, a line saying which
+    `optics.CameraTolerance`), that camera as built. A learned camera's images carry the
+    sensor `noise` it was trained with (read, shot: `TrainConfig.read_noise`, `shot_noise`)
+    at the light the camera gathers against the one it started from, seeded by sample, as in
+    training: a camera built a third of a stop darker is noisier. Returns (the samples, a line saying which
     camera rendered them, a warning where the checkpoint records no camera: then the samples are
     left as they are).
     """
     from datasets import SynthesizedFocus
     from models.checkpoints import load_checkpoint
     from models.depth_from_photos.trained_network import describe_camera
-    from models.training.learned_camera import checkpoint_aperture
+    from models.training.learned_camera import checkpoint_aperture, starting_camera
     from optics import CameraSettings
     from optics.camera import SETTING_FIELDS
 
@@ -99,7 +103,12 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
     if tolerance is not None and not tolerance.exact:
         settings, mask = tolerance.settings(settings), tolerance.mask(mask)
         through += f"; as built: {tolerance.describe()}"
-    return (SynthesizedFocus(samples, settings, aperture=mask),
+    start = starting_camera(state)  # None unless the camera was learned
+    light = 1.0 if start is None else \
+        (settings.f_number.new_tensor(start["f_number"]) / settings.f_number) ** 2
+    read, shot = noise if start is not None else (0.0, 0.0)
+    return (SynthesizedFocus(samples, settings, aperture=mask, read_noise=read,
+                             shot_noise=shot, light=light),
             f"focused images rendered with the camera the checkpoint was trained for: "
             f"{describe_camera(record)}{through}", None)
 
@@ -133,8 +142,9 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
                          "synthesised focus and a network that reads focused images "
                          f"(checkpoint {checkpoint} reads {config.input_mode!r})")
     if request.synthesize and config.input_mode == "aif+focused":
-        samples, rendered, warning = checkpoint_focus(samples, checkpoint, config.aperture,
-                                                      request.tolerance)
+        samples, rendered, warning = checkpoint_focus(
+            samples, checkpoint, config.aperture, request.tolerance,
+            (config.read_noise, config.shot_noise))
         warnings.append(warning)
         if rendered is not None:
             request.report(rendered)

@@ -91,7 +91,8 @@ def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
             "optics.png in the run folder")
         parser.add_argument(
             "--optics-lr", type=float, default=None, metavar="LR",
-            help="learning rate of the learned optics (optics_lr; default 0.01)")
+            help="learning rate of the learned optics (optics_lr; default 0.01; 0: the "
+                 "starting camera rendered the same way, noise included, and not learned)")
         parser.add_argument(
             "--minutes", type=float, default=None,
             help="time budget of the training, minutes (minutes; default: none): it stops "
