@@ -195,11 +195,15 @@ class _DepthNetwork(nn.Module):
 
     def forward(
         self, image: Tensor, focused: Tensor | None = None,
-        settings: CameraSettings | None = None,
+        settings: CameraSettings | None = None, rows: Tensor | None = None,
     ) -> Tensor:
         """Depth `(B,1,H,W)` in metres from `image` `(B,3,H,W)` (and the focused images
-        `(B,F,3,H,W)` with their `(B,F)` camera settings in `"aif+focused"` mode)."""
+        `(B,F,3,H,W)` with their `(B,F)` camera settings in `"aif+focused"` mode); `rows`
+        `(1,1,H,W)`: where the pixels lie in the whole photo, for a network that reads its
+        rows (`SmallDepthNet(position=True)`) given a part of it (None: `image` is whole)."""
         x = self.assemble_input(image, focused, settings)
+        if getattr(self, "position", False):
+            x = self.with_rows(x, rows)
         return self.head(self._logits(x))
 
     def _logits(self, x: Tensor) -> Tensor:
@@ -235,8 +239,8 @@ class SmallDepthNet(_DepthNetwork):
         scales: resolutions of the encoder, >= 2 (the full one included).
         position: also input each pixel's row in the image (-1 at the top, 1 at the bottom), so
             the network can learn where in a photo things tend to be near (a floor at the
-            bottom). Rows of the network's input: train on whole images, not crops, and predict
-            on whole images (a tile of `run_network` above its `max_pixels` has its own rows).
+            bottom). Rows of the network's input: train on whole images, not crops;
+            `run_network` gives each tile of a large photo its rows in the whole photo.
 
     Example:
         >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8, scales=5,
@@ -265,14 +269,20 @@ class SmallDepthNet(_DepthNetwork):
     def in_channels(self) -> int:
         return super().in_channels + int(self.position)
 
-    def assemble_input(self, image: Tensor, focused: Tensor | None = None,
-                       settings: CameraSettings | None = None) -> Tensor:
-        x = super().assemble_input(image, focused, settings)
-        if not self.position:
-            return x
-        b, _, h, w = x.shape
-        rows = torch.linspace(-1.0, 1.0, h, device=x.device, dtype=x.dtype)
-        return torch.cat([x, rows.view(1, 1, h, 1).expand(b, 1, h, w)], 1)
+    @staticmethod
+    def row_map(h: int, w: int, device: torch.device | str | None = None,
+                dtype: torch.dtype | None = None) -> Tensor:
+        """`(1,1,h,w)`: each pixel's row in an `h` x `w` photo, -1 at the top, 1 at the bottom
+        (an expanded view: crop it with the photo)."""
+        rows = torch.linspace(-1.0, 1.0, h, device=device, dtype=dtype)
+        return rows.view(1, 1, h, 1).expand(1, 1, h, w)
+
+    def with_rows(self, x: Tensor, rows: Tensor | None = None) -> Tensor:
+        """`x` `(B,C,H,W)` with the row channel appended: `rows` `(1,1,H,W)`, or those of a
+        whole photo of `x`'s size."""
+        if rows is None:
+            rows = self.row_map(*x.shape[-2:], device=x.device, dtype=x.dtype)
+        return torch.cat([x, rows.to(x).expand(x.shape[0], 1, *x.shape[-2:])], 1)
 
     def _logits(self, x: Tensor) -> Tensor:
         h, w = x.shape[-2:]

@@ -93,10 +93,26 @@ def test_more_scales_see_farther():
 
 def test_position_is_the_row_in_the_input():
     net = SmallDepthNet("aif+focused", 2, 1.0, 10.0, width=4, position=True)
-    x = net.assemble_input(torch.rand(2, 3, 5, 7), torch.rand(2, 2, 3, 5, 7), _camera(2))
+    x = net.with_rows(net.assemble_input(torch.rand(2, 3, 5, 7), torch.rand(2, 2, 3, 5, 7),
+                                         _camera(2)))
     assert x.shape[1] == net.in_channels == SmallDepthNet("aif+focused", 2, width=4).in_channels + 1
     expected = torch.tensor([-1.0, -0.5, 0.0, 0.5, 1.0]).view(5, 1).expand(5, 7)
     assert torch.equal(x[0, -1], expected) and torch.equal(x[1, -1], expected)
+
+
+def test_tiles_of_a_position_network_read_the_photos_rows():
+    """`run_network` above `max_pixels`: each tile reads its rows in the whole photo, not its
+    own -1..1."""
+    from models.depth_from_photos.tiling import run_network
+
+    net = SmallDepthNet("aif", width=4, position=True)
+    seen, logits = [], net._logits
+    net._logits = lambda x: (seen.append(x[0, -1].clone()), logits(x))[1]
+    run_network(net, torch.rand(1, 3, 20, 12), max_pixels=100, tile=8, overlap=2)
+    whole = SmallDepthNet.row_map(20, 12)[0, 0]
+    assert len(seen) == 6  # rows 0, 8, 16 x columns 0, 8
+    torch.testing.assert_close(seen[2], whole[6:18, 0:10])  # the tile at row 8, column 0
+    torch.testing.assert_close(seen[5], whole[14:20, 6:12])
 
 
 def test_three_scales_keep_the_weight_names():

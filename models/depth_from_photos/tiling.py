@@ -65,7 +65,8 @@ def run_network(network: nn.Module, image: Tensor, focused: Tensor | None = None
     `models.networks.build_network` reads what its input mode needs (`assemble_input`: the
     all-in-focus image alone in `"aif"` mode). Above `max_pixels` pixels (None: never) the
     batch goes through in overlapping tiles (`apply_in_tiles`; the networks are fully
-    convolutional, but their group normalisation sees each tile's statistics).
+    convolutional, but their group normalisation sees each tile's statistics; a network that
+    reads its rows is given each tile's rows in the whole photo).
 
     Args:
         network: the depth network.
@@ -88,6 +89,10 @@ def run_network(network: nn.Module, image: Tensor, focused: Tensor | None = None
         with torch.no_grad():
             if max_pixels is None or image.shape[-2] * image.shape[-1] <= max_pixels:
                 return network(image, focused, settings)
+            if getattr(network, "position", False):  # each tile's rows in the whole photo
+                rows = network.row_map(*image.shape[-2:], image.device, image.dtype)
+                return apply_in_tiles(lambda x, f, r: network(x, f, settings, rows=r),
+                                      [image, focused, rows], tile, overlap)
             return apply_in_tiles(lambda x, f: network(x, f, settings), [image, focused], tile,
                                   overlap)
     finally:
