@@ -488,6 +488,18 @@ def test_robustness_scores_the_design_and_each_tolerance(tmp_path, scenes, capsy
     out = capsys.readouterr().out
     assert "as designed: abs rel 1.00x the design's" in out and "f-number -0.33 stop" in out
     assert set(json.loads(table.read_text())) == set(rows)
+    # --last N: the last N samples of the split (the examples' held-out scenes)
+    scored = {}
+    for last in ("3", "1"):
+        path = tmp_path / f"last{last}.json"
+        assert main(["evaluate", str(checkpoint), "--data", "synthetic", "--scenes", "3",
+                     "--size", "16", "16", "--last", last, "--json", str(path)]) == 0
+        scored[last] = json.loads(path.read_text())
+    assert {k: scored["3"][k] for k in ("abs_rel", "rmse")} == \
+        {k: json.loads(table.read_text())["as designed"][k] for k in ("abs_rel", "rmse")}
+    assert scored["1"] != scored["3"]
+    assert main(["evaluate", str(checkpoint), "--data", "synthetic", "--last", "0"]) == 2
+    assert "--last must be >= 1" in capsys.readouterr().err
 
 
 # -- an oriented aperture: the signed CoC ----------------------------------------------------

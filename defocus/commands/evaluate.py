@@ -44,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser, focus: bool = True) -> None:
                              "sweep with an all-in-focus photo, the relative blur without)")
     parser.add_argument("--max-samples", type=int, default=None,
                         help="--data: score at most this many samples")
+    parser.add_argument("--last", type=int, default=None, metavar="N",
+                        help="--data with a checkpoint: score only the last N samples of the "
+                             "split, in its order (the examples' held-out scenes: "
+                             "examples/dslr.py holds out the last 20 of its split by time)")
     parser.add_argument("--max-pixels", type=int, default=1_500_000,
                         help="--data: most pixels of the label-free method's working "
                              "resolution (metrics are computed at the native resolution)")
@@ -100,7 +104,10 @@ def request_of(args: argparse.Namespace):
             (benchmark and args.max_samples is not None and args.max_samples < 1,
              f"--max-samples must be >= 1, got {args.max_samples}"),
             (benchmark and args.max_pixels < 1024,
-             f"--max-pixels must be >= 1024, got {args.max_pixels}")):
+             f"--max-pixels must be >= 1024, got {args.max_pixels}"),
+            (args.last is not None and (benchmark or args.last < 1),
+             f"--last must be >= 1, with a checkpoint and --data of depth samples, got "
+             f"--last {args.last} with --data {args.data}")):
         if refused:
             raise CommandError(message)
     focus = args.focus
@@ -141,6 +148,10 @@ def request_of(args: argparse.Namespace):
         samples = [motorcycle_sample(args.scale)]
     else:
         samples = dataset_from_options(args, split=args.split or "test", seed_offset=1_000)
+        if args.last is not None:
+            from torch.utils.data import Subset
+
+            samples = Subset(samples, range(max(len(samples) - args.last, 0), len(samples)))
     return EvaluateRequest(samples, depth_cap=args.depth_cap, crop=args.crop,
                            median_scaling=args.median_scaling, min_depth=args.min_depth,
                            synthesize=focus == "synthesized", tolerance=tolerance, **common)
