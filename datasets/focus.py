@@ -11,7 +11,7 @@ from typing import Any
 import torch
 from torch import Tensor
 
-from optics import DEFAULT_APERTURE, Aperture, CameraSettings, noise_std, render_focal_stack
+from optics import DEFAULT_APERTURE, Aperture, CameraSettings, add_noise, render_focal_stack
 from optics.checks import check_depth_bounds
 
 
@@ -275,9 +275,8 @@ class SynthesizedFocus(torch.utils.data.Dataset):
             cache_dir=self.cache_dir)
         read, shot, light = self.noise
         if read or shot:
-            draw = torch.randn(stack.shape, generator=torch.Generator().manual_seed(index),
-                               dtype=stack.dtype)
-            stack = stack + noise_std(stack, read, shot, light.to(stack).view(-1, 1, 1, 1)) * draw
+            stack = add_noise(stack, read, shot, light.to(stack).view(-1, 1, 1, 1),
+                              torch.Generator().manual_seed(index))
         sample["focused"] = stack.clamp(0, 1)
         sample["camera"] = settings
         if self._kept is not None:

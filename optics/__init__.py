@@ -29,7 +29,7 @@ from .learnable import LEARNABLE, LearnableCamera, LearnableMask, disk_mask
 from .lens import ThinLens
 from .plotting import plot_calibration, plot_depth_calibration
 from .render import DefocusRenderer, render_defocus
-from .sensor import Sensor, noise_std
+from .sensor import Sensor, add_noise, noise_std
 from .tolerance import ROBUSTNESS, CameraTolerance
 
 __all__ = [
@@ -37,6 +37,7 @@ __all__ = [
     "Camera",
     "CameraSettings",
     "Sensor",
+    "add_noise",
     "noise_std",
     "ThinLens",
     "collate",

@@ -13,7 +13,7 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
-from optics import CameraSettings, LearnableCamera, Mask, noise_std
+from optics import CameraSettings, LearnableCamera, Mask, add_noise
 from optics.camera import SETTING_FIELDS
 
 from ..depth_from_photos.trained_network import camera_record
@@ -105,18 +105,16 @@ def render_batch(camera: LearnableCamera, batch: Mapping[str, Any], config: Trai
     """`batch` with its `focused` images `(B, F, 3, H, W)` rendered from its `image` and
     `depth` through `camera` (differentiable in the learned values, with the config's render
     mode and window) with the sensor's noise at the light each shot gathers (`read_noise`,
-    `shot_noise`, `LearnableCamera.light`; drawn from `generator`, else the global one), and
+    `shot_noise`, `LearnableCamera.light`; drawn from `generator`, a CPU one, else the
+    global one), and
     its `camera` entry the learned `(B, F)` settings."""
     image = batch["image"]
     depth = batch["depth"].clamp_min(MIN_RENDER_DEPTH)
     focused = camera.render(image, depth, mode=config.render_mode,
                             max_kernel_size=config.max_kernel_size)
     if config.read_noise or config.shot_noise:
-        light = camera.light().to(focused).view(1, -1, 1, 1, 1)
-        draw = torch.randn(focused.shape, generator=generator, dtype=focused.dtype,
-                           device="cpu" if generator is None else generator.device)
-        focused = focused + noise_std(focused, config.read_noise, config.shot_noise,
-                                      light) * draw.to(focused.device)
+        focused = add_noise(focused, config.read_noise, config.shot_noise,
+                            camera.light().to(focused).view(1, -1, 1, 1, 1), generator)
     settings = camera.settings().to(image.dtype).batched(image.shape[0])
     return {**batch, "focused": focused, "camera": settings}
 
