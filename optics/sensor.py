@@ -128,7 +128,7 @@ def noise_std(intensity: Tensor, read: float, shot: float, light: Tensor | float
 def add_noise(images: Tensor, read: float, shot: float, light: Tensor | float = 1.0,
               generator: torch.Generator | None = None) -> Tensor:
     """`images` (linear, full scale 1) with Gaussian sensor noise of `noise_std` drawn from
-    `generator` (a CPU one; None: the global one); `light` broadcasts against `images`
+    `generator` (None: the global one of `images`' device); `light` broadcasts against `images`
     (e.g. `(1,F,1,1,1)` for `(B,F,C,H,W)` focal stacks, one value per shot). Differentiable in
     `images` and `light` (the draw is fixed).
 
@@ -138,5 +138,6 @@ def add_noise(images: Tensor, read: float, shot: float, light: Tensor | float = 
         >>> round(float(noisy.std()), 3)  # noise_std at 0.5: sqrt(0.004**2 + 0.0002)
         0.015
     """
-    draw = torch.randn(images.shape, generator=generator, dtype=images.dtype)
+    draw = torch.randn(images.shape, generator=generator, dtype=images.dtype,
+                       device=images.device if generator is None else generator.device)
     return images + noise_std(images, read, shot, light) * draw.to(images.device)

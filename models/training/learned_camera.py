@@ -105,9 +105,8 @@ def render_batch(camera: LearnableCamera, batch: Mapping[str, Any], config: Trai
     """`batch` with its `focused` images `(B, F, 3, H, W)` rendered from its `image` and
     `depth` through `camera` (differentiable in the learned values, with the config's render
     mode and window) with the sensor's noise at the light each shot gathers (`read_noise`,
-    `shot_noise`, `LearnableCamera.light`; drawn from `generator`, a CPU one, else the
-    global one), and
-    its `camera` entry the learned `(B, F)` settings."""
+    `shot_noise`, `LearnableCamera.light`; drawn from `generator`, else the global one),
+    and its `camera` entry the learned `(B, F)` settings."""
     image = batch["image"]
     depth = batch["depth"].clamp_min(MIN_RENDER_DEPTH)
     focused = camera.render(image, depth, mode=config.render_mode,
