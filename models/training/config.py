@@ -194,12 +194,13 @@ class TrainConfig:
     #: every batch through the starting camera, unlearned: the fixed camera under the same
     #: noise, the baseline a learned camera is compared with
     optics_lr: float = 0.01
-    #: noise of the focused images rendered through a learned camera, at the starting
-    #: camera's exposure (`optics.noise_std`, as `datasets.capture.CaptureNoise`): the read
-    #: noise's standard deviation and the shot noise `sqrt(shot_noise * intensity)`. A camera
-    #: that gathers less light (a larger f-number) has more, as on a real sensor: stopping
-    #: down is not free
+    #: read noise (standard deviation, full scale 1) of the focused images rendered through a
+    #: learned camera, at the starting camera's exposure (`optics.noise_std`, as
+    #: `datasets.capture.CaptureNoise`). A camera that gathers less light (a larger f-number)
+    #: has more, as on a real sensor: stopping down is not free
     read_noise: float = 0.004
+    #: shot noise of those images, standard deviation `sqrt(shot_noise * intensity)` at the
+    #: starting camera's exposure, more where the camera gathers less light
     shot_noise: float = 0.0004
     #: smallest f-number a learned f-number may take (the lens's limit)
     f_number_min: float = 1.0
