@@ -201,10 +201,13 @@ class _DepthNetwork(nn.Module):
         `(B,F,3,H,W)` with their `(B,F)` camera settings in `"aif+focused"` mode); `rows`
         `(1,1,H,W)`: where the pixels lie in the whole photo, for a network that reads its
         rows (`SmallDepthNet(position=True)`) given a part of it (None: `image` is whole)."""
-        x = self.assemble_input(image, focused, settings)
-        if getattr(self, "position", False):
-            x = self.with_rows(x, rows)
+        x = self.with_rows(self.assemble_input(image, focused, settings), rows)
         return self.head(self._logits(x))
+
+    def with_rows(self, x: Tensor, rows: Tensor | None = None) -> Tensor:
+        """The network input `x` with what a network reads of the pixels' place (nothing
+        here; `SmallDepthNet(position=True)`: their rows)."""
+        return x
 
     def _logits(self, x: Tensor) -> Tensor:
         raise NotImplementedError
@@ -278,8 +281,10 @@ class SmallDepthNet(_DepthNetwork):
         return rows.view(1, 1, h, 1).expand(1, 1, h, w)
 
     def with_rows(self, x: Tensor, rows: Tensor | None = None) -> Tensor:
-        """`x` `(B,C,H,W)` with the row channel appended: `rows` `(1,1,H,W)`, or those of a
-        whole photo of `x`'s size."""
+        """`x` `(B,C,H,W)` with the row channel appended (`position`; else `x` as it is):
+        `rows` `(1,1,H,W)`, or those of a whole photo of `x`'s size."""
+        if not self.position:
+            return x
         if rows is None:
             rows = self.row_map(*x.shape[-2:], device=x.device, dtype=x.dtype)
         return torch.cat([x, rows.to(x).expand(x.shape[0], 1, *x.shape[-2:])], 1)

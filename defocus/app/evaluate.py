@@ -79,9 +79,9 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
     `optics.CameraTolerance`), that camera as built. A learned camera's images carry the
     sensor `noise` it was trained with (read, shot: `TrainConfig.read_noise`, `shot_noise`)
     at the light the camera gathers against the one it started from, seeded by sample, as in
-    training: a camera built a third of a stop darker is noisier. Returns (the samples, a line saying which
-    camera rendered them, a warning where the checkpoint records no camera: then the samples are
-    left as they are).
+    training: a camera built a third of a stop darker is noisier. Returns (the samples, a
+    line saying which camera rendered them, a warning where the checkpoint records no camera:
+    then the samples are left as they are).
     """
     from datasets import SynthesizedFocus
     from models.checkpoints import load_checkpoint
