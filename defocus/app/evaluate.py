@@ -104,11 +104,10 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
         settings, mask = tolerance.settings(settings), tolerance.mask(mask)
         through += f"; as built: {tolerance.describe()}"
     start = starting_camera(state)  # None unless the camera was learned
-    light = 1.0 if start is None else \
-        (settings.f_number.new_tensor(start["f_number"]) / settings.f_number) ** 2
-    read, shot = noise if start is not None else (0.0, 0.0)
-    return (SynthesizedFocus(samples, settings, aperture=mask, read_noise=read,
-                             shot_noise=shot, light=light),
+    sensor = {} if start is None else {  # its training noise, at the light it gathers
+        "read_noise": noise[0], "shot_noise": noise[1],
+        "light": (settings.f_number.new_tensor(start["f_number"]) / settings.f_number) ** 2}
+    return (SynthesizedFocus(samples, settings, aperture=mask, **sensor),
             f"focused images rendered with the camera the checkpoint was trained for: "
             f"{describe_camera(record)}{through}", None)
 
