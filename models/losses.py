@@ -14,7 +14,9 @@ into a synthetic focused image that is compared with the real one:
   the network's depth, in log depth, at the pixels where it renders the focused images better
   than the network's depth does. The photometric error stays the judge, so a wrong hint is
   ignored where the network does better; the hint only helps the network out of the loss's
-  local minima (a blur that grows slowly with depth, flat regions).
+  local minima (a blur that grows slowly with depth, flat regions). With the gate
+  ``"always"`` the hint pulls at every pixel instead: for photos whose rendering the model
+  explains imperfectly (real lenses), where a wrong depth can render better than the true one.
 """
 
 from __future__ import annotations
@@ -36,6 +38,9 @@ from optics.checks import check_shape
 #: Keywords of `optics.render_defocus` that `DefocusLoss` may pass on (the others it sets).
 RENDER_KEYWORDS = tuple(name for name in inspect.signature(render_defocus).parameters
                         if name not in ("image", "coc_px", "psf", "depth"))
+#: Where a depth hint pulls: ``"photometric"`` where it renders the focused images better
+#: than the network's depth (Watson et al.), ``"always"`` at every pixel.
+HINT_GATES = ("photometric", "always")
 
 
 def _check_weight(name: str, value: float, high: float = math.inf) -> float:
@@ -249,6 +254,8 @@ class DefocusLoss(nn.Module):
         window_size: odd SSIM window width in pixels.
         hint_weight: weight of the depth-hint term, finite and >= 0 (0: off; used where
             `forward` gets a `hint`).
+        hint_gate: where the hint pulls, one of `HINT_GATES`: `"photometric"` (where it
+            renders the focused images better than the network's depth) or `"always"`.
         aperture: PSF shape used to render, overriding the settings' aperture (None: use the
             aperture of the `CameraSettings` passed to `forward`).
         **render_kwargs: passed to `optics.render_defocus`: `RENDER_KEYWORDS` (`mode`,
@@ -256,7 +263,8 @@ class DefocusLoss(nn.Module):
 
     Raises:
         ValueError: at construction, for a weight out of its range, an even or non-positive
-            `window_size`, or a keyword `optics.render_defocus` does not take.
+            `window_size`, an unknown `hint_gate`, or a keyword `optics.render_defocus` does
+            not take.
 
     Example:
         >>> loss = DefocusLoss()
@@ -270,7 +278,7 @@ class DefocusLoss(nn.Module):
     def __init__(self, ssim_weight: float = 0.85, sharpness_weight: float = 0.1,
                  smoothness_weight: float = 0.001, window_size: int = 7,
                  aperture: Aperture | None = None, hint_weight: float = 0.0,
-                 **render_kwargs: Any):
+                 hint_gate: str = "photometric", **render_kwargs: Any):
         super().__init__()
         unknown = sorted(set(render_kwargs) - set(RENDER_KEYWORDS))
         if unknown:
@@ -281,6 +289,9 @@ class DefocusLoss(nn.Module):
         self.sharpness_weight = _check_weight("sharpness_weight", sharpness_weight)
         self.smoothness_weight = _check_weight("smoothness_weight", smoothness_weight)
         self.hint_weight = _check_weight("hint_weight", hint_weight)
+        if hint_gate not in HINT_GATES:
+            raise ValueError(f"hint_gate must be one of {HINT_GATES}, got {hint_gate!r}")
+        self.hint_gate = hint_gate
         self.window_size = int(window_size)
         self.aperture = aperture
         self.render_kwargs = render_kwargs
@@ -294,8 +305,8 @@ class DefocusLoss(nn.Module):
         Returns:
             dict with `loss` (the weighted total), `photometric`, `sharpness`, `smoothness`,
             and with a hint `hint` (the mean log-depth L1 to the hint over all pixels, 0 where
-            the network's depth renders better) and `hint_share` (the share of pixels where
-            the hint renders better).
+            the gate keeps the hint out) and `hint_share` (the share of pixels where it pulls:
+            where the hint renders better, or 1 with the gate `"always"`).
 
         Example:
             >>> settings = CameraSettings(0.05, 2.0, [[2.0, 6.0]], 180e-6)
@@ -323,19 +334,21 @@ class DefocusLoss(nn.Module):
                     focused: Tensor, settings: CameraSettings) -> dict[str, Tensor]:
         """The depth-hint terms: `error` `(B,1,H,W)` is the network depth's photometric error
         per pixel, over the focus settings."""
+        pull = (depth.log() - hint.log()).abs()
+        if self.hint_gate == "always":
+            return {"hint": pull.mean(), "hint_share": torch.ones_like(pull).mean()}
         with torch.no_grad():
             hinted = render_focal_stack(image, hint, settings, self.aperture,
                                         **self.render_kwargs)
             better = photometric_error_map(hinted, focused, self.ssim_weight,
                                            self.window_size).mean(1) < error
-        pull = (depth.log() - hint.log()).abs()
         return {"hint": torch.where(better, pull, torch.zeros_like(pull)).mean(),
                 "hint_share": better.float().mean()}
 
     def extra_repr(self) -> str:
         return (f"ssim_weight={self.ssim_weight}, sharpness_weight={self.sharpness_weight}, "
                 f"smoothness_weight={self.smoothness_weight}, window_size={self.window_size}, "
-                f"hint_weight={self.hint_weight}")
+                f"hint_weight={self.hint_weight}, hint_gate={self.hint_gate!r}")
 
 
 def supervised_depth_loss(depth: Tensor, target: Tensor, mask: Tensor | None = None) -> Tensor:

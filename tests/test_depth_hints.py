@@ -58,6 +58,42 @@ def test_a_hint_pulls_only_where_it_renders_better(dtype):
     assert "hint" not in DefocusLoss()(depth, image, focused, camera, wrong)
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_gate_always_pulls_at_every_pixel(dtype):
+    """With the gate "always" a hint pulls even where the network's depth renders better: the
+    term is the mean log-depth L1 over all pixels, and the photometric terms are the gate's
+    own."""
+    image, depth, camera, focused = _scene(dtype)
+    wrong = depth * 1.5
+    gated = DefocusLoss(smoothness_weight=0.0, hint_weight=0.5)(depth, image, focused, camera,
+                                                              wrong)
+    terms = DefocusLoss(smoothness_weight=0.0, hint_weight=0.5, hint_gate="always")(
+        depth, image, focused, camera, wrong)
+    assert float(gated["hint"]) == 0.0
+    assert float(terms["hint"]) == pytest.approx(math.log(1.5), rel=1e-5)
+    assert float(terms["hint_share"]) == 1.0
+    assert float(terms["photometric"]) == float(gated["photometric"])
+    assert float(terms["loss"]) == pytest.approx(
+        float(gated["loss"]) + 0.5 * math.log(1.5), rel=1e-5)
+
+
+def test_an_unknown_gate_is_refused_where_it_enters():
+    with pytest.raises(ValueError, match=r"hint_gate must be one of \('photometric', 'always'\)"):
+        DefocusLoss(hint_gate="sometimes")
+    with pytest.raises(ValueError, match="hint_gate"):
+        TrainConfig(hint_gate="sometimes")
+
+
+def test_gradcheck_loss_with_a_hint_pulling_always():
+    image, depth, camera, _ = _scene(torch.float64, size=5)
+    focused = render_focal_stack(image, depth * 0.9, camera)
+    loss = DefocusLoss(window_size=3, hint_weight=1.0, hint_gate="always")
+    hint = depth * 0.85
+    d = depth.clone().requires_grad_()
+    assert torch.autograd.gradcheck(lambda x: loss(x, image, focused, camera, hint)["loss"],
+                                    (d,), atol=1e-5)
+
+
 def test_gradcheck_loss_with_a_hint():
     image, depth, camera, _ = _scene(torch.float64, size=5)
     focused = render_focal_stack(image, depth * 0.9, camera)
@@ -117,6 +153,10 @@ def test_training_with_hints_logs_the_hint_terms(tmp_path, scenes):
     assert all(0 <= row["hint_share"] <= 1 and row["hint"] >= 0 for row in history)
     header = (cfg.out_dir / "train_log.csv").read_text().splitlines()[0]
     assert "hint,hint_share" in header
+    # the config's gate reaches the loss: "always" pulls at every pixel
+    always = Trainer(tiny_config(tmp_path / "always", hint_weight=1, hint_gate="always"), hinted)
+    assert always.loss_fn.hint_gate == "always"
+    assert all(row["hint_share"] == 1.0 for row in always.fit())
     # the depth-supervised twin reads no hint
     twin = Trainer(tiny_config(tmp_path / "twin", hint_weight=1, supervision="depth"), scenes)
     assert "hint" not in twin.fit()[0]

@@ -18,6 +18,7 @@ from optics import DEFAULT_APERTURE, LEARNABLE, aperture_spec
 from optics.render import MODES as RENDER_MODES
 
 from ..devices import check_device
+from ..losses import HINT_GATES
 from ..networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS, SIDES, build_network
 
 #: values of `TrainConfig.supervision`: through the renderer (no depth labels) or on depth
@@ -46,7 +47,8 @@ def _finite(low: float, strict: bool = False):
 _CHOICES = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
             "depth_spacing": DEPTH_SPACINGS, "side": SIDES, "supervision": SUPERVISIONS,
             "lr_schedule": ("cosine", "constant"), "render_mode": RENDER_MODES,
-            "resume": RESUME_MODES, "precision": PRECISIONS, "compile_mode": COMPILE_MODES}
+            "resume": RESUME_MODES, "precision": PRECISIONS, "compile_mode": COMPILE_MODES,
+            "hint_gate": HINT_GATES}
 #: (fields, rule, what the rule asks) of the numeric `TrainConfig` fields
 _RULES = (
     (("steps", "batch_size", "width", "log_every"), lambda v: v >= 1, "an integer >= 1"),
@@ -136,6 +138,10 @@ class TrainConfig:
     #: self-supervised runs only, on samples that carry a `hint` (a depth found without labels,
     #: `DepthDataset.with_hints`; `models.training.hints.label_free_hints` finds them)
     hint_weight: float = 0.0
+    #: where the hints pull: "photometric" (where a hint renders the focused images better
+    #: than the network's depth) or "always" (every pixel; for real photos that the renderer
+    #: explains imperfectly, where a wrong depth can render them better than the true one)
+    hint_gate: str = "photometric"
     #: SSIM window width, pixels
     ssim_window: int = 7
     #: PSF used to render in the loss, a spec of optics.aperture_spec: "gaussian" (sigma = CoC/2),

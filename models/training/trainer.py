@@ -142,8 +142,8 @@ class Trainer:
         self.scheduler = build_scheduler(self.optimizer, cfg, self.progress)
         self.loss_fn = DefocusLoss(cfg.ssim_weight, cfg.sharpness_weight, cfg.smoothness_weight,
                                    cfg.ssim_window, parse_aperture(cfg.aperture) if self.camera
-                                   is None else self.camera.aperture,  # a learned mask too
-                                   cfg.hint_weight, mode=cfg.render_mode,  # .to: its aperture
+                                   is None else self.camera.aperture,  # a learned mask too (.to)
+                                   cfg.hint_weight, cfg.hint_gate, mode=cfg.render_mode,
                                    max_kernel_size=cfg.max_kernel_size).to(self.device)
         #: the step's network and loss (one compiled graph when `config.compile`)
         self.forward = NetworkAndLoss(cfg, self.ddp_model, self.loss_fn, self.device,
