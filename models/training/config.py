@@ -139,7 +139,7 @@ class TrainConfig:
     #: `DepthDataset.with_hints`; `models.training.hints.label_free_hints` finds them)
     hint_weight: float = 0.0
     #: where the hints pull: "photometric" (where a hint renders the focused images better
-    #: than the network's depth) or "always" (every pixel; for real photos that the renderer
+    #: than the network's depth) or "always" (every pixel: for real photos that the renderer
     #: explains imperfectly, where a wrong depth can render them better than the true one)
     hint_gate: str = "photometric"
     #: SSIM window width, pixels
