@@ -15,7 +15,7 @@ into a synthetic focused image that is compared with the real one:
   than the network's depth does. The photometric error stays the judge, so a wrong hint is
   ignored where the network does better; the hint only helps the network out of the loss's
   local minima (a blur that grows slowly with depth, flat regions). With the gate
-  ``"always"`` the hint pulls at every pixel instead: for photos whose rendering the model
+  `"always"` the hint pulls at every pixel instead: for photos whose rendering the model
   explains imperfectly (real lenses), where a wrong depth can render better than the true one.
 """
 
@@ -38,8 +38,8 @@ from optics.checks import check_shape
 #: Keywords of `optics.render_defocus` that `DefocusLoss` may pass on (the others it sets).
 RENDER_KEYWORDS = tuple(name for name in inspect.signature(render_defocus).parameters
                         if name not in ("image", "coc_px", "psf", "depth"))
-#: Where a depth hint pulls: ``"photometric"`` where it renders the focused images better
-#: than the network's depth (Watson et al.), ``"always"`` at every pixel.
+#: Where a depth hint pulls: `"photometric"` where it renders the focused images better
+#: than the network's depth (Watson et al.), `"always"` at every pixel.
 HINT_GATES = ("photometric", "always")
 
 
