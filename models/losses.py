@@ -336,7 +336,7 @@ class DefocusLoss(nn.Module):
         per pixel, over the focus settings."""
         pull = (depth.log() - hint.log()).abs()
         if self.hint_gate == "always":
-            return {"hint": pull.mean(), "hint_share": torch.ones_like(pull).mean()}
+            return {"hint": pull.mean(), "hint_share": pull.new_ones(())}
         with torch.no_grad():
             hinted = render_focal_stack(image, hint, settings, self.aperture,
                                         **self.render_kwargs)
