@@ -29,7 +29,7 @@ from .learnable import LEARNABLE, LearnableCamera, LearnableMask, disk_mask
 from .lens import ThinLens
 from .plotting import plot_calibration, plot_depth_calibration
 from .render import DefocusRenderer, render_defocus
-from .sensor import Sensor, add_noise, noise_std
+from .sensor import Sensor, add_noise, noise_std, relative_light
 from .tolerance import ROBUSTNESS, CameraTolerance
 
 __all__ = [
@@ -39,6 +39,7 @@ __all__ = [
     "Sensor",
     "add_noise",
     "noise_std",
+    "relative_light",
     "ThinLens",
     "collate",
     # apertures (PSF shapes) and their spec strings

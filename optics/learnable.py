@@ -29,6 +29,7 @@ from .aperture import Aperture, Mask, footprint_mean, summed_area_table
 from .aperture_spec import parse_aperture
 from .camera import CameraSettings
 from .focal_stack import render_focal_stack
+from .sensor import relative_light
 
 #: What a `LearnableCamera` may learn (the names of `TrainConfig.learn_optics` and
 #: `defocus train --learn-optics`).
@@ -294,7 +295,7 @@ class LearnableCamera(nn.Module):
             >>> [round(v, 6) for v in camera.light().tolist()]  # at the start
             [1.0, 1.0]
         """
-        return (self.fixed_f_number / self.f_number()) ** 2
+        return relative_light(self.f_number(), self.fixed_f_number)
 
     def settings(self) -> CameraSettings:
         """The current `(F,)` `CameraSettings` (differentiable in the learned values); their

@@ -106,6 +106,18 @@ class Sensor(nn.Module):
         return length_px * broadcast_to_batch(self.effective_pixel_pitch, length_px)
 
 
+def relative_light(f_number: Tensor, reference_f_number: Tensor | float) -> Tensor:
+    """The light a shot at `f_number` gathers relative to one at `reference_f_number` with the
+    same exposure time: `(reference_f_number / f_number)**2` (the aperture's area), the `light`
+    of `noise_std`. Differentiable in `f_number`.
+
+    Example:
+        >>> relative_light(torch.tensor([2.8, 5.6]), 2.8)  # the same, two stops down
+        tensor([1.0000, 0.2500])
+    """
+    return (reference_f_number / f_number) ** 2
+
+
 def noise_std(intensity: Tensor, read: float, shot: float, light: Tensor | float = 1.0) -> Tensor:
     """Standard deviation of a sensor's noise at linear `intensity` (full scale 1): read noise
     `read` and shot noise `sqrt(shot * intensity)` at a reference exposure, for a photo that

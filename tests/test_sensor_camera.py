@@ -137,6 +137,19 @@ def test_noise_std_closed_form(dtype):
     assert noise_std(x, 0.0, 0.0).dtype == dtype
 
 
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_relative_light_is_the_aperture_area_ratio(dtype):
+    """One stop (a factor sqrt 2 in f-number) halves the light; gradcheck in the f-number."""
+    from optics import relative_light
+
+    numbers = torch.tensor([2.8, 2.8 * 2**0.5, 1.4], dtype=dtype)
+    torch.testing.assert_close(relative_light(numbers, 2.8),
+                               torch.tensor([1.0, 0.5, 4.0], dtype=dtype))
+    start = torch.tensor([2.8, 4.0, 8.0], dtype=torch.float64)
+    numbers = torch.tensor([2.0, 5.6, 8.0], dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(lambda n: relative_light(n, start), (numbers,))
+
+
 def test_noise_std_gradcheck_and_finite_at_zero():
     from optics import noise_std
 

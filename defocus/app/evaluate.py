@@ -87,7 +87,7 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
     from models.checkpoints import load_checkpoint
     from models.depth_from_photos.trained_network import describe_camera
     from models.training.learned_camera import checkpoint_aperture, starting_camera
-    from optics import CameraSettings
+    from optics import CameraSettings, relative_light
     from optics.camera import SETTING_FIELDS
 
     state = load_checkpoint(checkpoint, mmap=True)
@@ -106,7 +106,7 @@ def checkpoint_focus(samples: Sequence[Any], checkpoint: Path, aperture: str,
     start = starting_camera(state)  # None unless the camera was learned
     sensor = {} if start is None else {  # its training noise, at the light it gathers
         "read_noise": noise[0], "shot_noise": noise[1],
-        "light": (settings.f_number.new_tensor(start["f_number"]) / settings.f_number) ** 2}
+        "light": relative_light(settings.f_number, settings.f_number.new_tensor(start["f_number"]))}
     return (SynthesizedFocus(samples, settings, aperture=mask, **sensor),
             f"focused images rendered with the camera the checkpoint was trained for: "
             f"{describe_camera(record)}{through}", None)
