@@ -284,6 +284,43 @@ def test_optics_lr_zero_renders_the_fixed_camera(tmp_path, scenes):
     assert trainer.camera.record() == start
 
 
+def test_contrast_objective_moves_the_camera_by_its_log_ratio_and_not_the_network(tmp_path,
+                                                                                 scenes):
+    """`optics_objective="contrast"`: the loss's value and the network's gradient are those of
+    the plain loss; the camera's gradient is the loss times the gradient of
+    log(loss) - log(the loss at the network's depth x and / 1.25), computed here apart."""
+    from models.training import Trainer
+    from optics import collate
+
+    batch = collate([scenes[0], scenes[1]])
+    grads, values = {}, {}
+    for objective in ("loss", "contrast"):
+        trainer = Trainer(_config(tmp_path, optics_objective=objective, read_noise=0.0,
+                                  shot_noise=0.0, out_dir=tmp_path / objective), scenes)
+        depth, terms = trainer.forward(batch)
+        terms["loss"].backward()
+        grads[objective] = [p.grad.clone() for p in (*trainer.model.parameters(),
+                                                     *trainer.camera.parameters())]
+        values[objective] = float(terms["loss"].detach())
+    assert values["contrast"] == pytest.approx(values["loss"], rel=1e-6)
+    n = len(list(trainer.model.parameters()))
+    for a, b in zip(grads["loss"][:n], grads["contrast"][:n], strict=True):
+        torch.testing.assert_close(a, b)
+    rendered = trainer.forward.rendered(batch)
+    depth = trainer.forward.network_depth(rendered)
+    loss = trainer.loss_fn(depth, rendered["image"], rendered["focused"], rendered["camera"])
+    reference = sum(trainer.loss_fn(depth.detach() * f, rendered["image"], rendered["focused"],
+                                    rendered["camera"])["loss"] for f in (1.25, 0.8)) / 2
+    expected = torch.autograd.grad(loss["loss"].detach() * (loss["loss"].log() - reference.log()),
+                                   list(trainer.camera.parameters()))
+    for a, b in zip(grads["contrast"][n:], expected, strict=True):
+        torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-7)
+    assert not all(torch.allclose(a, b) for a, b in zip(grads["contrast"][n:], grads["loss"][n:],
+                                                        strict=True))
+    with pytest.raises(ValueError, match="optics_objective must be one of"):
+        _config(tmp_path, optics_objective="identifiability")
+
+
 @pytest.mark.slow
 def test_training_learns_the_camera(tmp_path, scenes):
     """A few steps on tiny procedural scenes: every learned value moves, the loss is finite,

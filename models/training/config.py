@@ -30,6 +30,8 @@ RESUME_MODES = ("auto", "resume", "overwrite")
 RUN_CONTROL_KEYS = ("out_dir", "resume", "device", "progress", "checkpoint_every",
                     "checkpoint_minutes", "keep_checkpoints", "workers", "compile",
                     "compile_mode", "minutes")
+#: values of `TrainConfig.optics_objective` (see its field comment)
+OPTICS_OBJECTIVES = ("loss", "contrast")
 #: values of `TrainConfig.precision`
 PRECISIONS = ("auto", "float32", "bfloat16")
 #: values of `TrainConfig.compile_mode` (`torch.compile`'s modes)
@@ -48,7 +50,7 @@ _CHOICES = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
             "depth_spacing": DEPTH_SPACINGS, "side": SIDES, "supervision": SUPERVISIONS,
             "lr_schedule": ("cosine", "constant"), "render_mode": RENDER_MODES,
             "resume": RESUME_MODES, "precision": PRECISIONS, "compile_mode": COMPILE_MODES,
-            "hint_gate": HINT_GATES}
+            "hint_gate": HINT_GATES, "optics_objective": OPTICS_OBJECTIVES}
 #: (fields, rule, what the rule asks) of the numeric `TrainConfig` fields
 _RULES = (
     (("steps", "batch_size", "width", "log_every"), lambda v: v >= 1, "an integer >= 1"),
@@ -200,6 +202,13 @@ class TrainConfig:
     #: every batch through the starting camera, unlearned: the fixed camera under the same
     #: noise, the baseline a learned camera is compared with
     optics_lr: float = 0.01
+    #: what a self-supervised run's learned camera lowers: "loss" (the training loss, as the
+    #: network does; lowered too by less blur at any depth, focus drifting to the scenes'
+    #: depths) or "contrast" (that loss relative to the loss at depths 25 % nearer and farther
+    #: than the network's: photos that tell the network's depth from its neighbours;
+    #: `models.training.learned_camera.depth_contrast`). Runs on depth labels learn the camera
+    #: from the labels' loss either way
+    optics_objective: str = "loss"
     #: read noise (standard deviation, full scale 1) of the focused images rendered through a
     #: learned camera, at the starting camera's exposure (`optics.noise_std`, as
     #: `datasets.capture.CaptureNoise`). A camera that gathers less light (a larger f-number)

@@ -17,7 +17,7 @@ from optics import LearnableCamera
 
 from ..losses import DefocusLoss, supervised_depth_loss
 from .config import TrainConfig
-from .learned_camera import render_batch
+from .learned_camera import depth_contrast, render_batch
 
 _log = logging.getLogger("models.training")
 
@@ -134,8 +134,12 @@ class NetworkAndLoss:
         """The loss terms of `depth` on `batch` (self-supervised or against the labels)."""
         with record_function("loss"):
             if self.config.supervision == "self":
-                return self.loss(depth, batch["image"], batch["focused"], batch["camera"],
-                                 batch.get("hint"))
+                terms = self.loss(depth, batch["image"], batch["focused"], batch["camera"],
+                                  batch.get("hint"))
+                if self.camera is not None and self.config.optics_objective == "contrast":
+                    terms.update(depth_contrast(self.loss, depth, batch, terms["loss"]))
+                    terms["loss"] = terms["loss"] + terms["camera_contrast"]
+                return terms
             target, mask = batch["depth"], batch.get("mask")
             if mask is not None:  # masked-out labels may be anything (inf, nan): keep out
                 target = torch.where(mask.bool(), target, torch.ones_like(target))

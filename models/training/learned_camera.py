@@ -17,6 +17,7 @@ from optics import CameraSettings, LearnableCamera, Mask, add_noise
 from optics.camera import SETTING_FIELDS
 
 from ..depth_from_photos.trained_network import camera_record
+from ..losses import DefocusLoss
 from .config import TrainConfig
 from .run_log import CsvLog
 
@@ -26,6 +27,9 @@ OPTICS_KEY = "optics"
 MASK_KEY = "camera_mask"
 #: the smallest depth a focused image is rendered at, metres (as `datasets.SynthesizedFocus`)
 MIN_RENDER_DEPTH = 1e-3
+#: the factor between the network's depth and the neighbours `depth_contrast` renders it
+#: against (nearer and farther)
+CONTRAST_FACTOR = 1.25
 
 
 def build_learned_camera(config: TrainConfig, camera: Mapping[str, Sequence[float]] | None,
@@ -116,6 +120,44 @@ def render_batch(camera: LearnableCamera, batch: Mapping[str, Any], config: Trai
                             camera.light().to(focused).view(1, -1, 1, 1, 1), generator)
     settings = camera.settings().to(image.dtype).batched(image.shape[0])
     return {**batch, "focused": focused, "camera": settings}
+
+
+def depth_contrast(loss: DefocusLoss, depth: Tensor, batch: Mapping[str, Any],
+                   total: Tensor) -> dict[str, Tensor]:
+    """The terms `TrainConfig.optics_objective="contrast"` adds to a self-supervised loss
+    `total` of the network's `depth` `(B,1,H,W)` metres on a `batch` rendered through a learned
+    camera (`image`, `focused`, `camera`).
+
+    The camera lowers `total` with less blur at any depth as well (the photos then match
+    whatever the depth); this term makes it lower `log total - log reference` instead, the
+    reference being the same loss at the network's depth times and divided by
+    `CONTRAST_FACTOR` (the mean of both): photos that tell the network's depth from its
+    neighbours. It is `total * (log reference - log reference)` with the first log detached:
+    0 in value, no gradient for the network, and for the camera the gradient of that log
+    ratio times `total` (a slowly varying scale an Adam step ignores).
+
+    Returns:
+        `camera_contrast`, the term (0, added to the loss), and `contrast`, the ratio of the
+        reference to `total` (> 1 where the photos tell the depth from its neighbours).
+
+    Example:
+        >>> cam = LearnableCamera(CameraSettings(0.05, 2.0, [2.0, 6.0], 1.8e-4), (1.0, 10.0))
+        >>> image, depth = torch.rand(1, 3, 16, 16), torch.full((1, 1, 16, 16), 3.0)
+        >>> batch = render_batch(cam, {"image": image, "depth": depth}, TrainConfig(read_noise=0,
+        ...                      shot_noise=0, learn_optics="focus"))
+        >>> total = DefocusLoss()(depth * 1.1, image, batch["focused"], batch["camera"])["loss"]
+        >>> terms = depth_contrast(DefocusLoss(), depth * 1.1, batch, total)
+        >>> float(terms["camera_contrast"].detach()), bool(terms["contrast"] > 1)
+        (0.0, True)
+    """
+    neighbours = depth.detach() * torch.tensor(
+        [[[[CONTRAST_FACTOR]]], [[[1 / CONTRAST_FACTOR]]]], dtype=depth.dtype,
+        device=depth.device)[:, None]  # (2, B, 1, H, W)
+    reference = torch.stack([loss(d, batch["image"], batch["focused"], batch["camera"])["loss"]
+                             for d in neighbours]).mean()
+    log_reference = reference.log()
+    return {"camera_contrast": total.detach() * (log_reference.detach() - log_reference),
+            "contrast": (reference / total).detach()}
 
 
 def rendered_samples(camera: LearnableCamera | None, samples: Iterable[Mapping[str, Any]],
@@ -277,7 +319,7 @@ def plot_optics(path: str | Path, rows: Sequence[Mapping[str, Any]],
     return path
 
 
-__all__ = ["MASK_KEY", "OPTICS_KEY", "build_learned_camera", "checkpoint_aperture",
-           "checkpoint_entries", "log_columns", "optics_gradients", "param_groups", "plot_optics",
+__all__ = ["CONTRAST_FACTOR", "MASK_KEY", "OPTICS_KEY", "build_learned_camera",
+           "checkpoint_aperture", "checkpoint_entries", "depth_contrast", "log_columns", "optics_gradients", "param_groups", "plot_optics",
            "render_batch", "rendered_samples", "restore", "save_camera", "starting_camera",
            "write_camera"]
