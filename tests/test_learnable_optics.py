@@ -302,6 +302,7 @@ def test_contrast_objective_moves_the_camera_by_its_log_ratio_and_not_the_networ
         grads[objective] = [p.grad.clone() for p in (*trainer.model.parameters(),
                                                      *trainer.camera.parameters())]
         values[objective] = float(terms["loss"].detach())
+        assert ("contrast" in terms) == (objective == "contrast")  # logged with the run
     assert values["contrast"] == pytest.approx(values["loss"], rel=1e-6)
     n = len(list(trainer.model.parameters()))
     for a, b in zip(grads["loss"][:n], grads["contrast"][:n], strict=True):

@@ -137,8 +137,9 @@ class NetworkAndLoss:
                 terms = self.loss(depth, batch["image"], batch["focused"], batch["camera"],
                                   batch.get("hint"))
                 if self.camera is not None and self.config.optics_objective == "contrast":
-                    terms.update(depth_contrast(self.loss, depth, batch, terms["loss"]))
-                    terms["loss"] = terms["loss"] + terms["camera_contrast"]
+                    term, terms["contrast"] = depth_contrast(self.loss, depth, batch,
+                                                             terms["loss"])
+                    terms["loss"] = terms["loss"] + term
                 return terms
             target, mask = batch["depth"], batch.get("mask")
             if mask is not None:  # masked-out labels may be anything (inf, nan): keep out

@@ -123,10 +123,10 @@ def render_batch(camera: LearnableCamera, batch: Mapping[str, Any], config: Trai
 
 
 def depth_contrast(loss: DefocusLoss, depth: Tensor, batch: Mapping[str, Any],
-                   total: Tensor) -> dict[str, Tensor]:
-    """The terms `TrainConfig.optics_objective="contrast"` adds to a self-supervised loss
-    `total` of the network's `depth` `(B,1,H,W)` metres on a `batch` rendered through a learned
-    camera (`image`, `focused`, `camera`).
+                   total: Tensor) -> tuple[Tensor, Tensor]:
+    """What `TrainConfig.optics_objective="contrast"` adds to a self-supervised loss `total`
+    of the network's `depth` `(B,1,H,W)` metres on a `batch` rendered through a learned camera
+    (`image`, `focused`, `camera`).
 
     The camera lowers `total` with less blur at any depth as well (the photos then match
     whatever the depth); this term makes it lower `log total - log reference` instead, the
@@ -137,8 +137,8 @@ def depth_contrast(loss: DefocusLoss, depth: Tensor, batch: Mapping[str, Any],
     ratio times `total` (a slowly varying scale an Adam step ignores).
 
     Returns:
-        `camera_contrast`, the term (0, added to the loss), and `contrast`, the ratio of the
-        reference to `total` (> 1 where the photos tell the depth from its neighbours).
+        the term (0, to add to the loss) and the contrast, the reference over `total`
+        (> 1 where the photos tell the depth from its neighbours; no gradient).
 
     Example:
         >>> cam = LearnableCamera(CameraSettings(0.05, 2.0, [2.0, 6.0], 1.8e-4), (1.0, 10.0))
@@ -146,8 +146,8 @@ def depth_contrast(loss: DefocusLoss, depth: Tensor, batch: Mapping[str, Any],
         >>> batch = render_batch(cam, {"image": image, "depth": depth}, TrainConfig(read_noise=0,
         ...                      shot_noise=0, learn_optics="focus"))
         >>> total = DefocusLoss()(depth * 1.1, image, batch["focused"], batch["camera"])["loss"]
-        >>> terms = depth_contrast(DefocusLoss(), depth * 1.1, batch, total)
-        >>> float(terms["camera_contrast"].detach()), bool(terms["contrast"] > 1)
+        >>> term, contrast = depth_contrast(DefocusLoss(), depth * 1.1, batch, total)
+        >>> float(term.detach()), bool(contrast > 1)
         (0.0, True)
     """
     neighbours = depth.detach() * torch.tensor(
@@ -156,8 +156,8 @@ def depth_contrast(loss: DefocusLoss, depth: Tensor, batch: Mapping[str, Any],
     reference = torch.stack([loss(d, batch["image"], batch["focused"], batch["camera"])["loss"]
                              for d in neighbours]).mean()
     log_reference = reference.log()
-    return {"camera_contrast": total.detach() * (log_reference.detach() - log_reference),
-            "contrast": (reference / total).detach()}
+    return (total.detach() * (log_reference.detach() - log_reference),
+            (reference / total).detach())
 
 
 def rendered_samples(camera: LearnableCamera | None, samples: Iterable[Mapping[str, Any]],
