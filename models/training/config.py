@@ -202,13 +202,14 @@ class TrainConfig:
     #: every batch through the starting camera, unlearned: the fixed camera under the same
     #: noise, the baseline a learned camera is compared with
     optics_lr: float = 0.01
-    #: what a self-supervised run's learned camera lowers: "loss" (the training loss, as the
-    #: network does; lowered too by less blur at any depth, focus drifting to the scenes'
-    #: depths) or "contrast" (that loss relative to the loss at depths 25 % nearer and farther
-    #: than the network's: photos that tell the network's depth from its neighbours;
-    #: `models.training.learned_camera.depth_contrast`). Runs on depth labels learn the camera
-    #: from the labels' loss either way
-    optics_objective: str = "loss"
+    #: what a self-supervised run's learned camera lowers: "contrast" (the training loss
+    #: relative to the loss at depths 25 % nearer and farther than the network's: photos that
+    #: tell the network's depth from its neighbours;
+    #: `models.training.learned_camera.depth_contrast`) or "loss" (the training loss itself,
+    #: as the network does, which less blur at any depth lowers too: the camera stops down or
+    #: focuses onto the scenes' depths). Runs on depth labels learn the camera from the labels'
+    #: loss either way
+    optics_objective: str = "contrast"
     #: read noise (standard deviation, full scale 1) of the focused images rendered through a
     #: learned camera, at the starting camera's exposure (`optics.noise_std`, as
     #: `datasets.capture.CaptureNoise`). A camera that gathers less light (a larger f-number)
