@@ -1,5 +1,9 @@
-"""Shared fixtures: devices and dtypes to parametrise over, a brute-force renderer and a
-finite-difference check of a parameter's gradient."""
+"""Shared fixtures: devices and dtypes to parametrise over, a brute-force renderer, a
+finite-difference check of a parameter's gradient and a loader of the repository's scripts."""
+
+import importlib.util
+import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -70,3 +74,24 @@ def scenes():
     data = SyntheticScenes(6, (16, 16), seed=3)
     [data[i] for i in range(len(data))]
     return data
+
+
+@pytest.fixture
+def load_script(monkeypatch):
+    """`load(relative_path)`: a script of the repository (`benchmarks/...`, `examples/...`)
+    imported as a module, registered in `sys.modules` for the test (its dataclasses look
+    themselves up there); the torch thread count it sets is restored after the test."""
+    monkeypatch.setattr(torch.backends.cudnn, "benchmark", torch.backends.cudnn.benchmark)
+    threads = torch.get_num_threads()
+
+    def load(relative_path):
+        path = Path(__file__).resolve().parents[1] / relative_path
+        name = f"script_{path.parent.name}_{path.stem}"
+        spec = importlib.util.spec_from_file_location(name, path)
+        module = importlib.util.module_from_spec(spec)
+        monkeypatch.setitem(sys.modules, name, module)
+        spec.loader.exec_module(module)
+        return module
+
+    yield load
+    torch.set_num_threads(threads)

@@ -232,30 +232,18 @@ def test_relative_samples_are_registered_by_default(tmp_path):
     torch.testing.assert_close(dataset[0]["focused"], expected["focused"])
 
 
-def test_train_step_benchmark_runs_on_the_release(tmp_path, capsys, monkeypatch):
+def test_train_step_benchmark_runs_on_the_release(tmp_path, capsys, load_script):
     """`benchmarks/train_step.py` on the release layout: its table, goals and JSON (two
     settings, the profile), so that the benchmark does not rot between GPU sessions."""
-    import importlib.util
     import json
-    import sys
 
     write_rendered_release(tmp_path / "release", scenes=3, h=40, w=60)
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "train_step.py"
-    spec = importlib.util.spec_from_file_location("train_step_benchmark", path)
-    bench = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, spec.name, bench)  # its dataclass looks itself up there
-    spec.loader.exec_module(bench)
+    bench = load_script("benchmarks/train_step.py")
     out = tmp_path / "bench.json"
-    monkeypatch.setattr(torch.backends.cudnn, "benchmark", torch.backends.cudnn.benchmark)
-    threads = torch.get_num_threads()  # the benchmark sets its own
-    try:
-        code = bench.main(["--dataset", "dslr", "--root", str(tmp_path / "release"),
-                           "--scenes", "2", "--workers", "0,1", "--steps", "2", "--warmup", "1",
-                           "--repeats", "1", "--crop", "32", "--batch-size", "2", "--no-memory",
-                           "--profile",
-                           "--json", str(out)])
-    finally:
-        torch.set_num_threads(threads)
+    code = bench.main(["--dataset", "dslr", "--root", str(tmp_path / "release"),
+                       "--scenes", "2", "--workers", "0,1", "--steps", "2", "--warmup", "1",
+                       "--repeats", "1", "--crop", "32", "--batch-size", "2", "--no-memory",
+                       "--profile", "--json", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
     assert "| small | float32 | off | 0 |" in printed and "| data |" in printed

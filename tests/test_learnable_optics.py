@@ -643,28 +643,15 @@ def test_mask_start_noise_breaks_the_symmetry_at_the_disks_light(tmp_path, scene
         _config(tmp_path, mask_start_noise=-1.0)
 
 
-def test_train_step_benchmark_compares_the_optics_objectives(tmp_path, capsys, monkeypatch):
+def test_train_step_benchmark_compares_the_optics_objectives(tmp_path, capsys, load_script):
     """`benchmarks/train_step.py --learn-optics ... --optics-objective loss,contrast`: one row
     per objective and the contrast objective's cost goal, so that the benchmark does not rot."""
-    import importlib.util
-    import sys
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "train_step.py"
-    spec = importlib.util.spec_from_file_location("train_step_objectives", path)
-    bench = importlib.util.module_from_spec(spec)
-    monkeypatch.setitem(sys.modules, spec.name, bench)  # its dataclass looks itself up there
-    spec.loader.exec_module(bench)
+    bench = load_script("benchmarks/train_step.py")
     out = tmp_path / "bench.json"
-    threads = torch.get_num_threads()  # the benchmark sets its own
-    try:
-        code = bench.main(["--dataset", "middlebury", "--root", "builtin", "--workers", "0",
-                           "--learn-optics", "focus,f-number", "--optics-objective",
-                           "loss,contrast", "--steps", "2", "--warmup", "1", "--repeats", "1",
-                           "--crop", "24", "--batch-size", "2", "--no-memory", "--json",
-                           str(out)])
-    finally:
-        torch.set_num_threads(threads)
+    code = bench.main(["--dataset", "middlebury", "--root", "builtin", "--workers", "0",
+                       "--learn-optics", "focus,f-number", "--optics-objective", "loss,contrast",
+                       "--steps", "2", "--warmup", "1", "--repeats", "1", "--crop", "24",
+                       "--batch-size", "2", "--no-memory", "--json", str(out)])
     assert code == 0
     printed = capsys.readouterr().out
     assert "| 0 | loss |" in printed and "| 0 | contrast |" in printed
