@@ -22,7 +22,7 @@ Usage:
     python benchmarks/train_step.py --dataset middlebury --root builtin --profile
     python benchmarks/train_step.py --dataset dslr --root DIR --device cuda --network small,paper \\
         --precision float32,bfloat16 --compile off,on --workers -1 --json out.json
-    python benchmarks/train_step.py --dataset middlebury --root builtin --workers 0 \
+    python benchmarks/train_step.py --dataset middlebury --root builtin --workers 0 \\
         --learn-optics focus,f-number --optics-objective loss,contrast
 
 Run `uptime` next to it: on a shared machine the numbers move with the load.
