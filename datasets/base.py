@@ -216,6 +216,21 @@ class DepthDataset(Dataset):
         view.augment = augment
         return view
 
+    def first(self, count: int) -> DepthDataset:
+        """A view of this dataset's first `count` samples (all of them when it holds fewer),
+        sharing its in-memory cache, augmentation and hints: a quick run on part of a set.
+
+        Example:
+            >>> from datasets import Middlebury
+            >>> whole = Middlebury(None, size=(40, 60))
+            >>> len(whole.first(0)), len(whole.first(5)) == len(whole)
+            (0, True)
+        """
+        view = copy.copy(self)
+        view.ids = self.ids[:max(int(count), 0)]
+        view.hints = None if self.hints is None else self.hints[:len(view.ids)]
+        return view
+
     def with_hints(self, hints: Sequence[torch.Tensor]) -> DepthDataset:
         """A view of this dataset whose samples also carry `hint`: a depth `(1, H, W)` metres
         of each sample found without labels (e.g. `models.training.hints.label_free_hints`),

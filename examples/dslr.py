@@ -329,7 +329,7 @@ def network_rows(config: Any, proto: dict[str, Any], train: DSLR, augmented: Any
     from models.experiment import train_and_evaluate
     from models.metrics import format_table
 
-    train_set, test_set = limit(augmented, proto["max_train"]), limit(val, proto["max_test"])
+    train_set, test_set = augmented, limit(val, proto["max_test"])
     rows: dict[str, Row] = {}
     for label, supervision, input_mode, sided in NETWORKS:
         if input_mode not in proto["inputs"]:
@@ -343,7 +343,7 @@ def network_rows(config: Any, proto: dict[str, Any], train: DSLR, augmented: Any
         print(f"DSLR ({label}): {len(train_set)} training samples and {len(test_set)} whole test "
               f"samples; device {run.device}")
         found = train_and_evaluate(run, train_set, test_set,
-                                   constant_set=limit(train, proto["max_train"]),
+                                   constant_set=train,
                                    report_every=None if run.progress else 0, report=print)
         print(format_table(found))
         prior = f", side {config.side}" if sided and config.side != "both" else ""
@@ -471,6 +471,7 @@ def _main(argv: list[str] | None) -> int:
         ("loss-matched camera JSON of this run", out / "camera_loss.json")], "--set json")
     train, val, lens, camera, hint_source = datasets(args, proto, out, progress,
                                                      (fields["depth_min"], fields["depth_max"]))
+    train, hint_source = limit(train, proto["max_train"]), limit(hint_source, proto["max_train"])
     if train.register and proto["memory_cache_mb"] > 0:  # register each pair once, first
         for index in progress_bar(range(len(train)), desc="registering the training pairs",
                                   disable=not progress):

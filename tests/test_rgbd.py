@@ -204,3 +204,23 @@ def test_train_on_an_rgbd_folder_then_evaluate(tmp_path, capsys):
     assert "rendered with the camera the checkpoint was trained for: f/2.8 focused at 2, 8 m" \
         in printed
     assert 0 < json.loads(metrics.read_text())["abs_rel"] < 10
+
+
+def test_the_first_scenes_keep_their_augmentation_and_take_their_own_hints(tmp_path):
+    """`limit` (a recipe's `max_train`) gives a view of the first scenes: cropped as the whole
+    set is, and the depth hints are found for those scenes only."""
+    from datasets import JointAugment
+    from defocus.app.experiment import limit
+    from models.training import TrainConfig
+    from models.training.hints import attach_hints
+
+    for name in ("a", "b", "c"):
+        write_scene(tmp_path / name, h=24, w=32, seed=ord(name))
+    whole = RGBD(tmp_path)
+    crops = limit(whole, 2).with_augment(JointAugment(crop_size=(8, 8)))
+    assert crops.ids == ["a", "b"] and whole.ids == ["a", "b", "c"]
+    assert tuple(crops[1]["image"].shape) == (3, 8, 8)
+    assert limit(whole, None) is whole and limit(whole, 5) is whole and len(whole.first(0)) == 0
+    hinted = attach_hints(crops, TrainConfig(hint_weight=1.0), progress=False, max_pixels=600)
+    assert len(hinted.hints) == 2 and tuple(hinted.hints[0].shape) == (1, 24, 32)
+    torch.testing.assert_close(hinted.first(1).hints, hinted.hints[:1])

@@ -40,8 +40,11 @@ def loss_window(size: Sequence[int], largest: int = 63) -> int:
 
 
 def limit(dataset: Dataset, count: int | None) -> Dataset:
-    """The first `count` samples of `dataset` (all of them for None)."""
-    return dataset if count is None or count >= len(dataset) else Subset(dataset, range(count))
+    """The first `count` samples of `dataset` (all of them for None): a `DepthDataset`'s
+    view (`first`: it keeps its augmentation and takes hints), else a `Subset`."""
+    if count is None or count >= len(dataset):
+        return dataset
+    return dataset.first(count) if hasattr(dataset, "first") else Subset(dataset, range(count))
 
 
 def truncation_warning_once() -> None:
@@ -169,13 +172,14 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
     truncation_warning_once()
     whole = _dataset(experiment, args, experiment["splits"][0])
     crop = recipe_crop(experiment, fields, whole, report)
-    crops = whole.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
+    fit_on = limit(whole, experiment["max_train"])  # hints found only for the scenes trained on
+    crops = fit_on.with_augment(JointAugment(crop_size=crop, hflip=0.5, gain=0.1))
     test_set = whole if experiment["splits"][1] == experiment["splits"][0] else \
         _dataset(experiment, args, experiment["splits"][1])
     test_set = limit(test_set, experiment["max_test"])
     first = crops[0]
     config = recipe_config(args, experiment, fields, given, whole, first)
-    train_set = limit(attach_hints(crops, config, config.progress), experiment["max_train"])
+    train_set = attach_hints(crops, config, config.progress)
     kind = device_kind(config.device)
     crop_text = (f"random {tuple(first['image'].shape[-2:])} crops of" if crop else "whole")
     report(f"{experiment['name']}: {len(train_set)} training samples ({crop_text} "
@@ -183,8 +187,7 @@ def run_recipe(args: ScriptRequest, report: Report = print) -> dict[str, dict[st
            f"samples, {int(first['focused'].shape[0])} focused images each; device {kind}")
     rows = train_and_evaluate(config, train_set, test_set, crop=experiment["eval_crop"],
                               has_depth=experiment["has_depth"],
-                              constant_set=limit(whole, experiment["max_train"])
-                              if experiment["has_depth"] else None,
+                              constant_set=fit_on if experiment["has_depth"] else None,
                               report_every=None if config.progress else 0, report=report)
     if not experiment["has_depth"]:
         report("no ground-truth depth: self-supervised reconstruction losses on the test set")
