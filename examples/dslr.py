@@ -53,6 +53,10 @@ the other split is scored, the paper's protocol):
 
     python examples/dslr.py --root data/dfd_indoor --set scored=beyond predict_side=beyond
 
+   ``trained=beyond`` (or ``before``) trains on the training scenes chosen by the same rule:
+   the statement made for each training photo too, so that the side prior holds at every
+   pixel the networks learn from.
+
 ``hint_weight=W`` trains the self-supervised networks with depth hints (`TrainConfig.hint_weight`):
 each training scene's label-free depth, found once as `predict` finds it (the photos as taken,
 the lens's camera, ``predict_side``, ``predict_pixels``, ``predict_smoothing``), pulls the
@@ -96,6 +100,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 import torch
@@ -122,7 +127,7 @@ RECIPE = Path(__file__).with_suffix(".yaml")
 #: The recipe keys of the real f/2.8 photos (calibration, registration, the side prior), which
 #: ``--focus synthesized`` does not use: setting one there is refused.
 REAL_FOCUS_KEYS = ("side", "calibrate_every", "relative", "register", "blur_match",
-                   "predict_side", "scored")
+                   "predict_side", "scored", "trained")
 #: What a method reads (a row's ``input``) where it reads no image: the constant, the bounds.
 NO_INPUT = "none"
 
@@ -229,6 +234,21 @@ def scenes_on_side(scored: DSLR, depth_range: tuple[float, float], side: str,
     return kept
 
 
+def stated_scenes(root: Path, split: str, positions: Sequence[int] | None, side: str,
+                  what: str, depth_range: tuple[float, float], tolerance: float,
+                  **options: Any) -> list[int]:
+    """The positions of `split`'s scenes at `positions` (None: all) that lie on `side` of their
+    focus plane (`scenes_on_side`, read with `options`, e.g. the lens's ``camera``); the run
+    stops when none does (`what`: which scenes were stated)."""
+    scenes = DSLR(root, split, scenes=positions, **options)
+    every = list(range(len(scenes))) if positions is None else list(positions)
+    on_side = scenes_on_side(scenes, depth_range, side, tolerance)
+    if not on_side:
+        raise SystemExit(f"{side}: none of the {len(scenes)} {what} scenes lies {side} its "
+                         f"focus plane within side_tolerance={tolerance}")
+    return [every[i] for i in on_side]
+
+
 def calibrate(proto: dict[str, Any], out: Path, train: DSLR, progress: bool) -> Path:
     from datasets.calibration import calibrate_dataset
     from optics import plot_depth_calibration
@@ -298,17 +318,16 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path, progress: bo
             "register": None if proto["register"] else False, **kwargs}
     if proto["blur_match"]:
         pair["camera"] = match_loss_camera(args, proto, out, camera, pair, fit_on)
+    stated = {"depth_range": depth_range, "tolerance": proto["side_tolerance"],
+              "camera": camera, **kwargs}
+    if proto["trained"] != "all":  # the training scenes on the stated side, by the bound alone
+        fit_on = stated_scenes(args.root, args.split, fit_on, proto["trained"], "training",
+                               **stated)
     train = DSLR(args.root, args.split, scenes=fit_on, **pair)
-    lens = DSLR(args.root, scored[0], scenes=scored[1], camera=camera, **kwargs)
     if proto["scored"] != "all":  # the held-out scenes on the stated side, by the bound alone
-        positions = list(range(len(lens.files))) if scored[1] is None else list(scored[1])
-        on_side = scenes_on_side(lens, depth_range, proto["scored"], proto["side_tolerance"])
-        if not on_side:
-            raise SystemExit(f"scored={proto['scored']}: none of the {len(lens)} held-out "
-                             f"scenes lies {proto['scored']} its focus plane within "
-                             f"side_tolerance={proto['side_tolerance']}")
-        scored = (scored[0], [positions[i] for i in on_side])
-        lens = DSLR(args.root, scored[0], scenes=scored[1], camera=camera, **kwargs)
+        scored = (scored[0], stated_scenes(args.root, *scored, proto["scored"], "held-out",
+                                           **stated))
+    lens = DSLR(args.root, scored[0], scenes=scored[1], camera=camera, **kwargs)
     val = DSLR(args.root, scored[0], scenes=scored[1], **pair)
     return train, val, lens, camera, DSLR(args.root, args.split, scenes=fit_on, camera=camera,
                                           **kwargs)
@@ -418,10 +437,11 @@ def check_recipe(args: ScriptRequest, proto: dict[str, Any], fields: dict[str, A
 
     if proto["focus"] not in ("real", "synthesized"):
         raise ValueError(f"focus must be real or synthesized, got {proto['focus']!r}")
-    if proto["scored"] not in ("all", "beyond", "before") or not (
+    if {proto["scored"], proto["trained"]} - {"all", "beyond", "before"} or not (
             isinstance(proto["side_tolerance"], (int, float)) and proto["side_tolerance"] > 0):
-        raise ValueError(f"--set scored=all|beyond|before and side_tolerance=a positive abs "
-                         f"rel, got scored={proto['scored']!r}, "
+        raise ValueError(f"--set scored=all|beyond|before, trained=all|beyond|before and "
+                         f"side_tolerance=a positive abs rel, got scored={proto['scored']!r}, "
+                         f"trained={proto['trained']!r}, "
                          f"side_tolerance={proto['side_tolerance']!r}")
     inputs = proto["inputs"]
     if not (isinstance(inputs, list) and inputs and set(inputs) <= set(INPUT_MODES)):

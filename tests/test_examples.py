@@ -406,3 +406,27 @@ def test_dslr_example_bounds_each_side_without_a_prior(tmp_path, monkeypatch):
     assert list(module.bound_rows(scenes, (0.5, 10.0), "beyond")) == [
         "bound: the true depth through one focus plane, side beyond"]
     assert module.bound_rows(DSLR(tmp_path, focus="synthesized"), (0.5, 10.0), "both") == {}
+
+
+def test_dslr_example_states_the_side_of_training_and_scored_scenes(tmp_path, monkeypatch):
+    """`scored=` and `trained=` keep the scenes whose true depth lies on the stated side of
+    their focus plane (the bound alone); none kept stops the run, a bad side is refused."""
+    import imageio.v3 as iio
+    import numpy as np
+    from test_datasets_fixtures import write_dslr_release
+
+    written = write_dslr_release(tmp_path)
+    depth_dir = tmp_path / "dfd_dataset_indoor_N2_8" / "depth" / "train"
+    for far, scene in zip((True, False, True), written.values(), strict=True):
+        depth = np.full((12, 16), 6000, np.uint16)  # beyond any focus plane of the lens
+        depth[:, :8] = 6000 if far else 1000  # half the scene before it (1.7 m)
+        iio.imwrite(depth_dir / scene["depth_file"], depth)
+    module = load_example("dslr", monkeypatch)
+    stated = {"depth_range": (0.5, 10.0), "tolerance": 0.1}
+    assert module.stated_scenes(tmp_path, "train", None, "beyond", "training", **stated) == [0, 2]
+    assert module.stated_scenes(tmp_path, "train", [1, 2], "beyond", "held-out",
+                                **stated) == [2]
+    with pytest.raises(SystemExit, match="before: none of the 2 held-out scenes lies before"):
+        module.stated_scenes(tmp_path, "train", [0, 2], "before", "held-out", **stated)
+    with pytest.raises(SystemExit, match=r"trained=all\|beyond\|before .* trained='sideways'"):
+        module.main(["--root", str(tmp_path), "--set", "trained=sideways"])
