@@ -234,18 +234,22 @@ def scenes_on_side(scored: DSLR, depth_range: tuple[float, float], side: str,
     return kept
 
 
-def stated_scenes(root: Path, split: str, positions: Sequence[int] | None, side: str,
-                  what: str, depth_range: tuple[float, float], tolerance: float,
+#: the recipe keys that state a side for scenes, and which scenes each states it for
+STATED_SCENES = {"trained": "training", "scored": "held-out"}
+
+
+def stated_scenes(root: Path, split: str, positions: Sequence[int] | None, key: str,
+                  side: str, depth_range: tuple[float, float], tolerance: float,
                   **options: Any) -> list[int]:
     """The positions of `split`'s scenes at `positions` (None: all) that lie on `side` of their
-    focus plane (`scenes_on_side`, read with `options`, e.g. the lens's ``camera``); the run
-    stops when none does (`what`: which scenes were stated)."""
+    focus plane (`scenes_on_side`, read with `options`, e.g. the lens's ``camera``), as the
+    recipe's `key` (`STATED_SCENES`) states; the run stops when none does."""
     scenes = DSLR(root, split, scenes=positions, **options)
     every = list(range(len(scenes))) if positions is None else list(positions)
     on_side = scenes_on_side(scenes, depth_range, side, tolerance)
     if not on_side:
-        raise SystemExit(f"{side}: none of the {len(scenes)} {what} scenes lies {side} its "
-                         f"focus plane within side_tolerance={tolerance}")
+        raise SystemExit(f"{key}={side}: none of the {len(scenes)} {STATED_SCENES[key]} "
+                         f"scenes lies {side} its focus plane within side_tolerance={tolerance}")
     return [every[i] for i in on_side]
 
 
@@ -321,11 +325,11 @@ def datasets(args: ScriptRequest, proto: dict[str, Any], out: Path, progress: bo
     stated = {"depth_range": depth_range, "tolerance": proto["side_tolerance"],
               "camera": camera, **kwargs}
     if proto["trained"] != "all":  # the training scenes on the stated side, by the bound alone
-        fit_on = stated_scenes(args.root, args.split, fit_on, proto["trained"], "training",
+        fit_on = stated_scenes(args.root, args.split, fit_on, "trained", proto["trained"],
                                **stated)
     train = DSLR(args.root, args.split, scenes=fit_on, **pair)
     if proto["scored"] != "all":  # the held-out scenes on the stated side, by the bound alone
-        scored = (scored[0], stated_scenes(args.root, *scored, proto["scored"], "held-out",
+        scored = (scored[0], stated_scenes(args.root, *scored, "scored", proto["scored"],
                                            **stated))
     lens = DSLR(args.root, scored[0], scenes=scored[1], camera=camera, **kwargs)
     val = DSLR(args.root, scored[0], scenes=scored[1], **pair)

@@ -423,10 +423,11 @@ def test_dslr_example_states_the_side_of_training_and_scored_scenes(tmp_path, mo
         iio.imwrite(depth_dir / scene["depth_file"], depth)
     module = load_example("dslr", monkeypatch)
     stated = {"depth_range": (0.5, 10.0), "tolerance": 0.1}
-    assert module.stated_scenes(tmp_path, "train", None, "beyond", "training", **stated) == [0, 2]
-    assert module.stated_scenes(tmp_path, "train", [1, 2], "beyond", "held-out",
+    assert module.stated_scenes(tmp_path, "train", None, "trained", "beyond", **stated) == [0, 2]
+    assert module.stated_scenes(tmp_path, "train", [1, 2], "scored", "beyond",
                                 **stated) == [2]
-    with pytest.raises(SystemExit, match="before: none of the 2 held-out scenes lies before"):
-        module.stated_scenes(tmp_path, "train", [0, 2], "before", "held-out", **stated)
+    with pytest.raises(SystemExit, match="scored=before: none of the 2 held-out scenes lies "
+                                         "before"):
+        module.stated_scenes(tmp_path, "train", [0, 2], "scored", "before", **stated)
     with pytest.raises(SystemExit, match=r"trained=all\|beyond\|before .* trained='sideways'"):
         module.main(["--root", str(tmp_path), "--set", "trained=sideways"])
