@@ -34,6 +34,8 @@ from typing import Any
 import torch
 from torch import Tensor, nn
 
+from optics import Aperture
+
 from .depth_from_photos.tiling import check_tiling, run_network
 from .metrics import depth_metrics
 from .protocols import Protocol, as_protocol, protocol_metrics
@@ -113,7 +115,7 @@ def label_free_method(depth_range: tuple[float, float], method: str = "auto",
 
 def network_method(network: nn.Module, device: str | torch.device | None = None,
                    max_pixels: int | None = TILE_PIXELS, tile: int = 1024,
-                   overlap: int = 64) -> Method:
+                   overlap: int = 64, aperture: Aperture | None = None) -> Method:
     """A method that runs a trained depth network on a sample: its all-in-focus `image` and, in
     `"aif+focused"` mode, its `focused` photos and `camera` settings, whole up to `max_pixels`
     pixels and in tiles above (`models.depth_from_photos.tiling.run_network`, which also
@@ -127,6 +129,8 @@ def network_method(network: nn.Module, device: str | torch.device | None = None,
         max_pixels: whole images up to this many pixels go through in one piece (None: all).
         tile: side of a tile's kept centre, pixels (> 0).
         overlap: context around each tile, pixels (>= 0).
+        aperture: the photos' PSF where their settings cannot name it (a learned mask), for a
+            network that sweeps (`TrainConfig.sweep_inputs`).
 
     Raises:
         ValueError: `tile <= 0` or `overlap < 0`.
@@ -146,7 +150,7 @@ def network_method(network: nn.Module, device: str | torch.device | None = None,
         depth = run_network(network, sample["image"][None].to(device),
                             None if focused is None else focused[None].to(device),
                             None if camera is None else camera.to(device), max_pixels, tile,
-                            overlap)
+                            overlap, aperture)
         return depth[0].cpu()
 
     return run
@@ -154,7 +158,7 @@ def network_method(network: nn.Module, device: str | torch.device | None = None,
 
 def evaluate_network(network: nn.Module, config: Any, samples: Iterable[Mapping[str, Any]],
                      checker: Any = None, device: str | torch.device | None = None,
-                     **options: Any) -> dict[str, float]:
+                     aperture: Aperture | None = None, **options: Any) -> dict[str, float]:
     """`evaluate` of a network trained with `config` (a `TrainConfig`) on whole `samples`
     (`"eigen"`), each checked against the config first (`checker`, by default a new
     `models.training.sample_checks.TestSampleChecker`): `Trainer.evaluate` and
@@ -167,6 +171,7 @@ def evaluate_network(network: nn.Module, config: Any, samples: Iterable[Mapping[
             in `"aif+focused"` mode).
         checker: checks each sample and counts its ground truth outside the depth range.
         device: where the network runs (default: where its weights are).
+        aperture: the samples' PSF where their settings cannot name it (see `network_method`).
         **options: `min_depth`, `max_depth`, `crop`, `median_scaling` of `depth_metrics`.
 
     Returns:
@@ -178,7 +183,8 @@ def evaluate_network(network: nn.Module, config: Any, samples: Iterable[Mapping[
 
     checker = checker if checker is not None else TestSampleChecker(config, "the network")
     checked = (checker.check(sample, index) for index, sample in enumerate(samples))
-    metrics = evaluate(network_method(network, device, max_pixels=None), checked, "eigen",
+    metrics = evaluate(network_method(network, device, max_pixels=None, aperture=aperture),
+                       checked, "eigen",
                        also=lambda depth, _: {"at_depth_limits": float(at_depth_limits(
                            depth, config.depth_min, config.depth_max))}, **options)
     del metrics["images"], metrics["skipped"]

@@ -90,7 +90,8 @@ def evaluate_whole_images(
                 pred=torch.full_like(sample["depth"], constant), **kwargs).items()})
         return values
 
-    method = network_method(trainer.model, trainer.device, max_pixels=max_pixels)
+    method = network_method(trainer.model, trainer.device, max_pixels=max_pixels,
+                            aperture=trainer.learned_aperture)
     test_set = rendered_samples(trainer.camera, test_set, trainer.config)  # a learned camera's
     metrics = evaluate(method, test_set, "eigen", also=also, max_depth=depth_cap, crop=crop)
     del metrics["images"], metrics["skipped"]
@@ -158,7 +159,8 @@ def reconstruction_metrics(trainer: Trainer, test_set: Sequence[Mapping[str, Any
                                     sample["camera"].batched(1).to(trainer.device))
         return {key: float(value) for key, value in terms.items()}
 
-    method = network_method(trainer.model, trainer.device, max_pixels=None)
+    method = network_method(trainer.model, trainer.device, max_pixels=None,
+                            aperture=trainer.learned_aperture)
     metrics = evaluate(method, test_set, losses)
     del metrics["images"], metrics["skipped"]
     return metrics

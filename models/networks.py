@@ -20,7 +20,7 @@ Input modes (`input_mode`):
   all-in-focus image, the defocus cues of `defocus_cues` (`F + 1` channels), and two
   constant channels per focus setting describing the camera: the focus distance divided by
   `depth_max` and the CoC scale `f^2 / (N (D_f - f) p)` in pixels / 10 (the CoC diameter of
-  an object at infinity).
+  an object at infinity); with `sweep=K`, also the `K` cost channels of `sweep_channels`.
 """
 
 from __future__ import annotations
@@ -30,8 +30,10 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from optics import CameraSettings
+from optics import Aperture, CameraSettings
 from optics.checks import check_shape
+
+from .depth_from_photos.sweep import sweep_channels
 
 INPUT_MODES = ("aif", "aif+focused")
 #: How `DepthHead` spaces its output between `depth_min` and `depth_max`: evenly in depth, or
@@ -158,7 +160,7 @@ class _DepthNetwork(nn.Module):
 
     def __init__(self, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
                  depth_spacing: str = "depth", side: str = "both",
-                 focus_distance: float | None = None):
+                 focus_distance: float | None = None, sweep: int = 0):
         super().__init__()
         refused = f"input_mode must be one of {INPUT_MODES}, got {input_mode!r}" \
             if input_mode not in INPUT_MODES else \
@@ -169,16 +171,18 @@ class _DepthNetwork(nn.Module):
         self.input_mode = input_mode
         self.n_focus = int(n_focus) if input_mode == "aif+focused" else 0
         self.head = DepthHead(depth_min, depth_max, depth_spacing, side, focus_distance)
+        self.sweep = int(sweep) if self.n_focus else 0
 
     @property
     def in_channels(self) -> int:
-        return 3 + 8 * self.n_focus + (self.n_focus + 1 if self.n_focus else 0)
+        return 3 + 8 * self.n_focus + (self.n_focus + 1 if self.n_focus else 0) + self.sweep
 
     def assemble_input(
         self, image: Tensor, focused: Tensor | None = None,
-        settings: CameraSettings | None = None,
+        settings: CameraSettings | None = None, aperture: Aperture | None = None,
     ) -> Tensor:
-        """Stack the network input `(B, in_channels, H, W)` (see the module docstring)."""
+        """Stack the network input `(B, in_channels, H, W)` (see the module docstring);
+        `aperture`: the PSF the `sweep` channels render (the settings' by default)."""
         check_shape("image", image, ["B", "3", "H", "W"])
         if self.input_mode == "aif":
             return image
@@ -190,18 +194,25 @@ class _DepthNetwork(nn.Module):
         diff = focused - image[:, None]
         settings = settings.batched(b).to(device=image.device, dtype=image.dtype)
         cam = camera_channels(settings, self.head.depth_max).reshape(b, 2 * n, 1, 1)
-        return torch.cat([image, focused.reshape(b, 3 * n, h, w), diff.reshape(b, 3 * n, h, w),
-                          defocus_cues(image, focused), cam.expand(b, 2 * n, h, w)], dim=1)
+        parts = [image, focused.reshape(b, 3 * n, h, w), diff.reshape(b, 3 * n, h, w),
+                 defocus_cues(image, focused), cam.expand(b, 2 * n, h, w)]
+        if self.sweep:
+            parts.append(sweep_channels(image, focused, settings, self.head.depth_min,
+                                        self.head.depth_max, self.sweep, aperture))
+        return torch.cat(parts, dim=1)
 
     def forward(
         self, image: Tensor, focused: Tensor | None = None,
         settings: CameraSettings | None = None, rows: Tensor | None = None,
+        aperture: Aperture | None = None,
     ) -> Tensor:
         """Depth `(B,1,H,W)` in metres from `image` `(B,3,H,W)` (and the focused images
         `(B,F,3,H,W)` with their `(B,F)` camera settings in `"aif+focused"` mode); `rows`
         `(1,1,H,W)`: where the pixels lie in the whole photo, for a network that reads its
-        rows (`SmallDepthNet(position=True)`) given a part of it (None: `image` is whole)."""
-        x = self.with_rows(self.assemble_input(image, focused, settings), rows)
+        rows (`SmallDepthNet(position=True)`) given a part of it (None: `image` is whole);
+        `aperture`: the photos' PSF where it has no spec (a coded aperture), for the `sweep`
+        channels."""
+        x = self.with_rows(self.assemble_input(image, focused, settings, aperture), rows)
         return self.head(self._logits(x))
 
     def with_rows(self, x: Tensor, rows: Tensor | None = None) -> Tensor:
@@ -244,6 +255,10 @@ class SmallDepthNet(_DepthNetwork):
             the network can learn where in a photo things tend to be near (a floor at the
             bottom). Rows of the network's input: train on whole images, not crops;
             `run_network` gives each tile of a large photo its rows in the whole photo.
+        sweep: in `"aif+focused"` mode, also input the cost of this many candidate depths
+            (`sweep_channels`: the all-in-focus image blurred through the aperture at each
+            candidate's blur, against the focused images; 0: none). Through a coded aperture
+            its blur is signed: the channels tell the sides of a single focus plane apart.
 
     Example:
         >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8, scales=5,
@@ -256,9 +271,10 @@ class SmallDepthNet(_DepthNetwork):
     def __init__(self, input_mode: str = "aif+focused", n_focus: int = 2,
                  depth_min: float = 1.0, depth_max: float = 10.0, width: int = 32,
                  depth_spacing: str = "depth", side: str = "both",
-                 focus_distance: float | None = None, scales: int = 3, position: bool = False):
+                 focus_distance: float | None = None, scales: int = 3, position: bool = False,
+                 sweep: int = 0):
         super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
-                         focus_distance)
+                         focus_distance, sweep)
         self.scales, self.position = int(scales), bool(position)
         channels = [self.in_channels] + [int(width) * min(2 ** i, 4) for i in range(scales)]
         # named enc1.., then ..dec1: the names (and order) of the three-scale network's weights
@@ -411,6 +427,7 @@ class PaperDepthNet(_DepthNetwork):
         depth_min: nearest depth the head can output, metres.
         depth_max: farthest depth the head can output, metres.
         depth_spacing: `"depth"` or `"inverse"`: how the head spaces its output (`DepthHead`).
+        sweep: candidate depths of the cost channels (see `SmallDepthNet`).
 
     Example:
         >>> net = PaperDepthNet("aif", depth_min=1.0, depth_max=10.0).eval()
@@ -420,9 +437,9 @@ class PaperDepthNet(_DepthNetwork):
 
     def __init__(self, input_mode: str = "aif", n_focus: int = 2, depth_min: float = 1.0,
                  depth_max: float = 10.0, depth_spacing: str = "depth", side: str = "both",
-                 focus_distance: float | None = None):
+                 focus_distance: float | None = None, sweep: int = 0):
         super().__init__(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
-                         focus_distance)
+                         focus_distance, sweep)
         self.backbone = ResNet50OS16(self.in_channels)
         self.aspp = DenseASPP(2048)
         self.attention = SelfAttention2d(256)
@@ -450,7 +467,7 @@ NETWORKS = {"small": SmallDepthNet, "paper": PaperDepthNet}
 def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, depth_max: float,
                   width: int = 32, depth_spacing: str = "depth", side: str = "both",
                   focus_distance: float | None = None, scales: int = 3,
-                  position: bool = False) -> _DepthNetwork:
+                  position: bool = False, sweep: int = 0) -> _DepthNetwork:
     """Build a depth network by name (`"small"` or `"paper"`), its output spaced evenly in
     depth or in inverse depth, or on a stated side of the focus plane (`DepthHead`).
 
@@ -462,6 +479,6 @@ def build_network(name: str, input_mode: str, n_focus: int, depth_min: float, de
         raise ValueError(f"network must be one of {sorted(NETWORKS)}, got {name!r}")
     if name == "small":
         return SmallDepthNet(input_mode, n_focus, depth_min, depth_max, width, depth_spacing,
-                             side, focus_distance, scales, position)
+                             side, focus_distance, scales, position, sweep)
     return PaperDepthNet(input_mode, n_focus, depth_min, depth_max, depth_spacing, side,
-                         focus_distance)
+                         focus_distance, sweep)

@@ -658,3 +658,26 @@ def test_train_step_benchmark_compares_the_optics_objectives(tmp_path, capsys, l
     results = json.loads(out.read_text())
     assert [row["objective"] for row in results["rows"]] == ["loss", "contrast"]
     assert any("contrast: s/step <= 1.4x" in goal["goal"] for goal in results["goals"])
+
+
+def test_a_sweeping_network_reads_the_photos_through_the_learned_mask(tmp_path, scenes,
+                                                                       monkeypatch):
+    """`sweep_inputs`: in training and in scoring the network's cost channels are rendered
+    through the mask being learned (a `Mask` has no spec the settings could carry)."""
+    import models.networks
+    from models.training import Trainer
+
+    seen = []
+    real = models.networks.sweep_channels
+
+    def spy(*args):
+        seen.append(args[-1])
+        return real(*args)
+
+    monkeypatch.setattr(models.networks, "sweep_channels", spy)
+    trainer = Trainer(_config(tmp_path, steps=2, sweep_inputs=4), scenes)
+    trainer.fit()
+    assert len(seen) >= 2 and all(a is trainer.camera.aperture for a in seen)
+    seen.clear()
+    assert math.isfinite(trainer.evaluate(scenes)["abs_rel"])
+    assert seen and all(a is trainer.camera.aperture for a in seen)

@@ -184,3 +184,38 @@ def test_build_network_and_config_take_the_spacing(tmp_path):
     assert TrainConfig(width=4, scales=4, input_mode="aif").build_network().scales == 4
     with pytest.raises(ValueError, match="scales must be an integer >= 2, got 1"):
         TrainConfig(scales=1)
+
+
+def test_sweep_channels_are_read_through_the_given_aperture():
+    """`sweep=K` adds the K cost channels of `sweep_channels` to an "aif+focused" input
+    (nothing in "aif" mode), rendered through the aperture the call names: a code's and the
+    disk's differ, and so does the depth."""
+    from models.depth_from_photos.sweep import sweep_channels
+    from optics import Disk, Mask, disk_mask
+
+    settings = CameraSettings(0.05, 2.0, [2.0], 1e-4)
+    plain = SmallDepthNet("aif+focused", 1, width=4)
+    net = SmallDepthNet("aif+focused", 1, width=4, sweep=6)
+    assert net.in_channels == plain.in_channels + 6
+    assert SmallDepthNet("aif", width=4, sweep=6).in_channels == 3
+    gen = torch.Generator().manual_seed(0)
+    image, focused = torch.rand(1, 3, 24, 24, generator=gen), torch.rand(1, 1, 3, 24, 24,
+                                                                         generator=gen)
+    code = Mask(torch.rand(8, 8, generator=gen) * disk_mask(8, torch.float32))
+    x = net.assemble_input(image, focused, settings, code)
+    torch.testing.assert_close(x[:, -6:], sweep_channels(image, focused, settings, 1.0, 10.0,
+                                                         6, code))
+    with torch.no_grad():
+        by_code, by_disk = net(image, focused, settings, aperture=code), \
+            net(image, focused, settings, aperture=Disk())
+    assert not torch.allclose(by_code, by_disk)
+
+
+def test_config_sweep_inputs():
+    from models.training import TrainConfig
+
+    assert TrainConfig(sweep_inputs=8, n_focus=2).build_network().sweep == 8
+    with pytest.raises(ValueError, match="sweep_inputs must be 0"):
+        TrainConfig(sweep_inputs=1)
+    with pytest.raises(ValueError, match="needs input_mode 'aif\\+focused'"):
+        TrainConfig(sweep_inputs=8, input_mode="aif")

@@ -124,10 +124,12 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
         ValueError: a sample the network cannot read: a key it needs is missing, or it holds
             another number of focused photos than the network was trained on.
     """
+    from models.checkpoints import load_checkpoint
     from models.devices import select_device
     from models.evaluation import evaluate_network
     from models.loading import load_model
     from models.training import COLLAPSE_FRACTION
+    from models.training.learned_camera import checkpoint_aperture
     from models.training.sample_checks import TestSampleChecker
 
     checkpoint = request.checkpoint
@@ -147,7 +149,10 @@ def evaluate_checkpoint(request: EvaluateRequest) -> EvaluateResult:
         warnings.append(warning)
         if rendered is not None:
             request.report(rendered)
-    metrics = evaluate_network(network, config, samples, checker,
+    # a network that sweeps reads the photos through the learned mask as designed
+    designed = checkpoint_aperture(load_checkpoint(checkpoint, mmap=True)) \
+        if config.sweep_inputs else None
+    metrics = evaluate_network(network, config, samples, checker, aperture=designed,
                                min_depth=request.min_depth, max_depth=request.depth_cap,
                                crop=request.crop, median_scaling=request.median_scaling)
     if metrics["at_depth_limits"] >= COLLAPSE_FRACTION:

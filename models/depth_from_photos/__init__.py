@@ -40,7 +40,7 @@ from .estimate import (
 from .photometry import match_exposure, noise_model
 from .relative_blur import RelativeBlurDepth, relative_blur_cost, relative_blur_px
 from .resolution import scene_range, widen_cut_range, working_scale
-from .sweep import SweepDepth, blur_errors, sweep_cost
+from .sweep import SweepDepth, blur_errors, sweep_channels, sweep_cost
 from .thin_lens import (
     aggregate_cost,
     candidate_inverse_depths,
@@ -80,6 +80,7 @@ __all__ = [
     "scene_range",
     "select_depth",
     "solve_depth",
+    "sweep_channels",
     "sweep_cost",
     "texture_confidence",
     "texture_weight",

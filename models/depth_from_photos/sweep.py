@@ -27,6 +27,7 @@ within the range where the blur is readable (about 0.5 to 20 pixels at the worki
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import torch
 from torch import Tensor
@@ -83,7 +84,7 @@ def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tenso
 
 def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
                far: float, n_candidates: int = 96, noise: Tensor | None = None,
-               every: int = 1) -> Tensor:
+               every: int = 1, aperture: Aperture | None = None) -> Tensor:
     """Cost `(B,K,H,W)` of the `K = n_candidates` depths of `candidate_inverse_depths`: summed
     over shots, the `blur_errors` of each shot at the blur the thin lens gives that shot at that
     depth. (Each candidate's blur is rendered: interpolating between a coarser grid of blurs
@@ -102,11 +103,15 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
             them.
         every: cost only every this many candidates (`K = ceil(n_candidates / every)`; the
             same values as `sweep_cost(...)[:, ::every]`).
+        aperture: the PSF, the settings' by default (a `Mask` has no spec: pass it here). An
+            `oriented` one is rendered at the signed blur, so a code without point symmetry
+            tells a depth from its mirror across a single focus plane.
     """
     check_shape("focused", focused, ["B", "F", "3", "H", "W"])
     b, n, _, h, w = focused.shape
-    predicted = candidate_blurs(settings, near, far, n_candidates, image, n, every)  # (B,F,K)
-    aperture = settings.aperture_module()
+    aperture = settings.aperture_module() if aperture is None else aperture
+    predicted = candidate_blurs(settings, near, far, n_candidates, image, n, every,
+                                signed=aperture.oriented)  # (B,F,K)
     if noise is None:  # every photo: one sensor
         noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
     cost = torch.zeros(b, predicted.shape[-1], h, w, dtype=image.dtype, device=image.device)
@@ -115,6 +120,29 @@ def sweep_cost(image: Tensor, focused: Tensor, settings: CameraSettings, near: f
             blur_errors(image[j:j + 1], focused[j:j + 1, i], aperture, predicted[j, i],
                         noise[j:j + 1], out=cost[j:j + 1])
     return cost
+
+
+def sweep_channels(image: Tensor, focused: Tensor, settings: CameraSettings, near: float,
+                   far: float, n_candidates: int, aperture: Aperture | None = None) -> Tensor:
+    """The sweep's evidence as a network reads it (`TrainConfig.sweep_inputs`): `sweep_cost`
+    of `n_candidates` depths between `near` and `far` metres through `aperture` (the
+    settings' by default; signed where it is `oriented`), standardised over the candidates
+    at each pixel and negated, `(B,K,H,W)`: high where a candidate explains the focused
+    photos. No gradient flows through it. Where the photos have no texture every candidate
+    costs about the same, and the channels stay near 0.
+
+    Example:
+        >>> settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
+        >>> image, focused = torch.rand(2, 3, 16, 16), torch.rand(2, 2, 3, 16, 16)
+        >>> sweep_channels(image, focused, settings, 1.0, 10.0, 8).shape
+        torch.Size([2, 8, 16, 16])
+    """
+    with torch.no_grad():
+        cost = sweep_cost(image.detach(), focused.detach(), settings, near, far,
+                          n_candidates, aperture=aperture)
+        spread = cost.std(1, keepdim=True)
+        floor = 0.1 * spread.mean((2, 3), keepdim=True) + torch.finfo(cost.dtype).tiny
+        return (cost.mean(1, keepdim=True) - cost) / (spread + floor)
 
 
 class SweepDepth(CostVolumeDepth):
@@ -130,7 +158,12 @@ class SweepDepth(CostVolumeDepth):
     uses the whole photo's cost scale and at 741x500 (tile 200) 0.5 % of the pixels differ
     from the untiled depth by more than 1 % (at most 2.2 %).
 
-    Args: see `CostVolumeDepth`.
+    Args:
+        aperture: the PSF of the photos, the settings' spec by default: a coded aperture
+            (`optics.Mask`) has no spec. Through an `oriented` code the sweep places a depth on
+            its side of a single focus plane, which no point-symmetric aperture can (a thin
+            lens turns the code by 180 degrees across the plane).
+        options: see `CostVolumeDepth`.
 
     Example:
         >>> from optics import CameraSettings
@@ -143,6 +176,10 @@ class SweepDepth(CostVolumeDepth):
 
     #: It needs an all-in-focus photo.
     needs_image = True
+
+    def __init__(self, aperture: Aperture | None = None, **options: Any):
+        super().__init__(**options)
+        self.aperture = aperture
 
     def forward(self, image: Tensor | None, focused: Tensor, settings: CameraSettings,
                 near: float, far: float) -> dict[str, Tensor]:
@@ -163,12 +200,14 @@ class SweepDepth(CostVolumeDepth):
                                for i in range(focused.shape[1])], 1)
         noise = noise_model(torch.cat([image, focused.flatten(1, 2)], 1))
 
+        aperture = settings.aperture_module() if self.aperture is None else self.aperture
+
         def cost(image: Tensor, focused: Tensor, every: int = 1) -> Tensor:
             return sweep_cost(image, focused, settings, near, far, self.n_candidates, noise,
-                              every=every)
+                              every=every, aperture=aperture)
 
         largest = settings.largest_coc_px(near, far)
-        reach = self.context_px(settings.aperture_module().kernel_size(largest) // 2)
+        reach = self.context_px(aperture.kernel_size(largest) // 2)
         depth = self.depth_map(cost, image, [focused], near, far, reach)
         blur = thin_lens_blur(settings, 1 / depth)
         return {"depth": depth, "confidence": texture_confidence(image)

@@ -136,10 +136,12 @@ def candidate_inverse_depths(near: float, far: float, n_candidates: int, like: T
     return torch.linspace(1 / far, 1 / near, n_candidates, dtype=like.dtype, device=like.device)
 
 
-def thin_lens_blur(settings: CameraSettings, inverse_depth: Tensor) -> Tensor:
+def thin_lens_blur(settings: CameraSettings, inverse_depth: Tensor, signed: bool = False
+                   ) -> Tensor:
     """The blur `|c_i| = |A_i (1 - D_f,i x)|` pixels that the thin lens gives each shot of
     `settings` `(B,F)` at inverse depths `x` (1/metres) shaped `(B or 1, F or 1, ...)`:
-    `(B,F,...)`.
+    `(B,F,...)`; `signed`: `c_i` itself, positive beyond the focus plane (what an `oriented`
+    aperture is rendered with).
 
     Example:
         >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4).batched(1)  # sharp at 2 m and 6 m
@@ -150,7 +152,8 @@ def thin_lens_blur(settings: CameraSettings, inverse_depth: Tensor) -> Tensor:
     trailing = (1,) * (inverse_depth.dim() - 2)
     a = settings.coc_at_infinity_px().reshape(*settings.shape, *trailing)
     focus = settings.focus_distance.reshape(*settings.shape, *trailing)
-    return (a * (1 - focus * inverse_depth)).abs()
+    blur = a * (1 - focus * inverse_depth)
+    return blur if signed else blur.abs()
 
 
 def mirrored_depths(settings: CameraSettings, near: float, far: float
@@ -183,10 +186,11 @@ def mirrored_depths(settings: CameraSettings, near: float, far: float
 
 
 def candidate_blurs(settings: CameraSettings, near: float, far: float, n_candidates: int,
-                    like: Tensor, n_shots: int, every: int = 1) -> Tensor:
+                    like: Tensor, n_shots: int, every: int = 1, signed: bool = False) -> Tensor:
     """The blur `(B,F,K)` pixels the thin lens gives each of the `n_shots` shots of `settings`
     (`(B,F)` or `(F,)`, moved to `like`'s device and dtype, batched to `like`'s first dimension)
-    at every `every`-th of the `n_candidates` depths of `candidate_inverse_depths`.
+    at every `every`-th of the `n_candidates` depths of `candidate_inverse_depths` (`signed`:
+    see `thin_lens_blur`).
 
     Example:
         >>> s = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
@@ -200,7 +204,7 @@ def candidate_blurs(settings: CameraSettings, near: float, far: float, n_candida
          lambda: f"the photos hold {n_shots} shots but settings {settings.n_shots}")])
     x = candidate_inverse_depths(near, far, n_candidates, like)[::every]
     settings = settings.batched(like.shape[0]).to(device=like.device, dtype=like.dtype)
-    return thin_lens_blur(settings, x[None, None])
+    return thin_lens_blur(settings, x[None, None], signed)
 
 
 def aggregate_cost(cost: Tensor, windows: Mapping[int, float] | None = None) -> Tensor:

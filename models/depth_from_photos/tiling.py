@@ -57,7 +57,7 @@ def apply_in_tiles(fn: Callable[..., Tensor], inputs: Sequence[Tensor | None], t
 
 def run_network(network: nn.Module, image: Tensor, focused: Tensor | None = None,
                 settings: Any = None, max_pixels: int | None = None, tile: int = 1024,
-                overlap: int = 64) -> Tensor:
+                overlap: int = 64, aperture: Any = None) -> Tensor:
     """Depth `(B,1,H,W)` metres of a trained depth network on a batch, in eval mode and without
     gradients: the one place where a network meets photos for evaluation and prediction.
 
@@ -76,6 +76,8 @@ def run_network(network: nn.Module, image: Tensor, focused: Tensor | None = None
         max_pixels: whole images up to this many pixels go through in one piece.
         tile: side of a tile's kept centre, pixels (checked where it is chosen).
         overlap: context around each tile, pixels.
+        aperture: the photos' PSF where their settings cannot name it (a coded aperture), for
+            a network that sweeps (`SmallDepthNet(sweep=K)`); None: the settings'.
 
     Example:
         >>> from models.networks import build_network
@@ -84,16 +86,17 @@ def run_network(network: nn.Module, image: Tensor, focused: Tensor | None = None
         torch.Size([1, 1, 20, 20])
     """
     was_training = network.training
+    extra = {} if aperture is None else {"aperture": aperture}
     network.eval()
     try:
         with torch.no_grad():
             if max_pixels is None or image.shape[-2] * image.shape[-1] <= max_pixels:
-                return network(image, focused, settings)
+                return network(image, focused, settings, **extra)
             if getattr(network, "position", False):  # each tile's rows in the whole photo
                 rows = network.row_map(*image.shape[-2:], image.device, image.dtype)
-                return apply_in_tiles(lambda x, f, r: network(x, f, settings, rows=r),
+                return apply_in_tiles(lambda x, f, r: network(x, f, settings, rows=r, **extra),
                                       [image, focused, rows], tile, overlap)
-            return apply_in_tiles(lambda x, f: network(x, f, settings), [image, focused], tile,
-                                  overlap)
+            return apply_in_tiles(lambda x, f: network(x, f, settings, **extra),
+                                  [image, focused], tile, overlap)
     finally:
         network.train(was_training)

@@ -55,6 +55,7 @@ _CHOICES = {"network": tuple(NETWORKS), "input_mode": INPUT_MODES,
 _RULES = (
     (("steps", "batch_size", "width", "log_every"), lambda v: v >= 1, "an integer >= 1"),
     (("mask_size", "scales"), lambda v: v >= 2, "an integer >= 2"),
+    (("sweep_inputs",), lambda v: v == 0 or v >= 2, "0 (none) or an integer >= 2"),
     (("n_focus", "checkpoint_every", "keep_checkpoints", "val_every", "figure_every"),
      lambda v: v >= 0, "an integer >= 0"),
     (("workers",), lambda v: v >= -1, "an integer >= -1"),
@@ -124,6 +125,11 @@ class TrainConfig:
     #: photo things tend to be near. Train it on whole images (crop 0): a crop's rows are not
     #: the photo's
     position: bool = False
+    #: the network also reads the cost of this many candidate depths between depth_min and
+    #: depth_max (`models.networks.SmallDepthNet`'s `sweep`; "aif+focused" only; 0: none): the
+    #: all-in-focus image blurred at each candidate's blur against the focused images, through
+    #: the learned mask where one is learned, signed for a coded aperture
+    sweep_inputs: int = 0
     #: AdamW weight decay
     weight_decay: float = 0.0
     #: "cosine" (decay to 0 over steps) or "constant"
@@ -271,6 +277,9 @@ class TrainConfig:
             (self.compile and bool(self.learn_optics), f"compile=true with learn_optics="
              f"{self.learn_optics!r} is not supported yet (torch.compile fails on the gradient "
              "that reaches the network's input from the learned camera): set compile=false"),
+            (self.sweep_inputs > 0 and self.input_mode != "aif+focused", f"sweep_inputs="
+             f"{self.sweep_inputs!r} needs input_mode 'aif+focused' (the sweep compares the "
+             f"focused images with the all-in-focus one), got {self.input_mode!r}"),
             (self.compile_mode != "default" and not self.compile,
              f"compile_mode={self.compile_mode!r} needs compile=true (without it nothing is "
              "compiled)")):
@@ -287,7 +296,8 @@ class TrainConfig:
         """
         return build_network(self.network, self.input_mode, self.n_focus, self.depth_min,
                              self.depth_max, self.width, self.depth_spacing, self.side,
-                             self.focus_distance or None, self.scales, self.position)
+                             self.focus_distance or None, self.scales, self.position,
+                             self.sweep_inputs)
 
     def to_dict(self) -> dict[str, Any]:
         data = dataclasses.asdict(self)

@@ -127,7 +127,9 @@ class NetworkAndLoss:
         """The network's depth `(B,1,H,W)` (computed in `precision`), float32."""
         with record_function("network"), torch.autocast(
                 self.device.type, torch.bfloat16, enabled=self.precision == "bfloat16"):
-            depth = self.network(batch["image"], batch.get("focused"), batch.get("camera"))
+            extra = {} if self.camera is None else {"aperture": self.camera.aperture}
+            depth = self.network(batch["image"], batch.get("focused"), batch.get("camera"),
+                                 **extra)
         return depth.float()  # the renderer and the loss in float32
 
     def loss_terms(self, depth: Tensor, batch: Mapping[str, Any]) -> dict[str, Tensor]:

@@ -134,6 +134,8 @@ class Trainer:
         #: the camera learned with the network (`config.learn_optics`), None when it is fixed
         self.camera = learned.build_learned_camera(cfg, self.sample_checks.camera or camera,
                                                    self.device)
+        #: the learned mask the photos are rendered through (None: their settings' PSF)
+        self.learned_aperture = None if self.camera is None else self.camera.aperture
         self.optimizer = torch.optim.AdamW(  # on a GPU: one fused kernel for every tensor
             learned.param_groups(self.model, self.camera, cfg), lr=cfg.lr,
             weight_decay=cfg.weight_decay,
@@ -191,7 +193,7 @@ class Trainer:
         `(B,F)` or `(F,)` `CameraSettings` in `"aif+focused"` mode), without gradients
         (`models.depth_from_photos.tiling.run_network`)."""
         return run_network(self.model, image.to(self.device), to_device(focused, self.device),
-                           to_device(settings, self.device))
+                           to_device(settings, self.device), aperture=self.learned_aperture)
 
     def at_depth_limits(self, depth: Tensor) -> Tensor:
         """The share of the pixels of `depth` at `depth_min` or `depth_max` (within
@@ -396,7 +398,7 @@ class Trainer:
         """
         test_set = learned.rendered_samples(self.camera, test_set, self.config)  # if learned
         return evaluate_network(self.model, self.config, test_set, checker, self.device,
-                                min_depth=min_depth, max_depth=depth_cap, crop=crop,
+                                self.learned_aperture, min_depth=min_depth, max_depth=depth_cap, crop=crop,
                                 median_scaling=median_scaling)
 
     def _validate(self) -> None:
