@@ -178,6 +178,11 @@ def warn_mirrored(settings: CameraSettings, near: float, far: float
     return span
 
 
+def _coded(model: nn.Module) -> bool:
+    """Whether `model` sweeps through a coded aperture: no depths are mirrored then."""
+    return bool(getattr(getattr(model, "aperture", None), "oriented", False))
+
+
 def estimate_depth(
     focused: Tensor, settings: CameraSettings | None, depth_range: tuple[float, float], *,
     image: Tensor | None = None, image_settings: CameraSettings | None = None,
@@ -201,11 +206,7 @@ def estimate_depth(
             `blur` then holds it first.
         method: a name of `METHODS`, or `"auto"` (`choose_method`).
         model: a method object to run instead of `method` (see the module docstring).
-        options: keyword arguments of the method's class (not with `model`); the sweep's
-            `aperture` names a coded one (`optics.Mask`), which places each depth on its side
-            of a single focus plane (no mirrored depths then; give `align=False` for photos
-            already registered: a code's PSF is off-centre by an amount that changes sign
-            across the plane, and alignment would take that shift away).
+        options: keyword arguments of the method's class (not with `model`; `SweepDepth`'s).
         max_coc_px: the largest blur (pixels) at the working resolution (the method's).
         max_pixels: the most pixels of the working resolution.
         align: align the focused photos first (a misalignment would read as blur).
@@ -251,9 +252,7 @@ def estimate_depth(
         out = _run_native(model, image, focused, settings, near, far, all_in_focus)
     else:
         _refuse_unreadable(model, image, focused, settings, near, far)
-        oriented = getattr(getattr(model, "aperture", None), "oriented", False)  # a code
-        mirrored = warn_mirrored(settings, near, far) if side == "both" and not oriented \
-            else None
+        mirrored = None if side != "both" or _coded(model) else warn_mirrored(settings, near, far)
         out = run_at_working_resolution(model, image, focused, settings,
                                         *(stated.swept_range() if stated else (near, far)),
                                         max_coc_px, max_pixels, align, refine_range, progress,

@@ -162,7 +162,9 @@ class SweepDepth(CostVolumeDepth):
         aperture: the PSF of the photos, the settings' spec by default: a coded aperture
             (`optics.Mask`) has no spec. Through an `oriented` code the sweep places a depth on
             its side of a single focus plane, which no point-symmetric aperture can (a thin
-            lens turns the code by 180 degrees across the plane).
+            lens turns the code by 180 degrees across the plane). Give `estimate_depth`
+            `align=False` for photos already registered: a code's PSF is off-centre by a shift
+            that changes sign across the plane, and alignment would take it away.
         options: see `CostVolumeDepth`.
 
     Example:
