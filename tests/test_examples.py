@@ -372,11 +372,20 @@ def test_code_side_example_tells_the_sides_through_a_code_only(tmp_path, monkeyp
     assert module.main(["--root", str(tmp_path / "data"), "--val", "2", "--quiet",
                         "--focus-fraction", "0.6"]) == 0
     out = capsys.readouterr().out
-    assert "one focus plane at 6 m, 2 scenes of train" in out
+    assert "focused at 6 m, 2 scenes of train: the share" in out
     assert "open disk: 0.500 of" in out
     assert float(re.search(r"random code \(seed 0\): ([0-9.]+)", out).group(1)) > 0.7
     with pytest.raises(SystemExit, match="--val must be in 1..3"):
         module.main(["--root", str(tmp_path / "data"), "--val", "0"])
+    with pytest.raises(SystemExit, match="give --sweep"):
+        module.main(["--root", str(tmp_path / "data"), "--val", "1", "--focus-fraction", "0.2",
+                     "0.8"])
+    assert module.main(["--root", str(tmp_path / "data"), "--val", "1", "--quiet", "--sweep",
+                        "--focus-fraction", "0.2", "0.8"]) == 0
+    out = capsys.readouterr().out
+    assert "focused at 2 and 8 m, 1 scenes of train\n" in out and " of 0 pixels" not in out
+    sweeps = re.findall(r": label-free sweep abs rel ([0-9.]+), label-free sweep order", out)
+    assert len(sweeps) == 2, out
 
 
 @pytest.mark.slow

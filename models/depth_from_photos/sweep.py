@@ -39,7 +39,14 @@ from .confidence import depth_edge_confidence, texture_confidence
 from .cost_volume import CostVolumeDepth
 from .fourier_blur import FLOOR_SIGMA_PX, FourierBlur, psf_kernel, with_floor
 from .photometry import match_exposure, noise_model, noise_variance
-from .thin_lens import candidate_blurs, thin_lens_blur, windowed_errors
+from .thin_lens import WINDOWS, box_filter, candidate_blurs, thin_lens_blur, windowed_errors
+
+#: Side (pixels) of the windows `sweep_channels` sums each candidate's cost over, the widest of
+#: `WINDOWS`: on the DSLR set's training scenes through a random code at one focus plane, the
+#: cheapest candidate of 49-pixel windows orders the depth best (rank correlation 0.57, against
+#: 0.53 for 17 and 49-pixel windows together and 0.47 for 25-pixel ones), where a network of
+#: 250 steps never learned to pool 5-pixel ones.
+SWEEP_WINDOW_PX = max(WINDOWS)
 
 
 def blur_errors(image: Tensor, focused: Tensor, aperture: Aperture, blurs: Tensor,
@@ -126,10 +133,11 @@ def sweep_channels(image: Tensor, focused: Tensor, settings: CameraSettings, nea
                    far: float, n_candidates: int, aperture: Aperture | None = None) -> Tensor:
     """The sweep's evidence as a network reads it (`TrainConfig.sweep_inputs`): `sweep_cost`
     of `n_candidates` depths between `near` and `far` metres through `aperture` (the
-    settings' by default; signed where it is `oriented`), standardised over the candidates
-    at each pixel and negated, `(B,K,H,W)`: high where a candidate explains the focused
-    photos. No gradient flows through it. Where the photos have no texture every candidate
-    costs about the same, and the channels stay near 0.
+    settings' by default; signed where it is `oriented`), summed over `SWEEP_WINDOW_PX`
+    windows, standardised over the candidates at each pixel and negated, `(B,K,H,W)`: high
+    where a candidate explains the focused photos around the pixel. No gradient flows
+    through it. Where the photos have no texture every candidate costs about the same, and
+    the channels stay near 0.
 
     Example:
         >>> settings = CameraSettings(0.05, 2.0, [2.0, 6.0], 1e-4)
@@ -138,8 +146,8 @@ def sweep_channels(image: Tensor, focused: Tensor, settings: CameraSettings, nea
         torch.Size([2, 8, 16, 16])
     """
     with torch.no_grad():
-        cost = sweep_cost(image.detach(), focused.detach(), settings, near, far,
-                          n_candidates, aperture=aperture)
+        cost = box_filter(sweep_cost(image.detach(), focused.detach(), settings, near, far,
+                                     n_candidates, aperture=aperture), SWEEP_WINDOW_PX)
         spread = cost.std(1, keepdim=True)
         floor = 0.1 * spread.mean((2, 3), keepdim=True) + torch.finfo(cost.dtype).tiny
         return (cost.mean(1, keepdim=True) - cost) / (spread + floor)
