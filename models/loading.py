@@ -197,10 +197,13 @@ def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn
     if state.get("kind") == WEIGHTS_KIND:  # the experimental camera-general network
         return _weights_model(state).to(device)
     network, config = _network(state, path, device)
+    from .training.learned_camera import checkpoint_aperture
+
     camera = state.get("camera")  # the camera it was trained for (older checkpoints: none)
     return TrainedNetwork(network, config.input_mode, config.n_focus,
                           (config.depth_min, config.depth_max),
-                          camera=camera if isinstance(camera, Mapping) else None)
+                          camera=camera if isinstance(camera, Mapping) else None,
+                          aperture=checkpoint_aperture(state)).to(device)
 
 
 __all__ = ["config_from_state", "is_weights_file", "load_depth_model", "load_model", "load_weights",

@@ -681,3 +681,21 @@ def test_a_sweeping_network_reads_the_photos_through_the_learned_mask(tmp_path, 
     seen.clear()
     assert math.isfinite(trainer.evaluate(scenes)["abs_rel"])
     assert seen and all(a is trainer.camera.aperture for a in seen)
+
+
+def test_a_sweeping_checkpoint_predicts_through_its_learned_mask(tmp_path, scenes):
+    """`load_depth_model` of a checkpoint that learned a mask gives its `TrainedNetwork` that
+    mask: a network that reads the sweep renders it through the code it was trained with."""
+    from models.loading import load_depth_model
+    from models.training import Trainer
+
+    trainer = Trainer(_config(tmp_path, steps=1, sweep_inputs=4), scenes)
+    trainer.fit()
+    model = load_depth_model(tmp_path / "run" / "checkpoints" / "last.pt")
+    torch.testing.assert_close(model.aperture.image.float(),
+                               trainer.camera.aperture.values().detach().float())
+    sample = scenes[0]
+    depth = model(sample["image"][None], sample["focused"][None], sample["camera"], 1.0,
+                  10.0)["depth"]
+    expected = trainer.predict(sample["image"][None], sample["focused"][None], sample["camera"])
+    torch.testing.assert_close(depth, expected)

@@ -12,7 +12,7 @@ from collections.abc import Mapping, Sequence
 import torch
 from torch import Tensor, nn
 
-from optics import CameraSettings
+from optics import Aperture, CameraSettings
 from optics.camera import SETTING_FIELDS
 
 from .tiling import check_tiling, run_network
@@ -96,6 +96,9 @@ class TrainedNetwork(nn.Module):
         tile: side of a tile's kept centre, pixels.
         overlap: context around each tile, pixels.
         camera: the camera it was trained for (`camera_record`), None where unknown.
+        aperture: the mask it learned with its camera (`TrainConfig.learn_optics`), which a
+            network that reads the sweep (`TrainConfig.sweep_inputs`) renders it through;
+            None: the settings' PSF.
 
     Example:
         >>> import torch
@@ -114,13 +117,15 @@ class TrainedNetwork(nn.Module):
     def __init__(self, network: nn.Module, input_mode: str, n_focus: int,
                  depth_range: tuple[float, float], max_pixels: int = 2_000_000,
                  tile: int = 1024, overlap: int = 64,
-                 camera: Mapping[str, Sequence[float]] | None = None):
+                 camera: Mapping[str, Sequence[float]] | None = None,
+                 aperture: Aperture | None = None):
         super().__init__()
         check_tiling(tile, overlap)
         self.max_pixels, self.tile, self.overlap = int(max_pixels), int(tile), int(overlap)
         self.network, self.input_mode, self.n_focus = network, input_mode, int(n_focus)
         self.depth_range = (float(depth_range[0]), float(depth_range[1]))
         self.camera = None if camera is None else {k: list(v) for k, v in camera.items()}
+        self.aperture = aperture
 
     def forward(self, image: Tensor, focused: Tensor | None, settings: CameraSettings | None,
                 near: float, far: float) -> dict[str, Tensor]:
@@ -129,4 +134,4 @@ class TrainedNetwork(nn.Module):
         (the caller gives what the network reads); `near` and `far` are not used (the network
         answers within its trained range)."""
         return {"depth": run_network(self.network, image, focused, settings, self.max_pixels,
-                                     self.tile, self.overlap)}
+                                     self.tile, self.overlap, self.aperture)}
