@@ -42,6 +42,7 @@ from models.checkpoints import load_checkpoint
 from models.depth_from_photos import SweepDepth
 from models.diagnostics import side_told
 from models.metrics import depth_metrics, depth_order
+from models.training import TrainConfig
 from models.training.learned_camera import checkpoint_aperture
 from optics import Aperture, Disk, Mask, add_noise, disk_mask, render_focal_stack
 from optics.progress import progress_bar
@@ -62,6 +63,8 @@ def apertures(seed: int, checkpoints: list[Path]) -> dict[str, Aperture]:
 
 #: The depth range the label-free sweep searches, metres (the DSLR example's).
 SWEPT = (0.5, 10.0)
+#: Its photos carry the sensor noise of the training runs (`read_noise`, `shot_noise`).
+TRAINING = TrainConfig()
 
 
 def share_told(scenes: DSLR, aperture: Aperture, progress: bool, sweep: bool = False
@@ -76,13 +79,13 @@ def share_told(scenes: DSLR, aperture: Aperture, progress: bool, sweep: bool = F
         settings = sample["camera"].to(dtype=torch.float64)
         image, depth = sample["image"][None].double(), sample["depth"][None].double()
         stack = render_focal_stack(image, depth, settings, aperture=aperture)
-        coc = settings.shot(0, aperture).signed_coc_px(depth)
-        share, count = side_told(image, stack[:, 0], aperture, coc, sample["mask"]) \
-            if settings.n_shots == 1 else (0.0, 0)
-        if count:
-            right, counted = right + share * count, counted + count
+        if settings.n_shots == 1:
+            coc = settings.shot(0, aperture).signed_coc_px(depth)
+            share, count = side_told(image, stack[:, 0], aperture, coc, sample["mask"])
+            if count:  # else share is NaN
+                right, counted = right + share * count, counted + count
         if sweep:
-            noisy = add_noise(stack, 0.004, 0.0004,
+            noisy = add_noise(stack, TRAINING.read_noise, TRAINING.shot_noise,
                               generator=torch.Generator().manual_seed(index)).clamp(0, 1)
             found = SweepDepth(aperture)(image, noisy, settings, *SWEPT)["depth"]
             truth = {"target": depth, "mask": sample["mask"][None], "max_depth": SWEPT[1]}

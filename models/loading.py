@@ -28,6 +28,7 @@ from .checkpoints import WEIGHTS_KIND, CheckpointError, load_checkpoint, restore
 from .depth_from_photos.blur_net import BlurNet, DepthFromDefocus
 from .depth_from_photos.trained_network import TrainedNetwork
 from .training.config import TrainConfig
+from .training.learned_camera import checkpoint_aperture
 
 
 def config_from_state(state: Mapping[str, Any], path: str | Path, **changes: Any) -> TrainConfig:
@@ -197,8 +198,6 @@ def load_depth_model(path: str | Path, device: str | torch.device = "cpu") -> nn
     if state.get("kind") == WEIGHTS_KIND:  # the experimental camera-general network
         return _weights_model(state).to(device)
     network, config = _network(state, path, device)
-    from .training.learned_camera import checkpoint_aperture
-
     camera = state.get("camera")  # the camera it was trained for (older checkpoints: none)
     return TrainedNetwork(network, config.input_mode, config.n_focus,
                           (config.depth_min, config.depth_max),

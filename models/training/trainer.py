@@ -398,8 +398,8 @@ class Trainer:
         """
         test_set = learned.rendered_samples(self.camera, test_set, self.config)  # if learned
         return evaluate_network(self.model, self.config, test_set, checker, self.device,
-                                self.learned_aperture, min_depth=min_depth, max_depth=depth_cap, crop=crop,
-                                median_scaling=median_scaling)
+                                self.learned_aperture, min_depth=min_depth, max_depth=depth_cap,
+                                crop=crop, median_scaling=median_scaling)
 
     def _validate(self) -> None:
         metrics = self.evaluate(self.val_set)
