@@ -20,7 +20,9 @@ Input modes (`input_mode`):
   all-in-focus image, the defocus cues of `defocus_cues` (`F + 1` channels), and two
   constant channels per focus setting describing the camera: the focus distance divided by
   `depth_max` and the CoC scale `f^2 / (N (D_f - f) p)` in pixels / 10 (the CoC diameter of
-  an object at infinity); with `sweep=K`, also the `K` cost channels of `sweep_channels`.
+  an object at infinity); with `sweep=K`, also the `K` cost channels of `sweep_channels`,
+  and the network then refines the sweep's depth (its logits are added to those of the
+  cheapest candidate's depth).
 """
 
 from __future__ import annotations
@@ -34,6 +36,7 @@ from optics import Aperture, CameraSettings
 from optics.checks import check_shape
 
 from .depth_from_photos.sweep import sweep_channels
+from .depth_from_photos.thin_lens import candidate_inverse_depths
 
 INPUT_MODES = ("aif", "aif+focused")
 #: How `DepthHead` spaces its output between `depth_min` and `depth_max`: evenly in depth, or
@@ -135,6 +138,14 @@ class DepthHead(nn.Module):
             return 1 / (near - (near - far) * s)
         return self.depth_min + (self.depth_max - self.depth_min) * s
 
+    def logits(self, depth: Tensor) -> Tensor:
+        """The logits of `depth` metres, the inverse of `forward` for side "both" (within
+        1e-3 of the sigmoid's ends: a depth at or past the range's ends has no finite logit)."""
+        near, far = 1 / self.depth_min, 1 / self.depth_max
+        s = (near - 1 / depth) / (near - far) if self.spacing == "inverse" else \
+            (depth - self.depth_min) / (self.depth_max - self.depth_min)
+        return torch.logit(s, eps=1e-3)
+
     def _sided_inverse(self, s: Tensor, near: float, far: float) -> Tensor:
         """Inverse depth of the sigmoid output `s` on the stated side of the focus plane."""
         focus = 1 / self.focus_distance
@@ -165,7 +176,9 @@ class _DepthNetwork(nn.Module):
         refused = f"input_mode must be one of {INPUT_MODES}, got {input_mode!r}" \
             if input_mode not in INPUT_MODES else \
             f"n_focus must be >= 1 in 'aif+focused' mode, got {n_focus!r}" \
-            if input_mode == "aif+focused" and int(n_focus) < 1 else None
+            if input_mode == "aif+focused" and int(n_focus) < 1 else \
+            f"sweep={sweep!r} needs side 'both' (the sweep finds each depth's side), got " \
+            f"{side!r}" if int(sweep) and side != "both" else None
         if refused:
             raise ValueError(refused)
         self.input_mode = input_mode
@@ -212,8 +225,13 @@ class _DepthNetwork(nn.Module):
         rows (`SmallDepthNet(position=True)`) given a part of it (None: `image` is whole);
         `aperture`: the photos' PSF where it has no spec (a coded aperture), for the `sweep`
         channels."""
-        x = self.with_rows(self.assemble_input(image, focused, settings, aperture), rows)
-        return self.head(self._logits(x))
+        x = self.assemble_input(image, focused, settings, aperture)
+        logits = self._logits(self.with_rows(x, rows))
+        if self.sweep:  # a refinement of the depth of the sweep's cheapest candidate
+            candidates = 1 / candidate_inverse_depths(self.head.depth_min, self.head.depth_max,
+                                                      self.sweep, x)
+            logits = logits + self.head.logits(candidates[x[:, -self.sweep:].argmax(1, True)])
+        return self.head(logits)
 
     def with_rows(self, x: Tensor, rows: Tensor | None = None) -> Tensor:
         """The network input `x` with what a network reads of the pixels' place (nothing
@@ -257,8 +275,10 @@ class SmallDepthNet(_DepthNetwork):
             `run_network` gives each tile of a large photo its rows in the whole photo.
         sweep: in `"aif+focused"` mode, also input the cost of this many candidate depths
             (`sweep_channels`: the all-in-focus image blurred through the aperture at each
-            candidate's blur, against the focused images; 0: none). Through a coded aperture
-            its blur is signed: the channels tell the sides of a single focus plane apart.
+            candidate's blur, against the focused images; 0: none), and refine the depth of
+            the cheapest candidate: the network's logits are added to its logits. Through a
+            coded aperture the blur is signed: the channels tell the sides of a single focus
+            plane apart. Needs `side="both"`.
 
     Example:
         >>> net = SmallDepthNet("aif", depth_min=1.0, depth_max=10.0, width=8, scales=5,

@@ -211,6 +211,40 @@ def test_sweep_channels_are_read_through_the_given_aperture():
     assert not torch.allclose(by_code, by_disk)
 
 
+@pytest.mark.parametrize("spacing", ["depth", "inverse"])
+def test_head_logits_invert_the_head(spacing):
+    """`DepthHead.logits` is `forward`'s inverse inside the range, clamped at its ends."""
+    head = DepthHead(0.5, 10.0, spacing=spacing)
+    depth = torch.tensor([0.6, 1.0, 2.0, 5.0, 9.5], dtype=torch.float64)
+    torch.testing.assert_close(head(head.logits(depth)), depth)
+    assert torch.isfinite(head.logits(torch.tensor([0.5, 10.0]))).all()
+
+
+def test_sweep_network_refines_the_cheapest_candidate():
+    """With its own logits zeroed, a `sweep=K` network returns the depth of the candidate
+    whose windowed cost is lowest, found here from `sweep_cost` itself; its own logits move
+    that depth, and a stated side is refused (the sweep finds the side)."""
+    from models.depth_from_photos.sweep import SWEEP_WINDOW_PX, sweep_cost
+    from models.depth_from_photos.thin_lens import box_filter
+
+    settings = CameraSettings(0.05, 2.0, [2.0], 1e-4)
+    net = SmallDepthNet("aif+focused", 1, 0.5, 10.0, width=4, depth_spacing="inverse",
+                        sweep=8)
+    gen = torch.Generator().manual_seed(0)
+    image, focused = torch.rand(1, 3, 24, 24, generator=gen), torch.rand(1, 1, 3, 24, 24,
+                                                                         generator=gen)
+    cost = box_filter(sweep_cost(image, focused, settings, 0.5, 10.0, 8), SWEEP_WINDOW_PX)
+    cheapest = 1 / torch.linspace(0.1, 2.0, 8)[cost.argmin(1, keepdim=True)]
+    with torch.no_grad():
+        moved = net(image, focused, settings)
+        net.out.weight.zero_(), net.out.bias.zero_()
+        # the range's ends are 1e-3 of the sigmoid inside them
+        torch.testing.assert_close(net(image, focused, settings), cheapest, rtol=2e-3, atol=0)
+    assert not torch.allclose(moved, cheapest)
+    with pytest.raises(ValueError, match="sweep=8 needs side 'both'"):
+        SmallDepthNet("aif+focused", 1, 0.5, 10.0, side="beyond", focus_distance=2.0, sweep=8)
+
+
 def test_config_sweep_inputs():
     from models.training import TrainConfig
 

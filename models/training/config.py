@@ -126,9 +126,10 @@ class TrainConfig:
     #: the photo's
     position: bool = False
     #: the network also reads the cost of this many candidate depths between depth_min and
-    #: depth_max (`models.networks.SmallDepthNet`'s `sweep`; "aif+focused" only; 0: none): the
-    #: all-in-focus image blurred at each candidate's blur against the focused images, through
-    #: the learned mask where one is learned, signed for a coded aperture
+    #: depth_max and refines the cheapest one's depth (`models.networks.SmallDepthNet`'s
+    #: `sweep`; "aif+focused" and side "both" only; 0: none): the all-in-focus image blurred at
+    #: each candidate's blur against the focused images, through the learned mask where one is
+    #: learned, signed for a coded aperture
     sweep_inputs: int = 0
     #: AdamW weight decay
     weight_decay: float = 0.0
