@@ -33,7 +33,7 @@ the other split is scored, the paper's protocol):
 3. one focus plane cannot tell near from far: the self-supervised networks put a blur that both
    sides explain on the side ``side`` states (default ``beyond``: a prior, chosen on the
    training scenes, 22 % of whose pixels are nearer than the focus plane), and a blur above the
-   far side's bound near (`models.networks.DepthHead`);
+   far side's bound near (`models.depth_head.DepthHead`);
 4. scores them on the held-out scenes beside the label-free `predict` (no training: the f/8
    photo as one more shot, `estimate_depth(image_settings=...)`, with the fitted camera) and the
    best constant depth of the training scenes, prints the table (``json=PATH`` writes it). A

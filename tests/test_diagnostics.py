@@ -9,6 +9,7 @@ import torch
 
 from datasets.pairs import register_focused, relative_pair
 from models.depth_from_photos.side import fold_to_side
+from models.depth_head import DepthHead
 from models.diagnostics import (
     blur_scale_losses,
     loss_at_depths,
@@ -17,7 +18,6 @@ from models.diagnostics import (
     true_depth_wins,
 )
 from models.losses import DefocusLoss
-from models.networks import DepthHead
 from models.training.config import TrainConfig
 from optics import CameraSettings, render_focal_stack, translate, warp
 

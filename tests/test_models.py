@@ -3,8 +3,8 @@
 import pytest
 import torch
 
+from models.depth_head import DepthHead
 from models.networks import (
-    DepthHead,
     PaperDepthNet,
     SmallDepthNet,
     build_network,
@@ -158,7 +158,6 @@ def test_errors():
 def test_depth_head_even_in_inverse_depth(dtype):
     """`spacing="inverse"`: equal logit steps give equal steps of inverse depth, the range's ends
     at the sigmoid's ends, the harmonic middle at zero; differentiable."""
-    from models.networks import DepthHead
 
     head = DepthHead(0.5, 10.0, spacing="inverse")
     logits = torch.tensor([-60.0, 0.0, 60.0], dtype=dtype)

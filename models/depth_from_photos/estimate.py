@@ -31,7 +31,7 @@ from torch import Tensor, nn
 from optics import CameraSettings
 from optics.checks import check_finite, check_shape, is_real_number, is_tracing
 
-from ..networks import SIDES
+from ..depth_head import SIDES
 from .all_in_focus import fuse_all_in_focus
 from .depth_from_focus import DepthFromFocus
 from .relative_blur import RelativeBlurDepth

@@ -44,7 +44,7 @@ def fold_to_side(depth: Tensor, focus_distance: float, depth_range: tuple[float,
                  side: str) -> Tensor:
     """The depth a self-supervised network finds at best with one focus plane and a side prior:
     the true `depth` with each blur that both sides explain put on the stated `side` (the rule of
-    `models.networks.DepthHead`). With `"beyond"`, a pixel nearer than the focus plane goes to its
+    `models.depth_head.DepthHead`). With `"beyond"`, a pixel nearer than the focus plane goes to its
     mirror unless its blur exceeds the far end's, which only a nearer depth explains; with
     `"before"`, every pixel beyond the plane goes to its mirror (clamped to the range); with
     `"both"` the depth is returned as is. Scored against the true depth, it is the error that

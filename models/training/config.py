@@ -17,9 +17,10 @@ from torch import nn
 from optics import DEFAULT_APERTURE, LEARNABLE, aperture_spec
 from optics.render import MODES as RENDER_MODES
 
+from ..depth_head import DEPTH_SPACINGS, SIDES
 from ..devices import check_device
 from ..losses import HINT_GATES
-from ..networks import DEPTH_SPACINGS, INPUT_MODES, NETWORKS, SIDES, build_network
+from ..networks import INPUT_MODES, NETWORKS, build_network
 
 #: values of `TrainConfig.supervision`: through the renderer (no depth labels) or on depth
 SUPERVISIONS = ("self", "depth")
@@ -109,7 +110,7 @@ class TrainConfig:
     #: "depth" or "inverse": the network's output spaced evenly in depth or in inverse depth
     depth_spacing: str = "depth"
     #: "both", "beyond" or "before": the side of the focus plane the network's output may put
-    #: a blur that both sides explain (`models.networks.DepthHead`; not "both" needs
+    #: a blur that both sides explain (`models.depth_head.DepthHead`; not "both" needs
     #: focus_distance); a prior the user states, for one focus setting
     side: str = "both"
     #: focus distance, metres, of the side prior (0: none; needed unless side is "both")
