@@ -135,9 +135,9 @@ class _DepthNetwork(nn.Module):
         x = self.assemble_input(image, focused, settings, aperture)
         logits = self._logits(self.with_rows(x, rows))
         if self.sweep:  # a refinement of the depth of the sweep's cheapest candidate
-            candidates = 1 / candidate_inverse_depths(self.head.depth_min, self.head.depth_max,
-                                                      self.sweep, x)
-            logits = logits + self.head.logits(candidates[x[:, -self.sweep:].argmax(1, True)])
+            candidates = self.head.logits(1 / candidate_inverse_depths(
+                self.head.depth_min, self.head.depth_max, self.sweep, x))  # (K,), then gathered
+            logits = logits + candidates[x[:, -self.sweep:].argmax(1, True)]
         return self.head(logits)
 
     def with_rows(self, x: Tensor, rows: Tensor | None = None) -> Tensor:

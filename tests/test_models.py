@@ -158,7 +158,6 @@ def test_errors():
 def test_depth_head_even_in_inverse_depth(dtype):
     """`spacing="inverse"`: equal logit steps give equal steps of inverse depth, the range's ends
     at the sigmoid's ends, the harmonic middle at zero; differentiable."""
-
     head = DepthHead(0.5, 10.0, spacing="inverse")
     logits = torch.tensor([-60.0, 0.0, 60.0], dtype=dtype)
     torch.testing.assert_close(head(logits), torch.tensor([0.5, 2 / (2 + 0.1), 10.0], dtype=dtype))
